@@ -1,0 +1,213 @@
+"""`imix plot`: figures and tables of the paper from the run CSVs of one experiment.
+
+Reads ``<results_dir>/<experiment>/<run>/seed_<k>.csv`` through the CSV
+contract (:mod:`imix_cli.results`; the runner is never imported) and writes
+``<results_dir>/<experiment>/figures/``. What is drawn is listed in two
+registries: :data:`.figures.FIGURES` and :data:`.tables.TABLES`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+from pathlib import Path
+
+HELP = """\
+usage: imix plot [key=value ...]
+
+Draw the paper's figures and tables from the runs of one experiment into
+<results_dir>/<experiment>/figures/ (each figure as PNG and PDF, each table
+as CSV, Markdown and LaTeX).
+
+keys:
+  results_dir=PATH        folder holding the experiments (default: results)
+  experiment=NAME         experiment to plot (default: default)
+  threshold.<env>=RETURN  population mean return that counts as solved, for the
+                          evaluations-to-threshold table (defaults: cartpole=195,
+                          acrobot=-100; other envs are left out unless given;
+                          threshold.<env>=none removes one)
+  ci=LEVEL                confidence level of the shaded interval of the mean,
+                          in (0, 1) (default: 0.68, as in the paper; Student t)
+  only=NAME[,NAME...]     draw only these outputs, among:
+                          {names}
+  formats=FMT[,FMT...]    figure formats among png, pdf, svg (default: png,pdf)
+  dpi=N                   resolution of PNG figures, 50-600 (default: 150)
+
+Figures show the mean over seeds with a shaded confidence interval of the mean
+(Student t). Against episodes evaluated, each seed is put on a common grid by
+holding the score of its last generation whose cumulative evaluations do not
+exceed the grid point; curves stop where the shortest seed stops.
+"""
+
+_FORMATS = ("png", "pdf", "svg")
+_ENV_NAME = re.compile(r"^[A-Za-z0-9_.:/-]+$")
+
+
+class UsageError(ValueError):
+    """A bad command-line key or value (reported in one line, exit status 2)."""
+
+
+def _registry_names() -> list:
+    from .figures import FIGURES
+    from .tables import TABLES
+
+    return list(dict.fromkeys([f.name for f in FIGURES] + [t.name for t in TABLES]))
+
+
+def _help_text() -> str:
+    return HELP.format(names=", ".join(_registry_names()))
+
+
+def _number(key: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise UsageError(f"bad value for {key}: {text!r} (expected a number)") from None
+    if not math.isfinite(value):
+        raise UsageError(f"bad value for {key}: {text!r} (expected a finite number)")
+    return value
+
+
+def parse_args(argv: list) -> dict:
+    """``key=value`` arguments -> settings dict; raises :class:`UsageError` naming the key."""
+    from .data import DEFAULT_THRESHOLDS
+
+    settings = {
+        "results_dir": "results",
+        "experiment": "default",
+        "thresholds": dict(DEFAULT_THRESHOLDS),
+        "ci_level": 0.68,
+        "only": None,
+        "formats": ("png", "pdf"),
+        "dpi": 150,
+    }
+    for arg in argv:
+        if "=" not in arg:
+            raise UsageError(f"expected key=value, got {arg!r} (see imix plot --help)")
+        key, value = arg.split("=", 1)
+        key = key.strip()
+        value = value.strip()
+        if key == "results_dir":
+            if not value:
+                raise UsageError("bad value for results_dir: empty path")
+            settings["results_dir"] = value
+        elif key == "experiment":
+            if not value or ".." in Path(value).parts:
+                raise UsageError(f"bad value for experiment: {value!r} (expected a folder name)")
+            settings["experiment"] = value
+        elif key.startswith("threshold."):
+            env = key[len("threshold.") :]
+            if not env or not _ENV_NAME.match(env):
+                raise UsageError(f"bad key {key!r} (expected threshold.<env>, e.g. threshold.cartpole=195)")
+            if value.lower() in ("none", "null", "off", ""):
+                settings["thresholds"].pop(env, None)
+            else:
+                settings["thresholds"][env] = _number(key, value)
+        elif key == "ci":
+            level = _number(key, value)
+            if not 0.0 < level < 1.0:
+                raise UsageError(f"bad value for ci: {value!r} (expected a level in (0, 1), e.g. 0.68)")
+            settings["ci_level"] = level
+        elif key == "only":
+            names = [n.strip() for n in value.split(",") if n.strip()]
+            known = _registry_names()
+            bad = [n for n in names if n not in known]
+            if not names or bad:
+                raise UsageError(f"bad value for only: {value!r} (expected names among {', '.join(known)})")
+            settings["only"] = tuple(names)
+        elif key == "formats":
+            fmts = [f.strip().lower().lstrip(".") for f in value.split(",") if f.strip()]
+            if not fmts or any(f not in _FORMATS for f in fmts):
+                raise UsageError(f"bad value for formats: {value!r} (expected some of {', '.join(_FORMATS)})")
+            settings["formats"] = tuple(dict.fromkeys(fmts))
+        elif key == "dpi":
+            try:
+                dpi = int(value)
+            except ValueError:
+                raise UsageError(f"bad value for dpi: {value!r} (expected an integer)") from None
+            if not 50 <= dpi <= 600:
+                raise UsageError(f"bad value for dpi: {value!r} (expected 50 to 600)")
+            settings["dpi"] = dpi
+        else:
+            raise UsageError(
+                f"unknown key {key!r} (known: results_dir, experiment, threshold.<env>, ci, only, formats, dpi; "
+                f"see imix plot --help)"
+            )
+    return settings
+
+
+def main(argv: list | None = None) -> int:
+    """Entry point of ``imix plot``; ``argv`` excludes the ``plot`` word. Returns the exit status.
+
+    0: everything selected was written; 1: no results to plot, or a figure/table
+    failed (reported, the rest still written); 2: bad command line.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if any(a in ("-h", "--help", "help") for a in argv):
+        print(_help_text(), end="")
+        return 0
+    try:
+        settings = parse_args(argv)
+    except UsageError as err:
+        print(f"imix plot: {err}", file=sys.stderr)
+        return 2
+
+    from .data import PlotOptions, load_experiment
+    from .figures import FIGURES, save_figure, style
+    from .tables import TABLES, write_table
+
+    only = settings["only"]
+    figures = [f for f in FIGURES if only is None or f.name in only]
+    tables = [t for t in TABLES if only is None or t.name in only]
+    needs_data = any(f.needs_data for f in figures) or bool(tables)
+
+    exp_dir = Path(settings["results_dir"]) / settings["experiment"]
+    if needs_data and not exp_dir.is_dir():
+        print(
+            f"imix plot: no results at {exp_dir} (check results_dir= and experiment=; "
+            f"only=didactic draws the figures that need no data)",
+            file=sys.stderr,
+        )
+        return 1
+    opts = PlotOptions(
+        thresholds=settings["thresholds"],
+        ci_level=settings["ci_level"],
+        dpi=settings["dpi"],
+        formats=settings["formats"],
+    )
+    exp = load_experiment(settings["results_dir"], settings["experiment"], warn=opts.warn)
+    if needs_data and not exp.groups:
+        opts.warn(f"no readable runs under {exp_dir}; only figures that need no data are drawn")
+    for env in sorted(set(settings["thresholds"]) - set(exp.envs()) - {"cartpole", "acrobot"}):
+        opts.warn(f"threshold.{env} given but the experiment has no runs on env {env!r}")
+
+    out_dir = exp_dir / "figures"
+    status = 0
+    written = 0
+    with style():
+        for spec in figures:
+            if spec.needs_data and not exp.groups:
+                continue
+            try:
+                for stem, fig in spec.draw(exp, opts):
+                    for path in save_figure(fig, out_dir, stem, opts.formats, opts.dpi):
+                        print(f"wrote {path}")
+                        written += 1
+            except Exception as err:  # noqa: BLE001 - one broken figure must not cost the others
+                print(f"imix plot: error: figure {spec.name!r} failed: {type(err).__name__}: {err}", file=sys.stderr)
+                status = 1
+    if exp.groups:
+        for spec in tables:
+            try:
+                for table in spec.build(exp, opts):
+                    for path in write_table(table, out_dir):
+                        print(f"wrote {path}")
+                        written += 1
+            except Exception as err:  # noqa: BLE001
+                print(f"imix plot: error: table {spec.name!r} failed: {type(err).__name__}: {err}", file=sys.stderr)
+                status = 1
+    if needs_data and not exp.groups:
+        status = 1
+    print(f"imix plot: {written} file(s) in {out_dir}")
+    return status

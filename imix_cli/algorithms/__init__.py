@@ -1,0 +1,35 @@
+"""The four evolution strategies of the paper (section 2.1), one module each.
+
+=========  ======================  =========================================
+name       class                   search distribution
+=========  ======================  =========================================
+openes     :class:`OpenES`         N(mu, sigma^2 I), sigma fixed
+snes       :class:`SNES`           N(mu, diag(sigma^2)), sigma adapted
+cem        :class:`CEM`            N(mu, diag(sigma^2)), refitted to elites
+cmaes      :class:`CMAES`          N(mu, sigma^2 C), full C (pycma)
+=========  ======================  =========================================
+
+``make_es("snes", dim=130, popsize=50)`` builds one by name.
+"""
+
+from __future__ import annotations
+
+from imix_cli.algorithms.base import EvolutionStrategy
+from imix_cli.algorithms.cem import CEM
+from imix_cli.algorithms.cmaes import CMAES
+from imix_cli.algorithms.openes import OpenES
+from imix_cli.algorithms.snes import SNES
+
+ALGORITHMS = {"openes": OpenES, "snes": SNES, "cem": CEM, "cmaes": CMAES}
+
+
+def make_es(name: str, dim: int, **kwargs) -> EvolutionStrategy:
+    """Build the evolution strategy called ``name`` (a key of :data:`ALGORITHMS`) in dimension ``dim``."""
+    try:
+        cls = ALGORITHMS[name]
+    except KeyError:
+        raise ValueError(f"unknown algorithm {name!r}; valid names: {', '.join(sorted(ALGORITHMS))}") from None
+    return cls(dim, **kwargs)
+
+
+__all__ = ["EvolutionStrategy", "OpenES", "SNES", "CEM", "CMAES", "ALGORITHMS", "make_es"]

@@ -1,0 +1,346 @@
+"""Importance mixing: build a new ES generation that reuses already-evaluated samples.
+
+Why it works (after section 2 of Pourchot, Perrin & Sigaud 2018)
+------------------------------------------------------------------
+Drawing x from a density p is the same as drawing a point (x, y) uniformly
+from the region under the graph of p and keeping its abscissa; and a uniform
+point of that region is obtained by drawing x ~ p and then y = u * p(x) with
+u ~ U[0, 1]. Rejection sampling adds one more fact: uniform points of a region
+that happen to land in a sub-region are uniform in the sub-region.
+
+Let an ES move from p_old to p_new. The region under p_new splits into
+
+* the *overlap*, under min(p_old, p_new), of volume lambda, and
+* the *leftover*, between min(p_old, p_new) and p_new, of volume 1 - lambda.
+
+An old sample z (drawn from p_old) with height u * p_old(z) lies in the
+overlap when u < p_new(z) / p_old(z): **rule 1** keeps an old sample with
+probability min(1, p_new/p_old), and what it keeps is uniform in the overlap.
+A fresh draw z' ~ p_new with height u * p_new(z') lies in the leftover when
+u >= p_old(z') / p_new(z'): **rule 2** keeps a fresh draw with probability
+max(0, 1 - p_old/p_new), and what it keeps is uniform in the leftover. An old
+sample lands in the overlap with probability lambda, a fresh one in the
+leftover with probability 1 - lambda: trying one of each in turn therefore
+feeds both parts in proportion to their volumes, and the union is uniform under
+p_new -- the new generation is distributed as p_new, yet only the rule-2
+samples (about (1 - lambda) N of them) must be evaluated. The fitness of a
+reused sample is already known.
+
+Variants (``mix(..., variant=...)``)
+------------------------------------
+``"paper"``   Algorithm 2: alternate rule 1 on the previous generation (in a
+              random order) and rule 2 on a fresh draw; stop as soon as the
+              generation is full; if the last step overfilled it, drop one
+              member at random; fill what is still missing with plain draws.
+``"eim"``     Algorithm 3 (extended IM): the same alternation over the K most
+              recent generations in turn, newest first, each tested against
+              the density of its own generation (the ``dist`` of its archive
+              entry), until full. A point present in several archive entries
+              (because it was itself reused) is taken at most once.
+``"sun2009"`` Sun et al. (2009): rule 1 on every sample of the previous
+              generation with acceptance min(1, (1 - alpha) p_new/p_old), then
+              rule 2 with acceptance max(alpha, 1 - p_old/p_new) until full;
+              alpha is the minimal refresh rate. With alpha = 0 the expected
+              reuse rate is exactly lambda.
+
+Which density to test an archived sample against
+------------------------------------------------
+A generation produced by mixing is, as a whole, distributed as its own
+search distribution, whatever mixture of reused and fresh members it holds.
+Rule 1 therefore tests every member of archive entry k against that entry's
+``dist`` -- for a member reused into entry k from an older generation too.
+(Testing such a member against the density it was first drawn from, instead,
+would mis-weight it; the test suite measures both choices.)
+
+Everything is computed in log space: a Gaussian density underflows at d = 10^4
+while log p is an ordinary number. Rule 1 accepts when log u < log p_new -
+log p_old; rule 2 when u < -expm1(log p_old - log p_new).
+
+Only log-ratios log(p_new/p_old) are needed. Between two DiagonalGaussians they
+are computed directly, as sums of per-coordinate terms that are small when the
+distributions are close -- accurate even in float32 at d = 10^6 and cheap
+enough that a mixing step costs little more than drawing the generation (see
+``benchmarks/mixing_speed.py``). Any other distribution objects only need
+``sample(n, rng)`` and ``log_prob(x)``.
+
+Archive entries are ``(dist, samples)`` pairs or :class:`Generation` objects
+returned by an earlier ``mix``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from imix_cli.distributions import DiagonalGaussian, FullGaussian
+
+__all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "mix", "VARIANTS"]
+
+VARIANTS = ("paper", "eim", "sun2009")
+
+# Sun et al.'s rule-2 loop accepts a fresh draw with probability ~(1 - lambda); when the two
+# distributions nearly coincide that can take very many draws. After this many candidate
+# draws per missing member, the rest is filled with plain draws (documented bias, never hit
+# in practice: it needs lambda > 1 - 1/200).
+_SUN2009_MAX_TRIALS_PER_MEMBER = 200
+# At large d, rule-2 candidates are drawn in blocks of at most this many numbers (one row at d = 10^6).
+_SCRATCH_ELEMENTS = 1 << 20
+
+
+@dataclass
+class Generation:
+    """A new generation built by :func:`mix`.
+
+    Attributes
+    ----------
+    samples : (popsize, d) array
+        The members.
+    source : (popsize,) int array
+        0 for a fresh member (must be evaluated), k >= 1 for a member reused from ``archive[k-1]``.
+    index : (popsize,) int array
+        Row of that archive entry's samples, -1 for fresh members.
+    dist :
+        The distribution the generation is distributed as (the ``new_dist`` given to ``mix``).
+    trials : int
+        Number of rule-1/rule-2 steps taken (old samples tried).
+    """
+
+    samples: np.ndarray
+    source: np.ndarray
+    index: np.ndarray
+    dist: object
+    trials: int = 0
+
+    @property
+    def fresh(self) -> np.ndarray:
+        """Boolean mask of members that must be evaluated."""
+        return self.source == 0
+
+    @property
+    def reused(self) -> int:
+        return int(np.count_nonzero(self.source > 0))
+
+    @property
+    def reused_from_previous(self) -> int:
+        """Members reused from the previous generation (the paper's "from IM")."""
+        return int(np.count_nonzero(self.source == 1))
+
+    @property
+    def reused_from_older(self) -> int:
+        """Members reused from generations before the previous one (the paper's "from EIM")."""
+        return int(np.count_nonzero(self.source > 1))
+
+    def __iter__(self):  # a Generation is an archive entry: (dist, samples)
+        return iter((self.dist, self.samples))
+
+
+def _unpack_entry(entry):
+    dist, samples = entry
+    return dist, np.asarray(samples)
+
+
+def _row_keys(samples: np.ndarray) -> np.ndarray:
+    """One hashable key per row: the bytes of its first few coordinates (a continuous random
+    sample is identified by them; equality is then confirmed on the whole row)."""
+    head = np.ascontiguousarray(samples[:, :8])
+    return head.view(np.dtype((np.void, head.dtype.itemsize * head.shape[1]))).ravel()
+
+
+class _GenericLogRatio:
+    """log(p_new / p_old) for any distributions with ``sample`` and ``log_prob``."""
+
+    def __init__(self, new, old):
+        self.new, self.old = new, old
+
+    def of_rows(self, x, rows):
+        block = x[rows]
+        return self.new.log_prob(block) - self.old.log_prob(block)
+
+    def sample(self, n, rng, out=None):
+        x = self.new.sample(n, rng)
+        return x, self.new.log_prob(x) - self.old.log_prob(x)
+
+
+def _log_ratio(new_dist, old_dist):
+    """The ratio object of rules 1 and 2: fast and float32-safe between two DiagonalGaussians."""
+    if type(new_dist) is type(old_dist) is DiagonalGaussian:
+        return new_dist.log_ratio_to(old_dist)
+    return _GenericLogRatio(new_dist, old_dist)
+
+
+class _Builder:
+    """Accumulates the members of the new generation in a preallocated array.
+
+    Rows are copied once, when accepted, straight into their final place: at d = 10^6 a
+    second copy of the generation would cost a sizeable fraction of drawing it.
+    """
+
+    def __init__(self, popsize: int, dim: int, dtype):
+        self.popsize = popsize
+        self.samples = np.empty((popsize + 1, dim), dtype=dtype)  # one spare row: a last step may accept two
+        self.source = np.zeros(popsize + 1, dtype=np.int64)
+        self.index = np.full(popsize + 1, -1, dtype=np.int64)
+        self.size = 0
+
+    @property
+    def missing(self) -> int:
+        return self.popsize - self.size
+
+    def not_yet_taken(self, samples: np.ndarray) -> np.ndarray:
+        """Mask of the rows of ``samples`` not already reused into the new generation.
+
+        An archive holds the same point in several entries when it was itself reused; EIM
+        must take such a point at most once.
+        """
+        reused = np.flatnonzero(self.source[: self.size] > 0)
+        free = np.ones(samples.shape[0], dtype=bool)
+        if reused.size == 0:
+            return free
+        taken_keys = _row_keys(self.samples[reused])
+        for i in np.flatnonzero(np.isin(_row_keys(samples), taken_keys)):
+            free[i] = not any(np.array_equal(samples[i], self.samples[m]) for m in reused)
+        return free
+
+    def add(self, rows: np.ndarray, source: int = 0, index=-1) -> None:
+        """Append the rows (2-D) of one source; ``index`` gives their rows in that archive entry."""
+        n = rows.shape[0]
+        members = slice(self.size, self.size + n)
+        self.samples[members] = rows
+        self.source[members] = source
+        self.index[members] = index
+        self.size += n
+
+    def drop_random(self, rng: np.random.Generator) -> None:
+        """Remove one member chosen uniformly at random (Algorithm 2, overfull last step)."""
+        victim = int(rng.integers(self.size))
+        last = self.size - 1
+        for arr in (self.samples, self.source, self.index):
+            arr[victim:last] = arr[victim + 1 : last + 1]
+        self.size -= 1
+
+    def finish(self, new_dist, rng, trials) -> Generation:
+        if self.missing > 0:  # fill with plain draws from the new distribution, all accepted
+            self.samples[self.size : self.popsize] = new_dist.sample(self.missing, rng)
+            self.size = self.popsize
+        n = self.popsize
+        return Generation(self.samples[:n], self.source[:n].copy(), self.index[:n].copy(), new_dist, trials)
+
+
+def _log_uniform(rng: np.random.Generator, n: int) -> np.ndarray:
+    with np.errstate(divide="ignore"):  # log(0) = -inf is a valid, always-accepting draw
+        return np.log(rng.random(n))
+
+
+def _alternate_rules(builder: _Builder, new_dist, old_dist, old_samples, entry_number, rng) -> int:
+    """Algorithm 2's loop over one old generation: at step i, rule 1 on old sample i, then rule 2
+    on a fresh draw; stop as soon as the generation is full (it may then hold one member too many).
+
+    The steps are evaluated in vectorised blocks: a block's acceptances are computed at once and
+    the block is cut at the step where the generation fills, exactly as the step-by-step loop
+    would. Returns the number of steps taken.
+    """
+    n_old, dim = old_samples.shape
+    order = rng.permutation(n_old)  # "taken uniformly from g_old"
+    log_u1 = _log_uniform(rng, n_old)
+    u2 = rng.random(n_old)
+    eligible = builder.not_yet_taken(old_samples)
+    log_ratio = _log_ratio(new_dist, old_dist)
+    # About one member is accepted per step, so a block spans the missing count; at large d it
+    # is also capped to a few rows, whose fresh draws go to one reused scratch buffer.
+    max_block = max(1, min(n_old, builder.missing, _SCRATCH_ELEMENTS // max(dim, 1)))
+    scratch = np.empty((max_block, dim), dtype=builder.samples.dtype)
+    step = 0
+    while step < n_old and builder.missing > 0:
+        block = np.arange(step, min(n_old, step + min(builder.missing, max_block)))
+        rows = order[block]
+        accept_old = eligible[rows] & (log_u1[block] < log_ratio.of_rows(old_samples, rows))  # rule 1
+        candidates, cand_log_ratio = log_ratio.sample(block.size, rng, out=scratch[: block.size])
+        accept_new = u2[block] < -np.expm1(-np.maximum(cand_log_ratio, 0.0))  # rule 2: 1 - p_old/p_new
+        filled = np.cumsum(accept_old.astype(np.int64) + accept_new)
+        taken = min(block.size, int(np.searchsorted(filled, builder.missing)) + 1)  # steps until full
+        kept_old = rows[:taken][accept_old[:taken]]
+        builder.add(old_samples[kept_old], entry_number, kept_old)
+        builder.add(candidates[:taken][accept_new[:taken]])
+        step += taken
+    return step
+
+
+def _sun2009(builder: _Builder, new_dist, old_dist, old_samples, alpha, rng) -> int:
+    """Sun et al. (2009): rule 1 over the whole previous generation, then rule 2 until full."""
+    n_old = old_samples.shape[0]
+    log_ratio = _log_ratio(new_dist, old_dist)
+    with np.errstate(divide="ignore"):
+        log_keep = np.log1p(-alpha)
+    accepted = np.flatnonzero(_log_uniform(rng, n_old) < log_keep + log_ratio.of_rows(old_samples, np.arange(n_old)))
+    if accepted.size > builder.popsize:  # only possible if the old generation was larger
+        accepted = np.sort(rng.choice(accepted, builder.popsize, replace=False))
+    builder.add(old_samples[accepted], 1, accepted)
+    max_trials = _SUN2009_MAX_TRIALS_PER_MEMBER * max(builder.missing, 1)
+    trials = 0
+    while builder.missing > 0 and trials < max_trials:
+        n = builder.missing
+        candidates, cand_log_ratio = log_ratio.sample(n, rng)
+        accept_prob = np.maximum(alpha, -np.expm1(-np.maximum(cand_log_ratio, 0.0)))
+        accept_new = np.flatnonzero(rng.random(n) < accept_prob)[: builder.missing]
+        builder.add(candidates[accept_new])
+        trials += n
+    return n_old
+
+
+def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str = "paper", alpha: float = 0.0, eim_generations: int = 3) -> Generation:
+    """Build a generation of ``popsize`` members distributed as ``new_dist``, reusing archived samples.
+
+    Parameters
+    ----------
+    new_dist : DiagonalGaussian or FullGaussian (anything with ``sample_with_log_prob`` and ``log_prob``)
+        The search distribution of the new generation.
+    archive : list of ``(dist, samples[n, d])`` pairs or :class:`Generation` objects
+        Earlier generations, newest first; ``dist`` is the distribution that generation is distributed as.
+        An empty archive gives a generation of fresh draws.
+    popsize : int
+        Size N of the new generation.
+    rng : numpy.random.Generator
+        Source of all randomness (acceptance tests, fresh draws, orderings).
+    variant : {"paper", "eim", "sun2009"}
+        See the module docstring. ``"paper"`` uses ``archive[0]`` only, ``"eim"`` up to
+        ``eim_generations`` entries, ``"sun2009"`` ``archive[0]`` only.
+    alpha : float in [0, 1)
+        Minimal refresh rate of ``"sun2009"`` (ignored by the other variants).
+    eim_generations : int >= 1
+        K, the number of archived generations ``"eim"`` may draw from.
+
+    Returns
+    -------
+    Generation
+        ``.samples``, ``.source`` (0 fresh, k >= 1 from ``archive[k-1]``), ``.index``.
+    """
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown mixing variant {variant!r}; valid: {', '.join(VARIANTS)}")
+    if popsize < 1:
+        raise ValueError(f"popsize must be >= 1, got {popsize}")
+    if not 0.0 <= alpha < 1.0:
+        raise ValueError(f"alpha must be in [0, 1), got {alpha}")
+    if eim_generations < 1:
+        raise ValueError(f"eim_generations must be >= 1, got {eim_generations}")
+    dim = new_dist.dim
+    dtype = getattr(new_dist, "dtype", np.float64)
+    builder = _Builder(popsize, dim, dtype)
+    entries = [_unpack_entry(e) for e in archive]
+    for number, (_, samples) in enumerate(entries, start=1):
+        if samples.ndim != 2 or samples.shape[1] != dim:
+            raise ValueError(f"archive[{number - 1}] samples have shape {samples.shape}, expected (n, {dim})")
+
+    trials = 0
+    if entries and variant == "sun2009":
+        old_dist, old_samples = entries[0]
+        trials = _sun2009(builder, new_dist, old_dist, old_samples, alpha, rng)
+    elif entries:
+        depth = 1 if variant == "paper" else eim_generations
+        for number, (old_dist, old_samples) in enumerate(entries[:depth], start=1):
+            trials += _alternate_rules(builder, new_dist, old_dist, old_samples, number, rng)
+            if builder.missing <= 0:
+                break
+        if builder.missing < 0:  # both rules accepted on the last step
+            builder.drop_random(rng)
+    return builder.finish(new_dist, rng, trials)

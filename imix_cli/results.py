@@ -1,0 +1,117 @@
+"""The CSV contract between running and plotting -- the only module that touches result files.
+
+Layout::
+
+    <results_dir>/<experiment>/<algo>-<env>-<mixing>[-<overrides>]/seed_<k>.csv
+    <results_dir>/<experiment>/<algo>-<env>-<mixing>[-<overrides>]/config.yaml
+
+One row per generation (for DDPG: per finished episode), with exactly the columns
+of :data:`COLUMNS`. Files are written atomically: the data goes to a temporary
+file in the same folder, is flushed to disk, then renamed over the final name,
+so a reader (or a resumed run) never sees a half-written CSV.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+#: Column names and order of every run CSV (plots and outside tools rely on them).
+COLUMNS = (
+    "algo",  # ES name: openes | snes | cem | cmaes | ddpg
+    "env",  # environment config name (cartpole, acrobot, ...) or gymnasium id
+    "mixing",  # none | im | eim
+    "seed",  # seed index k of seed_<k>.csv
+    "generation",  # 0-based generation (DDPG: episode index)
+    "evaluations",  # cumulative episodes actually run
+    "env_steps",  # cumulative environment steps actually run
+    "mean_score",  # mean raw episode return over the generation (reused members with their stored return)
+    "best_score",  # best raw episode return in the generation
+    "reused",  # members taken from earlier generations
+    "reused_im",  # ... of which from the previous generation
+    "reused_eim",  # ... of which from older generations
+    "popsize",  # members in the generation
+    "sigma_mean",  # mean standard deviation of the search distribution
+    "nonfinite",  # episodes of the generation whose return was NaN or inf (ranked last by the ES)
+    "wall_time",  # seconds since the seed started
+)
+
+MIXING_NAMES = ("none", "im", "eim")
+
+_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "popsize", "nonfinite")
+_FLOAT_COLUMNS = ("mean_score", "best_score", "sigma_mean", "wall_time")
+
+
+class CorruptResultError(ValueError):
+    """A result file exists but does not follow the CSV contract."""
+
+
+def seed_csv_path(run_dir, seed: int) -> Path:
+    return Path(run_dir) / f"seed_{seed}.csv"
+
+
+def run_dir_name(algo: str, env: str, mixing: str, overrides: str = "") -> str:
+    """``<algo>-<env>-<mixing>[-<overrides>]`` (env ids such as ``imix/Foo-v0`` get their '/' replaced)."""
+    name = f"{algo}-{env.replace('/', '_')}-{mixing}"
+    return f"{name}-{overrides}" if overrides else name
+
+
+def atomic_write_text(path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and an atomic rename."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        # Leave nothing behind: neither the temporary nor a partial final file.
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def rows_to_frame(rows) -> pd.DataFrame:
+    """Build a contract-conforming DataFrame from a list of dicts (one per generation)."""
+    frame = pd.DataFrame(list(rows))
+    missing = [c for c in COLUMNS if c not in frame.columns]
+    if missing:
+        raise ValueError(f"result rows lack columns {missing}")
+    return frame.loc[:, list(COLUMNS)]
+
+
+def write_run_csv(path, rows) -> None:
+    """Write one seed's rows atomically to ``path`` (``seed_<k>.csv``)."""
+    frame = rows if isinstance(rows, pd.DataFrame) else rows_to_frame(rows)
+    atomic_write_text(path, frame.to_csv(index=False, float_format="%.10g", lineterminator="\n"))
+
+
+def read_run_csv(path) -> pd.DataFrame:
+    """Read and validate one seed's CSV; raise :class:`CorruptResultError` naming the file if it is not valid."""
+    path = Path(path)
+    try:
+        frame = pd.read_csv(path)
+    except Exception as err:  # pandas raises many types for malformed files
+        raise CorruptResultError(f"{path}: unreadable CSV ({type(err).__name__}: {err})") from err
+    missing = [c for c in COLUMNS if c not in frame.columns]
+    if missing:
+        raise CorruptResultError(f"{path}: missing columns {missing}")
+    if frame.empty:
+        raise CorruptResultError(f"{path}: no rows")
+    for column in _INT_COLUMNS + _FLOAT_COLUMNS:
+        if not pd.api.types.is_numeric_dtype(frame[column]):
+            raise CorruptResultError(f"{path}: column {column!r} is not numeric")
+    if frame[list(_INT_COLUMNS)].isna().any().any():
+        raise CorruptResultError(f"{path}: missing values in integer columns")
+    gens = frame["generation"].to_numpy()
+    if not np.array_equal(gens, np.arange(len(frame))):
+        raise CorruptResultError(f"{path}: generations are not 0, 1, 2, ...")
+    return frame.loc[:, list(COLUMNS)]

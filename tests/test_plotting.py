@@ -1,0 +1,247 @@
+"""`imix plot` on small synthetic result sets written through the CSV contract."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from imix_cli.plotting import main
+from imix_cli.plotting.data import (
+    RunGroup,
+    align_on_grid,
+    first_crossing,
+    load_experiment,
+    mean_ci,
+    threshold_stats,
+)
+from imix_cli.plotting.didactic import Gauss1D, extended_importance_mixing
+from imix_cli.results import run_dir_name, write_run_csv
+
+EXPERIMENT = "synthetic"
+
+
+def run_rows(algo, env, mixing, seed, scores, popsize=10, reused=None, reused_eim=None, steps_per_episode=20):
+    """Rows of one seed: ``scores[g]`` is the population mean of generation g."""
+    n = len(scores)
+    reused = [0] * n if reused is None else list(reused)
+    reused_eim = [0] * n if reused_eim is None else list(reused_eim)
+    rows, evaluations = [], 0
+    for g, score in enumerate(scores):
+        evaluations += popsize - reused[g]
+        rows.append(
+            dict(
+                algo=algo, env=env, mixing=mixing, seed=seed, generation=g, evaluations=evaluations,
+                env_steps=evaluations * steps_per_episode, mean_score=float(score), best_score=float(score) + 1.0,
+                reused=reused[g], reused_im=reused[g] - reused_eim[g], reused_eim=reused_eim[g], popsize=popsize,
+                sigma_mean=0.25, nonfinite=0, wall_time=0.01 * g,
+            )
+        )
+    return rows
+
+
+def write_group(root, algo, env, mixing, seeds, gens=40, overrides="", config=None, popsize=10):
+    run_dir = root / EXPERIMENT / run_dir_name(algo, env, mixing, overrides)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    conf = {"im": mixing != "none", "eim": mixing == "eim", "seeds": len(seeds), "generations": gens,
+            "popsize": popsize, "sigma": 0.25, "lr": 0.01, "algo": {"name": algo}, "env": {"name": env}}
+    conf.update(config or {})
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(conf))
+    speed = {"snes": 8.0, "cem": 4.0, "cmaes": 6.0, "ddpg": 3.0}.get(algo, 5.0)
+    for seed in seeds:
+        rng = np.random.default_rng(seed + 100 * len(algo))
+        scores = 200 - 180 * np.exp(-np.arange(gens) / speed) + rng.normal(0, 3, gens)
+        reused = [0] + [int(rng.integers(popsize // 2, popsize)) if mixing != "none" else 0 for _ in range(gens - 1)]
+        reused_eim = [int(r >= popsize - 2) for r in reused]
+        write_run_csv(run_dir / f"seed_{seed}.csv", run_rows(algo, env, mixing, seed, scores, popsize, reused, reused_eim))
+    return run_dir
+
+
+@pytest.fixture
+def results(tmp_path):
+    """2 algos x cartpole x {none, eim} x 3 seeds, plus cmaes-cartpole-eim with only 2 seeds."""
+    for algo in ("snes", "cem"):
+        for mixing in ("none", "eim"):
+            write_group(tmp_path, algo, "cartpole", mixing, range(3))
+    write_group(tmp_path, "cmaes", "cartpole", "eim", range(2))
+    return tmp_path
+
+
+def figures_dir(root):
+    return root / EXPERIMENT / "figures"
+
+
+def test_main_writes_every_figure_and_table(results, capsys):
+    status = main([f"results_dir={results}", f"experiment={EXPERIMENT}"])
+    out, err = capsys.readouterr()
+    assert status == 0, err
+    fig_dir = figures_dir(results)
+    stems = [
+        "convergence_cartpole", "efficiency_cartpole", "didactic_rejection_sampling",
+        "didactic_importance_mixing", "didactic_extended_importance_mixing",
+    ]
+    for stem in stems:
+        for ext in ("png", "pdf"):
+            path = fig_dir / f"{stem}.{ext}"
+            assert path.stat().st_size > 1000, path
+            assert str(path) in out  # prints where each file went
+        assert (fig_dir / f"{stem}.png").stat().st_size < 150_000
+    for stem in ("reuse", "evaluations_to_threshold"):
+        for ext in ("csv", "md", "tex"):
+            assert (fig_dir / f"{stem}.{ext}").stat().st_size > 100
+    # the group with fewer seeds is flagged
+    assert "cmaes-cartpole-eim" in err and "2 seed" in err
+    reuse = pd.read_csv(fig_dir / "reuse.csv")
+    assert set(reuse["algo"]) == {"snes", "cem", "cmaes"} and set(reuse["mixing"]) == {"eim"}
+    assert "\\begin{tabular}" in (fig_dir / "reuse.tex").read_text()
+
+
+def test_mean_ci_matches_hand_computation():
+    mean, half, n = mean_ci([1.0, 2.0, 3.0, 4.0], level=0.68)
+    sem = math.sqrt(((1.5**2 + 0.5**2) * 2) / 3) / 2  # sample std (ddof=1) / sqrt(4) = 0.645497
+    assert mean == pytest.approx(2.5)
+    assert n == 4
+    assert sem == pytest.approx(0.645497, abs=1e-6)
+    assert half == pytest.approx(1.188929 * sem, rel=1e-5)  # t_{0.84, 3} = 1.188929
+    # per column, NaN ignored; one value gives no interval
+    means, halves, counts = mean_ci(np.array([[1.0, 5.0], [3.0, np.nan]]), axis=0)
+    assert means.tolist() == [2.0, 5.0] and counts.tolist() == [2, 1]
+    assert halves[0] == pytest.approx(1.818993 * 1.0, rel=1e-5)  # t_{0.84, 1} * (sqrt(2) / sqrt(2))
+    assert math.isnan(halves[1])
+
+
+def _group(frames):
+    return RunGroup("snes", "cartpole", "eim", "", None, {}, {i: f for i, f in enumerate(frames)})
+
+
+def test_evaluations_to_threshold_on_hand_made_data():
+    # seed 0 costs 10 per generation, seed 1 reuses 5 from generation 1 on, seed 2 never reaches 195
+    s0 = pd.DataFrame(run_rows("snes", "cartpole", "eim", 0, [50, 150, 196, 180, 199]))
+    s1 = pd.DataFrame(run_rows("snes", "cartpole", "eim", 1, [50, 195, 100, 100, 100], reused=[0, 5, 5, 5, 5]))
+    s2 = pd.DataFrame(run_rows("snes", "cartpole", "eim", 2, [50, 60, 70, 80, 194.9]))
+    assert first_crossing(s0, 195) == 30.0  # first reached at generation 2, after 10 + 10 + 10 episodes
+    assert first_crossing(s1, 195) == 15.0  # generation 1: 10 + 5 (>= counts)
+    assert first_crossing(s2, 195) is None
+    info = threshold_stats(_group([s0, s1, s2]), 195)
+    assert info["n_seeds"] == 3 and info["reached"] == 2
+    assert info["mean"] == pytest.approx(22.5) and info["median"] == pytest.approx(22.5)
+    assert info["ci"] == pytest.approx(1.818993 * 7.5, rel=1e-5)  # t_{0.84,1} * std([30, 15]) / sqrt(2)
+    none = threshold_stats(_group([s2]), 195)
+    assert none["reached"] == 0 and math.isnan(none["mean"])
+
+
+def test_align_on_grid_holds_last_generation_within_budget():
+    # evaluations 10, 15, 15 (a generation fully reused), 25
+    a = pd.DataFrame(run_rows("snes", "cartpole", "eim", 0, [1, 2, 3, 4], reused=[0, 5, 10, 0]))
+    b = pd.DataFrame(run_rows("snes", "cartpole", "eim", 1, [10, 20, 30, 40, 50], popsize=5))  # 5, 10, ..., 25
+    grid, matrix = align_on_grid(_group([a, b]), points=4)
+    assert grid.tolist() == [10.0, 15.0, 20.0, 25.0]  # common support: max first (10) to min last (25)
+    assert matrix[0].tolist() == [1, 3, 3, 4]  # at 15 the later of the two generations with 15 episodes
+    assert matrix[1].tolist() == [20, 30, 40, 50]
+
+
+def test_threshold_table_reduction_and_seeds_that_never_reach(tmp_path, capsys):
+    root = tmp_path
+    for mixing, costs in (("none", 10), ("eim", 2)):
+        run_dir = root / EXPERIMENT / run_dir_name("snes", "cartpole", mixing)
+        run_dir.mkdir(parents=True)
+        reused = [0] + [10 - costs] * 9
+        for seed, reach_at in enumerate((4, 6, None)):
+            scores = [100.0] * 10 if reach_at is None else [100.0] * reach_at + [200.0] * (10 - reach_at)
+            write_run_csv(run_dir / f"seed_{seed}.csv", run_rows("snes", "cartpole", mixing, seed, scores, 10, reused))
+    assert main([f"results_dir={root}", f"experiment={EXPERIMENT}", "only=threshold"]) == 0
+    table = pd.read_csv(figures_dir(root) / "evaluations_to_threshold.csv").set_index("mixing")
+    # none: generation 4 -> 50 episodes, generation 6 -> 70; eim: 10 + 4*2 = 18 and 10 + 6*2 = 22
+    assert table.loc["none", "evaluations_mean"] == pytest.approx(60)
+    assert table.loc["eim", "evaluations_mean"] == pytest.approx(20)
+    assert table.loc["eim", "reached"] == 2 and table.loc["eim", "seeds"] == 3
+    assert table.loc["eim", "reduction"] == pytest.approx(3.0)
+    markdown = (figures_dir(root) / "evaluations_to_threshold.md").read_text()
+    assert "2/3" in markdown and "×3.00" in markdown
+
+
+def test_reuse_table_hand_values(tmp_path):
+    run_dir = tmp_path / EXPERIMENT / run_dir_name("cem", "acrobot", "eim")
+    run_dir.mkdir(parents=True)
+    # 4 generations of 10: reused 0, 6, 8, 6 -> 20/40 = 50 %; from EIM 1 + 1 of 20 -> 10 %
+    write_run_csv(run_dir / "seed_0.csv", run_rows("cem", "acrobot", "eim", 0, [-200, -150, -120, -90], 10, [0, 6, 8, 6], [0, 1, 0, 1]))
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=reuse"]) == 0
+    row = pd.read_csv(figures_dir(tmp_path) / "reuse.csv").iloc[0]
+    assert row["total_reuse_pct"] == pytest.approx(50.0)
+    assert row["from_im_pct"] == pytest.approx(90.0) and row["from_eim_pct"] == pytest.approx(10.0)
+
+
+def test_corrupt_csv_is_named_and_the_rest_still_plots(results, capsys):
+    bad = results / EXPERIMENT / "snes-cartpole-eim" / "seed_1.csv"
+    bad.write_text("algo,env\nthis is,not a result\n")
+    (results / EXPERIMENT / "cem-cartpole-none" / "seed_2.csv").write_text("")
+    status = main([f"results_dir={results}", f"experiment={EXPERIMENT}", "only=convergence,efficiency,reuse,threshold"])
+    out, err = capsys.readouterr()
+    assert status == 0
+    assert str(bad) in err and "cem-cartpole-none/seed_2.csv" in err
+    assert (figures_dir(results) / "convergence_cartpole.png").exists()
+    assert (figures_dir(results) / "efficiency_cartpole.pdf").exists()
+    assert "Traceback" not in err
+    exp = load_experiment(results, EXPERIMENT, warn=lambda message: None)
+    assert {g.name: g.n_seeds for g in exp.groups}["snes-cartpole-eim"] == 2
+
+
+@pytest.mark.parametrize(
+    "arg, key",
+    [("foo=1", "foo"), ("threshold.cartpole=abc", "threshold.cartpole"), ("ci=2", "ci"), ("only=nothing", "only"),
+     ("dpi=ten", "dpi"), ("formats=gif", "formats"), ("results_dir", "results_dir")],
+)
+def test_bad_key_or_value_exits_2_with_one_line(arg, key, capsys):
+    assert main([arg]) == 2
+    out, err = capsys.readouterr()
+    assert err.count("\n") == 1 and key in err and "Traceback" not in err
+
+
+def test_help_and_missing_experiment(tmp_path, capsys):
+    assert main(["--help"]) == 0
+    out, _ = capsys.readouterr()
+    assert "threshold.<env>" in out and "results_dir" in out
+    assert main([f"results_dir={tmp_path}", "experiment=nope"]) == 1
+    _, err = capsys.readouterr()
+    assert "nope" in err and err.count("\n") == 1
+
+
+def test_gridsearch_and_ddpg_figures(tmp_path, capsys):
+    for popsize in (5, 10, 20):
+        write_group(tmp_path, "snes", "continuous_cartpole", "eim", range(2), gens=30, popsize=popsize,
+                    overrides=f"popsize={popsize}", config={"sigma": 0.1})
+    for sigma in (0.05, 0.5):
+        write_group(tmp_path, "snes", "continuous_cartpole", "eim", range(2), gens=30,
+                    overrides=f"sigma={sigma}", config={"sigma": sigma})
+    write_group(tmp_path, "ddpg", "continuous_cartpole", "none", range(2), gens=60, popsize=1)
+    status = main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=gridsearch,ddpg",
+                   "threshold.continuous_cartpole=150"])
+    _, err = capsys.readouterr()
+    assert status == 0, err
+    fig_dir = figures_dir(tmp_path)
+    assert (fig_dir / "gridsearch_snes_continuous_cartpole_eim_popsize.png").exists()
+    assert (fig_dir / "gridsearch_snes_continuous_cartpole_eim_sigma.pdf").exists()
+    assert (fig_dir / "ddpg_continuous_cartpole.png").exists()
+    ranking = pd.read_csv(fig_dir / "gridsearch_ranking.csv")
+    assert sorted(ranking["rank"]) == [1, 2, 3, 4, 5]
+    assert ranking.sort_values("rank")["evaluations_mean"].dropna().is_monotonic_increasing
+
+
+def test_didactic_rules_match_the_paper():
+    """Rule 1 keeps old samples with prob min(1, p_new/p_old); Rule 2 keeps new ones with max(0, 1 - p_old/p_new)."""
+    old, new = Gauss1D(0.0, 1.0), Gauss1D(0.5, 1.0)
+    rng = np.random.default_rng(0)
+    result = extended_importance_mixing(new, [(old, old.sample(20000, rng))], 20000, rng, fill=False)
+    trials = [t for t in result.trials if t.source == "old"]
+    z = np.array([t.z for t in trials])
+    accepted = np.array([t.accepted for t in trials])
+    # geometric view used by the figure: accepted exactly when the point lies under min(p_old, p_new)
+    heights = np.array([t.height for t in trials])
+    assert np.array_equal(accepted, heights < np.minimum(old.pdf(z), new.pdf(z)))
+    # overall acceptance of old samples = overlap area (2 Phi(-|delta|/2) for unit variances)
+    from scipy.stats import norm
+
+    assert accepted.mean() == pytest.approx(2 * norm.cdf(-0.25), abs=0.02)
