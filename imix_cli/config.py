@@ -1,0 +1,322 @@
+"""Configuration: the one place that knows every key, validates it, and turns it into a RunSpec.
+
+``imix run`` composes ``conf/config.yaml`` (+ the ``algo`` and ``env`` groups) with Hydra;
+:func:`spec_from_config` then checks every value and returns an immutable :class:`RunSpec`
+that the runner consumes. Errors are :class:`ConfigError` with a one-line message that names
+the offending key; the CLI prints it and exits with status 2 before anything is written.
+
+:func:`validate_overrides` does the same for a whole command line -- every point of a
+``-m`` sweep -- before Hydra starts, so a bad value in the 10th sweep point is reported
+before the first point runs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+ALGO_NAMES = ("openes", "snes", "cem", "cmaes")
+MIXING_VARIANTS = ("paper", "sun2009")
+WEIGHT_DECAY_FORMS = ("paper", "estool")
+
+#: Built-in environments with a batched evaluator: config name -> gymnasium id it reproduces.
+BUILTIN_ENVS = {"cartpole": "CartPole-v0", "acrobot": "Acrobot-v1"}
+
+#: The paper's setting (section 4.1). A run folder's name carries, as ``-key=value,...``, the
+#: hyper-parameters that differ from these, so sweep points get folders of their own.
+PAPER_DEFAULTS = {
+    "popsize": 50,
+    "sigma": 0.25,
+    "lr": 0.01,
+    "weight_decay": 0.05,
+    "weight_decay_form": "paper",
+    "im_variant": "paper",
+    "im_alpha": 0.0,
+    "eim_generations": 3,
+}
+
+#: Keys that do not change a run's results (everything else in config.yaml must match to resume).
+NON_IDENTITY_KEYS = ("seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every")
+
+TOP_LEVEL_KEYS = (
+    "algo", "env", "im", "eim", "im_variant", "im_alpha", "eim_generations", "seeds", "generations",
+    "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
+    "progress", "results_dir", "experiment",
+)  # fmt: skip
+
+
+class ConfigError(ValueError):
+    """A bad configuration value; ``str(err)`` is a one-line message naming the key."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything a run needs, validated. Built by :func:`spec_from_config`."""
+
+    algo: str
+    env_name: str  # config name ("cartpole", "acrobot") or the gymnasium id of a generic env
+    env_id: str
+    env_max_steps: int | None
+    mixing: str  # none | im | eim
+    variant: str | None  # mix() variant: paper | sun2009 | eim; None without mixing
+    im_alpha: float
+    eim_generations: int
+    seeds: int
+    generations: int
+    popsize: int
+    sigma: float
+    lr: float
+    weight_decay: float
+    weight_decay_form: str
+    workers: int
+    checkpoint_every: int
+    progress: bool
+    results_dir: str
+    experiment: str
+    config: dict = field(repr=False, compare=False)  # the resolved config, written as config.yaml
+
+    @property
+    def evaluator_key(self) -> str:
+        """What :func:`imix_cli.evaluation.make_evaluator` takes: a built-in name or a gymnasium id."""
+        return self.env_name if self.env_name in BUILTIN_ENVS else self.env_id
+
+    @property
+    def overrides_suffix(self) -> str:
+        """``key=value,...`` for the hyper-parameters that differ from the paper's (sorted)."""
+        values = {
+            "popsize": self.popsize, "sigma": self.sigma, "lr": self.lr, "weight_decay": self.weight_decay,
+            "weight_decay_form": self.weight_decay_form,
+        }  # fmt: skip
+        if self.mixing == "im":
+            values["im_variant"] = self.variant
+            values["im_alpha"] = self.im_alpha
+        if self.mixing == "eim":
+            values["eim_generations"] = self.eim_generations
+        changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
+        return ",".join(f"{k}={_format(v)}" for k, v in sorted(changed.items()))
+
+    @property
+    def run_name(self) -> str:
+        from imix_cli.results import run_dir_name
+
+        return run_dir_name(self.algo, self.env_name, self.mixing, self.overrides_suffix)
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.results_dir) / self.experiment / self.run_name
+
+    def identity(self) -> dict:
+        """The result-determining part of the config (compared with an existing config.yaml)."""
+        return identity_of(self.config)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def identity_of(config: dict) -> dict:
+    return {k: v for k, v in config.items() if k not in NON_IDENTITY_KEYS}
+
+
+def _format(value) -> str:
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+# ---------------------------------------------------------------------------- validation helpers
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _int(cfg: dict, key: str, minimum: int, label: str | None = None) -> int:
+    value = cfg.get(key)
+    label = label or key
+    if not _is_number(value) or (isinstance(value, float) and not value.is_integer()):
+        raise ConfigError(f"{label}={value!r}: must be an integer >= {minimum}")
+    if value < minimum:
+        raise ConfigError(f"{label}={value!r}: must be >= {minimum}")
+    return int(value)
+
+
+def _float(cfg: dict, key: str, low: float, low_inclusive: bool, high: float = math.inf, high_inclusive: bool = False) -> float:
+    value = cfg.get(key)
+    rule = f"{'>=' if low_inclusive else '>'} {low}" + ("" if high == math.inf else f" and {'<=' if high_inclusive else '<'} {high}")
+    if not _is_number(value) or not math.isfinite(value):
+        raise ConfigError(f"{key}={value!r}: must be a number {rule}")
+    ok_low = value >= low if low_inclusive else value > low
+    ok_high = value <= high if high_inclusive else value < high
+    if not (ok_low and ok_high):
+        raise ConfigError(f"{key}={value!r}: must be {rule}")
+    return float(value)
+
+
+def _bool(cfg: dict, key: str) -> bool:
+    value = cfg.get(key)
+    if not isinstance(value, bool):
+        raise ConfigError(f"{key}={value!r}: must be true or false")
+    return value
+
+
+def _choice(value, key: str, choices) -> str:
+    if value not in choices:
+        raise ConfigError(f"{key}={value!r}: valid choices are {', '.join(choices)}")
+    return value
+
+
+def _name(cfg: dict, key: str) -> str:
+    value = cfg.get(key)
+    if not isinstance(value, str) or not value.strip():
+        raise ConfigError(f"{key}={value!r}: must be a non-empty name")
+    return value
+
+
+def spec_from_config(cfg: dict) -> RunSpec:
+    """Validate a resolved config (a plain dict, as Hydra composes it) and build the RunSpec."""
+    unknown = sorted(set(cfg) - set(TOP_LEVEL_KEYS))
+    if unknown:
+        raise ConfigError(f"unknown key {unknown[0]!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
+    algo_cfg, env_cfg = cfg.get("algo") or {}, cfg.get("env") or {}
+    algo = _choice(algo_cfg.get("name"), "algo", ALGO_NAMES)
+    im, eim = _bool(cfg, "im"), _bool(cfg, "eim")
+    im_variant = _choice(cfg.get("im_variant"), "im_variant", MIXING_VARIANTS)
+    im_alpha = _float(cfg, "im_alpha", 0.0, True, 1.0, False)
+    eim_generations = _int(cfg, "eim_generations", 1)
+    if eim and im_variant != "paper":
+        raise ConfigError(f"im_variant={im_variant}: contradicts eim=true (extended mixing is the paper's Algorithm 3); drop one")
+    if im_alpha != 0.0 and not (im and not eim and im_variant == "sun2009"):
+        raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
+    mixing = "eim" if eim else ("im" if im else "none")
+    variant = "eim" if eim else (im_variant if im else None)
+
+    env_name, env_id, max_steps = _env(env_cfg)
+    workers = cfg.get("workers")
+    workers = (os.cpu_count() or 1) if workers is None else _int(cfg, "workers", 1)
+    experiment = _name(cfg, "experiment")
+    if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
+        raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
+    return RunSpec(
+        algo=algo,
+        env_name=env_name,
+        env_id=env_id,
+        env_max_steps=max_steps,
+        mixing=mixing,
+        variant=variant,
+        im_alpha=im_alpha,
+        eim_generations=eim_generations,
+        seeds=_int(cfg, "seeds", 1),
+        generations=_int(cfg, "generations", 1),
+        popsize=_int(cfg, "popsize", 2),
+        sigma=_float(cfg, "sigma", 0.0, False),
+        lr=_float(cfg, "lr", 0.0, False),
+        weight_decay=_float(cfg, "weight_decay", 0.0, True),
+        weight_decay_form=_choice(cfg.get("weight_decay_form"), "weight_decay_form", WEIGHT_DECAY_FORMS),
+        workers=workers,
+        checkpoint_every=_int(cfg, "checkpoint_every", 0),
+        progress=_bool(cfg, "progress"),
+        results_dir=_name(cfg, "results_dir"),
+        experiment=experiment,
+        config={**cfg, "mixing": mixing},
+    )
+
+
+def _env(env_cfg: dict):
+    name, env_id = env_cfg.get("name"), env_cfg.get("id")
+    max_steps = env_cfg.get("max_steps")
+    if max_steps is not None:
+        max_steps = _int(env_cfg, "max_steps", 1, label="env.max_steps")
+    if not isinstance(env_id, str) or not env_id or env_id == "???":
+        raise ConfigError(f"env.id={env_id!r}: give a gymnasium id, e.g. env.id=MountainCar-v0")
+    if name in BUILTIN_ENVS and env_id == BUILTIN_ENVS[name]:
+        return name, env_id, max_steps
+    # A gymnasium id other than a built-in's: the generic (slower) path; the id names the run.
+    import gymnasium as gym
+
+    import imix_cli.envs  # noqa: F401  (registers the imix/ environments)
+
+    try:
+        gym.spec(env_id)
+    except Exception as err:  # gymnasium raises several error types for unknown/deprecated ids
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ConfigError(f"env.id={env_id!r}: not a registered gymnasium environment ({reason})") from None
+    return env_id, env_id, max_steps
+
+
+# ------------------------------------------------------------------- whole command-line checks
+def config_dir() -> str:
+    """Where the Hydra configs are: the installed package ``imix_cli.conf`` or, in a source tree, ``conf/``."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("imix_cli.conf")
+    if spec is not None and spec.submodule_search_locations:
+        return str(Path(list(spec.submodule_search_locations)[0]).resolve())
+    return str((Path(__file__).resolve().parent.parent / "conf").resolve())
+
+
+def group_options(group: str) -> list[str]:
+    return sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml"))
+
+
+_MAX_VALIDATED_POINTS = 2000
+
+
+def validate_overrides(overrides: list[str]) -> list[RunSpec]:
+    """Compose and validate the config of every point of a (possibly multirun) command line.
+
+    Raises ConfigError (one line) on the first problem. Sweep forms Hydra can expand without a
+    config (``a,b``, ``range(...)``) are expanded; other sweeps (``glob``) are checked by Hydra.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf import OmegaConf
+
+    try:
+        parsed = OverridesParser.create().parse_overrides(overrides)
+    except Exception as err:
+        raise ConfigError(f"cannot parse overrides: {_first_line(err)}") from None
+    choices, passthrough = [], []
+    for override in parsed:
+        key = override.key_or_group
+        if override.is_sweep_override():
+            try:
+                values = list(override.sweep_string_iterator())
+            except Exception:
+                passthrough.append(override.input_line)  # e.g. glob(): Hydra expands it later
+                continue
+            choices.append([f"{override.get_key_element()}={v}" for v in values])
+        else:
+            choices.append([override.input_line])
+        if key in ("algo", "env"):
+            valid = group_options(key)
+            for line in choices[-1]:
+                value = line.split("=", 1)[1]
+                if value not in valid:
+                    raise ConfigError(f"{key}={value}: unknown {key}; valid choices are {', '.join(valid)}")
+    points = list(itertools.islice(itertools.product(*choices), _MAX_VALIDATED_POINTS))
+    specs = []
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
+        for point in points:
+            try:
+                cfg = compose("config", overrides=[*point, *passthrough])
+                plain = OmegaConf.to_container(cfg, resolve=True)
+            except Exception as err:
+                raise ConfigError(_explain_compose_error(err, point)) from None
+            specs.append(spec_from_config(plain))
+    GlobalHydra.instance().clear()
+    return specs
+
+
+def _first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+def _explain_compose_error(err: Exception, point) -> str:
+    text = str(err)
+    if "not in struct" in text or "Could not override" in text or "Key '" in text and "is not in struct" in text:
+        bad = next((p.split("=", 1)[0].lstrip("+~") for p in point if p.split("=", 1)[0].lstrip("+~") in text), None)
+        key = bad or _first_line(err)
+        return f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*, hydra.*)"
+    return f"bad override ({', '.join(point)}): {_first_line(err)}"

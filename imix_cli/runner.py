@@ -1,0 +1,363 @@
+"""The runner: the only module that wires ES, mixing, evaluation and results together.
+
+One run = one config (algo, env, mixing, hyper-parameters) x ``seeds`` seeds. Its seeds are
+split over ``workers`` processes (spawn-safe). Inside a process, every seed advances one
+generation at a time *in lockstep*, and the members that need an episode -- of all its seeds
+-- are rolled out as one batch: with mixing on, only a few members per seed are fresh, and
+sharing one rollout is what keeps the per-step overhead low.
+
+Reproducibility: seed ``k`` owns two random streams derived from ``SeedSequence(k)`` --
+one for sampling and mixing, one for episode seeds -- and every episode's initial state comes
+from its own episode seed. A seed's CSV is therefore identical whatever the worker count,
+the other seeds sharing its batch, or whether it was resumed from a checkpoint.
+
+Files (see :mod:`imix_cli.results`): ``seed_<k>.csv`` is written atomically when seed ``k``
+finishes; a checkpoint of its whole state (ES, archive, RNG states, rows so far) is written
+atomically every ``checkpoint_every`` generations to ``.checkpoints/seed_<k>.pkl`` and deleted
+once the CSV exists. Re-running the same command skips finished seeds and resumes the others
+from their checkpoints.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import pickle
+import queue as queue_module
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from imix_cli.algorithms import make_es
+from imix_cli.config import RunSpec, identity_of
+from imix_cli.evaluation import make_evaluator
+from imix_cli.mixing import Generation, mix
+from imix_cli.results import (
+    CorruptResultError,
+    atomic_write_bytes,
+    atomic_write_text,
+    read_run_csv,
+    rows_to_frame,
+    seed_csv_path,
+    write_run_csv,
+)
+from imix_cli.stats import mean_ci
+
+
+class RunError(RuntimeError):
+    """A run cannot proceed (existing results conflict, unwritable folder...); one-line message."""
+
+
+# ----------------------------------------------------------------------------- one seed's state
+@dataclass
+class SeedState:
+    """Everything seed ``seed`` needs to continue; pickled whole as its checkpoint."""
+
+    seed: int
+    es: object
+    sample_rng: np.random.Generator  # sampling and mixing
+    episode_rng: np.random.Generator  # one episode seed per fresh member
+    archive: list = field(default_factory=list)  # Generation objects, newest first
+    archive_returns: list = field(default_factory=list)  # the returns of their members
+    rows: list = field(default_factory=list)
+    evaluations: int = 0
+    env_steps: int = 0
+    elapsed: float = 0.0  # wall seconds spent on this seed before the current process took it
+
+    @property
+    def generation(self) -> int:
+        return len(self.rows)
+
+
+def new_seed_state(spec: RunSpec, seed: int, dim: int) -> SeedState:
+    sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
+    es = make_es(
+        spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,
+        weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form,
+    )  # fmt: skip
+    return SeedState(seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq))
+
+
+def _archive_depth(spec: RunSpec) -> int:
+    if spec.variant is None:
+        return 0
+    return spec.eim_generations if spec.variant == "eim" else 1
+
+
+def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
+    """Run one generation of every seed in ``states``, with one batched rollout for all fresh members."""
+    plans = []
+    for st in states:
+        dist = st.es.distribution
+        if spec.variant is None or not st.archive:
+            samples = st.es.ask(st.sample_rng)
+            g = Generation(samples, np.zeros(spec.popsize, np.int64), np.full(spec.popsize, -1, np.int64), dist)
+        else:
+            g = mix(dist, st.archive, spec.popsize, st.sample_rng, variant=spec.variant, alpha=spec.im_alpha, eim_generations=spec.eim_generations)
+        fresh = np.flatnonzero(g.source == 0)
+        episode_seeds = st.episode_rng.integers(0, np.iinfo(np.int64).max, size=fresh.size, dtype=np.int64)
+        plans.append((g, fresh, episode_seeds))
+    returns, steps = evaluator.evaluate(
+        np.concatenate([g.samples[fresh] for g, fresh, _ in plans]),
+        np.concatenate([seeds for _, _, seeds in plans]),
+    )
+    offset = 0
+    for st, (g, fresh, _) in zip(states, plans):
+        n = fresh.size
+        fitness = np.empty(spec.popsize)
+        fitness[fresh] = returns[offset : offset + n]
+        for member in np.flatnonzero(g.source > 0):  # reused members keep their stored return
+            fitness[member] = st.archive_returns[g.source[member] - 1][g.index[member]]
+        st.evaluations += n
+        st.env_steps += int(steps[offset : offset + n].sum())
+        offset += n
+        finite = np.isfinite(fitness)
+        st.rows.append(
+            {
+                "algo": spec.algo,
+                "env": spec.env_name,
+                "mixing": spec.mixing,
+                "seed": st.seed,
+                "generation": st.generation,
+                "evaluations": st.evaluations,
+                "env_steps": st.env_steps,
+                # Non-finite returns (a user's env may produce them) are left out of the mean and counted.
+                "mean_score": float(np.mean(fitness[finite])) if finite.any() else float("nan"),
+                "best_score": float(np.max(fitness[finite])) if finite.any() else float("nan"),
+                "reused": g.reused,
+                "reused_im": g.reused_from_previous,
+                "reused_eim": g.reused_from_older,
+                "popsize": spec.popsize,
+                "sigma_mean": g.dist.sigma_mean,
+                "nonfinite": int(np.count_nonzero(~finite)),
+                "wall_time": 0.0,  # filled in by the caller, which owns the clock
+            }
+        )
+        st.es.tell(g.samples, fitness)
+        depth = _archive_depth(spec)
+        if depth:
+            st.archive = [g, *st.archive][:depth]
+            st.archive_returns = [fitness, *st.archive_returns][:depth]
+
+
+# ----------------------------------------------------------------------------- files of a run
+def checkpoint_path(run_dir: Path, seed: int) -> Path:
+    return Path(run_dir) / ".checkpoints" / f"seed_{seed}.pkl"
+
+
+def save_checkpoint(run_dir: Path, st: SeedState, identity: dict) -> None:
+    path = checkpoint_path(run_dir, st.seed)
+    path.parent.mkdir(exist_ok=True)
+    atomic_write_bytes(path, pickle.dumps({"identity": identity, "state": st}, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def load_checkpoint(run_dir: Path, seed: int, identity: dict) -> SeedState | None:
+    """The saved state of ``seed``, or None if there is none (or it is unreadable or of another config)."""
+    path = checkpoint_path(run_dir, seed)
+    try:
+        data = pickle.loads(path.read_bytes())
+    except FileNotFoundError:
+        return None
+    except Exception:  # a checkpoint we cannot read only costs recomputation
+        return None
+    if not isinstance(data, dict) or data.get("identity") != identity:
+        return None
+    return data["state"]
+
+
+def prepare_run_dir(spec: RunSpec) -> list[int]:
+    """Create the run folder, check/write config.yaml, and return the seeds still to run.
+
+    Raises RunError if the folder holds results of a different config or a corrupt CSV;
+    nothing existing is overwritten.
+    """
+    import yaml
+
+    run_dir = spec.run_dir
+    config_file = run_dir / "config.yaml"
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise RunError(f"results_dir={spec.results_dir!r}: cannot create {run_dir} ({err.strerror or err})") from None
+    if not os.access(run_dir, os.W_OK):
+        raise RunError(f"results_dir={spec.results_dir!r}: {run_dir} is not writable")
+    if config_file.exists():
+        try:
+            existing = yaml.safe_load(config_file.read_text())
+        except Exception as err:
+            raise RunError(f"{config_file}: unreadable ({type(err).__name__}); move it away or choose another experiment=") from None
+        if not isinstance(existing, dict):
+            raise RunError(f"{config_file}: not a config mapping; move it away or choose another experiment=")
+        old, new = identity_of(existing), spec.identity()
+        differing = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        if differing:
+            key = differing[0]
+            raise RunError(
+                f"{config_file} holds a different config ({key}={old.get(key)!r} there, {new.get(key)!r} now); "
+                "choose another experiment= or move that folder away"
+            )
+    todo = []
+    for seed in range(spec.seeds):
+        path = seed_csv_path(run_dir, seed)
+        if not path.exists():
+            todo.append(seed)
+            continue
+        try:
+            frame = read_run_csv(path)
+        except CorruptResultError as err:
+            raise RunError(f"{err}; move or delete it, then re-run") from None
+        if len(frame) != spec.generations:
+            raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
+    if not config_file.exists():
+        atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
+    return todo
+
+
+# ----------------------------------------------------------------------------- a worker's job
+_progress_queue = None
+
+
+def _init_worker(progress_queue) -> None:
+    global _progress_queue
+    _progress_queue = progress_queue
+
+
+def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
+    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep; return them.
+
+    ``progress(n)`` is called with the number of seed-generations just completed.
+    """
+    progress = progress or _queue_progress
+    evaluator = make_evaluator(spec.evaluator_key, spec.env_max_steps)
+    identity = spec.identity()
+    run_dir = spec.run_dir
+    states = []
+    for seed in seeds:
+        st = load_checkpoint(run_dir, seed, identity) or new_seed_state(spec, seed, evaluator.num_params)
+        states.append(st)
+        if st.generation:
+            progress(st.generation)
+    started = time.perf_counter()
+    active = [st for st in states if st.generation < spec.generations]
+    while active:
+        advance_lockstep(active, spec, evaluator)
+        now = time.perf_counter() - started
+        for st in active:
+            st.rows[-1]["wall_time"] = st.elapsed + now
+            if st.generation == spec.generations:
+                write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
+                checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+            elif spec.checkpoint_every and st.generation % spec.checkpoint_every == 0:
+                elapsed, st.elapsed = st.elapsed, st.elapsed + now
+                save_checkpoint(run_dir, st, identity)
+                st.elapsed = elapsed
+        progress(len(active))
+        active = [st for st in active if st.generation < spec.generations]
+    for st in states:  # seeds resumed from a checkpoint taken after their last generation
+        if not seed_csv_path(run_dir, st.seed).exists():
+            write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
+            checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+    return list(seeds)
+
+
+def _queue_progress(n: int) -> None:
+    if _progress_queue is not None:
+        _progress_queue.put(n)
+
+
+# ----------------------------------------------------------------------------- the whole run
+def run(spec: RunSpec, echo=print) -> dict:
+    """Run every unfinished seed of ``spec``; print and return the summary."""
+    todo = prepare_run_dir(spec)
+    total = len(todo) * spec.generations
+    bar = _progress_bar(spec, total)
+    started = time.perf_counter()
+    if todo:
+        workers = min(spec.workers, len(todo))
+        chunks = [list(map(int, c)) for c in np.array_split(np.array(todo), workers)]
+        if workers == 1:
+            run_seeds(spec, chunks[0], progress=bar.update)
+        else:
+            _run_pool(spec, chunks, bar)
+    bar.close()
+    summary = summarize(spec)
+    summary["wall_time"] = time.perf_counter() - started
+    summary["seeds_run"] = len(todo)
+    echo(format_summary(spec, summary))
+    return summary
+
+
+def _run_pool(spec: RunSpec, chunks: list[list[int]], bar) -> None:
+    # One BLAS thread per process: the seeds already use every core.
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    ctx = multiprocessing.get_context("spawn")
+    progress_queue = ctx.Queue()
+    with ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,)) as pool:
+        pending = {pool.submit(run_seeds, spec, chunk) for chunk in chunks}
+        while pending:
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            _drain(progress_queue, bar)
+            for future in done:
+                future.result()  # re-raise a worker's error here
+        _drain(progress_queue, bar)
+
+
+def _drain(progress_queue, bar) -> None:
+    while True:
+        try:
+            bar.update(progress_queue.get_nowait())
+        except queue_module.Empty:
+            return
+
+
+class _NoBar:
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
+
+
+def _progress_bar(spec: RunSpec, total: int):
+    if not spec.progress or total == 0:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=spec.run_name, unit="gen", mininterval=0.5, dynamic_ncols=True)
+
+
+# ----------------------------------------------------------------------------- the summary
+def summarize(spec: RunSpec) -> dict:
+    """Final mean score +- 68 % CI over seeds, total evaluations and env steps, reuse %, non-finite returns."""
+    finals, evaluations, env_steps, reused, members, nonfinite = [], 0, 0, 0, 0, 0
+    for seed in range(spec.seeds):
+        frame = read_run_csv(seed_csv_path(spec.run_dir, seed))
+        finals.append(float(frame["mean_score"].iloc[-1]))
+        evaluations += int(frame["evaluations"].iloc[-1])
+        env_steps += int(frame["env_steps"].iloc[-1])
+        reused += int(frame["reused"].sum())
+        members += int(frame["popsize"].sum())
+        nonfinite += int(frame["nonfinite"].sum())
+    mean, half_width, _ = mean_ci(finals, level=0.68)
+    return {
+        "run": spec.run_name,
+        "seeds": spec.seeds,
+        "final_mean_score": mean,
+        "ci68": half_width,
+        "evaluations": evaluations,
+        "env_steps": env_steps,
+        "reuse_percent": 100.0 * reused / members if members else 0.0,
+        "nonfinite_returns": nonfinite,
+    }
+
+
+def format_summary(spec: RunSpec, s: dict) -> str:
+    header = f"{'run':<32} {'seeds':>5} {'final mean score (68% CI)':>26} {'evaluations':>12} {'env steps':>12} {'reuse':>7} {'non-finite':>10}"
+    score = f"{s['final_mean_score']:.2f} ± {s['ci68']:.2f}"
+    line = f"{s['run']:<32} {s['seeds']:>5} {score:>26} {s['evaluations']:>12,} {s['env_steps']:>12,} {s['reuse_percent']:>6.1f}% {s['nonfinite_returns']:>10}"
+    where = f"results: {spec.run_dir}/seed_*.csv  ({s['seeds_run']} seed(s) run now, {s['wall_time']:.1f} s)" if "seeds_run" in s else ""
+    return "\n".join([header, line, where]).rstrip()

@@ -1,0 +1,323 @@
+"""Batched environments and evaluator: equivalence with gymnasium, batch independence, determinism."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from imix_cli.envs import seeded_uniform
+from imix_cli.envs.acrobot import AcrobotBatch, dsdt, rk4_step
+from imix_cli.envs.cartpole import CartPoleBatch
+from imix_cli.evaluation import make_evaluator
+from imix_cli.policies import BatchPolicy, act, forward, num_params
+
+MAX_VEL = np.array([4 * np.pi, 9 * np.pi])
+
+
+# ---------------------------------------------------------------------------------- helpers
+def linear_mlp(obs_weights, out_row):
+    """MLP params whose decision is sign(obs @ obs_weights), read out with ``out_row`` (8-8 hidden)."""
+    obs_weights = np.asarray(obs_weights, dtype=float)
+    obs_dim, out_dim = obs_weights.size, len(out_row)
+    W1 = np.zeros((obs_dim, 8))
+    W1[:, 0] = obs_weights
+    W2 = np.zeros((8, 8))
+    W2[0, 0] = 1.0
+    W3 = np.zeros((8, out_dim))
+    W3[0] = out_row
+    return np.concatenate([W1.ravel(), np.zeros(8), W2.ravel(), np.zeros(8), W3.ravel(), np.zeros(out_dim)])
+
+
+def cartpole_params(rng, n_random=12, n_good=12):
+    """Random members (short episodes) and noisy balancers (mostly the full 200 steps)."""
+    good = linear_mlp([0, 0, 1, 1], [-1, 1]) + 0.05 * rng.standard_normal((n_good, 130))
+    return np.vstack([rng.standard_normal((n_random, 130)), good])
+
+
+def acrobot_params(rng, n_random=8, n_good=12):
+    """Random members (mostly 200 steps) and noisy swing-up pumpers (terminate in ~70-130 steps)."""
+    good = linear_mlp([0, 0, 0, 0, 0, 1], [-1, 0, 1]) + 0.05 * rng.standard_normal((n_good, 155))
+    return np.vstack([2 * rng.standard_normal((n_random, 155)), good])
+
+
+def random_acrobot_states(rng, n):
+    return np.column_stack(
+        [rng.uniform(-np.pi, np.pi, (n, 2)), rng.uniform(-MAX_VEL[0], MAX_VEL[0], n), rng.uniform(-MAX_VEL[1], MAX_VEL[1], n)]
+    )
+
+
+# ---------------------------------------------------------------------------------- policies
+def test_param_counts():
+    assert num_params(4, 2) == 130
+    assert num_params(6, 3) == 155
+    assert make_evaluator("cartpole").num_params == 130
+    assert make_evaluator("acrobot").num_params == 155
+
+
+@pytest.mark.parametrize("obs_dim,out_dim", [(4, 2), (6, 3), (3, 1)])
+def test_policy_layout_and_actions(obs_dim, out_dim):
+    rng = np.random.default_rng(0)
+    B = 23
+    P = rng.standard_normal((B, num_params(obs_dim, out_dim)))
+    X = rng.standard_normal((B, obs_dim)).astype(np.float32)
+    ref = []
+    for p, x in zip(P, X.astype(np.float64)):  # the documented flat layout, sliced by hand
+        k = 0
+        W1 = p[k : k + obs_dim * 8].reshape(obs_dim, 8); k += obs_dim * 8  # noqa: E702
+        b1 = p[k : k + 8]; k += 8  # noqa: E702
+        W2 = p[k : k + 64].reshape(8, 8); k += 64  # noqa: E702
+        b2 = p[k : k + 8]; k += 8  # noqa: E702
+        W3 = p[k : k + 8 * out_dim].reshape(8, out_dim); k += 8 * out_dim  # noqa: E702
+        b3 = p[k : k + out_dim]; k += out_dim  # noqa: E702
+        assert k == p.size
+        ref.append(np.tanh(np.tanh(x @ W1 + b1) @ W2 + b2) @ W3 + b3)
+    ref = np.array(ref)
+    np.testing.assert_allclose(forward(P, X, out_dim), ref, rtol=0, atol=1e-12)
+    a = act(P, X, out_dim)
+    assert a.dtype == np.int64 and a.shape == (B,)
+    np.testing.assert_array_equal(a, np.argmax(ref, axis=1))
+    np.testing.assert_allclose(act(P, X, out_dim, discrete=False), np.tanh(ref), atol=1e-12)
+    lo, hi = -2.0, 3.0
+    np.testing.assert_allclose(
+        act(P, X, out_dim, discrete=False, low=lo, high=hi), lo + (np.tanh(ref) + 1) * (hi - lo) / 2, atol=1e-12
+    )
+    # each member's output is the same alone as in the batch
+    for i in (0, 7, B - 1):
+        np.testing.assert_array_equal(forward(P[i : i + 1], X[i : i + 1], out_dim)[0], forward(P, X, out_dim)[i])
+
+
+def test_seeded_uniform_matches_numpy():
+    rng = np.random.default_rng(0)
+    seeds = np.concatenate(
+        [
+            np.array([0, 1, 2**32 - 1, 2**32, 2**63, 2**64 - 1], dtype=np.uint64),
+            rng.integers(0, 2**64 - 1, 500, dtype=np.uint64, endpoint=True),
+            np.arange(200, dtype=np.uint64),
+        ]
+    )
+    for low, high in [(-0.05, 0.05), (-0.1, 0.1)]:
+        ref = np.array([np.random.default_rng(int(s)).uniform(low, high, 4) for s in seeds])
+        np.testing.assert_array_equal(seeded_uniform(seeds, low, high, 4), ref)
+    np.testing.assert_array_equal(
+        seeded_uniform(np.arange(10), -1, 2, 3), [np.random.default_rng(s).uniform(-1, 2, 3) for s in range(10)]
+    )
+
+
+# ---------------------------------------------------------------------------------- acrobot
+def test_acrobot_dsdt_matches_gymnasium():
+    env = gym.make("Acrobot-v1").unwrapped
+    rng = np.random.default_rng(1)
+    n = 3000
+    s_aug = np.column_stack([random_acrobot_states(rng, n) * 1.5, rng.choice([-1.0, 0.0, 1.0], n)])
+    ref = np.array([env._dsdt(row) for row in s_aug], dtype=np.float64)
+    np.testing.assert_array_equal(dsdt(s_aug.T, exact=True).T, ref)
+    fast = dsdt(s_aug.T).T
+    np.testing.assert_allclose(fast, ref, rtol=1e-12, atol=1e-12)
+    assert np.mean(np.all(fast == ref, axis=1)) > 0.99  # only x**2 rounding differs, rarely
+
+
+def _acrobot_test_states(rng):
+    """Random states over the whole box, plus states visited by swing-up episodes (near the goal)."""
+    states = [random_acrobot_states(rng, 3000)]
+    sim = AcrobotBatch()
+    pol = BatchPolicy(acrobot_params(rng, 4, 16), 6, 3)
+    obs = sim.reset(rng.integers(0, 2**32, 20))
+    for _ in range(150):
+        states.append(sim.state)
+        obs, _, _ = sim.step(pol(obs))
+    return np.vstack(states)
+
+
+def test_acrobot_steps_match_gymnasium():
+    env = gym.make("Acrobot-v1").unwrapped
+    rng = np.random.default_rng(2)
+    S = _acrobot_test_states(rng)
+    A = rng.integers(0, 3, len(S))
+    ref_state, ref_obs, ref_rew, ref_term = [], [], [], []
+    for s, a in zip(S, A):
+        env.state = s.copy()
+        obs, rew, term, trunc, _ = env.step(int(a))
+        assert not trunc
+        ref_state.append(env.state)
+        ref_obs.append(obs)
+        ref_rew.append(rew)
+        ref_term.append(term)
+    ref_state, ref_obs = np.array(ref_state), np.array(ref_obs)
+    ref_rew, ref_term = np.array(ref_rew), np.array(ref_term)
+    # the comparison covers terminations, angle wrapping and velocity clipping
+    raw = rk4_step(S.T, np.array([-1.0, 0.0, 1.0])[A]).T
+    assert ref_term.sum() > 100
+    assert (np.abs(raw[:, :2]) > np.pi).sum() > 100
+    assert (np.abs(raw[:, 2:]) > MAX_VEL).sum() > 100
+    for exact in (False, True):
+        sim = AcrobotBatch(exact=exact)
+        sim.set_state(S)
+        obs, rew, term = sim.step(A)
+        diff = np.abs(sim.state - ref_state).max()
+        assert diff <= 1e-9
+        if exact:
+            assert diff == 0.0
+        np.testing.assert_array_equal(term, ref_term)
+        np.testing.assert_array_equal(rew, ref_rew)
+        assert obs.dtype == np.float32
+        np.testing.assert_allclose(obs, ref_obs, rtol=0, atol=1e-6)
+
+
+def test_acrobot_episodes_match_gymnasium():
+    """Whole episodes from reset(seed=s): exact mode reproduces gymnasium step by step."""
+    rng = np.random.default_rng(3)
+    P = acrobot_params(rng, 6, 10)
+    seeds = rng.integers(0, 2**63, len(P), dtype=np.uint64)
+    env = gym.make("Acrobot-v1", max_episode_steps=200)
+    sim = AcrobotBatch(exact=True)
+    pol = BatchPolicy(P, 6, 3)
+    obs = sim.reset(seeds)
+    traj, terms = [sim.state], []
+    for _ in range(200):
+        obs, _, term = sim.step(pol(obs))
+        traj.append(sim.state)
+        terms.append(term)
+    traj, terms = np.array(traj), np.array(terms)
+    ref_returns, ref_steps = [], []
+    for i, seed in enumerate(seeds):
+        single = BatchPolicy(P[i : i + 1], 6, 3)
+        o, _ = env.reset(seed=int(seed))
+        np.testing.assert_array_equal(env.unwrapped.state, traj[0, i])
+        ret, t, done = 0.0, 0, False
+        while not done:
+            o, r, term, trunc, _ = env.step(int(single(o[None])[0]))
+            ret, t, done = ret + r, t + 1, term or trunc
+            np.testing.assert_array_equal(env.unwrapped.state, traj[t, i])
+            assert term == terms[t - 1, i]
+        ref_returns.append(ret)
+        ref_steps.append(t)
+    assert sum(s < 200 for s in ref_steps) >= 8  # terminations are exercised
+    for exact in (True, False):  # the default mode gives the same episodes here too
+        r, s = make_evaluator("acrobot", exact=exact).evaluate(P, seeds)
+        np.testing.assert_array_equal(r, ref_returns)
+        np.testing.assert_array_equal(s, ref_steps)
+
+
+# ---------------------------------------------------------------------------------- cartpole
+def test_cartpole_episodes_match_single_gymnasium_env():
+    """CartPoleVectorEnv rollouts == single CartPole-v1 episodes from reset(seed=s), capped at 200."""
+    rng = np.random.default_rng(4)
+    P = cartpole_params(rng, 12, 12)
+    seeds = rng.integers(0, 2**63, len(P), dtype=np.uint64)
+    sim, pol = CartPoleBatch(), BatchPolicy(P, 4, 2)
+    obs = sim.reset(seeds)
+    traj = [sim.state]
+    for _ in range(200):
+        obs, _, _ = sim.step(pol(obs))
+        traj.append(sim.state)
+    traj = np.array(traj)
+    env = gym.make("CartPole-v1", max_episode_steps=200)
+    ref_returns, ref_steps, max_diff = [], [], 0.0
+    for i, seed in enumerate(seeds):
+        single = BatchPolicy(P[i : i + 1], 4, 2)
+        o, _ = env.reset(seed=int(seed))
+        np.testing.assert_array_equal(env.unwrapped.state, traj[0, i])
+        ret, t, done = 0.0, 0, False
+        while not done:
+            o, r, term, trunc, _ = env.step(int(single(o[None])[0]))
+            ret, t, done = ret + r, t + 1, term or trunc
+            max_diff = max(max_diff, np.abs(env.unwrapped.state - traj[t, i]).max())
+        ref_returns.append(ret)
+        ref_steps.append(t)
+    assert max_diff <= 1e-9
+    assert min(ref_steps) < 50 and max(ref_steps) == 200
+    for compact in (True, False):
+        r, s = make_evaluator("cartpole", compact=compact).evaluate(P, seeds)
+        np.testing.assert_array_equal(r, ref_returns)
+        np.testing.assert_array_equal(s, ref_steps)
+
+
+# ---------------------------------------------------------------------------------- evaluator
+def _params_for(name, ev, rng):
+    if name == "cartpole":
+        return cartpole_params(rng, 10, 10)
+    if name == "acrobot":
+        return acrobot_params(rng, 6, 8)
+    return rng.standard_normal((8, ev.num_params))
+
+
+@pytest.mark.parametrize(
+    "name,max_steps", [("cartpole", None), ("acrobot", None), ("MountainCar-v0", None), ("Pendulum-v1", 60)]
+)
+def test_batch_independence_and_determinism(name, max_steps):
+    rng = np.random.default_rng(5)
+    ev = make_evaluator(name, max_steps)
+    P = _params_for(name, ev, rng)
+    B = len(P)
+    seeds = rng.integers(0, 2**63, B, dtype=np.uint64)
+    r, s = ev.evaluate(P, seeds)
+    assert r.shape == s.shape == (B,) and r.dtype == np.float64 and s.dtype == np.int64
+    assert np.all((s >= 1) & (s <= ev.max_steps))
+    # determinism
+    r2, s2 = ev.evaluate(P, seeds)
+    np.testing.assert_array_equal(r2, r)
+    np.testing.assert_array_equal(s2, s)
+    # alone
+    for i in range(B):
+        ri, si = ev.evaluate(P[i : i + 1], seeds[i : i + 1])
+        assert (ri[0], si[0]) == (r[i], s[i]), i
+    # shuffled, and mixed into a larger batch with other members
+    perm = rng.permutation(B)
+    rp, sp = ev.evaluate(P[perm], seeds[perm])
+    np.testing.assert_array_equal(rp, r[perm])
+    np.testing.assert_array_equal(sp, s[perm])
+    others = _params_for(name, ev, np.random.default_rng(6))
+    big_P = np.vstack([others[:3], P, others[3:]])
+    other_seeds = rng.integers(0, 2**63, len(others), dtype=np.uint64)
+    big_seeds = np.concatenate([other_seeds[:3], seeds, other_seeds[3:]])
+    rb, sb = ev.evaluate(big_P, big_seeds)
+    np.testing.assert_array_equal(rb[3 : 3 + B], r)
+    np.testing.assert_array_equal(sb[3 : 3 + B], s)
+    if name in ("cartpole", "acrobot"):
+        rn, sn = make_evaluator(name, max_steps, compact=False).evaluate(P, seeds)
+        np.testing.assert_array_equal(rn, r)
+        np.testing.assert_array_equal(sn, s)
+    if name == "cartpole":
+        assert np.array_equal(r, s) and s.min() < 50 and s.max() == 200
+    if name == "Pendulum-v1":
+        assert not ev.discrete and np.all(s == 60)
+
+
+def test_generic_matches_single_env():
+    """The generic path plays exactly the single-env episode of reset(seed=s)."""
+    rng = np.random.default_rng(7)
+    ev = make_evaluator("Pendulum-v1", max_steps=30)
+    P = rng.standard_normal((4, ev.num_params))
+    seeds = np.arange(4) + 10
+    r, s = ev.evaluate(P, seeds)
+    env = gym.make("Pendulum-v1", max_episode_steps=30)
+    for i in range(4):
+        pol = BatchPolicy(P[i : i + 1], 3, 1, discrete=False, low=-2.0, high=2.0)
+        o, _ = env.reset(seed=int(seeds[i]))
+        ret, t, done = 0.0, 0, False
+        while not done:
+            o, rew, term, trunc, _ = env.step(pol(o[None])[0].astype(np.float32))
+            ret, t, done = ret + rew, t + 1, term or trunc
+        assert (t, ret) == (s[i], r[i])
+
+
+def test_max_steps_and_empty_batch():
+    ev = make_evaluator("cartpole", max_steps=20)
+    P = cartpole_params(np.random.default_rng(8), 0, 5)
+    r, s = ev.evaluate(P, np.arange(5))
+    assert np.all(s == 20) and np.all(r == 20)
+    r, s = ev.evaluate(np.zeros((0, 130)), np.zeros(0, dtype=np.int64))
+    assert r.shape == s.shape == (0,)
+    with pytest.raises(ValueError):
+        ev.evaluate(P[:, :-1], np.arange(5))
+    with pytest.raises(ValueError):
+        ev.evaluate(P, np.arange(4))
+
+
+@pytest.mark.parametrize("bad", ["Foo-v0", "NotAnEnv", "CartPole-v99"])
+def test_unknown_env_id(bad):
+    with pytest.raises(ValueError) as info:
+        make_evaluator(bad)
+    msg = str(info.value)
+    assert bad in msg and "\n" not in msg
