@@ -1,0 +1,189 @@
+"""The experiment runner through its real entry point, `imix run` (imix_cli.cli.main).
+
+Runs are tiny (a few generations, small populations) so the whole file stays fast; what is
+checked is the contract: validation before any work, the CSV schema and folder layout,
+determinism across repeats and worker counts, and one end-to-end run per algorithm and env.
+"""
+
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+from imix_cli.cli import main
+from imix_cli.config import PAPER_DEFAULTS, config_dir
+from imix_cli.results import COLUMNS, read_run_csv
+
+TINY = ["generations=4", "seeds=2", "popsize=8", "progress=false", "workers=1"]
+
+
+def imix(*args, results_dir):
+    return main(["run", *args, f"results_dir={results_dir}"])
+
+
+def all_files(root: Path):
+    return sorted(p for p in Path(root).rglob("*") if p.is_file()) if Path(root).exists() else []
+
+
+@pytest.mark.parametrize("algo", ["openes", "snes", "cem", "cmaes"])
+@pytest.mark.parametrize("env", ["cartpole", "acrobot"])
+def test_end_to_end_every_algo_and_env(tmp_path, algo, env):
+    assert imix(f"algo={algo}", f"env={env}", "eim=true", *TINY, results_dir=tmp_path) == 0
+    run_dir = tmp_path / "default" / f"{algo}-{env}-eim-popsize=8"
+    for seed in range(2):
+        frame = read_run_csv(run_dir / f"seed_{seed}.csv")
+        assert list(frame.columns) == list(COLUMNS)
+        assert len(frame) == 4
+        assert (frame["algo"] == algo).all() and (frame["env"] == env).all() and (frame["mixing"] == "eim").all()
+        assert (frame["seed"] == seed).all()
+        assert frame["evaluations"].is_monotonic_increasing and frame["env_steps"].is_monotonic_increasing
+        assert frame["evaluations"].iloc[0] == 8  # generation 0: everything is fresh
+        assert (frame["reused"] == frame["reused_im"] + frame["reused_eim"]).all()
+        # evaluations grow by exactly the fresh members of each generation
+        fresh = frame["popsize"] - frame["reused"]
+        assert (frame["evaluations"].diff().iloc[1:] == fresh.iloc[1:]).all()
+        assert frame["reused"].iloc[1:].sum() > 0
+    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert config["algo"]["name"] == algo and config["popsize"] == 8 and config["mixing"] == "eim"
+    assert not list(run_dir.glob(".*.tmp")) and not (run_dir / ".checkpoints").exists() or not list((run_dir / ".checkpoints").iterdir())
+
+
+def read_without_wall_time(path):
+    return pd.read_csv(path).drop(columns=["wall_time"])
+
+
+def test_same_seed_same_csv_across_repeats_and_worker_counts(tmp_path):
+    args = ["algo=snes", "env=cartpole", "eim=true", "generations=6", "seeds=3", "popsize=10", "progress=false"]
+    assert main(["run", *args, "workers=1", f"results_dir={tmp_path / 'a'}"]) == 0
+    assert main(["run", *args, "workers=1", f"results_dir={tmp_path / 'b'}"]) == 0
+    assert main(["run", *args, "workers=2", f"results_dir={tmp_path / 'c'}"]) == 0
+    for seed in range(3):
+        name = f"default/snes-cartpole-eim-popsize=10/seed_{seed}.csv"
+        a = read_without_wall_time(tmp_path / "a" / name)
+        pd.testing.assert_frame_equal(a, read_without_wall_time(tmp_path / "b" / name))
+        pd.testing.assert_frame_equal(a, read_without_wall_time(tmp_path / "c" / name))
+    # and different seeds really differ
+    s0 = read_without_wall_time(tmp_path / "a/default/snes-cartpole-eim-popsize=10/seed_0.csv")
+    s1 = read_without_wall_time(tmp_path / "a/default/snes-cartpole-eim-popsize=10/seed_1.csv")
+    assert not s0["mean_score"].equals(s1["mean_score"])
+
+
+def test_folder_names_carry_non_paper_hyperparameters(tmp_path):
+    assert imix("algo=openes", "im=true", "im_variant=sun2009", "im_alpha=0.1", "sigma=0.1", *TINY, results_dir=tmp_path) == 0
+    assert (tmp_path / "default" / "openes-cartpole-im-im_alpha=0.1,im_variant=sun2009,popsize=8,sigma=0.1" / "seed_0.csv").exists()
+    assert imix("algo=cem", "popsize=50", "generations=2", "seeds=1", "progress=false", "workers=1", results_dir=tmp_path) == 0
+    assert (tmp_path / "default" / "cem-cartpole-none" / "seed_0.csv").exists()
+
+
+def test_finished_seeds_are_skipped_and_more_seeds_extend_the_run(tmp_path):
+    assert imix("algo=cem", *TINY, results_dir=tmp_path) == 0
+    run_dir = tmp_path / "default" / "cem-cartpole-none-popsize=8"
+    before = (run_dir / "seed_0.csv").stat().st_mtime_ns
+    args = [a for a in TINY if not a.startswith("seeds")]
+    assert imix("algo=cem", "seeds=3", *args, results_dir=tmp_path) == 0
+    assert (run_dir / "seed_0.csv").stat().st_mtime_ns == before  # not recomputed
+    assert read_run_csv(run_dir / "seed_2.csv").shape[0] == 4
+
+
+BAD_VALUES = [
+    ("popsize=1", "popsize"),
+    ("popsize=abc", "popsize"),
+    ("popsize=2.5", "popsize"),
+    ("sigma=0", "sigma"),
+    ("sigma=-1", "sigma"),
+    ("lr=0", "lr"),
+    ("lr=-0.1", "lr"),
+    ("seeds=0", "seeds"),
+    ("generations=0", "generations"),
+    ("workers=0", "workers"),
+    ("weight_decay=-1", "weight_decay"),
+    ("eim_generations=0", "eim_generations"),
+    ("im=maybe", "im"),
+    ("algo=ppo", "algo"),
+    ("env=pong", "env"),
+    ("im_variant=magic", "im_variant"),
+    ("popsiz=10", "popsiz"),
+]
+
+
+@pytest.mark.parametrize("override, key", BAD_VALUES)
+def test_bad_values_give_one_line_naming_the_key_exit_2_nothing_written(tmp_path, capsys, override, key):
+    code = imix(*TINY, override, results_dir=tmp_path / "out")
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert key in err and "Traceback" not in err
+    assert all_files(tmp_path) == []
+
+
+def test_unknown_group_option_lists_the_valid_choices(tmp_path, capsys):
+    assert imix("algo=ppo", results_dir=tmp_path) == 2
+    err = capsys.readouterr().err
+    for name in ("openes", "snes", "cem", "cmaes"):
+        assert name in err
+
+
+def test_a_bad_point_anywhere_in_a_sweep_stops_before_the_first_runs(tmp_path, capsys):
+    assert main(["run", "-m", "algo=cem", "popsize=8,1", *TINY[:2], "progress=false", f"results_dir={tmp_path}"]) == 2
+    assert "popsize" in capsys.readouterr().err
+    assert all_files(tmp_path) == []
+
+
+def test_paper_defaults_match_the_shipped_config():
+    config = yaml.safe_load((Path(config_dir()) / "config.yaml").read_text())
+    for key, value in PAPER_DEFAULTS.items():
+        assert config[key] == value, key
+    generations = {p.stem: yaml.safe_load(p.read_text())["generations"] for p in (Path(config_dir()) / "algo").glob("*.yaml") if p.stem != "ddpg"}
+    assert generations == {"openes": 1000, "snes": 1000, "cem": 400, "cmaes": 400}
+
+
+def test_run_help_documents_every_key(capsys):
+    from imix_cli.config import TOP_LEVEL_KEYS
+
+    assert main(["run", "--help"]) == 0
+    out = capsys.readouterr().out
+    for key in TOP_LEVEL_KEYS:
+        assert key in out, key
+
+
+def test_top_level_help_and_unknown_command(capsys):
+    assert main(["--help"]) == 0
+    assert "imix run" in capsys.readouterr().out
+    assert main(["frobnicate"]) == 2
+    assert "frobnicate" in capsys.readouterr().err
+
+
+def test_generic_gymnasium_id_runs(tmp_path):
+    assert imix("env=gym", "env.id=MountainCar-v0", "algo=openes", "generations=2", "seeds=1", "popsize=4", "progress=false", "workers=1", results_dir=tmp_path) == 0
+    frame = read_run_csv(tmp_path / "default" / "openes-MountainCar-v0-none-popsize=4" / "seed_0.csv")
+    assert (frame["env"] == "MountainCar-v0").all()
+    assert frame["mean_score"].iloc[0] == -200.0  # an untrained policy never reaches the flag
+
+
+def test_wheel_ships_the_configs(tmp_path):
+    """`conf/` is packaged as imix_cli.conf so that `imix run` works from any directory after `pip install .`."""
+    repo = Path(__file__).resolve().parent.parent
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path), str(repo)], check=True)
+    wheel = next(tmp_path.glob("imix_cli-*.whl"))
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for conf in sorted((repo / "conf").rglob("*.yaml")) + [repo / "conf" / "__init__.py"]:
+        assert f"imix_cli/conf/{conf.relative_to(repo / 'conf').as_posix()}" in names, conf
+
+
+def test_installed_console_script_runs_from_any_directory(tmp_path):
+    """The `imix` on PATH (in CI: the non-editable install) runs from a directory without conf/."""
+    script = Path(sys.executable).parent / "imix"
+    assert script.exists()
+    env = {**os.environ, "PYTHONPATH": ""}
+    proc = subprocess.run(
+        [str(script), "run", "algo=openes", "generations=2", "seeds=1", "popsize=4", "progress=false", "workers=1"],
+        cwd=tmp_path, capture_output=True, text=True, env=env, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "results" / "default" / "openes-cartpole-none-popsize=4" / "seed_0.csv").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]  # no Hydra litter in the working directory
