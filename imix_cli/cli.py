@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import sys
+from concurrent.futures.process import BrokenProcessPool
 
 # One BLAS thread per process, set before numpy loads: seeds already run one process per core,
 # and two BLAS threads fighting over two cores made CMA-ES's eigendecomposition 10x slower.
@@ -96,12 +97,14 @@ def _hydra_run() -> None:
 
 def _task(cfg) -> None:
     """The Hydra task: one config (one sweep point) -> validated RunSpec -> runner."""
+    from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
     from imix_cli.config import ConfigError, spec_from_config
 
     try:
-        spec = spec_from_config(OmegaConf.to_container(cfg, resolve=True))
+        launcher = OmegaConf.select(HydraConfig.get(), "launcher._target_")
+        spec = spec_from_config(OmegaConf.to_container(cfg, resolve=True), launcher)
     except ConfigError as err:
         sys.exit(_error(str(err), 2))
     from imix_cli.runner import RunError, run
@@ -110,6 +113,8 @@ def _task(cfg) -> None:
         run(spec)
     except RunError as err:
         sys.exit(_error(str(err), 1))
+    except BrokenProcessPool:
+        sys.exit(_error("a worker process died (killed?); re-run the same command to resume from the checkpoints", 1))
     except OSError as err:
         where = f" {err.filename}" if getattr(err, "filename", None) else ""
         sys.exit(_error(f"cannot write{where}: {err.strerror or err}", 1))

@@ -48,6 +48,26 @@ TOP_LEVEL_KEYS = (
 )  # fmt: skip
 
 
+#: Hydra launchers that run several jobs at once on one machine (or in Ray's workers): there a
+#: per-job process pool must step aside (a spawn pool inside a joblib/loky worker dies), so
+#: `workers` defaults to 1 under them and an explicit workers > 1 is refused.
+PARALLEL_LAUNCHERS = {"JoblibLauncher": "joblib", "RayLauncher": "ray", "RayAWSLauncher": "ray_aws", "LocalLauncher": "submitit_local"}
+
+
+def parallel_launcher_name(launcher_target: str | None) -> str | None:
+    """The short name of a parallel launcher from its ``_target_`` class path, else None."""
+    cls = (launcher_target or "").rsplit(".", 1)[-1]
+    return PARALLEL_LAUNCHERS.get(cls)
+
+
+def default_workers() -> int:
+    """All cores this process may use (respects CPU affinity, e.g. a Slurm allocation)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 class ConfigError(ValueError):
     """A bad configuration value; ``str(err)`` is a one-line message naming the key."""
 
@@ -171,8 +191,12 @@ def _name(cfg: dict, key: str) -> str:
     return value
 
 
-def spec_from_config(cfg: dict) -> RunSpec:
-    """Validate a resolved config (a plain dict, as Hydra composes it) and build the RunSpec."""
+def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
+    """Validate a resolved config (a plain dict, as Hydra composes it) and build the RunSpec.
+
+    ``launcher`` is the Hydra launcher's ``_target_``: under a launcher that runs jobs in
+    parallel, each job's seeds run in-process (``workers`` 1).
+    """
     unknown = sorted(set(cfg) - set(TOP_LEVEL_KEYS))
     if unknown:
         raise ConfigError(f"unknown key {unknown[0]!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
@@ -190,8 +214,13 @@ def spec_from_config(cfg: dict) -> RunSpec:
     variant = "eim" if eim else (im_variant if im else None)
 
     env_name, env_id, max_steps = _env(env_cfg)
-    workers = cfg.get("workers")
-    workers = (os.cpu_count() or 1) if workers is None else _int(cfg, "workers", 1)
+    workers, parallel = cfg.get("workers"), parallel_launcher_name(launcher)
+    if workers is None:
+        workers = 1 if parallel else default_workers()
+    else:
+        workers = _int(cfg, "workers", 1)
+        if parallel and workers > 1:
+            raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
     experiment = _name(cfg, "experiment")
     if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
         raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
@@ -269,7 +298,7 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
-    from omegaconf import OmegaConf
+    from omegaconf import OmegaConf, open_dict
 
     try:
         parsed = OverridesParser.create().parse_overrides(overrides)
@@ -299,11 +328,14 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
     with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
         for point in points:
             try:
-                cfg = compose("config", overrides=[*point, *passthrough])
+                cfg = compose("config", overrides=[*point, *passthrough], return_hydra_config=True)
+                launcher = OmegaConf.select(cfg, "hydra.launcher._target_")
+                with open_dict(cfg):
+                    del cfg["hydra"]
                 plain = OmegaConf.to_container(cfg, resolve=True)
             except Exception as err:
                 raise ConfigError(_explain_compose_error(err, point)) from None
-            specs.append(spec_from_config(plain))
+            specs.append(spec_from_config(plain, launcher))
     GlobalHydra.instance().clear()
     return specs
 
