@@ -13,10 +13,15 @@ PAPER_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true weig
 
 .PHONY: install test reproduce reproduce-quick bench clean-quick
 
-install:  ## create .venv and install imix (non-editable) with its test and optional extras
+# torch for the DDPG baseline: the CPU build (on other machines, add
+# --index-url https://download.pytorch.org/whl/cpu to avoid GBs of CUDA packages).
+TORCH ?= torch==2.13.0
+
+install:  ## create .venv and install imix (non-editable) with every extra
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
-	$(PY) -m pip install ".[test]"
+	$(PY) -m pip install "$(TORCH)"
+	$(PY) -m pip install ".[all]"
 
 test:  ## run the test suite
 	$(PY) -m pytest -q

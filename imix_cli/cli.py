@@ -84,6 +84,8 @@ def run_command(args: list[str]) -> int:
         _hydra_run()
     except SystemExit as exit_:
         return exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
+    except Exception as err:  # Hydra's own argument errors (e.g. --cfg together with -m)
+        return _error(str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__, 2)
     return 0
 
 

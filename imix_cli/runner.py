@@ -213,16 +213,26 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
             raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
     if not config_file.exists():
         atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
+    # Temporaries of writes cut short by a kill are never at a final name; clear them away.
+    for stale in [*run_dir.glob(".*.tmp"), *run_dir.glob(".checkpoints/.*.tmp")]:
+        stale.unlink(missing_ok=True)
     return todo
 
 
 # ----------------------------------------------------------------------------- a worker's job
 _progress_queue = None
+_parent_pid = None
 
 
 def _init_worker(progress_queue) -> None:
-    global _progress_queue
+    global _progress_queue, _parent_pid
     _progress_queue = progress_queue
+    _parent_pid = os.getppid()
+
+
+def _parent_is_gone() -> bool:
+    """True in a pool worker whose main process died (kill -9): it must not race the re-run."""
+    return _parent_pid is not None and os.getppid() != _parent_pid
 
 
 def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
@@ -243,6 +253,8 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     started = time.perf_counter()
     active = [st for st in states if st.generation < spec.generations]
     while active:
+        if _parent_is_gone():
+            raise SystemExit("imix worker: main process is gone; stopping (checkpoints are kept)")
         advance_lockstep(active, spec, evaluator)
         now = time.perf_counter() - started
         for st in active:

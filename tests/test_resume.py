@@ -1,0 +1,123 @@
+"""A grid killed at any moment and re-run with the same command completes with the same CSVs.
+
+The kill test runs the real `imix` console script in its own process group and SIGKILLs it
+at random moments -- alternately the whole group (main process and workers) and a single
+worker -- then re-runs the same command until it completes. After every kill, every file at a
+final name must be a complete, valid CSV; at the end every CSV must equal (but for wall_time)
+the CSV of an uninterrupted run.
+"""
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from imix_cli.cli import main
+from imix_cli.config import validate_overrides
+from imix_cli.results import read_run_csv
+from imix_cli.runner import checkpoint_path, prepare_run_dir, run_seeds
+
+IMIX = str(Path(sys.executable).parent / "imix")
+GENERATIONS = 300
+# Long enough (~10 s of work on 2 cores) that the first kills always land before completion.
+ARGS = ["run", "algo=snes", "env=acrobot", "eim=true", "seeds=4", f"generations={GENERATIONS}", "popsize=40", "checkpoint_every=5", "workers=2", "progress=false"]
+
+
+def csvs(root: Path) -> dict:
+    return {p.relative_to(root): pd.read_csv(p).drop(columns=["wall_time"]) for p in sorted(root.rglob("seed_*.csv"))}
+
+
+def worker_pids(main_pid: int) -> list[int]:
+    """Pool workers (multiprocessing spawn children) of the main process."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes().decode(errors="replace")
+        except OSError:
+            continue
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        if ppid == main_pid and "spawn_main" in cmdline:
+            pids.append(int(entry.name))
+    return pids
+
+
+def assert_final_files_valid(root: Path) -> None:
+    for path in root.rglob("seed_*.csv"):
+        assert len(read_run_csv(path)) == GENERATIONS, path  # complete, never partial
+
+
+@pytest.mark.slow
+def test_kill_minus_9_at_random_points_then_resume_gives_identical_csvs(tmp_path):
+    reference, target = tmp_path / "reference", tmp_path / "killed"
+    subprocess.run([IMIX, *ARGS, f"results_dir={reference}"], check=True, capture_output=True)
+    rng = random.Random(20261122)
+    kills = {"group": 0, "worker": 0}
+    for attempt in range(12):
+        proc = subprocess.Popen([IMIX, *ARGS, f"results_dir={target}"], start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            proc.wait(timeout=rng.uniform(1.5, 4.0))
+            break  # this attempt ran to completion
+        except subprocess.TimeoutExpired:
+            workers = worker_pids(proc.pid)
+            if attempt % 2 == 1 and workers:
+                os.kill(rng.choice(workers), signal.SIGKILL)
+                kills["worker"] += 1
+            else:
+                os.killpg(proc.pid, signal.SIGKILL)
+                kills["group"] += 1
+            proc.wait(timeout=60)
+        time.sleep(0.3)  # let orphans notice and stop
+        assert_final_files_valid(target)
+    final = subprocess.run([IMIX, *ARGS, f"results_dir={target}"], capture_output=True, text=True)
+    assert final.returncode == 0, final.stderr
+    print(f"kills: {kills}")
+    assert kills["group"] >= 2 and kills["worker"] >= 1, kills
+    expected, got = csvs(reference), csvs(target)
+    assert sorted(got) == sorted(expected) and len(got) == 4
+    for name in expected:
+        pd.testing.assert_frame_equal(got[name], expected[name])
+    assert not list(target.rglob("*.tmp"))
+
+
+def test_resume_from_checkpoint_equals_not_stopping(tmp_path):
+    """In-process: interrupt after 7 generations (checkpoint at 6), resume, compare."""
+    common = ["algo=cmaes", "env=acrobot", "im=true", "seeds=2", "generations=10", "popsize=10", "checkpoint_every=3", "workers=1", "progress=false"]
+    assert main(["run", *common, f"results_dir={tmp_path / 'ref'}"]) == 0
+    (spec,) = validate_overrides([*common, f"results_dir={tmp_path / 'stop'}"])
+    todo = prepare_run_dir(spec)
+    done = {"n": 0}
+
+    def interrupt_after_seven_generations(n):
+        done["n"] += 1
+        if done["n"] == 7:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_seeds(spec, todo, progress=interrupt_after_seven_generations)
+    assert checkpoint_path(spec.run_dir, 0).exists() and not (spec.run_dir / "seed_0.csv").exists()
+    assert main(["run", *common, f"results_dir={tmp_path / 'stop'}"]) == 0
+    assert not checkpoint_path(spec.run_dir, 0).exists()
+    expected, got = csvs(tmp_path / "ref"), csvs(tmp_path / "stop")
+    assert len(got) == 2
+    for name in expected:
+        pd.testing.assert_frame_equal(got[name], expected[name])
+
+
+def test_a_checkpoint_of_another_config_is_ignored(tmp_path):
+    common = ["algo=cem", "seeds=1", "generations=6", "popsize=8", "checkpoint_every=2", "workers=1", "progress=false"]
+    (spec,) = validate_overrides([*common, f"results_dir={tmp_path}"])
+    todo = prepare_run_dir(spec)
+    path = checkpoint_path(spec.run_dir, 0)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"not a pickle")  # unreadable: recomputed, never trusted
+    run_seeds(spec, todo, progress=lambda n: None)
+    assert len(read_run_csv(spec.run_dir / "seed_0.csv")) == 6
