@@ -24,6 +24,7 @@ import multiprocessing
 import os
 import pickle
 import queue as queue_module
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
@@ -221,18 +222,21 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
 
 # ----------------------------------------------------------------------------- a worker's job
 _progress_queue = None
-_parent_pid = None
 
 
 def _init_worker(progress_queue) -> None:
-    global _progress_queue, _parent_pid
+    global _progress_queue
     _progress_queue = progress_queue
-    _parent_pid = os.getppid()
+    threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), daemon=True).start()
 
 
-def _parent_is_gone() -> bool:
-    """True in a pool worker whose main process died (kill -9): it must not race the re-run."""
-    return _parent_pid is not None and os.getppid() != _parent_pid
+def _exit_when_orphaned(parent_pid: int) -> None:
+    """A pool worker whose main process died (kill -9) must not linger, idle on the task queue
+    forever or racing the re-run: it exits within a second (its checkpoints stay valid)."""
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent_pid:
+            os._exit(1)
 
 
 def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
@@ -253,8 +257,6 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     started = time.perf_counter()
     active = [st for st in states if st.generation < spec.generations]
     while active:
-        if _parent_is_gone():
-            raise SystemExit("imix worker: main process is gone; stopping (checkpoints are kept)")
         advance_lockstep(active, spec, evaluator)
         now = time.perf_counter() - started
         for st in active:

@@ -163,7 +163,7 @@ class CMAES(EvolutionStrategy):
         if es.countiter == 0:
             es.timer = _cma_utils.ElapsedWCTime()
         else:
-            es.timer.tic
+            es.timer.tic  # noqa: B018  (a property with a side effect: pycma's ask calls it too)
         es._flgtelldone = False
         es.ary = []
         es.number_of_injections = 0
