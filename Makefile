@@ -11,11 +11,16 @@ IMIX    = $(VENV)/bin/imix
 # text's -0.05|theta|^2 (the config default) keeps population scores far lower (README).
 PAPER_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true weight_decay_form=estool
 
-.PHONY: install test reproduce reproduce-quick bench clean-quick
+# Paper section 4.3: the SNES + EIM grid search (Figs 9-11) and SNES + EIM vs DDPG on
+# ContinuousCartPole and its sparse-reward Hard variant (Figs 12-13). DDPG runs at ~420 env
+# steps per CPU-second here, so `make reproduce` uses few DDPG seeds (about an hour in all on
+# 2 cores); `make reproduce-full` uses 25 seeds everywhere (many hours).
+GRID_SEEDS      ?= 5
+DDPG_SEEDS      ?= 4
+DDPG_HARD_SEEDS ?= 2
+SEC43 = eim=true weight_decay_form=estool progress=false
 
-# torch for the DDPG baseline: the CPU build (on other machines, add
-# --index-url https://download.pytorch.org/whl/cpu to avoid GBs of CUDA packages).
-TORCH ?= torch==2.13.0
+.PHONY: install test reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 install:  ## create .venv and install imix (non-editable) with every extra
 	$(PYTHON) -m venv $(VENV)
@@ -26,11 +31,26 @@ install:  ## create .venv and install imix (non-editable) with every extra
 test:  ## run the test suite
 	$(PY) -m pytest -q
 
-reproduce:  ## the whole paper into results/paper/ (figures in results/paper/figures/)
+reproduce: reproduce-main reproduce-grid reproduce-ddpg  ## the whole paper into results/paper*/
+
+reproduce-main:  ## section 4.2: the main grid + Figs 1-3, 5-8, Table 1 into results/paper/figures/
 	$(IMIX) run -m $(PAPER_GRID) experiment=paper progress=false
 	$(IMIX) plot experiment=paper
 
-reproduce-quick:  ## the same figures from 3 seeds x 30 generations, in about a minute
+reproduce-grid:  ## section 4.3: popsize/sigma/lr grid search (Figs 9-11 + ranking) into results/paper_grid/
+	$(IMIX) run -m algo=snes env=continuous_cartpole popsize=10,25,50 sigma=0.05,0.1,0.25 lr=0.01,0.1 seeds=$(GRID_SEEDS) experiment=paper_grid $(SEC43)
+	$(IMIX) plot experiment=paper_grid
+
+reproduce-ddpg:  ## section 4.3: SNES + EIM (popsize 10, sigma 0.1, lr 0.1, 1500 generations) vs DDPG (Figs 12-13)
+	$(IMIX) run -m algo=snes env=continuous_cartpole,continuous_cartpole_hard popsize=10 sigma=0.1 lr=0.1 generations=1500 experiment=paper_ddpg $(SEC43)
+	$(IMIX) run algo=ddpg env=continuous_cartpole seeds=$(DDPG_SEEDS) experiment=paper_ddpg progress=false
+	$(IMIX) run algo=ddpg env=continuous_cartpole_hard seeds=$(DDPG_HARD_SEEDS) experiment=paper_ddpg progress=false
+	$(IMIX) plot experiment=paper_ddpg
+
+reproduce-full:  ## the whole paper with 25 seeds everywhere
+	$(MAKE) reproduce GRID_SEEDS=25 DDPG_SEEDS=25 DDPG_HARD_SEEDS=25
+
+reproduce-quick:  ## the main figures from 3 seeds x 30 generations, in about a minute
 	$(IMIX) run -m $(PAPER_GRID) experiment=quick seeds=3 generations=30 progress=false
 	$(IMIX) plot experiment=quick
 

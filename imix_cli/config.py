@@ -18,12 +18,20 @@ import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-ALGO_NAMES = ("openes", "snes", "cem", "cmaes")
+ES_NAMES = ("openes", "snes", "cem", "cmaes")
+ALGO_NAMES = (*ES_NAMES, "ddpg")  # ddpg: the deep-RL baseline of section 4.3 (stable-baselines3)
 MIXING_VARIANTS = ("paper", "sun2009")
 WEIGHT_DECAY_FORMS = ("paper", "estool")
 
 #: Built-in environments with a batched evaluator: config name -> gymnasium id it reproduces.
-BUILTIN_ENVS = {"cartpole": "CartPole-v0", "acrobot": "Acrobot-v1"}
+BUILTIN_ENVS = {
+    "cartpole": "CartPole-v0",
+    "acrobot": "Acrobot-v1",
+    "continuous_cartpole": "imix/ContinuousCartPole-v0",
+    "continuous_cartpole_hard": "imix/ContinuousCartPoleHard-v0",
+}
+#: The built-in environments with continuous (Box) actions, the only built-ins algo=ddpg accepts.
+CONTINUOUS_ENVS = ("continuous_cartpole", "continuous_cartpole_hard")
 
 #: The paper's setting (section 4.1). A run folder's name carries, as ``-key=value,...``, the
 #: hyper-parameters that differ from these, so sweep points get folders of their own.
@@ -38,13 +46,39 @@ PAPER_DEFAULTS = {
     "eim_generations": 3,
 }
 
+#: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
+#: carries, as ``-key=value,...``, the ones that differ from these.
+DDPG_DEFAULTS = {
+    "actor_arch": [8, 8],
+    "critic_arch": [16, 16],
+    "actor_lr": 0.005,
+    "critic_lr": 0.01,
+    "tau": 0.001,
+    "gamma": 0.99,
+    "batch_size": 64,
+    "buffer_size": 1_000_000,
+    "learning_starts": 100,
+    "train_freq": 1,
+    "gradient_steps": 1,
+    "ou_sigma": 0.2,
+    "ou_theta": 0.15,
+    "ou_dt": 0.01,
+}
+
+#: Top-level keys of the evolution strategies only: algo=ddpg ignores them (and leaves them out
+#: of its config.yaml, so they never make two DDPG runs differ). ``total_steps`` is ddpg's only.
+ES_ONLY_KEYS = (
+    "im", "eim", "im_variant", "im_alpha", "eim_generations", "generations", "popsize", "sigma", "lr",
+    "weight_decay", "weight_decay_form", "checkpoint_every",
+)  # fmt: skip
+
 #: Keys that do not change a run's results (everything else in config.yaml must match to resume).
 NON_IDENTITY_KEYS = ("seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every")
 
 TOP_LEVEL_KEYS = (
     "algo", "env", "im", "eim", "im_variant", "im_alpha", "eim_generations", "seeds", "generations",
     "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
-    "progress", "results_dir", "experiment",
+    "progress", "results_dir", "experiment", "total_steps",
 )  # fmt: skip
 
 
@@ -97,6 +131,9 @@ class RunSpec:
     results_dir: str
     experiment: str
     config: dict = field(repr=False, compare=False)  # the resolved config, written as config.yaml
+    # algo=ddpg only (the ES fields above then hold inert placeholders: generations 0, mixing none):
+    total_steps: int | None = None  # environment steps of each seed
+    ddpg: dict | None = field(default=None, compare=False)  # validated conf/algo/ddpg.yaml settings
 
     @property
     def evaluator_key(self) -> str:
@@ -106,6 +143,9 @@ class RunSpec:
     @property
     def overrides_suffix(self) -> str:
         """``key=value,...`` for the hyper-parameters that differ from the paper's (sorted)."""
+        if self.algo == "ddpg":
+            changed = {k: v for k, v in (self.ddpg or {}).items() if k in DDPG_DEFAULTS and v != DDPG_DEFAULTS[k]}
+            return ",".join(f"{k}={_format(v)}" for k, v in sorted(changed.items()))
         values = {
             "popsize": self.popsize, "sigma": self.sigma, "lr": self.lr, "weight_decay": self.weight_decay,
             "weight_decay_form": self.weight_decay_form,
@@ -141,6 +181,8 @@ def identity_of(config: dict) -> dict:
 
 
 def _format(value) -> str:
+    if isinstance(value, (list, tuple)):
+        return "x".join(map(str, value))  # layer sizes: [16, 16] -> 16x16
     return repr(value) if isinstance(value, float) else str(value)
 
 
@@ -202,6 +244,8 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         raise ConfigError(f"unknown key {unknown[0]!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
     algo_cfg, env_cfg = cfg.get("algo") or {}, cfg.get("env") or {}
     algo = _choice(algo_cfg.get("name"), "algo", ALGO_NAMES)
+    if algo == "ddpg":
+        return _ddpg_spec(cfg, algo_cfg, env_cfg, launcher)
     im, eim = _bool(cfg, "im"), _bool(cfg, "eim")
     im_variant = _choice(cfg.get("im_variant"), "im_variant", MIXING_VARIANTS)
     im_alpha = _float(cfg, "im_alpha", 0.0, True, 1.0, False)
@@ -214,16 +258,8 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     variant = "eim" if eim else (im_variant if im else None)
 
     env_name, env_id, max_steps = _env(env_cfg)
-    workers, parallel = cfg.get("workers"), parallel_launcher_name(launcher)
-    if workers is None:
-        workers = 1 if parallel else default_workers()
-    else:
-        workers = _int(cfg, "workers", 1)
-        if parallel and workers > 1:
-            raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
-    experiment = _name(cfg, "experiment")
-    if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
-        raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
+    workers, experiment = _workers_and_experiment(cfg, launcher)
+    config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
     return RunSpec(
         algo=algo,
         env_name=env_name,
@@ -245,8 +281,114 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         progress=_bool(cfg, "progress"),
         results_dir=_name(cfg, "results_dir"),
         experiment=experiment,
-        config={**cfg, "mixing": mixing},
+        config={**config, "mixing": mixing},
     )
+
+
+def _workers_and_experiment(cfg: dict, launcher: str | None) -> tuple[int, str]:
+    workers, parallel = cfg.get("workers"), parallel_launcher_name(launcher)
+    if workers is None:
+        workers = 1 if parallel else default_workers()
+    else:
+        workers = _int(cfg, "workers", 1)
+        if parallel and workers > 1:
+            raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
+    experiment = _name(cfg, "experiment")
+    if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
+        raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
+    return workers, experiment
+
+
+# ------------------------------------------------------------------------------ algo=ddpg
+def _ddpg_spec(cfg: dict, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
+    """algo=ddpg: ES keys are ignored; ``total_steps`` (null: the algo's per-env default) is the budget."""
+    env_name, env_id, max_steps = _env(env_cfg)
+    episode_cap = _continuous_env_cap(env_name, env_id, max_steps)
+    settings = _ddpg_settings(algo_cfg)
+    total = cfg.get("total_steps")
+    if total is None:
+        defaults = algo_cfg.get("default_total_steps") or {}
+        total = defaults.get(env_name) if isinstance(defaults, dict) else None
+        if total is None:
+            raise ConfigError(f"total_steps=null: algo=ddpg has no default budget for env {env_name!r}; give total_steps=<environment steps>")
+        total = _int({"algo.default_total_steps": total}, "algo.default_total_steps", 1, label=f"algo.default_total_steps.{env_name}")
+    else:
+        total = _int(cfg, "total_steps", 1)
+    if total < episode_cap:
+        raise ConfigError(f"total_steps={total}: must be >= the episode cap of {episode_cap} steps, so that every seed finishes an episode")
+    workers, experiment = _workers_and_experiment(cfg, launcher)
+    algo_stored = {k: v for k, v in algo_cfg.items() if k not in ("generations", "default_total_steps")}
+    config = {k: v for k, v in cfg.items() if k not in ES_ONLY_KEYS}
+    config.update(algo=algo_stored, total_steps=total, mixing="none")
+    return RunSpec(
+        algo="ddpg",
+        env_name=env_name,
+        env_id=env_id,
+        env_max_steps=max_steps,
+        mixing="none",
+        variant=None,
+        im_alpha=PAPER_DEFAULTS["im_alpha"],
+        eim_generations=PAPER_DEFAULTS["eim_generations"],
+        seeds=_int(cfg, "seeds", 1),
+        generations=0,
+        popsize=PAPER_DEFAULTS["popsize"],
+        sigma=PAPER_DEFAULTS["sigma"],
+        lr=PAPER_DEFAULTS["lr"],
+        weight_decay=PAPER_DEFAULTS["weight_decay"],
+        weight_decay_form=PAPER_DEFAULTS["weight_decay_form"],
+        workers=workers,
+        checkpoint_every=0,
+        progress=_bool(cfg, "progress"),
+        results_dir=_name(cfg, "results_dir"),
+        experiment=experiment,
+        config=config,
+        total_steps=total,
+        ddpg=settings,
+    )
+
+
+def _continuous_env_cap(env_name: str, env_id: str, max_steps: int | None) -> int:
+    """The episode length cap of a continuous-action env; ConfigError for a discrete one."""
+    if env_name in BUILTIN_ENVS:
+        if env_name not in CONTINUOUS_ENVS:
+            raise ConfigError(f"env={env_name}: algo=ddpg needs continuous actions; use env={' or env='.join(CONTINUOUS_ENVS)} (or env=gym env.id=<a Box-action id>)")
+        return max_steps or 200
+    import gymnasium as gym
+
+    try:
+        probe = gym.make(env_id)
+    except Exception as err:
+        raise ConfigError(f"env.id={env_id!r}: cannot be made ({_first_line(err)})") from None
+    try:
+        box = isinstance(probe.action_space, gym.spaces.Box)
+    finally:
+        probe.close()
+    if not box:
+        raise ConfigError(f"env.id={env_id!r}: algo=ddpg needs continuous (Box) actions, the env has {type(probe.action_space).__name__} actions")
+    cap = max_steps or gym.spec(env_id).max_episode_steps
+    if cap is None:
+        raise ConfigError(f"env.id={env_id!r} has no time limit: give env.max_steps for algo=ddpg")
+    return int(cap)
+
+
+def _ddpg_settings(algo_cfg: dict) -> dict:
+    """The validated DDPG settings (``algo.*`` keys of conf/algo/ddpg.yaml)."""
+    a = {f"algo.{k}": v for k, v in algo_cfg.items()}
+    out = {}
+    for key in ("actor_arch", "critic_arch"):
+        value = algo_cfg.get(key)
+        if not isinstance(value, (list, tuple)) or not value or not all(_is_number(v) and float(v).is_integer() and v >= 1 for v in value):
+            raise ConfigError(f"algo.{key}={value!r}: must be a non-empty list of layer sizes >= 1, e.g. [8,8]")
+        out[key] = [int(v) for v in value]
+    for key in ("actor_lr", "critic_lr", "ou_dt"):
+        out[key] = _float(a, f"algo.{key}", 0.0, False)
+    out["tau"] = _float(a, "algo.tau", 0.0, False, 1.0, True)
+    out["gamma"] = _float(a, "algo.gamma", 0.0, True, 1.0, True)
+    out["ou_sigma"] = _float(a, "algo.ou_sigma", 0.0, True)
+    out["ou_theta"] = _float(a, "algo.ou_theta", 0.0, True)
+    for key, minimum in (("batch_size", 1), ("buffer_size", 1), ("learning_starts", 0), ("train_freq", 1), ("gradient_steps", 1)):
+        out[key] = _int(a, f"algo.{key}", minimum)
+    return out
 
 
 def _env(env_cfg: dict):

@@ -60,8 +60,24 @@ def _quadratic_row_sums(x, quad, lin, rows=None, shift=None, affine=None) -> np.
     ``affine=(std, mean)`` additionally turns each row of noise into a sample in place,
     x[r] = x[r] * std + mean, while the row is in cache.
     """
-    rows = np.arange(x.shape[0]) if rows is None else rows
     dim = x.shape[1]
+    n_rows = x.shape[0] if rows is None else rows.shape[0]
+    if dim < _CHUNK and n_rows * dim <= _BLOCK_ELEMENTS:  # one block of the path below, in fewest numpy calls
+        y = x if rows is None else x[rows]
+        if shift is not None:
+            y = y - shift
+        t = y * quad
+        t += lin
+        t *= y
+        out = np.add.reduce(t, axis=1).astype(np.float64, copy=False)  # pairwise, per row, as in blocks
+        if affine is not None:
+            if rows is None:
+                x *= affine[0]
+                x += affine[1]
+            else:
+                x[rows] = x[rows] * affine[0] + affine[1]
+        return out
+    rows = np.arange(x.shape[0]) if rows is None else rows
     out = np.zeros(rows.shape[0])
     if dim < _CHUNK:  # small d: vectorised over blocks of rows
         for block in _row_blocks(rows.shape[0], dim):
@@ -169,6 +185,13 @@ class DiagonalGaussian:
         rows = np.arange(x.shape[0]) if rows is None else np.asarray(rows)
         return self._log_norm - 0.5 * _whitened_sq_norms(x, rows, self.mean, self._inv_std)
 
+    def _precision(self) -> np.ndarray:
+        """1 / std**2, computed once per distribution (it enters every log-ratio it is part of)."""
+        w = self.__dict__.get("_w")  # (absent from distributions pickled by older versions)
+        if w is None:
+            w = self._w = self._inv_std**2
+        return w
+
     def _mean_std_in_dtype(self):
         if self._cast is None:
             self._cast = (self.mean.astype(self.dtype), self.std.astype(self.dtype))
@@ -192,19 +215,20 @@ class DiagonalLogRatio:
             raise ValueError(f"dimensions differ: {new.dim} vs {old.dim}")
         self.new, self.old = new, old
         dtype = new.dtype
-        w_new, w_old = new._inv_std**2, old._inv_std**2
+        w_new, w_old = new._precision(), old._precision()
         delta = new.mean - old.mean
         # Old rows: y = x - m_old gives -1/2 sum[(w_new - w_old) y^2 - 2 delta w_new y] + const.
-        self._old_mean = old.mean.astype(dtype)
-        self._row_quad = (w_new - w_old).astype(dtype)
-        self._row_lin = (-2.0 * delta * w_new).astype(dtype)
+        # (astype(copy=False): no copy when the sample dtype is float64; all are read-only here.)
+        self._old_mean = old.mean.astype(dtype, copy=False)
+        self._row_quad = (w_new - w_old).astype(dtype, copy=False)
+        self._row_lin = (-2.0 * delta * w_new).astype(dtype, copy=False)
         self._row_const = new._log_norm - old._log_norm - 0.5 * float(np.dot(delta * delta, w_new))
         # Fresh draws x = m_new + s_new * eps, with a = delta/s_old, b = s_new/s_old:
         # 1/2 sum[-(1 - b^2) eps^2 + 2 a b eps] + 1/2 |a|^2 + const.
         a = delta * old._inv_std
         b = new.std * old._inv_std
-        self._noise_quad = (-(1.0 - b * b)).astype(dtype)
-        self._noise_lin = (2.0 * a * b).astype(dtype)
+        self._noise_quad = (-(1.0 - b * b)).astype(dtype, copy=False)
+        self._noise_lin = (2.0 * a * b).astype(dtype, copy=False)
         self._noise_const = new._log_norm - old._log_norm + 0.5 * float(np.dot(a, a))
 
     def of_rows(self, x: np.ndarray, rows=None) -> np.ndarray:

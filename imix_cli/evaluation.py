@@ -14,11 +14,17 @@ the episode starts from the same state as ``gym.make(id).reset(seed=seeds[i])``.
 Environments (``env_name``):
 
 * ``"cartpole"``: CartPole-v0 semantics (CartPole-v1 dynamics, episodes capped at 200
-  steps, reward 1 per step, so return == steps), stepped by gymnasium's own
-  ``CartPoleVectorEnv`` (see :mod:`imix_cli.envs.cartpole`);
+  steps, reward 1 per step, so return == steps), stepped with gymnasium's
+  ``CartPoleVectorEnv`` arithmetic, bit for bit (see :mod:`imix_cli.envs.cartpole`);
 * ``"acrobot"``: Acrobot-v1 dynamics capped at 200 steps as in the paper (reward -1 per
   step, 0 on the terminating step, as gymnasium), stepped by the numpy batch in
   :mod:`imix_cli.envs.acrobot` (identical to gymnasium's to ~1e-14 per step);
+* ``"continuous_cartpole"`` / ``"continuous_cartpole_hard"``: ``imix/ContinuousCartPole-v0``
+  and ``imix/ContinuousCartPoleHard-v0`` (paper section 4.3: CartPole with a force of
+  10 N x a, a in [-1, 1]; the Hard one pays the episode's total on its last step only), 200
+  steps, stepped by the numpy batch in :mod:`imix_cli.envs.continuous_cartpole` (the same
+  dynamics function as the registered envs; one tanh-bounded output). The returns equal
+  the registered envs' and, for both variants, the episode length;
 * any other registered gymnasium id (e.g. ``"MountainCar-v0"``, ``"Pendulum-v1"``): a
   ``gymnasium.make_vec(id, num_envs=B, vectorization_mode="sync")`` reset with
   ``seed=[seeds...]``. Slower, but any env with a Box observation space and a Discrete or
@@ -45,12 +51,15 @@ from gymnasium import spaces
 
 from imix_cli.envs.acrobot import AcrobotBatch
 from imix_cli.envs.cartpole import CartPoleBatch
+from imix_cli.envs.continuous_cartpole import ContinuousCartPoleBatch
 from imix_cli.policies import HIDDEN, BatchPolicy, num_params
 
-__all__ = ["BatchEvaluator", "make_evaluator", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS"]
+__all__ = ["BatchEvaluator", "make_evaluator", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS", "CONTINUOUS_ENVS"]
 
 CARTPOLE_MAX_STEPS = 200  # CartPole-v0 (reward threshold 195)
 ACROBOT_MAX_STEPS = 200  # the paper's cap (Acrobot-v1 itself allows 500)
+#: Built-in continuous-action environments: evaluator name -> sparse (Hard) reward or not.
+CONTINUOUS_ENVS = {"continuous_cartpole": False, "continuous_cartpole_hard": True}
 
 
 class BatchEvaluator:
@@ -141,7 +150,7 @@ class _CompactingEvaluator(BatchEvaluator):
 
 
 class CartPoleEvaluator(_CompactingEvaluator):
-    """CartPole-v0 semantics on gymnasium's ``CartPoleVectorEnv``."""
+    """CartPole-v0 semantics, stepped as gymnasium's ``CartPoleVectorEnv`` (:class:`~imix_cli.envs.cartpole.CartPoleBatch`)."""
 
     def __init__(self, max_steps: int | None = None, compact: bool = True):
         max_steps = CARTPOLE_MAX_STEPS if max_steps is None else int(max_steps)
@@ -154,6 +163,19 @@ class AcrobotEvaluator(_CompactingEvaluator):
     def __init__(self, max_steps: int | None = None, compact: bool = True, exact: bool = False):
         max_steps = ACROBOT_MAX_STEPS if max_steps is None else int(max_steps)
         super().__init__(AcrobotBatch(exact=exact), "acrobot", 6, 3, max_steps, compact)
+
+
+class ContinuousCartPoleEvaluator(_CompactingEvaluator):
+    """ContinuousCartPole(Hard) on :class:`~imix_cli.envs.continuous_cartpole.ContinuousCartPoleBatch`.
+
+    One continuous output per member, squashed by ``tanh`` into the action range [-1, 1].
+    """
+
+    def __init__(self, hard: bool = False, max_steps: int | None = None, compact: bool = True):
+        max_steps = CARTPOLE_MAX_STEPS if max_steps is None else int(max_steps)
+        name = "continuous_cartpole_hard" if hard else "continuous_cartpole"
+        super().__init__(ContinuousCartPoleBatch(sparse=hard, max_steps=max_steps), name, 4, 1, max_steps, compact)
+        self.discrete = False
 
 
 class GymEvaluator(BatchEvaluator):
@@ -228,9 +250,10 @@ class GymEvaluator(BatchEvaluator):
 
 
 def make_evaluator(env_name: str, max_steps: int | None = None, **kwargs) -> BatchEvaluator:
-    """Evaluator for ``"cartpole"``, ``"acrobot"`` or a gymnasium id (see the module docstring).
+    """Evaluator for ``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
+    ``"continuous_cartpole_hard"`` or a gymnasium id (see the module docstring).
 
-    ``kwargs`` go to the fast-path evaluators (``compact=False`` disables compaction;
+    ``kwargs`` go to the built-in evaluators (``compact=False`` disables compaction;
     ``exact=True`` makes acrobot bit-identical to gymnasium, ~25% slower).
     Raises ``ValueError`` for an unknown environment id.
     """
@@ -239,13 +262,16 @@ def make_evaluator(env_name: str, max_steps: int | None = None, **kwargs) -> Bat
         return CartPoleEvaluator(max_steps, **kwargs)
     if key == "acrobot":
         return AcrobotEvaluator(max_steps, **kwargs)
+    if key in CONTINUOUS_ENVS:
+        return ContinuousCartPoleEvaluator(CONTINUOUS_ENVS[key], max_steps, **kwargs)
     if kwargs:
-        raise ValueError(f"options {sorted(kwargs)} only apply to 'cartpole' and 'acrobot', not {env_name!r}")
+        raise ValueError(f"options {sorted(kwargs)} only apply to the built-in environments, not {env_name!r}")
     try:
         gym.spec(env_name)
     except (gym.error.UnregisteredEnv, gym.error.DeprecatedEnv, gym.error.RegistrationError) as err:
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ValueError(
-            f"unknown environment {env_name!r}: not 'cartpole', 'acrobot' or a registered gymnasium id ({msg})"
+            f"unknown environment {env_name!r}: not 'cartpole', 'acrobot', 'continuous_cartpole', "
+            f"'continuous_cartpole_hard' or a registered gymnasium id ({msg})"
         ) from None
     return GymEvaluator(env_name, max_steps)

@@ -73,7 +73,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imix_cli.distributions import DiagonalGaussian, FullGaussian
+from imix_cli.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
 
 __all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "mix", "VARIANTS"]
 
@@ -86,6 +86,8 @@ VARIANTS = ("paper", "eim", "sun2009")
 _SUN2009_MAX_TRIALS_PER_MEMBER = 200
 # At large d, rule-2 candidates are drawn in blocks of at most this many numbers (one row at d = 10^6).
 _SCRATCH_ELEMENTS = 1 << 20
+# Up to this many numbers in an old generation (rows x d), rule 1 is decided for all its rows at once.
+_UPFRONT_ELEMENTS = 1 << 16
 
 
 @dataclass
@@ -197,10 +199,29 @@ class _Builder:
         free = np.ones(samples.shape[0], dtype=bool)
         if reused.size == 0:
             return free
-        taken_keys = _row_keys(self.samples[reused])
-        for i in np.flatnonzero(np.isin(_row_keys(samples), taken_keys)):
+        # Rows whose key is a taken row's key are candidates. Each is paired with the (first)
+        # taken row of its key and the whole rows are compared at once; only a candidate whose
+        # pair differs (a key collision: in practice never) is compared with every taken row.
+        first_with_key = {}
+        for m, key in zip(reused.tolist(), _row_keys(self.samples[reused]).tolist()):
+            first_with_key.setdefault(key, m)
+        keys = _row_keys(samples).tolist()
+        pairs = [(i, first_with_key[key]) for i, key in enumerate(keys) if key in first_with_key]
+        if not pairs:
+            return free
+        candidates, partners = np.array(pairs, dtype=np.int64).T
+        same = self._rows_equal(samples, candidates, partners)
+        free[candidates[same]] = False
+        for i in candidates[~same]:
             free[i] = not any(np.array_equal(samples[i], self.samples[m]) for m in reused)
         return free
+
+    def _rows_equal(self, samples: np.ndarray, rows: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """``np.array_equal(samples[rows[k]], self.samples[members[k]])`` for each k."""
+        dim = samples.shape[1]
+        if rows.size * dim <= _SCRATCH_ELEMENTS:
+            return np.all(samples[rows] == self.samples[members], axis=1)
+        return np.array([np.array_equal(samples[r], self.samples[m]) for r, m in zip(rows, members)], dtype=bool)
 
     def add(self, rows: np.ndarray, source: int = 0, index=-1) -> None:
         """Append the rows (2-D) of one source; ``index`` gives their rows in that archive entry."""
@@ -246,23 +267,36 @@ def _alternate_rules(builder: _Builder, new_dist, old_dist, old_samples, entry_n
     u2 = rng.random(n_old)
     eligible = builder.not_yet_taken(old_samples)
     log_ratio = _log_ratio(new_dist, old_dist)
+    missing = builder.missing
     # About one member is accepted per step, so a block spans the missing count; at large d it
     # is also capped to a few rows, whose fresh draws go to one reused scratch buffer.
-    max_block = max(1, min(n_old, builder.missing, _SCRATCH_ELEMENTS // max(dim, 1)))
+    max_block = max(1, min(n_old, missing, _SCRATCH_ELEMENTS // max(dim, 1)))
     scratch = np.empty((max_block, dim), dtype=builder.samples.dtype)
+    # Rule 1 at step i only involves old sample order[i] and its own uniform. Between diagonal
+    # Gaussians a row's log-ratio is a per-row sum, the same number whichever rows it is computed
+    # with; so at small d, rule 1 is decided for every step at once (one kernel call instead of
+    # one per block; at large d only the rows actually visited are worth computing).
+    upfront = isinstance(log_ratio, DiagonalLogRatio) and n_old * dim <= _UPFRONT_ELEMENTS
+    if upfront:
+        accept_old_all = eligible[order] & (log_u1 < log_ratio.of_rows(old_samples, order))  # rule 1
     step = 0
-    while step < n_old and builder.missing > 0:
-        block = np.arange(step, min(n_old, step + min(builder.missing, max_block)))
-        rows = order[block]
-        accept_old = eligible[rows] & (log_u1[block] < log_ratio.of_rows(old_samples, rows))  # rule 1
-        candidates, cand_log_ratio = log_ratio.sample(block.size, rng, out=scratch[: block.size])
-        accept_new = u2[block] < -np.expm1(-np.maximum(cand_log_ratio, 0.0))  # rule 2: 1 - p_old/p_new
+    while step < n_old and missing > 0:
+        stop = min(n_old, step + min(missing, max_block))
+        size = stop - step
+        rows = order[step:stop]
+        if upfront:
+            accept_old = accept_old_all[step:stop]
+        else:
+            accept_old = eligible[rows] & (log_u1[step:stop] < log_ratio.of_rows(old_samples, rows))  # rule 1
+        candidates, cand_log_ratio = log_ratio.sample(size, rng, out=scratch[:size])
+        accept_new = u2[step:stop] < -np.expm1(-np.maximum(cand_log_ratio, 0.0))  # rule 2: 1 - p_old/p_new
         filled = np.cumsum(accept_old.astype(np.int64) + accept_new)
-        taken = min(block.size, int(np.searchsorted(filled, builder.missing)) + 1)  # steps until full
+        taken = min(size, int(np.searchsorted(filled, missing)) + 1)  # steps until full
         kept_old = rows[:taken][accept_old[:taken]]
         builder.add(old_samples[kept_old], entry_number, kept_old)
         builder.add(candidates[:taken][accept_new[:taken]])
         step += taken
+        missing = builder.missing
     return step
 
 

@@ -16,6 +16,10 @@ finishes; a checkpoint of its whole state (ES, archive, RNG states, rows so far)
 atomically every ``checkpoint_every`` generations to ``.checkpoints/seed_<k>.pkl`` and deleted
 once the CSV exists. Re-running the same command skips finished seeds and resumes the others
 from their checkpoints.
+
+algo=ddpg (the deep-RL baseline of the paper's section 4.3) uses the same run folder, process
+pool and CSV contract, but its own seed loop (section "algo=ddpg" below): seeds run one after
+another in each worker, one CSV row per finished episode, no mid-run checkpoint.
 """
 
 from __future__ import annotations
@@ -110,8 +114,10 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
         n = fresh.size
         fitness = np.empty(spec.popsize)
         fitness[fresh] = returns[offset : offset + n]
-        for member in np.flatnonzero(g.source > 0):  # reused members keep their stored return
-            fitness[member] = st.archive_returns[g.source[member] - 1][g.index[member]]
+        for k, stored in enumerate(st.archive_returns, start=1):  # reused members keep their stored return
+            from_k = g.source == k
+            if from_k.any():
+                fitness[from_k] = stored[g.index[from_k]]
         st.evaluations += n
         st.env_steps += int(steps[offset : offset + n].sum())
         offset += n
@@ -210,7 +216,10 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
             frame = read_run_csv(path)
         except CorruptResultError as err:
             raise RunError(f"{err}; move or delete it, then re-run") from None
-        if len(frame) != spec.generations:
+        if spec.algo == "ddpg":
+            if int(frame["env_steps"].iloc[-1]) > spec.total_steps:
+                raise RunError(f"{path}: has {int(frame['env_steps'].iloc[-1])} env steps, config asks for {spec.total_steps}; move it away or choose another experiment=")
+        elif len(frame) != spec.generations:
             raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
     if not config_file.exists():
         atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
@@ -242,9 +251,12 @@ def _exit_when_orphaned(parent_pid: int) -> None:
 def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     """Run ``seeds`` of ``spec`` to completion in this process, in lockstep; return them.
 
-    ``progress(n)`` is called with the number of seed-generations just completed.
+    ``progress(n)`` is called with the number of seed-generations just completed
+    (algo=ddpg: environment steps; see :func:`run_ddpg_seeds`).
     """
     progress = progress or _queue_progress
+    if spec.algo == "ddpg":
+        return run_ddpg_seeds(spec, seeds, progress)
     evaluator = make_evaluator(spec.evaluator_key, spec.env_max_steps)
     identity = spec.identity()
     run_dir = spec.run_dir
@@ -282,11 +294,67 @@ def _queue_progress(n: int) -> None:
         _progress_queue.put(n)
 
 
+# ============================================================================= algo=ddpg
+# The DDPG baseline (stable-baselines3, through imix_cli.algorithms.ddpg, which knows SB3 and
+# not files). Seed k is SB3's seed=k; a worker runs its seeds one after another with one torch
+# thread. Each finished training episode is one CSV row: generation = episode index,
+# evaluations = episodes so far, env_steps = steps so far, mean_score = best_score = the
+# episode's return (on ContinuousCartPoleHard the sparse sum, which equals the dense return),
+# reused* 0, popsize 1, sigma_mean = the OU noise's sigma, nonfinite 1 if the return is NaN/inf
+# (mean_score then NaN). An episode still running when total_steps is spent is not a row.
+#
+# No checkpoint: SB3's state (replay buffer of up to 1e6 transitions, optimisers, noise) is
+# not saved mid-run, so a DDPG seed killed before its CSV is written restarts from scratch
+# when the command is re-run; finished seeds are skipped, like ES seeds.
+def ddpg_row(spec: RunSpec, seed: int, episode, wall_time: float) -> dict:
+    """The CSV row of one finished DDPG episode (an :class:`imix_cli.algorithms.ddpg.Episode`)."""
+    finite = bool(np.isfinite(episode.ret))
+    score = float(episode.ret) if finite else float("nan")
+    return {
+        "algo": spec.algo,
+        "env": spec.env_name,
+        "mixing": spec.mixing,
+        "seed": seed,
+        "generation": episode.index,
+        "evaluations": episode.index + 1,
+        "env_steps": episode.env_steps,
+        "mean_score": score,
+        "best_score": score,
+        "reused": 0,
+        "reused_im": 0,
+        "reused_eim": 0,
+        "popsize": 1,
+        "sigma_mean": float(spec.ddpg["ou_sigma"]),
+        "nonfinite": 0 if finite else 1,
+        "wall_time": wall_time,
+    }
+
+
+def run_ddpg_seeds(spec: RunSpec, seeds: list[int], progress) -> list[int]:
+    """Train DDPG for each of ``seeds`` in turn and write its CSV; ``progress(n)`` gets env steps."""
+    from imix_cli.algorithms.ddpg import make_ddpg, train_ddpg
+
+    for seed in seeds:
+        rows = []
+        started = time.perf_counter()
+        model = make_ddpg(spec.env_id, spec.ddpg, seed=seed, max_steps=spec.env_max_steps)
+        train_ddpg(
+            model,
+            spec.total_steps,
+            on_episode=lambda ep, seed=seed, started=started: rows.append(ddpg_row(spec, seed, ep, time.perf_counter() - started)),
+            on_steps=progress,
+            torch_threads=1,
+        )
+        model.env.close()
+        write_run_csv(seed_csv_path(spec.run_dir, seed), rows_to_frame(rows))
+    return list(seeds)
+
+
 # ----------------------------------------------------------------------------- the whole run
 def run(spec: RunSpec, echo=print) -> dict:
     """Run every unfinished seed of ``spec``; print and return the summary."""
     todo = prepare_run_dir(spec)
-    total = len(todo) * spec.generations
+    total = len(todo) * (spec.total_steps if spec.algo == "ddpg" else spec.generations)
     bar = _progress_bar(spec, total)
     started = time.perf_counter()
     if todo:
@@ -341,7 +409,8 @@ def _progress_bar(spec: RunSpec, total: int):
         return _NoBar()
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=spec.run_name, unit="gen", mininterval=0.5, dynamic_ncols=True)
+    unit = "step" if spec.algo == "ddpg" else "gen"
+    return tqdm(total=total, desc=spec.run_name, unit=unit, unit_scale=unit == "step", mininterval=0.5, dynamic_ncols=True)
 
 
 # ----------------------------------------------------------------------------- the summary

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 
 def mean_ci(values, level: float = 0.68, axis: int = 0):
@@ -13,6 +12,8 @@ def mean_ci(values, level: float = 0.68, axis: int = 0):
     (Student t interval of the mean); NaN where fewer than two finite values.
     ``mean_ci([1, 2, 3, 4])`` -> ``(2.5, 1.18893 * 0.645497, 4)``.
     """
+    from scipy import stats  # here, not at import: every spawned worker imports this module
+
     arr = np.asarray(values, dtype=float)
     arr = np.where(np.isfinite(arr), arr, np.nan)
     n = np.sum(np.isfinite(arr), axis=axis)

@@ -15,14 +15,25 @@ verified in pycma's source to make that legitimate.
 from __future__ import annotations
 
 import warnings
+from typing import TYPE_CHECKING
 
-import cma
 import numpy as np
-from cma import options_parameters as _cma_parameters
-from cma.utilities import utils as _cma_utils
 
 from imix_cli.algorithms.base import EvolutionStrategy
 from imix_cli.distributions import FullGaussian
+
+if TYPE_CHECKING:
+    import cma
+
+
+def _pycma():
+    """pycma, imported on first use: ``import cma`` pulls in scipy.stats and matplotlib (~1 s),
+    which every spawned worker of a non-CMA-ES run would otherwise pay at start-up."""
+    import cma
+    import cma.options_parameters
+    import cma.utilities.utils
+
+    return cma
 
 #: options we set and the caller may not override: quiet, no files, no pycma sampling
 #: or global reseeding, nothing that would change the sampling distribution
@@ -125,10 +136,10 @@ class CMAES(EvolutionStrategy):
             bounds=[None, None],
             AdaptSigma=True,  # CSA; TPA would need pycma's ask for its injected pair
         )
-        self._es = cma.CMAEvolutionStrategy(self.initial_mean, self.sigma, opts)
+        self._es = _pycma().CMAEvolutionStrategy(self.initial_mean, self.sigma, opts)
         if not self._es.gp.isidentity or self._es.boundary_handler.has_bounds():
             raise ValueError("cma_options must not introduce a genotype-phenotype transformation or bounds")
-        if not isinstance(self._es.sm, cma.sampler.GaussFullSampler):
+        if not isinstance(self._es.sm, _pycma().sampler.GaussFullSampler):
             # e.g. CMA_diagonal or CMA_sampler: another sampler, another sampling formula
             raise ValueError("CMAES supports pycma's full-covariance sampler (GaussFullSampler) only")
         self._prepare_sampler()
@@ -161,7 +172,7 @@ class CMAES(EvolutionStrategy):
         """Set the bookkeeping pycma's ``ask`` leaves for ``tell`` (n i.i.d. samples, no injections)."""
         es = self._es
         if es.countiter == 0:
-            es.timer = _cma_utils.ElapsedWCTime()
+            es.timer = _pycma().utilities.utils.ElapsedWCTime()
         else:
             es.timer.tic  # noqa: B018  (a property with a side effect: pycma's ask calls it too)
         es._flgtelldone = False
@@ -195,9 +206,10 @@ class CMAES(EvolutionStrategy):
     def _parameters_for(self, n: int):
         """pycma's strategy parameters (weights, c1, cmu, cc, ...) for a population of n."""
         es = self._es
+        cma = _pycma()
         opts = cma.CMAOptions(es.opts)
         opts["popsize"] = n
-        sp = _cma_parameters.CMAParameters(es.N, opts, verbose=False)
+        sp = cma.options_parameters.CMAParameters(es.N, opts, verbose=False)
         p = es.sm.parameters(mueff=sp.weights.mueff, lam=sp.weights.lambda_)
         sp.weights.finalize_negative_weights(es.N, p["c1"], p["cmu"])
         return sp

@@ -25,8 +25,9 @@ keys:
   experiment=NAME         experiment to plot (default: default)
   threshold.<env>=RETURN  population mean return that counts as solved, for the
                           evaluations-to-threshold table (defaults: cartpole=195,
-                          acrobot=-100; other envs are left out unless given;
-                          threshold.<env>=none removes one)
+                          acrobot=-100, continuous_cartpole=195,
+                          continuous_cartpole_hard=195; other envs are left out
+                          unless given; threshold.<env>=none removes one)
   ci=LEVEL                confidence level of the shaded interval of the mean,
                           in (0, 1) (default: 0.68, as in the paper; Student t)
   only=NAME[,NAME...]     draw only these outputs, among:
@@ -153,7 +154,7 @@ def main(argv: list | None = None) -> int:
         print(f"imix plot: {err}", file=sys.stderr)
         return 2
 
-    from .data import PlotOptions, load_experiment
+    from .data import DEFAULT_THRESHOLDS, PlotOptions, load_experiment
     from .figures import FIGURES, save_figure, style
     from .tables import TABLES, write_table
 
@@ -179,7 +180,7 @@ def main(argv: list | None = None) -> int:
     exp = load_experiment(settings["results_dir"], settings["experiment"], warn=opts.warn)
     if needs_data and not exp.groups:
         opts.warn(f"no readable runs under {exp_dir}; only figures that need no data are drawn")
-    for env in sorted(set(settings["thresholds"]) - set(exp.envs()) - {"cartpole", "acrobot"}):
+    for env in sorted(set(settings["thresholds"]) - set(exp.envs()) - set(DEFAULT_THRESHOLDS)):
         opts.warn(f"threshold.{env} given but the experiment has no runs on env {env!r}")
 
     out_dir = exp_dir / "figures"

@@ -1,0 +1,89 @@
+"""`imix bench` on tiny sizes: every section runs and prints its rows and columns; bad
+arguments give one line and exit status 2. (No timings are asserted: speed is measured by
+`imix bench` itself, on a machine of the user's choosing.)"""
+
+import tempfile
+
+import pytest
+
+from imix_cli.bench import main
+from imix_cli.cli import main as cli_main
+
+TINY = ["--sizes", "3", "5", "--repeats", "1", "--min-seconds", "0", "--naive-members", "2", "--dims", "20",
+        "--seeds", "2", "--generations", "2"]  # fmt: skip
+
+
+def _tables(text: str) -> dict[str, list[list[str]]]:
+    """Markdown tables of the output, by the heading line above each: rows of cells (header first)."""
+    tables, heading = {}, None
+    for line in text.splitlines():
+        if line.startswith("## "):
+            heading = line[3:]
+            tables[heading] = []
+        elif line.startswith("|") and heading is not None and not line.startswith("|---"):
+            tables[heading].append([c.strip() for c in line.strip("|").split("|")])
+    return tables
+
+
+def _table(tables, prefix):
+    (rows,) = [rows for heading, rows in tables.items() if heading.startswith(prefix)]
+    return rows[0], rows[1:]
+
+
+def test_rollouts_and_mixing_rows_and_columns(capsys):
+    assert main(["rollouts", "mixing", *TINY]) == 0
+    tables = _tables(capsys.readouterr().out)
+    assert len(tables) == 2
+    header, rows = _table(tables, "Rollouts")
+    assert header == ["env", "batch", "mean episode", "batched (steps/s)", "SyncVectorEnv (steps/s)",
+                      "naive loop (steps/s)", "× SyncVectorEnv", "× naive"]  # fmt: skip
+    assert [(r[0], r[1]) for r in rows] == [("cartpole", "3"), ("cartpole", "5"), ("acrobot", "3"), ("acrobot", "5")]
+    for r in rows:
+        assert all(cell for cell in r) and float(r[2]) >= 1 and float(r[6]) > 0 and float(r[7]) > 0
+    header, rows = _table(tables, "One importance-mixing step")
+    assert header == ["d", "plain sample (ms)", "variant", "mix (ms)", "mix / sample", "reuse"]
+    assert [(r[0], r[2]) for r in rows] == [("20", "paper"), ("20", "eim"), ("20", "sun2009")]
+    assert all(0.0 <= float(r[5]) <= 1.0 for r in rows)
+
+
+def test_memory_breakdown_and_grid(capsys, tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where the runs' temporary folders go
+    args = ["memory", "breakdown", "--grid", *TINY, "--algos", "snes", "cem", "--envs", "cartpole", "--workers", "1"]
+    assert cli_main(["bench", *args]) == 0
+    tables = _tables(capsys.readouterr().out)
+    header, rows = _table(tables, "A 25-seed run")
+    assert header == ["command", "wall (s)", "CPU (s): main / all workers", "main process peak RSS (MB)",
+                      "largest worker peak RSS (MB)", "sum of peaks (MB)"]  # fmt: skip
+    assert len(rows) == 1 and "seeds=2" in rows[0][0] and float(rows[0][3]) > 10
+    header, rows = _table(tables, "Where a run's time goes")
+    assert header[:5] == ["run", "seeds", "generations", "d", "time (s)"] and "mixing + update" in header
+    assert [r[0].split("-")[0] for r in rows] == ["snes", "cem"] and all(r[3] == "130" for r in rows)
+    header, rows = _table(tables, "The paper's main grid")
+    assert header == ["run", "seeds", "generations", "wall (s)", "CPU (s)", "env steps", "evaluations", "final mean score"]
+    names = [r[0] for r in rows]
+    assert names[:4] == [
+        "snes-cartpole-none-weight_decay_form=estool", "cem-cartpole-none-weight_decay_form=estool",
+        "snes-cartpole-eim-weight_decay_form=estool", "cem-cartpole-eim-weight_decay_form=estool",
+    ]  # fmt: skip
+    assert names[4:] == ["**total, mixing=none**", "**total, mixing=eim**", "**grid total**"]
+    assert all(int(r[5].replace(",", "")) > 0 for r in rows[:4])
+    assert not any(tmp_path.iterdir())  # temporary results are cleaned up
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["nonsense"], ["--sizes", "0"], ["--sizes", "x"], ["--repeats", "-1"], ["--envs", "pong"], ["--no-such-flag"],
+     ["rollouts", "--dims"], ["--algos", "ddpg"]],
+)  # fmt: skip
+def test_bad_arguments_one_line_exit_2(capsys, args):
+    assert cli_main(["bench", *args]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("imix bench: error:")
+
+
+def test_help(capsys):
+    assert cli_main(["bench", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: imix bench") and all(s in out for s in ("rollouts", "mixing", "memory", "grid"))
