@@ -11,6 +11,11 @@ IMIX    = $(VENV)/bin/imix
 # text's -0.05|theta|^2 (the config default) keeps population scores far lower (README).
 PAPER_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true weight_decay_form=estool
 
+# torch for the DDPG baseline: the CPU build 2.13.0, installed before the package so that the
+# extra's torch>=2.1 is already satisfied (an unpinned torch pulls several GB of CUDA packages;
+# on other machines add --index-url https://download.pytorch.org/whl/cpu).
+TORCH ?= torch==2.13.0
+
 # Paper section 4.3: the SNES + EIM grid search (Figs 9-11) and SNES + EIM vs DDPG on
 # ContinuousCartPole and its sparse-reward Hard variant (Figs 12-13). DDPG runs at ~420 env
 # steps per CPU-second here, so `make reproduce` uses few DDPG seeds (about an hour in all on
