@@ -15,6 +15,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -493,4 +494,8 @@ def _explain_compose_error(err: Exception, point) -> str:
         bad = next((p.split("=", 1)[0].lstrip("+~") for p in point if p.split("=", 1)[0].lstrip("+~") in text), None)
         key = bad or _first_line(err)
         return f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*, hydra.*)"
+    missing = re.search(r"Could not find '([^']+)/([^'/]+)'", text)
+    if missing:  # a config group option that does not exist, e.g. hydra/launcher=nope
+        group, option = missing.groups()
+        return f"{group}={option}: no such option in config group {group!r}"
     return f"bad override ({', '.join(point)}): {_first_line(err)}"

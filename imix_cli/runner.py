@@ -201,9 +201,9 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
         old, new = identity_of(existing), spec.identity()
         differing = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
         if differing:
-            key = differing[0]
+            changes = ", ".join(f"{k}={old.get(k)!r} there, {new.get(k)!r} now" for k in differing)
             raise RunError(
-                f"{config_file} holds a different config ({key}={old.get(key)!r} there, {new.get(key)!r} now); "
+                f"{config_file} holds a different config ({changes}); "
                 "choose another experiment= or move that folder away"
             )
     todo = []

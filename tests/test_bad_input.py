@@ -56,7 +56,7 @@ CASES = [
     ("gym without id", ["env=gym"], 2, "env.id"),
     ("env.max_steps zero", ["env.max_steps=0"], 2, "env.max_steps"),
     ("experiment with a path", ["experiment=../elsewhere"], 2, "experiment"),
-    ("unknown launcher", ["hydra/launcher=nope"], 2, "launcher"),
+    ("unknown launcher", ["hydra/launcher=nope"], 2, "hydra/launcher=nope"),
     ("workers>1 under joblib", ["-m", "hydra/launcher=joblib", "workers=2"], 2, "workers"),
     ("bad point in a sweep", ["-m", "popsize=8,0"], 2, "popsize"),
 ]
@@ -95,11 +95,14 @@ def test_corrupt_csv_already_in_the_folder(results, capsys):
 
 def test_config_yaml_of_a_different_config_in_the_target_folder(results, capsys):
     config = results / RUN_DIR / "config.yaml"
-    config.write_text(config.read_text().replace("generations: 3", "generations: 7"))
+    text = config.read_text()
+    assert "\ngenerations: 3\n" in text
+    config.write_text(text.replace("\ngenerations: 3\n", "\ngenerations: 7\n"))  # not eim_generations
     before = snapshot(results)
     assert main(["run", *BASE, f"results_dir={results}"]) == 1
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "generations" in err and "config.yaml" in err, err
+    assert len(err.splitlines()) == 1 and "config.yaml" in err, err
+    assert "(generations=7 there, 3 now)" in err, err  # names exactly the key that differs
     assert snapshot(results) == before
 
 
