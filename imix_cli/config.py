@@ -19,6 +19,8 @@ import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
+
 ES_NAMES = ("openes", "snes", "cem", "cmaes")
 ALGO_NAMES = (*ES_NAMES, "ddpg")  # ddpg: the deep-RL baseline of section 4.3 (stable-baselines3)
 MIXING_VARIANTS = ("paper", "sun2009")
@@ -49,22 +51,7 @@ PAPER_DEFAULTS = {
 
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
 #: carries, as ``-key=value,...``, the ones that differ from these.
-DDPG_DEFAULTS = {
-    "actor_arch": [8, 8],
-    "critic_arch": [16, 16],
-    "actor_lr": 0.005,
-    "critic_lr": 0.01,
-    "tau": 0.001,
-    "gamma": 0.99,
-    "batch_size": 64,
-    "buffer_size": 1_000_000,
-    "learning_starts": 100,
-    "train_freq": 1,
-    "gradient_steps": 1,
-    "ou_sigma": 0.2,
-    "ou_theta": 0.15,
-    "ou_dt": 0.01,
-}
+DDPG_DEFAULTS = PAPER_SETTINGS
 
 #: Top-level keys of the evolution strategies only: algo=ddpg ignores them (and leaves them out
 #: of its config.yaml, so they never make two DDPG runs differ). ``total_steps`` is ddpg's only.

@@ -341,7 +341,7 @@ def run_ddpg_seeds(spec: RunSpec, seeds: list[int], progress) -> list[int]:
         train_ddpg(
             model,
             spec.total_steps,
-            on_episode=lambda ep, seed=seed, started=started: rows.append(ddpg_row(spec, seed, ep, time.perf_counter() - started)),
+            on_episode=lambda ep, seed=seed, started=started, rows=rows: rows.append(ddpg_row(spec, seed, ep, time.perf_counter() - started)),
             on_steps=progress,
             torch_threads=1,
         )

@@ -44,26 +44,9 @@ from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.utils import FloatSchedule, update_learning_rate
 
 import imix_cli.envs  # noqa: F401  (registers the imix/ gymnasium ids in spawned workers too)
+from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
 
 __all__ = ["TwoRateDDPG", "Episode", "make_ddpg", "train_ddpg", "PAPER_SETTINGS"]
-
-#: conf/algo/ddpg.yaml's settings (kept equal by tests/test_ddpg.py).
-PAPER_SETTINGS = {
-    "actor_arch": [8, 8],
-    "critic_arch": [16, 16],
-    "actor_lr": 0.005,
-    "critic_lr": 0.01,
-    "tau": 0.001,
-    "gamma": 0.99,
-    "batch_size": 64,
-    "buffer_size": 1_000_000,
-    "learning_starts": 100,
-    "train_freq": 1,
-    "gradient_steps": 1,
-    "ou_sigma": 0.2,
-    "ou_theta": 0.15,
-    "ou_dt": 0.01,
-}
 
 
 class TwoRateDDPG(DDPG):
