@@ -233,6 +233,41 @@ def test_cartpole_episodes_match_single_gymnasium_env():
         np.testing.assert_array_equal(s, ref_steps)
 
 
+def test_cartpole_steps_equal_gymnasium_vector_env_bit_for_bit():
+    """CartPoleBatch.step == gymnasium's CartPoleVectorEnv.step, bit for bit, over 4000 x 64 steps.
+
+    Each step both start from the same states (random, including ones beyond the termination
+    limits and large velocities) and take the same random actions; the vector env's autoreset
+    is kept out of the way by clearing its ``prev_done`` flags before every step.
+    """
+    from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
+
+    n, steps = 64, 4000
+    rng = np.random.default_rng(12)
+    venv = CartPoleVectorEnv(num_envs=n, max_episode_steps=10**9)
+    venv.reset(seed=0)
+    sim = CartPoleBatch()
+    scale = np.array([3.0, 4.0, 0.3, 4.0])  # x, x_dot, theta, theta_dot: both sides of the limits
+    states = rng.uniform(-1, 1, (n, 4)) * scale
+    sim.set_state(states)
+    terminations = 0
+    for t in range(steps):
+        if t % 50 == 0:  # fresh random states now and then, so trajectories do not all diverge
+            states = rng.uniform(-1, 1, (n, 4)) * scale
+            sim.set_state(states)
+        venv.state = sim.state.T.copy()
+        venv.prev_done = np.zeros(n, dtype=bool)
+        actions = rng.integers(0, 2, n)
+        ref_obs, ref_reward, ref_term, _, _ = venv.step(actions)
+        obs, reward, term = sim.step(actions)
+        np.testing.assert_array_equal(sim.state.T, venv.state)  # next states: float64, exact
+        np.testing.assert_array_equal(obs, ref_obs)
+        np.testing.assert_array_equal(term, ref_term)
+        np.testing.assert_array_equal(reward, ref_reward)
+        terminations += int(term.sum())
+    assert 0.2 * n * steps < terminations < 0.9 * n * steps  # both outcomes exercised
+
+
 # ---------------------------------------------------------------------------------- evaluator
 def _params_for(name, ev, rng):
     if name == "cartpole":
