@@ -248,13 +248,10 @@ def test_cartpole_steps_equal_gymnasium_vector_env_bit_for_bit():
     venv.reset(seed=0)
     sim = CartPoleBatch()
     scale = np.array([3.0, 4.0, 0.3, 4.0])  # x, x_dot, theta, theta_dot: both sides of the limits
-    states = rng.uniform(-1, 1, (n, 4)) * scale
-    sim.set_state(states)
     terminations = 0
     for t in range(steps):
         if t % 50 == 0:  # fresh random states now and then, so trajectories do not all diverge
-            states = rng.uniform(-1, 1, (n, 4)) * scale
-            sim.set_state(states)
+            sim.set_state(rng.uniform(-1, 1, (n, 4)) * scale)
         venv.state = sim.state.T.copy()
         venv.prev_done = np.zeros(n, dtype=bool)
         actions = rng.integers(0, 2, n)
