@@ -34,6 +34,7 @@ COLUMNS = (
     "reused",  # members taken from earlier generations
     "reused_im",  # ... of which from the previous generation
     "reused_eim",  # ... of which from older generations
+    "reevaluated",  # reused members whose return was measured again this generation (reeval_age / reeval_prob)
     "popsize",  # members in the generation
     "sigma_mean",  # mean standard deviation of the search distribution
     "nonfinite",  # episodes of the generation whose return was NaN or inf (ranked last by the ES)
@@ -42,7 +43,7 @@ COLUMNS = (
 
 MIXING_NAMES = ("none", "im", "eim")
 
-_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "popsize", "nonfinite")
+_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite")
 _FLOAT_COLUMNS = ("mean_score", "best_score", "sigma_mean", "wall_time")
 
 

@@ -39,7 +39,7 @@ import numpy as np
 from imix_cli.algorithms import make_es
 from imix_cli.config import RunSpec, identity_of
 from imix_cli.evaluation import make_evaluator
-from imix_cli.mixing import Generation, mix
+from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.results import (
     CorruptResultError,
     atomic_write_bytes,
@@ -65,8 +65,7 @@ class SeedState:
     es: object
     sample_rng: np.random.Generator  # sampling and mixing
     episode_rng: np.random.Generator  # one episode seed per fresh member
-    archive: list = field(default_factory=list)  # Generation objects, newest first
-    archive_returns: list = field(default_factory=list)  # the returns of their members
+    archive: Archive = field(default_factory=Archive)  # earlier generations, their returns and ages
     rows: list = field(default_factory=list)
     evaluations: int = 0
     env_steps: int = 0
@@ -81,43 +80,29 @@ def new_seed_state(spec: RunSpec, seed: int, dim: int) -> SeedState:
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
     es = make_es(
         spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,
-        weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form,
+        weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form, **spec.algo_options,
     )  # fmt: skip
     return SeedState(seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq))
 
 
-def _archive_depth(spec: RunSpec) -> int:
-    if spec.variant is None:
-        return 0
-    return spec.eim_generations if spec.variant == "eim" else 1
+def mixing_settings(spec: RunSpec) -> MixingSettings:
+    return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob)
 
 
 def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
-    """Run one generation of every seed in ``states``, with one batched rollout for all fresh members."""
-    plans = []
-    for st in states:
-        dist = st.es.distribution
-        if spec.variant is None or not st.archive:
-            samples = st.es.ask(st.sample_rng)
-            g = Generation(samples, np.zeros(spec.popsize, np.int64), np.full(spec.popsize, -1, np.int64), dist)
-        else:
-            g = mix(dist, st.archive, spec.popsize, st.sample_rng, variant=spec.variant, alpha=spec.im_alpha, eim_generations=spec.eim_generations)
-        fresh = np.flatnonzero(g.source == 0)
-        episode_seeds = st.episode_rng.integers(0, np.iinfo(np.int64).max, size=fresh.size, dtype=np.int64)
-        plans.append((g, fresh, episode_seeds))
+    """Run one generation of every seed in ``states``, with one batched rollout for all members to evaluate."""
+    settings = mixing_settings(spec)
+    plans = [plan_generation(st.es, st.archive, settings, st.sample_rng) for st in states]
+    episode_seeds = [st.episode_rng.integers(0, np.iinfo(np.int64).max, size=p.evaluate.size, dtype=np.int64) for st, p in zip(states, plans)]
     returns, steps = evaluator.evaluate(
-        np.concatenate([g.samples[fresh] for g, fresh, _ in plans]),
-        np.concatenate([seeds for _, _, seeds in plans]),
+        np.concatenate([p.generation.samples[p.evaluate] for p in plans]),
+        np.concatenate(episode_seeds),
     )
     offset = 0
-    for st, (g, fresh, _) in zip(states, plans):
-        n = fresh.size
-        fitness = np.empty(spec.popsize)
-        fitness[fresh] = returns[offset : offset + n]
-        for k, stored in enumerate(st.archive_returns, start=1):  # reused members keep their stored return
-            from_k = g.source == k
-            if from_k.any():
-                fitness[from_k] = stored[g.index[from_k]]
+    for st, plan in zip(states, plans):
+        g, n = plan.generation, plan.evaluate.size
+        dist = st.es.distribution  # the distribution g was drawn from, before tell moves it
+        fitness = finish_generation(st.es, st.archive, settings, plan, returns[offset : offset + n])
         st.evaluations += n
         st.env_steps += int(steps[offset : offset + n].sum())
         offset += n
@@ -137,17 +122,13 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
                 "reused": g.reused,
                 "reused_im": g.reused_from_previous,
                 "reused_eim": g.reused_from_older,
+                "reevaluated": plan.reevaluated,
                 "popsize": spec.popsize,
-                "sigma_mean": g.dist.sigma_mean,
+                "sigma_mean": dist.sigma_mean,
                 "nonfinite": int(np.count_nonzero(~finite)),
                 "wall_time": 0.0,  # filled in by the caller, which owns the clock
             }
         )
-        st.es.tell(g.samples, fitness)
-        depth = _archive_depth(spec)
-        if depth:
-            st.archive = [g, *st.archive][:depth]
-            st.archive_returns = [fitness, *st.archive_returns][:depth]
 
 
 # ----------------------------------------------------------------------------- files of a run
@@ -323,6 +304,7 @@ def ddpg_row(spec: RunSpec, seed: int, episode, wall_time: float) -> dict:
         "reused": 0,
         "reused_im": 0,
         "reused_eim": 0,
+        "reevaluated": 0,
         "popsize": 1,
         "sigma_mean": float(spec.ddpg["ou_sigma"]),
         "nonfinite": 0 if finite else 1,

@@ -112,7 +112,7 @@ class CMAES(EvolutionStrategy):
         sigma: float = 0.25,
         lr: float = 0.01,
         weight_decay: float = 0.05,
-        weight_decay_form: str = "paper",
+        weight_decay_form: str = "estool",
         mean=None,
         cma_options: dict | None = None,
     ):
