@@ -334,9 +334,11 @@ class CMAES(EvolutionStrategy):
             self.C[np.diag_indices(self.dim)] += np.min(previous) ** 2
         else:
             raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
-        idx = np.argsort(eigenvalues)
-        self.eigenvectors = eigenvectors[:, idx]
-        self.eigenvalues_sqrt = eigenvalues[idx] ** 0.5
+        if np.any(np.diff(eigenvalues) < 0):  # LAPACK returns them ascending; pycma sorts anyway
+            idx = np.argsort(eigenvalues)
+            eigenvalues, eigenvectors = eigenvalues[idx], eigenvectors[:, idx]
+        self.eigenvectors = eigenvectors
+        self.eigenvalues_sqrt = eigenvalues**0.5
 
     def _alleviate_conditioning(self) -> bool:
         """pycma's ``conditioncov_alleviate``; True if C was decomposed (or reset) here.
