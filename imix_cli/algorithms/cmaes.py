@@ -48,10 +48,12 @@ import numpy as np
 from imix_cli.algorithms.base import EvolutionStrategy
 from imix_cli.distributions import FullGaussian
 
-#: Largest dimension CMAES accepts. C is d x d (memory 8 d^2 bytes per seed, twice with the
-#: eigenvectors) and each generation eigendecomposes it, O(d^3). Measured per-generation
-#: ``tell`` times (benchmarks/cmaes_speed.py, see docs/readme-cmaes.md) make d = 2000 a
-#: few generations per second; beyond it, a 400-generation run becomes hours per seed.
+#: Largest dimension CMAES accepts. Each seed keeps four d x d float64 matrices (C, its
+#: eigenvectors, the distribution's covariance and Cholesky factor: 128 MB at d = 2000) and
+#: eigendecomposes C every generation, O(d^3). Measured ``tell`` per generation, lambda = 50
+#: (benchmarks/cmaes_speed.py --big, shared 2-core AMD EPYC VM): d = 500 0.18 s, 1000 1.1 s,
+#: 2000 7.9 s, i.e. 53 min per seed for the paper's 400 generations at d = 2000, and ~15x
+#: that (d^3) at 5000. Above the limit SNES/OpenES (O(d) per member) are the tools.
 MAX_DIM = 2000
 
 #: CMA options this class implements (pycma option names and defaults).
