@@ -58,7 +58,7 @@ class PycmaWrapperUpdate:
         if es.countiter == 0:
             es.timer = self._timer()
         else:
-            es.timer.tic  # noqa: B018
+            es.timer.tic  # noqa: B018  (a property with a side effect, as in the old wrapper)
         es._flgtelldone = False
         es.ary = []
         es.number_of_injections = 0
@@ -111,12 +111,12 @@ def main():
     parser.add_argument("--profile", type=int, default=0, metavar="D", help="profile our update at this d")
     args = parser.parse_args()
     if args.dims:
-        print(f"| d | lambda | pycma wrapper tell (ms) | imix CMAES tell (ms) | speed-up |\n|---:|---:|---:|---:|---:|")
+        print("| d | lambda | pycma wrapper tell (ms) | imix CMAES tell (ms) | speed-up |\n|---:|---:|---:|---:|---:|")
         for dim in args.dims:
             t = time_updates(dim, args.popsize, args.generations)
             print(f"| {dim} | {args.popsize} | {t['pycma'] * 1e3:.2f} | {t['imix'] * 1e3:.2f} | {t['pycma'] / t['imix']:.1f}x |")
     if args.big:
-        print(f"\n| d | lambda | imix CMAES tell (s) | 400 generations (min) |\n|---:|---:|---:|---:|")
+        print("\n| d | lambda | imix CMAES tell (s) | 400 generations (min) |\n|---:|---:|---:|---:|")
         for dim in args.big:
             t = time_updates(dim, args.popsize, args.generations, with_pycma=False, warmup=1)["imix"]
             print(f"| {dim} | {args.popsize} | {t:.3f} | {400 * t / 60:.1f} |")

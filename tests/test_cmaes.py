@@ -97,7 +97,7 @@ def test_equals_pycma_trajectory_d10():
 
 def test_equals_pycma_trajectory_d130():
     """The paper's CartPole setting: d = 130, lambda = 50, 200 generations (~3 s)."""
-    ours, ref, _ = _run_side_by_side(130, 50, 200)
+    ours, _, _ = _run_side_by_side(130, 50, 200)
     # C adapts slowly at d = 130 (cmu ~ 1.3e-3): condition 1.93 after 200 generations
     assert np.linalg.cond(ours.C) > 1.5
 
@@ -269,7 +269,7 @@ def test_state_dict_resume_is_bit_identical(options):
             x = es.ask(rng)
             es.tell(x, -f(x))
 
-    build = lambda: CMAES(8, popsize=12, weight_decay=0.01, mean=np.ones(8), cma_options=options)  # noqa: E731
+    build = lambda: CMAES(8, popsize=12, weight_decay=0.01, mean=np.ones(8), cma_options=options)
     es = build()
     run(es, np.random.default_rng(0), 40)
     if options:
