@@ -389,8 +389,11 @@ class CMAES(EvolutionStrategy):
     def state_dict(self) -> dict:
         """Everything that changes during a run: numpy arrays and int/float scalars.
 
-        Constructor arguments (from the config) are not included; ``transform`` and
-        ``transform_inverse`` only once the condition alleviation set them.
+        Arrays: ``mean_geno``, ``C``, ``eigenvalues_sqrt`` and ``eigenvectors`` (the last
+        decomposition, which the next update uses), ``scaling``, ``p_sigma``, ``p_c``, and
+        ``transform``/``transform_inverse`` once the condition alleviation has set them.
+        Scalars: ``step_size``, ``countiter`` and the base class's ``generation`` and
+        ``nonfinite_fitness_count``. Constructor arguments (the config) are not included.
         """
         state = {name: getattr(self, name).copy() for name in self._ARRAYS}
         if self.transform is not None:
@@ -418,6 +421,9 @@ class CMAES(EvolutionStrategy):
             if value.shape != shapes.get(name, (d,)):
                 raise ValueError(f"CMAES state: {name} has shape {value.shape}, expected {shapes.get(name, (d,))}")
             setattr(self, name, value)
+        missing = [k for k in ("step_size", "countiter", "generation", "nonfinite_fitness_count") if k not in state]
+        if missing:
+            raise ValueError(f"CMAES state: missing {missing}")
         self.step_size = float(state["step_size"])
         self.countiter = int(state["countiter"])
         self.generation = int(state["generation"])
