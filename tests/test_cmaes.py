@@ -313,3 +313,19 @@ def test_fewer_than_mu_members_use_the_parameters_of_that_population_size():
     np.testing.assert_allclose(es.mean, np.dot(w[:2], x[np.argsort(sphere(x))[:2]]), rtol=1e-12)
     assert not np.allclose(es.mean, before)
     assert es._parameters(20)[0].lam == 20
+
+
+def test_indefinite_covariance_is_repaired_as_pycma_does():
+    """An eigenvalue <= 0 after an update: pycma adds the smallest previous eigenvalue to the
+    diagonal (repeatedly, growing) until C is positive definite; so do we."""
+    ours = CMAES(4, popsize=8)
+    sampler = cma.sampler.GaussFullSampler(4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for c in (ours, sampler):
+            c.C[0, 1] = c.C[1, 0] = 5.0  # eigenvalues -4 and 6 in that block: three repairs
+        ours._decompose()
+        sampler._decompose_C()
+    np.testing.assert_allclose(ours.C, sampler.C, rtol=1e-14)
+    np.testing.assert_allclose(ours.eigenvalues_sqrt, sampler.D, rtol=1e-13)
+    assert ours.eigenvalues_sqrt.min() > 0

@@ -332,8 +332,10 @@ class CMAES(EvolutionStrategy):
             except np.linalg.LinAlgError:
                 pass
             # pycma: "covariance matrix eigen decomposition failed"; add the smallest
-            # previous eigenvalue to the diagonal and try again
-            self.C[np.diag_indices(self.dim)] += np.min(previous) ** 2
+            # previous eigenvalue to the diagonal (and to the previous ones) and try again
+            shift = np.min(previous) ** 2
+            self.C[np.diag_indices(self.dim)] += shift
+            previous = (previous**2 + shift) ** 0.5
         else:
             raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
         if np.any(np.diff(eigenvalues) < 0):  # LAPACK returns them ascending; pycma sorts anyway
