@@ -713,6 +713,7 @@ def main(argv: list[str] | None = None) -> int:
             rows = peer_rows(args.envs, seeds, generations, echo=echo)
             echo(format_peers(rows))
             echo()
+            echo("## Ratios: imix SNES + EIM against each other run on the same env")
             echo(format_peer_ratios(rows))
         elif section == "grid":
             echo("## The paper's main grid (as `make reproduce`), without mixing and with EIM")
