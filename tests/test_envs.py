@@ -249,6 +249,22 @@ def test_cartpole_episodes_match_gymnasium_bit_for_bit():
     assert min(steps) < 50 and max(steps) == 200
 
 
+@pytest.mark.parametrize("env,env_id", [("cartpole", "CartPole-v1"), ("acrobot", "Acrobot-v1")])
+def test_compiled_episodes_follow_the_evaluators_hidden_sizes(env, env_id):
+    """The kernels take the layer sizes from the evaluator (``hidden``), any depth and width."""
+    ev = make_evaluator(env)
+    ev.hidden = (5, 3, 4)
+    sizes = (ev.obs_dim, *ev.hidden, ev.out_dim)
+    assert ev.num_params == num_params(ev.obs_dim, ev.out_dim, ev.hidden)
+    rng = np.random.default_rng(13)
+    P = rng.standard_normal((8, ev.num_params))
+    steps = _check_episodes_against_gymnasium(
+        env_id, ev, P, rng.integers(0, 2**63, 8, dtype=np.uint64), lambda p, o: reference_action(p, o, sizes),
+        0.0 if env == "cartpole" else 1e-12,
+    )
+    assert env == "acrobot" or len(set(steps)) > 2  # (random Acrobot policies all hang on for 200 steps)
+
+
 def test_cartpole_steps_equal_gymnasium_bit_for_bit():
     """kernels.cartpole_steps == CartPoleEnv.step from the same states, bit for bit, over 20000
     random states (both sides of the termination limits, large velocities) and actions."""
@@ -355,3 +371,14 @@ def test_unknown_env_id(bad):
         make_evaluator(bad)
     msg = str(info.value)
     assert bad in msg and "\n" not in msg
+
+
+def test_kernels_refuse_params_that_do_not_fit_the_layer_sizes():
+    """The kernels read parameters without bounds checks: a layout mismatch must raise, not read past the rows."""
+    sizes = np.array([4, 8, 8, 2], dtype=np.int64)
+    out, steps = np.empty(1), np.empty(1, dtype=np.int64)
+    for d in (129, 131):
+        with pytest.raises(ValueError, match="parameter count"):
+            kernels.cartpole_episodes(np.zeros((1, d)), np.zeros(1, np.uint64), sizes, False, False, 5, out, steps, np.empty((0, 0, 0)))
+    with pytest.raises(ValueError, match="parameter count"):
+        kernels.acrobot_episodes(np.zeros((1, 130)), np.zeros((1, 4)), np.zeros((1, 6)), np.array([6, 8, 8, 3]), 5, out, steps, np.empty((0, 0, 0)))

@@ -193,6 +193,19 @@ def mlp_forward(p, sizes, x, y):
 
 
 @njit(cache=True)
+def _buffer_width(params, sizes):
+    """The widest layer; raises if ``params``' rows do not have the MLP's parameter count
+    (the kernels read parameters without bounds checks)."""
+    width, count = sizes[0], 0
+    for layer in range(sizes.shape[0] - 1):
+        width = max(width, sizes[layer + 1])
+        count += sizes[layer] * sizes[layer + 1] + sizes[layer + 1]
+    if params.shape[1] != count:
+        raise ValueError("params do not have the parameter count of the layer sizes")
+    return width
+
+
+@njit(cache=True)
 def _argmax(y, n):
     """Index of the largest of ``y[:n]``: strict comparisons, ties to the lowest, NaN never wins."""
     best, a = y[0], 0
@@ -264,9 +277,7 @@ def cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, retur
     the episode's total); the return is the same. Reward 1 per step otherwise. ``trace``
     (B, max_steps + 1, 4), if not empty, receives each member's states from the initial one on.
     """
-    width = 0
-    for k in range(sizes.shape[0]):
-        width = max(width, sizes[k])
+    width = _buffer_width(params, sizes)
     x, y = np.empty(width), np.empty(width)
     s = np.empty(4)
     record = trace.shape[0] > 0
@@ -414,9 +425,7 @@ def acrobot_episodes(params, states0, obs0, sizes, max_steps, returns, steps, tr
     The first observation comes from the caller because gymnasium computes it with numpy's
     float32 ``cos``/``sin``, which are not libm's. ``trace`` as in :func:`cartpole_episodes`.
     """
-    width = 0
-    for j in range(sizes.shape[0]):
-        width = max(width, sizes[j])
+    width = _buffer_width(params, sizes)
     x, y = np.empty(width), np.empty(width)
     s, k, ys = np.empty(4), np.empty((4, 4)), np.empty(4)
     record = trace.shape[0] > 0
