@@ -40,10 +40,12 @@ from imix_cli.algorithms import make_es
 from imix_cli.config import RunSpec, identity_of
 from imix_cli.evaluation import make_evaluator
 from imix_cli.mixing import Generation, mix
+from imix_cli.policy_files import write_seed_policies
 from imix_cli.results import (
     CorruptResultError,
     atomic_write_bytes,
     atomic_write_text,
+    partial_csv_path,
     read_run_csv,
     rows_to_frame,
     seed_csv_path,
@@ -71,6 +73,10 @@ class SeedState:
     evaluations: int = 0
     env_steps: int = 0
     elapsed: float = 0.0  # wall seconds spent on this seed before the current process took it
+    # The best-ever member (a finite return, fresh or reused) and its return, for policy_<k>_best.npz:
+    # a plain (d,) float64 array and a float so that checkpoints stay data. None / -inf until one exists.
+    best_params: np.ndarray | None = None
+    best_return: float = -np.inf
 
     @property
     def generation(self) -> int:
@@ -143,6 +149,9 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
                 "wall_time": 0.0,  # filled in by the caller, which owns the clock
             }
         )
+        if finite.any() and np.max(fitness[finite]) > st.best_return:  # strictly better: the first best is kept
+            top = np.flatnonzero(finite)[np.argmax(fitness[finite])]
+            st.best_params, st.best_return = np.array(g.samples[top], dtype=np.float64), float(fitness[top])
         st.es.tell(g.samples, fitness)
         depth = _archive_depth(spec)
         if depth:
@@ -274,18 +283,23 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
         for st in active:
             st.rows[-1]["wall_time"] = st.elapsed + now
             if st.generation == spec.generations:
+                write_seed_policies(spec, st.seed, evaluator, st.es.distribution.mean, st.best_params, st.best_return, st.generation)
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
                 checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+                partial_csv_path(run_dir, st.seed).unlink(missing_ok=True)
             elif spec.checkpoint_every and st.generation % spec.checkpoint_every == 0:
                 elapsed, st.elapsed = st.elapsed, st.elapsed + now
                 save_checkpoint(run_dir, st, identity)
+                write_run_csv(partial_csv_path(run_dir, st.seed), rows_to_frame(st.rows))  # live view (imix status/plot)
                 st.elapsed = elapsed
         progress(len(active))
         active = [st for st in active if st.generation < spec.generations]
     for st in states:  # seeds resumed from a checkpoint taken after their last generation
         if not seed_csv_path(run_dir, st.seed).exists():
+            write_seed_policies(spec, st.seed, evaluator, st.es.distribution.mean, st.best_params, st.best_return, st.generation)
             write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
             checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+            partial_csv_path(run_dir, st.seed).unlink(missing_ok=True)
     return list(seeds)
 
 
