@@ -29,6 +29,8 @@ def test_iqm_hand_values():
     assert iqm(np.arange(1.0, 9.0)) == pytest.approx(4.5)
     # n=5: cut int(1.25) = 1 at each end -> mean(2, 3, 100) ; the 1000 outlier is gone
     assert iqm([1.0, 2.0, 3.0, 100.0, 1000.0]) == pytest.approx(35.0)
+    # n=12, skewed: cut 3 at each end -> mean(0, 1, 2, 3, 4, 5) = 2.5 (a 20 % trim would give 14.375)
+    assert iqm([0, 0, 0, 0, 1, 2, 3, 4, 5, 100, 200, 300]) == pytest.approx(2.5)
     # a seed that never reaches a threshold (+inf) is trimmed away when fewer than 25 % do
     assert iqm([10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, math.inf]) == pytest.approx(45.0)
 
