@@ -223,7 +223,8 @@ def main(argv: list | None = None) -> int:
     print(f"{'run':<{width}} {'seeds':>5} {'return on fresh episodes (mean ± 95% CI over seeds)':>52}")
     for run_dir, rows, path in results:
         estimate = format_estimate([r["mean_return"] for r in rows])
-        print(f"{run_dir.name:<{width}} {len(rows):>5} {estimate:>52}")
+        flag = "  (<5 seeds: CI unreliable)" if len(rows) < 5 else ""
+        print(f"{run_dir.name:<{width}} {len(rows):>5} {estimate:>52}{flag}")
     print(f"({s['episodes']} episodes per seed, policy={s['which']}; per seed: <run>/eval.csv)")
     return 0
 
