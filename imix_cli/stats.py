@@ -86,7 +86,8 @@ def _percentile_ci(samples: np.ndarray, level: float) -> tuple[float, float]:
     finite = samples[~np.isnan(samples)]
     if finite.size == 0:
         return math.nan, math.nan
-    lo, hi = np.percentile(finite, [50.0 * (1.0 - level), 50.0 * (1.0 + level)])
+    with np.errstate(invalid="ignore"):  # +inf samples (never reached): inf - inf while interpolating
+        lo, hi = np.percentile(finite, [50.0 * (1.0 - level), 50.0 * (1.0 + level)])
     return float(lo), float(hi)
 
 

@@ -318,7 +318,7 @@ def test_efficiency_panels_share_x_and_bands_stay_within_achievable_returns(tmp_
     for ax in (a, b):
         bands = [c for c in ax.collections if isinstance(c, PolyCollection)]
         assert bands and max(path.vertices[:, 1].max() for c in bands for path in c.get_paths()) <= 200.0
-    assert "<5 seeds" in " ".join(ax.get_title(loc="left") for ax in (a, b))
+    assert "3 seeds, <5: weak CI" in " ".join(ax.get_title(loc="left") for ax in (a, b))
 
 
 def test_iqm_and_improvement_tables_hand_values(tmp_path):

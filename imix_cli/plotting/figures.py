@@ -236,9 +236,9 @@ MIN_SEEDS = 5
 
 def _seeds_note(groups) -> str:
     counts = {g.n_seeds for g in groups}
-    flag = " (<5 seeds: CI unreliable)" if min(counts) < MIN_SEEDS else ""
+    flag = ", <5: weak CI" if min(counts) < MIN_SEEDS else ""
     running = sum(len(g.partial) for g in groups)
-    flag += f" ({running} running)" if running else ""
+    flag += f", {running} running" if running else ""
     if len(counts) == 1:
         n = counts.pop()
         return f"{n} seed{'s' if n != 1 else ''}{flag}"
