@@ -40,3 +40,23 @@ def test_partial_csv_at_each_checkpoint_then_removed(tmp_path):
     run_seeds(spec, [0], progress=progress)
     assert seen == [0, 2, 2, 4, 0]  # rows up to the last checkpoint; gone once seed_0.csv exists
     assert not partial_csv_path(spec.run_dir, 0).exists() and (spec.run_dir / "seed_0.csv").exists()
+
+
+def test_missing_env_extra_is_one_line_with_its_install_hint(tmp_path, capsys):
+    import importlib.util
+
+    import pytest
+
+    if importlib.util.find_spec("Box2D") is not None:
+        pytest.skip("Box2D is installed here")
+    assert main(["run", "env=gym", "env.id=LunarLander-v3", "seeds=1", "generations=1", f"results_dir={tmp_path}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "LunarLander-v3" in err[0] and 'pip install "gymnasium[box2d]"' in err[0]
+    assert not any(tmp_path.iterdir())  # nothing written, not even config.yaml
+
+
+def test_argparse_style_option_suggests_key_value(tmp_path, capsys):
+    assert main(["run", "--seeds", "3", f"results_dir={tmp_path}"]) == 2
+    assert main(["run", "--seeds=3", f"results_dir={tmp_path}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all("seeds=3" in line for line in err)
