@@ -96,6 +96,8 @@ def make_render_env(header: dict):
 def policy_frames(policy, frames: int | None = None) -> list:
     """RGB frames (H, W, 3) uint8 of the policy's first evaluation episode: after reset, then after each step."""
     h = policy.header
+    if h.get("obs_normalizer") is not None:
+        raise UsageError(f"policy of run {h.get('run')!r} seed {h.get('seed')} normalises observations; this imix render cannot apply a normaliser yet", 1)
     env = make_render_env(h)
     act = policy.batch_policy(1)
     out = []
