@@ -433,7 +433,27 @@ def _env(env_cfg: dict):
     except Exception as err:  # gymnasium raises several error types for unknown/deprecated ids
         reason = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ConfigError(f"env.id={env_id!r}: not a registered gymnasium environment ({reason})") from None
+    _check_env_dependencies(env_id)
     return env_id, env_id, max_steps
+
+
+def _check_env_dependencies(env_id: str) -> None:
+    """Import the env's module now, so a missing extra (Box2D, MuJoCo, ...) is one line before anything is written.
+
+    gymnasium raises ``DependencyNotInstalled`` with its install hint when the module loads.
+    """
+    import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
+
+    entry_point = gym.spec(env_id).entry_point
+    if not isinstance(entry_point, str):
+        return
+    try:
+        load_env_creator(entry_point)
+    except gym.error.DependencyNotInstalled as err:
+        raise ConfigError(f"env.id={env_id!r}: a dependency is missing: {_first_line(err)}") from None
+    except ImportError as err:
+        raise ConfigError(f"env.id={env_id!r}: cannot import its module ({_first_line(err)})") from None
 
 
 # ------------------------------------------------------------------- whole command-line checks

@@ -55,6 +55,15 @@ def seed_csv_path(run_dir, seed: int) -> Path:
     return Path(run_dir) / f"seed_{seed}.csv"
 
 
+def partial_csv_path(run_dir, seed: int) -> Path:
+    """``seed_<k>.partial.csv``: the rows of an unfinished seed as of its last checkpoint (same columns).
+
+    Written atomically at each checkpoint and removed once ``seed_<k>.csv`` exists, so that
+    ``imix plot`` and ``imix status`` can show a running experiment without touching the run.
+    """
+    return Path(run_dir) / f"seed_{seed}.partial.csv"
+
+
 def run_dir_name(algo: str, env: str, mixing: str, overrides: str = "") -> str:
     """``<algo>-<env>-<mixing>[-<overrides>]`` (env ids such as ``imix/Foo-v0`` get their '/' replaced)."""
     name = f"{algo}-{env.replace('/', '_')}-{mixing}"

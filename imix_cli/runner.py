@@ -40,10 +40,12 @@ from imix_cli.algorithms import make_es
 from imix_cli.config import RunSpec, identity_of
 from imix_cli.evaluation import make_evaluator
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.policy_files import write_seed_policies
 from imix_cli.results import (
     CorruptResultError,
     atomic_write_bytes,
     atomic_write_text,
+    partial_csv_path,
     read_run_csv,
     rows_to_frame,
     seed_csv_path,
@@ -70,6 +72,10 @@ class SeedState:
     evaluations: int = 0
     env_steps: int = 0
     elapsed: float = 0.0  # wall seconds spent on this seed before the current process took it
+    # The best-ever member (a finite return, fresh or reused) and its return, for policy_<k>_best.npz:
+    # a plain (d,) float64 array and a float so that checkpoints stay data. None / -inf until one exists.
+    best_params: np.ndarray | None = None
+    best_return: float = -np.inf
 
     @property
     def generation(self) -> int:
@@ -129,6 +135,9 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
                 "wall_time": 0.0,  # filled in by the caller, which owns the clock
             }
         )
+        if finite.any() and np.max(fitness[finite]) > st.best_return:  # strictly better: the first best is kept
+            top = np.flatnonzero(finite)[np.argmax(fitness[finite])]
+            st.best_params, st.best_return = np.array(g.samples[top], dtype=np.float64), float(fitness[top])
 
 
 # ----------------------------------------------------------------------------- files of a run
@@ -255,18 +264,23 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
         for st in active:
             st.rows[-1]["wall_time"] = st.elapsed + now
             if st.generation == spec.generations:
+                write_seed_policies(spec, st.seed, evaluator, st.es.distribution.mean, st.best_params, st.best_return, st.generation)
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
                 checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+                partial_csv_path(run_dir, st.seed).unlink(missing_ok=True)
             elif spec.checkpoint_every and st.generation % spec.checkpoint_every == 0:
                 elapsed, st.elapsed = st.elapsed, st.elapsed + now
                 save_checkpoint(run_dir, st, identity)
+                write_run_csv(partial_csv_path(run_dir, st.seed), rows_to_frame(st.rows))  # live view (imix status/plot)
                 st.elapsed = elapsed
         progress(len(active))
         active = [st for st in active if st.generation < spec.generations]
     for st in states:  # seeds resumed from a checkpoint taken after their last generation
         if not seed_csv_path(run_dir, st.seed).exists():
+            write_seed_policies(spec, st.seed, evaluator, st.es.distribution.mean, st.best_params, st.best_return, st.generation)
             write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
             checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+            partial_csv_path(run_dir, st.seed).unlink(missing_ok=True)
     return list(seeds)
 
 
@@ -396,33 +410,95 @@ def _progress_bar(spec: RunSpec, total: int):
 
 
 # ----------------------------------------------------------------------------- the summary
-def summarize(spec: RunSpec) -> dict:
-    """Final mean score +- 68 % CI over seeds, total evaluations and env steps, reuse %, non-finite returns."""
+#: Config keys that only say how (and whether) mixing is done: runs that differ in these alone are
+#: "the same config with and without mixing", compared in the summary.
+MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "mixing")
+
+
+def summarize(spec: RunSpec, run_dir: Path | None = None) -> dict:
+    """Final mean score +- 68 % CI over seeds, evaluations and env steps (total over seeds and per
+    seed), reuse %, non-finite returns -- of ``spec``'s run folder, or of ``run_dir`` (a sibling)."""
+    run_dir = spec.run_dir if run_dir is None else Path(run_dir)
     finals, evaluations, env_steps, reused, members, nonfinite = [], 0, 0, 0, 0, 0
-    for seed in range(spec.seeds):
-        frame = read_run_csv(seed_csv_path(spec.run_dir, seed))
+    mixing = spec.mixing
+    paths = [seed_csv_path(run_dir, seed) for seed in range(spec.seeds)]
+    if run_dir != spec.run_dir:  # a sibling: whatever seeds it has finished
+        paths = sorted(run_dir.glob("seed_*[0-9].csv"))
+    for path in paths:
+        frame = read_run_csv(path)
         finals.append(float(frame["mean_score"].iloc[-1]))
         evaluations += int(frame["evaluations"].iloc[-1])
         env_steps += int(frame["env_steps"].iloc[-1])
         reused += int(frame["reused"].sum())
         members += int(frame["popsize"].sum())
         nonfinite += int(frame["nonfinite"].sum())
+        mixing = str(frame["mixing"].iloc[0])
     mean, half_width, _ = mean_ci(finals, level=0.68)
+    n = max(len(paths), 1)
     return {
-        "run": spec.run_name,
-        "seeds": spec.seeds,
+        "run": run_dir.name,
+        "mixing": mixing,
+        "seeds": len(paths),
         "final_mean_score": mean,
         "ci68": half_width,
-        "evaluations": evaluations,
-        "env_steps": env_steps,
+        "evaluations": evaluations,  # total over seeds
+        "evaluations_per_seed": evaluations / n,
+        "env_steps": env_steps,  # total over seeds
+        "env_steps_per_seed": env_steps / n,
         "reuse_percent": 100.0 * reused / members if members else 0.0,
         "nonfinite_returns": nonfinite,
     }
 
 
+def counterpart_runs(spec: RunSpec) -> list[Path]:
+    """Sibling run folders of the same experiment holding the same config with other mixing settings
+    (and at least one finished seed), e.g. the ``-none`` run of an ``-eim`` run."""
+    import yaml
+
+    mine = {k: v for k, v in spec.identity().items() if k not in MIXING_KEYS}
+    found = []
+    for other in sorted(spec.run_dir.parent.iterdir()):
+        if other == spec.run_dir or not (other / "config.yaml").is_file() or not any(other.glob("seed_*[0-9].csv")):
+            continue
+        try:
+            config = yaml.safe_load((other / "config.yaml").read_text())
+        except Exception:  # an unreadable sibling is simply not compared
+            continue
+        if isinstance(config, dict) and {k: v for k, v in identity_of(config).items() if k not in MIXING_KEYS} == mine:
+            found.append(other)
+    return found
+
+
 def format_summary(spec: RunSpec, s: dict) -> str:
-    header = f"{'run':<32} {'seeds':>5} {'final mean score (68% CI)':>26} {'evaluations':>12} {'env steps':>12} {'reuse':>7} {'non-finite':>10}"
-    score = f"{s['final_mean_score']:.2f} ± {s['ci68']:.2f}"
-    line = f"{s['run']:<32} {s['seeds']:>5} {score:>26} {s['evaluations']:>12,} {s['env_steps']:>12,} {s['reuse_percent']:>6.1f}% {s['nonfinite_returns']:>10}"
-    where = f"results: {spec.run_dir}/seed_*.csv  ({s['seeds_run']} seed(s) run now, {s['wall_time']:.1f} s)" if "seeds_run" in s else ""
-    return "\n".join([header, line, where]).rstrip()
+    """The summary table: this run, then any sibling with the same config and other mixing, and the reduction."""
+    rows = [s]
+    for other in counterpart_runs(spec) if spec.algo != "ddpg" else []:
+        try:
+            rows.append(summarize(spec, other))
+        except CorruptResultError:
+            continue
+    width = max(32, *(len(r["run"]) for r in rows))
+    header = (
+        f"{'run':<{width}} {'seeds':>5} {'final mean score (68% CI)':>26} {'episodes/seed':>14} "
+        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10}"
+    )
+    lines = [header]
+    for r in rows:
+        score = f"{r['final_mean_score']:.2f}" + (f" ± {r['ci68']:.2f}" if np.isfinite(r["ci68"]) else "")
+        lines.append(
+            f"{r['run']:<{width}} {r['seeds']:>5} {score:>26} {r['evaluations_per_seed']:>14,.0f} "
+            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10}"
+        )
+    without = [r for r in rows if r["mixing"] == "none"]
+    with_mixing = [r for r in rows if r["mixing"] != "none"]
+    for base in without[:1]:
+        for r in with_mixing:
+            if r["evaluations_per_seed"]:
+                lines.append(
+                    f"  {r['run']} vs {base['run']}: {base['evaluations_per_seed'] / r['evaluations_per_seed']:.2f}x fewer "
+                    f"episodes for the same {spec.generations} generations (final mean score {r['final_mean_score']:.2f} vs "
+                    f"{base['final_mean_score']:.2f}; sample efficiency to a threshold: imix plot)"
+                )
+    if "seeds_run" in s:
+        lines.append(f"results: {spec.run_dir}/seed_*.csv  ({s['seeds_run']} seed(s) run now, {s['wall_time']:.1f} s)")
+    return "\n".join(lines)
