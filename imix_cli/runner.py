@@ -13,9 +13,11 @@ the other seeds sharing its batch, or whether it was resumed from a checkpoint.
 
 Files (see :mod:`imix_cli.results`): ``seed_<k>.csv`` is written atomically when seed ``k``
 finishes; a checkpoint of its whole state (ES, archive, RNG states, rows so far) is written
-atomically every ``checkpoint_every`` generations to ``.checkpoints/seed_<k>.pkl`` and deleted
-once the CSV exists. Re-running the same command skips finished seeds and resumes the others
-from their checkpoints.
+atomically every ``checkpoint_every`` generations to ``.checkpoints/seed_<k>.npz`` (plain data,
+see :mod:`imix_cli.checkpoints`) and deleted once the CSV exists. Re-running the same command
+skips finished seeds and resumes the others from their checkpoints, saying so on stderr
+(``seed k resumes at generation G``); a checkpoint that is damaged or of another config is
+refused with one warning line and its seed restarts from scratch.
 
 algo=ddpg (the deep-RL baseline of the paper's section 4.3) uses the same run folder, process
 pool and CSV contract, but its own seed loop (section "algo=ddpg" below): seeds run one after
@@ -26,7 +28,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import pickle
+import sys
 import queue as queue_module
 import threading
 import time
@@ -37,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from imix_cli.algorithms import make_es
+from imix_cli.checkpoints import load_or_warn, write_checkpoint
 from imix_cli.config import RunSpec, identity_of
 from imix_cli.evaluation import make_evaluator
 from imix_cli.mixing import Generation, mix
@@ -59,7 +62,8 @@ class RunError(RuntimeError):
 # ----------------------------------------------------------------------------- one seed's state
 @dataclass
 class SeedState:
-    """Everything seed ``seed`` needs to continue; pickled whole as its checkpoint."""
+    """Everything seed ``seed`` needs to continue; saved whole as its checkpoint (field by field,
+    by type: see :mod:`imix_cli.checkpoints`, which needs no change when a field is added)."""
 
     seed: int
     es: object
@@ -152,27 +156,51 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
 
 # ----------------------------------------------------------------------------- files of a run
 def checkpoint_path(run_dir: Path, seed: int) -> Path:
+    return Path(run_dir) / ".checkpoints" / f"seed_{seed}.npz"
+
+
+def legacy_checkpoint_path(run_dir: Path, seed: int) -> Path:
+    """Where imix 0.1 kept a pickled checkpoint: never opened (unpickling runs code), only removed."""
     return Path(run_dir) / ".checkpoints" / f"seed_{seed}.pkl"
 
 
 def save_checkpoint(run_dir: Path, st: SeedState, identity: dict) -> None:
-    path = checkpoint_path(run_dir, st.seed)
-    path.parent.mkdir(exist_ok=True)
-    atomic_write_bytes(path, pickle.dumps({"identity": identity, "state": st}, protocol=pickle.HIGHEST_PROTOCOL))
+    write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation)
 
 
-def load_checkpoint(run_dir: Path, seed: int, identity: dict) -> SeedState | None:
-    """The saved state of ``seed``, or None if there is none (or it is unreadable or of another config)."""
-    path = checkpoint_path(run_dir, seed)
+def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh: SeedState, warn=None) -> SeedState | None:
+    """The saved state of ``seed`` (built on ``fresh``, a new state of the same run and seed), or None.
+
+    None if there is no checkpoint, or -- after one warning line naming the file and why --
+    if it is damaged, of another seed or config, or a pickle of an older imix.
+    """
+    legacy = legacy_checkpoint_path(run_dir, seed)
+    if legacy.exists():
+        (warn or _warn)(f"{legacy}: checkpoint ignored: a pickle (older imix), never opened since loading it could run code; seed {seed} restarts from scratch")
+    st = load_or_warn(checkpoint_path(run_dir, seed), fresh, identity=identity, seed=seed, warn=warn)
+    if st is not None and (st.seed != seed or st.generation != len(st.rows)):
+        (warn or _warn)(f"{checkpoint_path(run_dir, seed)}: checkpoint ignored: inconsistent state; seed {seed} restarts from scratch")
+        return None
+    return st
+
+
+def _can_checkpoint(es) -> bool:
+    """Whether ``es`` has a state dict; if not, say once that its seeds will not be checkpointed."""
     try:
-        data = pickle.loads(path.read_bytes())
-    except FileNotFoundError:
-        return None
-    except Exception:  # a checkpoint we cannot read only costs recomputation
-        return None
-    if not isinstance(data, dict) or data.get("identity") != identity:
-        return None
-    return data["state"]
+        es.state_dict()
+    except NotImplementedError:
+        _warn(f"algo={es.name} cannot be checkpointed yet: a killed run restarts its unfinished seeds")
+        return False
+    return True
+
+
+def _warn(message: str) -> None:
+    print(f"imix: warning: {message}", file=sys.stderr, flush=True)
+
+
+def _remove_checkpoints(run_dir: Path, seed: int) -> None:
+    checkpoint_path(run_dir, seed).unlink(missing_ok=True)
+    legacy_checkpoint_path(run_dir, seed).unlink(missing_ok=True)
 
 
 def prepare_run_dir(spec: RunSpec) -> list[int]:
@@ -262,10 +290,14 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     run_dir = spec.run_dir
     states = []
     for seed in seeds:
-        st = load_checkpoint(run_dir, seed, identity) or new_seed_state(spec, seed, evaluator.num_params)
+        # A refused checkpoint may have been half loaded into the ES it was given: start from a new one.
+        st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, evaluator.num_params))
+        st = st or new_seed_state(spec, seed, evaluator.num_params)
         states.append(st)
         if st.generation:
+            print(f"imix: seed {seed} resumes at generation {st.generation} from {checkpoint_path(run_dir, seed)}", file=sys.stderr, flush=True)
             progress(st.generation)
+    checkpoint_every = spec.checkpoint_every if states and _can_checkpoint(states[0].es) else 0
     started = time.perf_counter()
     active = [st for st in states if st.generation < spec.generations]
     while active:
@@ -275,8 +307,8 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
             st.rows[-1]["wall_time"] = st.elapsed + now
             if st.generation == spec.generations:
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
-                checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
-            elif spec.checkpoint_every and st.generation % spec.checkpoint_every == 0:
+                _remove_checkpoints(run_dir, st.seed)
+            elif checkpoint_every and st.generation % checkpoint_every == 0:
                 elapsed, st.elapsed = st.elapsed, st.elapsed + now
                 save_checkpoint(run_dir, st, identity)
                 st.elapsed = elapsed
@@ -285,7 +317,7 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     for st in states:  # seeds resumed from a checkpoint taken after their last generation
         if not seed_csv_path(run_dir, st.seed).exists():
             write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
-            checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+            _remove_checkpoints(run_dir, st.seed)
     return list(seeds)
 
 
