@@ -248,6 +248,16 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     env_name, env_id, max_steps = _env(env_cfg)
     workers, experiment = _workers_and_experiment(cfg, launcher)
     config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
+    popsize, sigma = _int(cfg, "popsize", 2), _float(cfg, "sigma", 0.0, False)
+    if algo == "cmaes" and popsize < 3:
+        raise ConfigError(f"popsize={popsize}: algo=cmaes needs popsize >= 3 (its recombination weights need at least 2 parents and one non-parent)")
+    if not math.isfinite(sigma * sigma):
+        raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
+    num_params = _policy_size(env_name, env_id, max_steps)
+    _check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0))
+    seeds = _int(cfg, "seeds", 1)
+    if seeds > MAX_SEEDS:
+        raise ConfigError(f"seeds={seeds}: at most {MAX_SEEDS:,} seeds per run (one CSV per seed); split the work into experiments")
     return RunSpec(
         algo=algo,
         env_name=env_name,
@@ -257,10 +267,10 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         variant=variant,
         im_alpha=im_alpha,
         eim_generations=eim_generations,
-        seeds=_int(cfg, "seeds", 1),
+        seeds=seeds,
         generations=_int(cfg, "generations", 1),
-        popsize=_int(cfg, "popsize", 2),
-        sigma=_float(cfg, "sigma", 0.0, False),
+        popsize=popsize,
+        sigma=sigma,
         lr=_float(cfg, "lr", 0.0, False),
         weight_decay=_float(cfg, "weight_decay", 0.0, True),
         weight_decay_form=_choice(cfg.get("weight_decay_form"), "weight_decay_form", WEIGHT_DECAY_FORMS),
@@ -271,6 +281,57 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         experiment=experiment,
         config={**config, "mixing": mixing},
     )
+
+
+#: The largest ``seeds``: one CSV (and one progress line of work) per seed; beyond this a run is
+#: a mistake (``seeds=1e9`` would spend minutes listing files before the first generation).
+MAX_SEEDS = 100_000
+
+
+def _policy_size(env_name: str, env_id: str, max_steps: int | None) -> int:
+    """The number of policy parameters d of an env; ConfigError for an env imix cannot evaluate."""
+    try:
+        return _evaluator_shape(env_name if env_name in BUILTIN_ENVS else env_id, max_steps)
+    except ValueError as err:
+        key = "env" if env_name in BUILTIN_ENVS else "env.id"
+        value = env_name if env_name in BUILTIN_ENVS else env_id
+        raise ConfigError(f"{key}={value!r}: {_first_line(err).replace(repr(value) + ': ', '').replace(repr(value) + ' ', '')}") from None
+
+
+_EVALUATOR_SHAPES: dict = {}
+
+
+def _evaluator_shape(key: str, max_steps: int | None) -> int:
+    """make_evaluator(key).num_params, cached per process (a sweep asks once per env, not per point)."""
+    if (key, max_steps) not in _EVALUATOR_SHAPES:
+        from imix_cli.evaluation import make_evaluator
+
+        try:
+            _EVALUATOR_SHAPES[key, max_steps] = make_evaluator(key, max_steps).num_params
+        except ValueError as err:
+            _EVALUATOR_SHAPES[key, max_steps] = err
+    shape = _EVALUATOR_SHAPES[key, max_steps]
+    if isinstance(shape, Exception):
+        raise shape
+    return shape
+
+
+def _check_memory(popsize: int, num_params: int, archive_depth: int) -> None:
+    """Refuse a population whose arrays cannot fit in this machine's memory.
+
+    A generation holds popsize x d float64 numbers about (archive depth + 3) times over
+    (samples, the archive, mixing's and the evaluator's temporaries).
+    """
+    needed = 8 * popsize * (num_params + 16) * (archive_depth + 3)
+    try:
+        available = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # not on Linux: no check
+        return
+    if needed > available:
+        raise ConfigError(
+            f"popsize={popsize}: a population of {popsize:,} x {num_params} parameters needs ~{needed / 2**30:,.1f} GiB, "
+            f"more than this machine's {available / 2**30:,.1f} GiB"
+        )
 
 
 def _workers_and_experiment(cfg: dict, launcher: str | None) -> tuple[int, str]:

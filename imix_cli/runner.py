@@ -41,6 +41,7 @@ import numpy as np
 from imix_cli.algorithms import make_es
 from imix_cli.checkpoints import load_or_warn, write_checkpoint
 from imix_cli.config import RunSpec, identity_of
+from imix_cli.divergence import GuardedES
 from imix_cli.evaluation import make_evaluator
 from imix_cli.mixing import Generation, mix
 from imix_cli.results import (
@@ -83,10 +84,10 @@ class SeedState:
 
 def new_seed_state(spec: RunSpec, seed: int, dim: int) -> SeedState:
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
-    es = make_es(
+    es = GuardedES(make_es(
         spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,
         weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form,
-    )  # fmt: skip
+    ))  # fmt: skip
     return SeedState(seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq))
 
 
@@ -247,7 +248,7 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
         if spec.algo == "ddpg":
             if int(frame["env_steps"].iloc[-1]) > spec.total_steps:
                 raise RunError(f"{path}: has {int(frame['env_steps'].iloc[-1])} env steps, config asks for {spec.total_steps}; move it away or choose another experiment=")
-        elif len(frame) != spec.generations:
+        elif len(frame) != spec.generations and not (len(frame) < spec.generations and frame["diverged"].iloc[-1] == 1):
             raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
     if not config_file.exists():
         atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
@@ -305,7 +306,10 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
         now = time.perf_counter() - started
         for st in active:
             st.rows[-1]["wall_time"] = st.elapsed + now
-            if st.generation == spec.generations:
+            if end_if_diverged(st):
+                write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
+                _remove_checkpoints(run_dir, st.seed)
+            elif st.generation == spec.generations:
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
                 _remove_checkpoints(run_dir, st.seed)
             elif checkpoint_every and st.generation % checkpoint_every == 0:
@@ -313,12 +317,21 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
                 save_checkpoint(run_dir, st, identity)
                 st.elapsed = elapsed
         progress(len(active))
-        active = [st for st in active if st.generation < spec.generations]
+        active = [st for st in active if st.generation < spec.generations and not st.es.diverged]
     for st in states:  # seeds resumed from a checkpoint taken after their last generation
         if not seed_csv_path(run_dir, st.seed).exists():
             write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
             _remove_checkpoints(run_dir, st.seed)
     return list(seeds)
+
+
+def end_if_diverged(st: SeedState) -> bool:
+    """If seed ``st``'s search just diverged, mark its last row and say so (one line); return whether it did."""
+    if not st.es.diverged:
+        return False
+    st.rows[-1]["diverged"] = 1
+    _warn(f"seed {st.seed} diverged at generation {st.generation - 1} ({st.es.diverged}); its CSV ends there")
+    return True
 
 
 def _queue_progress(n: int) -> None:
@@ -448,7 +461,7 @@ def _progress_bar(spec: RunSpec, total: int):
 # ----------------------------------------------------------------------------- the summary
 def summarize(spec: RunSpec) -> dict:
     """Final mean score +- 68 % CI over seeds, total evaluations and env steps, reuse %, non-finite returns."""
-    finals, evaluations, env_steps, reused, members, nonfinite = [], 0, 0, 0, 0, 0
+    finals, evaluations, env_steps, reused, members, nonfinite, diverged = [], 0, 0, 0, 0, 0, 0
     for seed in range(spec.seeds):
         frame = read_run_csv(seed_csv_path(spec.run_dir, seed))
         finals.append(float(frame["mean_score"].iloc[-1]))
@@ -457,6 +470,7 @@ def summarize(spec: RunSpec) -> dict:
         reused += int(frame["reused"].sum())
         members += int(frame["popsize"].sum())
         nonfinite += int(frame["nonfinite"].sum())
+        diverged += int(frame["diverged"].iloc[-1] == 1)
     mean, half_width, _ = mean_ci(finals, level=0.68)
     return {
         "run": spec.run_name,
@@ -467,12 +481,13 @@ def summarize(spec: RunSpec) -> dict:
         "env_steps": env_steps,
         "reuse_percent": 100.0 * reused / members if members else 0.0,
         "nonfinite_returns": nonfinite,
+        "diverged_seeds": diverged,
     }
 
 
 def format_summary(spec: RunSpec, s: dict) -> str:
-    header = f"{'run':<32} {'seeds':>5} {'final mean score (68% CI)':>26} {'evaluations':>12} {'env steps':>12} {'reuse':>7} {'non-finite':>10}"
+    header = f"{'run':<32} {'seeds':>5} {'final mean score (68% CI)':>26} {'evaluations':>12} {'env steps':>12} {'reuse':>7} {'non-finite':>10} {'diverged':>8}"
     score = f"{s['final_mean_score']:.2f} ± {s['ci68']:.2f}"
-    line = f"{s['run']:<32} {s['seeds']:>5} {score:>26} {s['evaluations']:>12,} {s['env_steps']:>12,} {s['reuse_percent']:>6.1f}% {s['nonfinite_returns']:>10}"
+    line = f"{s['run']:<32} {s['seeds']:>5} {score:>26} {s['evaluations']:>12,} {s['env_steps']:>12,} {s['reuse_percent']:>6.1f}% {s['nonfinite_returns']:>10} {s['diverged_seeds']:>8}"
     where = f"results: {spec.run_dir}/seed_*.csv  ({s['seeds_run']} seed(s) run now, {s['wall_time']:.1f} s)" if "seeds_run" in s else ""
     return "\n".join([header, line, where]).rstrip()
