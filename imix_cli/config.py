@@ -12,6 +12,7 @@ before the first point runs.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 import os
@@ -130,10 +131,15 @@ class RunSpec:
 
     @property
     def overrides_suffix(self) -> str:
-        """``key=value,...`` for the hyper-parameters that differ from the paper's (sorted)."""
+        """``key=value,...`` for the hyper-parameters that differ from the paper's, and ``env.max_steps``
+        if given (sorted). Other keys that change results (``generations``, ``algo.*``) do not name
+        the folder: a sweep whose points would share one is refused up front (validate_overrides)."""
+        # env.max_steps (default: the env's own cap) changes results too: it names the folder when set.
+        default_cap = _env_group_default(self.env_name if self.env_name in BUILTIN_ENVS else "gym", "max_steps")
+        cap = {} if self.env_max_steps == default_cap else {"env.max_steps": self.env_max_steps}
         if self.algo == "ddpg":
             changed = {k: v for k, v in (self.ddpg or {}).items() if k in DDPG_DEFAULTS and v != DDPG_DEFAULTS[k]}
-            return ",".join(f"{k}={_format(v)}" for k, v in sorted(changed.items()))
+            return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
         values = {
             "popsize": self.popsize, "sigma": self.sigma, "lr": self.lr, "weight_decay": self.weight_decay,
             "weight_decay_form": self.weight_decay_form,
@@ -144,7 +150,7 @@ class RunSpec:
         if self.mixing == "eim":
             values["eim_generations"] = self.eim_generations
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
-        return ",".join(f"{k}={_format(v)}" for k, v in sorted(changed.items()))
+        return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
 
     @property
     def run_name(self) -> str:
@@ -172,6 +178,19 @@ def _format(value) -> str:
     if isinstance(value, (list, tuple)):
         return "x".join(map(str, value))  # layer sizes: [16, 16] -> 16x16
     return repr(value) if isinstance(value, float) else str(value)
+
+
+_GROUP_DEFAULTS: dict = {}
+
+
+def _env_group_default(option: str, key: str):
+    """``key`` of ``conf/env/<option>.yaml`` (read once): the value a run has unless overridden."""
+    if option not in _GROUP_DEFAULTS:
+        import yaml
+
+        path = Path(config_dir()) / "env" / f"{option}.yaml"
+        _GROUP_DEFAULTS[option] = yaml.safe_load(path.read_text()) if path.exists() else {}
+    return (_GROUP_DEFAULTS[option] or {}).get(key)
 
 
 # ---------------------------------------------------------------------------- validation helpers
@@ -477,33 +496,41 @@ def group_options(group: str) -> list[str]:
     return sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml"))
 
 
-_MAX_VALIDATED_POINTS = 2000
-
-
 def validate_overrides(overrides: list[str]) -> list[RunSpec]:
     """Compose and validate the config of every point of a (possibly multirun) command line.
 
-    Raises ConfigError (one line) on the first problem. Sweep forms Hydra can expand without a
-    config (``a,b``, ``range(...)``) are expanded; other sweeps (``glob``) are checked by Hydra.
+    Raises ConfigError (one line) on the first problem, or when two points would share a run
+    folder with different configs (the second would be refused halfway through the sweep).
+    Every point is checked: sweeps (``a,b``, ``range(...)``, ``glob(...)`` over ``algo``/``env``)
+    are expanded here. Hydra composes the config once per combination of config-group choices
+    (``algo``, ``env``, ``hydra/...``) and of ``+``/``~`` overrides; each point's plain
+    ``key=value`` overrides are then applied to a copy by Hydra's own override function, so a
+    point costs milliseconds instead of a full composition.
     """
     from hydra import compose, initialize_config_dir
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import Glob
     from omegaconf import OmegaConf, open_dict
 
+    parser = OverridesParser.create()
     try:
-        parsed = OverridesParser.create().parse_overrides(overrides)
+        parsed = parser.parse_overrides(overrides)
     except Exception as err:
         raise ConfigError(f"cannot parse overrides: {_first_line(err)}") from None
-    choices, passthrough = [], []
+    choices = []
     for override in parsed:
         key = override.key_or_group
         if override.is_sweep_override():
-            try:
+            if isinstance(override.value(), Glob):
+                if key not in ("algo", "env"):
+                    raise ConfigError(f"{override.input_line}: glob() selects options of the config groups algo and env only")
+                values = override.value().filter(group_options(key))
+                if not values:
+                    raise ConfigError(f"{override.input_line}: matches no {key}; valid choices are {', '.join(group_options(key))}")
+            else:
                 values = list(override.sweep_string_iterator())
-            except Exception:
-                passthrough.append(override.input_line)  # e.g. glob(): Hydra expands it later
-                continue
             choices.append([f"{override.get_key_element()}={v}" for v in values])
         else:
             choices.append([override.input_line])
@@ -513,22 +540,65 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
                 value = line.split("=", 1)[1]
                 if value not in valid:
                     raise ConfigError(f"{key}={value}: unknown {key}; valid choices are {', '.join(valid)}")
-    points = list(itertools.islice(itertools.product(*choices), _MAX_VALIDATED_POINTS))
-    specs = []
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
-        for point in points:
+    parse_cache: dict = {}
+
+    def parse_one(line: str):
+        if line not in parse_cache:
             try:
-                cfg = compose("config", overrides=[*point, *passthrough], return_hydra_config=True)
-                launcher = OmegaConf.select(cfg, "hydra.launcher._target_")
-                with open_dict(cfg):
-                    del cfg["hydra"]
-                plain = OmegaConf.to_container(cfg, resolve=True)
+                parse_cache[line] = parser.parse_overrides([line])[0]
             except Exception as err:
-                raise ConfigError(_explain_compose_error(err, point)) from None
-            specs.append(spec_from_config(plain, launcher))
+                raise ConfigError(f"cannot parse overrides: {_first_line(err)}") from None
+        return parse_cache[line]
+
+    specs, composed = [], {}
     GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
+            for point in itertools.product(*choices):
+                parsed_point = [parse_one(line) for line in point]
+                values = [o for o in parsed_point if _is_value_override(o)]
+                base = tuple(line for line, o in zip(point, parsed_point) if not _is_value_override(o))
+                try:
+                    if base not in composed:  # hydra.* overrides are in base: the hydra node is done with
+                        full = compose("config", overrides=list(base), return_hydra_config=True)
+                        launcher = OmegaConf.select(full, "hydra.launcher._target_")
+                        with open_dict(full):
+                            del full["hydra"]
+                        composed[base] = (full, launcher)
+                    cfg, launcher = copy.deepcopy(composed[base][0]), composed[base][1]
+                    ConfigLoaderImpl._apply_overrides_to_config(values, cfg)
+                    plain = OmegaConf.to_container(cfg, resolve=True)
+                except Exception as err:
+                    raise ConfigError(_explain_compose_error(err, point)) from None
+                specs.append(spec_from_config(plain, launcher))
+    finally:
+        GlobalHydra.instance().clear()
+    _refuse_shared_folders(specs)
     return specs
+
+
+def _is_value_override(override) -> bool:
+    """A plain ``key=value`` of a config value (not a config group, not ``+``/``~``/``++``)."""
+    key = override.key_or_group
+    return (
+        override.package is None and not override.is_add() and not override.is_delete() and not override.is_force_add()
+        and "/" not in key and key not in ("algo", "env", "hydra") and not key.startswith("hydra.")
+    )  # fmt: skip
+
+
+def _refuse_shared_folders(specs: list[RunSpec]) -> None:
+    """ConfigError if two points would write one run folder with different configs."""
+    first: dict[Path, RunSpec] = {}
+    for spec in specs:
+        other = first.setdefault(spec.run_dir, spec)
+        old, new = other.identity(), spec.identity()
+        differing = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        if differing:
+            changes = ", ".join(f"{k}={old.get(k)!r} / {new.get(k)!r}" for k in differing)
+            raise ConfigError(
+                f"two sweep points would share the folder {spec.run_dir} but differ in {changes}; "
+                "sweep that key in separate commands with their own experiment="
+            )
 
 
 def _first_line(err: Exception) -> str:
