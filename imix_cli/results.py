@@ -73,6 +73,15 @@ def atomic_write_bytes(path, data: bytes) -> None:
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        _write_and_rename(fd, tmp, path, data)
+    except OSError as err:
+        if err.filename is None:  # ENOSPC from write/fsync names no file: name the one we were writing
+            raise OSError(err.errno, err.strerror or str(err), str(path)) from None
+        raise
+
+
+def _write_and_rename(fd: int, tmp: str, path: Path, data: bytes) -> None:
+    try:
         os.fchmod(fd, 0o666 & ~_umask())  # mkstemp creates 0600; give the file the usual permissions
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)

@@ -26,10 +26,12 @@ another in each worker, one CSV row per finished episode, no mid-run checkpoint.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import sys
 import queue as queue_module
+import signal
 import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -214,12 +216,7 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
 
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise RunError(f"results_dir={spec.results_dir!r}: cannot create {run_dir} ({err.strerror or err})") from None
-    if not os.access(run_dir, os.W_OK):
-        raise RunError(f"results_dir={spec.results_dir!r}: {run_dir} is not writable")
+    _make_run_dir(spec)
     if config_file.exists():
         try:
             existing = yaml.safe_load(config_file.read_text())
@@ -252,10 +249,51 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
             raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
     if not config_file.exists():
         atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
-    # Temporaries of writes cut short by a kill are never at a final name; clear them away.
+    # Temporaries of writes cut short by a kill are never at a final name; clear them away. (run()
+    # holds the folder's lock, so no other live run is writing them; an orphaned worker of a
+    # killed run exits within a second and only loses a write that is redone on resume.)
     for stale in [*run_dir.glob(".*.tmp"), *run_dir.glob(".checkpoints/.*.tmp")]:
         stale.unlink(missing_ok=True)
     return todo
+
+
+def _make_run_dir(spec: RunSpec) -> None:
+    run_dir = spec.run_dir
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise RunError(f"results_dir={spec.results_dir!r}: cannot create {run_dir} ({err.strerror or err})") from None
+    if not os.access(run_dir, os.W_OK):
+        raise RunError(f"results_dir={spec.results_dir!r}: {run_dir} is not writable")
+
+
+LOCK_NAME = ".lock"
+
+
+@contextlib.contextmanager
+def run_dir_lock(spec: RunSpec):
+    """Hold the run folder's lock for the ``with`` block; RunError at once if another run holds it.
+
+    ``fcntl.flock`` on ``<run_dir>/.lock``: the kernel drops the lock when its holder exits,
+    however it dies (kill -9 included), so a stale lock file never blocks a re-run. The file
+    holds the holder's pid, for the message.
+    """
+    import fcntl
+
+    _make_run_dir(spec)
+    path = spec.run_dir / LOCK_NAME
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise RunError(f"{spec.run_dir} is in use by another imix run (pid {holder}); wait for it to end, or choose another experiment=") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 # ----------------------------------------------------------------------------- a worker's job
@@ -265,6 +303,8 @@ _progress_queue = None
 def _init_worker(progress_queue) -> None:
     global _progress_queue
     _progress_queue = progress_queue
+    # Ctrl-C reaches the whole process group: the main process alone decides, and stops us.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), daemon=True).start()
 
 
@@ -397,7 +437,16 @@ def run_ddpg_seeds(spec: RunSpec, seeds: list[int], progress) -> list[int]:
 
 # ----------------------------------------------------------------------------- the whole run
 def run(spec: RunSpec, echo=print) -> dict:
-    """Run every unfinished seed of ``spec``; print and return the summary."""
+    """Run every unfinished seed of ``spec``; print and return the summary.
+
+    The run folder is locked for the whole run (:func:`run_dir_lock`): a second run on it is
+    refused with RunError before it touches anything.
+    """
+    with run_dir_lock(spec):
+        return _run_locked(spec, echo)
+
+
+def _run_locked(spec: RunSpec, echo) -> dict:
     todo = prepare_run_dir(spec)
     total = len(todo) * (spec.total_steps if spec.algo == "ddpg" else spec.generations)
     bar = _progress_bar(spec, total)
@@ -423,7 +472,8 @@ def _run_pool(spec: RunSpec, chunks: list[list[int]], bar) -> None:
         os.environ.setdefault(var, "1")
     ctx = multiprocessing.get_context("spawn")
     progress_queue = ctx.Queue()
-    with ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,)) as pool:
+    pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
+    try:
         pending = {pool.submit(run_seeds, spec, chunk) for chunk in chunks}
         while pending:
             done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
@@ -431,6 +481,21 @@ def _run_pool(spec: RunSpec, chunks: list[list[int]], bar) -> None:
             for future in done:
                 future.result()  # re-raise a worker's error here
         _drain(progress_queue, bar)
+    except BaseException:
+        # Ctrl-C / SIGINT to this process alone, or a worker's error: stop the other workers now
+        # rather than let them finish their seeds (what is checkpointed is kept; writes are atomic).
+        _terminate_workers(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _terminate_workers(pool: ProcessPoolExecutor) -> None:
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=5)
 
 
 def _drain(progress_queue, bar) -> None:
