@@ -211,13 +211,16 @@ def test_the_disk_full_message_names_the_file(tmp_path, capsys, monkeypatch):
 
 
 def test_plot_refuses_an_absolute_experiment_path(tmp_path, capsys):
+    """An experiment with results, named by its absolute path: figures would land outside results_dir."""
     from imix_cli.plotting import main as plot_main
 
-    outside = tmp_path / "outside"
+    assert main(["run", "algo=cem", *SMALL, f"results_dir={tmp_path / 'elsewhere'}", "experiment=exp"]) == 0
+    outside = tmp_path / "elsewhere" / "exp"
+    capsys.readouterr()
     code = plot_main([f"results_dir={tmp_path / 'results'}", f"experiment={outside}"])
-    assert code != 0
-    assert "experiment" in capsys.readouterr().err
-    assert not outside.exists()
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and "experiment" in err and len(err.splitlines()) == 1, err
+    assert not (outside / "figures").exists()
 
 
 def test_fast_validation_composes_what_hydra_composes(tmp_path):
