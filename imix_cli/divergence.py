@@ -65,6 +65,8 @@ class GuardedES:
         self.es.load_state_dict(state)
 
     def __getattr__(self, name):
+        if "es" not in self.__dict__:  # during unpickling or copying, before __init__'s fields exist
+            raise AttributeError(name)
         return getattr(self.__dict__["es"], name)
 
     def __setattr__(self, name, value):
