@@ -274,9 +274,7 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
     num_params = _policy_size(env_name, env_id, max_steps)
     _check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0))
-    seeds = _int(cfg, "seeds", 1)
-    if seeds > MAX_SEEDS:
-        raise ConfigError(f"seeds={seeds}: at most {MAX_SEEDS:,} seeds per run (one CSV per seed); split the work into experiments")
+    seeds = _seeds(cfg)
     return RunSpec(
         algo=algo,
         env_name=env_name,
@@ -305,6 +303,13 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
 #: The largest ``seeds``: one CSV (and one progress line of work) per seed; beyond this a run is
 #: a mistake (``seeds=1e9`` would spend minutes listing files before the first generation).
 MAX_SEEDS = 100_000
+
+
+def _seeds(cfg: dict) -> int:
+    seeds = _int(cfg, "seeds", 1)
+    if seeds > MAX_SEEDS:
+        raise ConfigError(f"seeds={seeds}: at most {MAX_SEEDS:,} seeds per run (one CSV per seed); split the work into experiments")
+    return seeds
 
 
 def _policy_size(env_name: str, env_id: str, max_steps: int | None) -> int:
@@ -397,7 +402,7 @@ def _ddpg_spec(cfg: dict, algo_cfg: dict, env_cfg: dict, launcher: str | None) -
         variant=None,
         im_alpha=PAPER_DEFAULTS["im_alpha"],
         eim_generations=PAPER_DEFAULTS["eim_generations"],
-        seeds=_int(cfg, "seeds", 1),
+        seeds=_seeds(cfg),
         generations=0,
         popsize=PAPER_DEFAULTS["popsize"],
         sigma=PAPER_DEFAULTS["sigma"],

@@ -246,3 +246,23 @@ def test_checkpoint_is_a_plain_zip_of_npy_files(tmp_path):
         names = z.namelist()
     assert "header.npy" in names and "es/mu.npy" in names and "archive/0/samples.npy" in names
     assert not list(spec.run_dir.rglob("*.tmp"))
+
+
+def test_archived_generations_are_saved_field_by_field_whatever_their_fields(tmp_path, monkeypatch):
+    """A Generation with one more array field (as the lead is adding) round-trips without any change
+    to imix_cli.checkpoints: fields are found with dataclasses.fields, not listed."""
+    import dataclasses
+
+    import imix_cli.mixing as mixing
+
+    Extended = dataclasses.make_dataclass("Generation", [("weights", np.ndarray, dataclasses.field(default=None))], bases=(mixing.Generation,))
+    monkeypatch.setattr(checkpoints, "Generation", Extended)
+    spec, states, evaluator = spec_and_states(tmp_path, generations=3)
+    st = states[0]
+    st.archive = [Extended(**{f.name: getattr(g, f.name) for f in dataclasses.fields(g)}, weights=np.arange(3.0) + k) for k, g in enumerate(st.archive)]
+    save_checkpoint(spec.run_dir, st, spec.identity())
+    loaded, warnings = load(spec, evaluator)
+    assert warnings == [] and [type(g) for g in loaded.archive] == [Extended] * 3
+    for k, g in enumerate(loaded.archive):
+        np.testing.assert_array_equal(g.weights, np.arange(3.0) + k)
+    assert encoded(loaded) == encoded(st)
