@@ -562,7 +562,7 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
             for point in itertools.product(*choices):
                 parsed_point = [parse_one(line) for line in point]
                 values = [o for o in parsed_point if _is_value_override(o)]
-                base = tuple(line for line, o in zip(point, parsed_point) if not _is_value_override(o))
+                base = tuple(line for line, o in zip(point, parsed_point, strict=True) if not _is_value_override(o))
                 try:
                     if base not in composed:  # hydra.* overrides are in base: the hydra node is done with
                         full = compose("config", overrides=list(base), return_hydra_config=True)

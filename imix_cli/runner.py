@@ -29,9 +29,9 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
-import sys
 import queue as queue_module
 import signal
+import sys
 import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -48,7 +48,6 @@ from imix_cli.evaluation import make_evaluator
 from imix_cli.mixing import Generation, mix
 from imix_cli.results import (
     CorruptResultError,
-    atomic_write_bytes,
     atomic_write_text,
     read_run_csv,
     rows_to_frame,

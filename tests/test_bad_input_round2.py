@@ -14,7 +14,6 @@ import time
 import warnings
 from pathlib import Path
 
-import pandas as pd
 import pytest
 
 from imix_cli.cli import main
@@ -143,7 +142,8 @@ def test_sigint_to_the_main_process_alone_stops_the_workers_and_keeps_checkpoint
 
 def test_ctrl_c_during_validation_prints_one_line(tmp_path):
     """SIGINT about a second after start: validation or Hydra's start-up is still running."""
-    proc = subprocess.Popen([IMIX, "run", "-m", "popsize=" + ",".join(map(str, range(8, 400))), *SMALL[:2], *SMALL[3:], f"results_dir={tmp_path}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sweep = "popsize=" + ",".join(map(str, range(8, 400)))
+    proc = subprocess.Popen([IMIX, "run", "-m", sweep, *SMALL[:2], *SMALL[3:], f"results_dir={tmp_path}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(1.5)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
