@@ -56,8 +56,22 @@ def assert_final_files_valid(root: Path) -> None:
         assert len(read_run_csv(path)) == GENERATIONS, path  # complete, never partial
 
 
+def wait_for_a_new_checkpoint(root: Path, started: float, proc, limit: float = 60.0) -> None:
+    """Until a checkpoint written after ``started`` exists (or ``proc`` ended, or ``limit`` seconds)."""
+    deadline = time.monotonic() + limit
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            if any(p.stat().st_mtime >= started for p in root.rglob(".checkpoints/seed_*.npz")):
+                return
+        except FileNotFoundError:  # replaced or removed while we looked
+            pass
+        time.sleep(0.05)
+
+
 @pytest.mark.slow
 def test_kill_minus_9_at_random_points_then_resume_gives_identical_csvs(tmp_path):
+    """Kills at random moments: two attempts in three shortly after a fresh checkpoint (so that
+    resuming is exercised however slow the machine), the third anywhere, start-up included."""
     reference, target = tmp_path / "reference", tmp_path / "killed"
     subprocess.run([IMIX, *ARGS, f"results_dir={reference}"], check=True, capture_output=True)
     rng = random.Random(20261122)
@@ -65,10 +79,13 @@ def test_kill_minus_9_at_random_points_then_resume_gives_identical_csvs(tmp_path
     stderr_logs = []
     for attempt in range(12):
         stderr_logs.append(tmp_path / f"stderr_{attempt}.txt")
+        attempt_started = time.time()
         with open(stderr_logs[-1], "w") as log:
             proc = subprocess.Popen([IMIX, *ARGS, f"results_dir={target}"], start_new_session=True, stdout=subprocess.DEVNULL, stderr=log)
+        if attempt % 3 != 2:  # mostly after this attempt wrote a checkpoint, so the next must resume from it
+            wait_for_a_new_checkpoint(target, started=attempt_started, proc=proc)
         try:
-            proc.wait(timeout=rng.uniform(1.5, 4.0))
+            proc.wait(timeout=rng.uniform(0.0, 1.5) if attempt % 3 != 2 else rng.uniform(0.5, 3.0))
             break  # this attempt ran to completion
         except subprocess.TimeoutExpired:
             workers = worker_pids(proc.pid)
