@@ -28,7 +28,8 @@ _NUMERICAL_ERRORS = (ValueError, OverflowError, FloatingPointError, ZeroDivision
 class GuardedES:
     """An ES whose ``tell`` records divergence in :attr:`diverged` (a reason, or None) instead of raising.
 
-    Every other attribute is the wrapped ES's; once diverged, ``tell`` does nothing.
+    Every other attribute is read from the wrapped ES (attributes set on the wrapper stay on it,
+    e.g. a benchmark's timing wrapper around ``tell``); once diverged, ``tell`` does nothing.
     """
 
     def __init__(self, es):
@@ -68,9 +69,6 @@ class GuardedES:
         if "es" not in self.__dict__:  # during unpickling or copying, before __init__'s fields exist
             raise AttributeError(name)
         return getattr(self.__dict__["es"], name)
-
-    def __setattr__(self, name, value):
-        setattr(self.es, name, value)
 
 
 def nonfinite_parameters(es, distribution_only: bool = False) -> str | None:
