@@ -59,7 +59,11 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     command, rest = argv[0], argv[1:]
     if command == "run":
-        return run_command(rest)
+        try:
+            return run_command(rest)
+        except KeyboardInterrupt:  # during validation or Hydra's start-up (the run itself reports its own)
+            print("imix run: interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)", file=sys.stderr)
+            return 130
     if command == "plot":
         from imix_cli.plotting import main as plot_main
 

@@ -12,6 +12,7 @@ before the first point runs.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import math
 import os
@@ -145,10 +146,15 @@ class RunSpec:
 
     @property
     def overrides_suffix(self) -> str:
-        """``key=value,...`` for the hyper-parameters that differ from the paper's (sorted)."""
+        """``key=value,...`` for the hyper-parameters that differ from the paper's, and ``env.max_steps``
+        if given (sorted). Other keys that change results (``generations``, ``algo.*``) do not name
+        the folder: a sweep whose points would share one is refused up front (validate_overrides)."""
+        # env.max_steps (default: the env's own cap) changes results too: it names the folder when set.
+        default_cap = _env_group_default(self.env_name if self.env_name in BUILTIN_ENVS else "gym", "max_steps")
+        cap = {} if self.env_max_steps == default_cap else {"env.max_steps": self.env_max_steps}
         if self.algo == "ddpg":
             changed = {k: v for k, v in (self.ddpg or {}).items() if k in DDPG_DEFAULTS and v != DDPG_DEFAULTS[k]}
-            return ",".join(f"{k}={_format(v)}" for k, v in sorted(changed.items()))
+            return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
         values = {
             "popsize": self.popsize, "sigma": self.sigma, "lr": self.lr, "weight_decay": self.weight_decay,
             "weight_decay_form": self.weight_decay_form,
@@ -164,7 +170,7 @@ class RunSpec:
             values["reeval_prob"] = self.reeval_prob
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
         changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != ALGO_OPTION_DEFAULTS.get(k)})
-        return ",".join(f"{k}={_format(v)}" for k, v in sorted(changed.items()))
+        return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
 
     @property
     def run_name(self) -> str:
@@ -192,6 +198,19 @@ def _format(value) -> str:
     if isinstance(value, (list, tuple)):
         return "x".join(map(str, value))  # layer sizes: [16, 16] -> 16x16
     return repr(value) if isinstance(value, float) else str(value)
+
+
+_GROUP_DEFAULTS: dict = {}
+
+
+def _env_group_default(option: str, key: str):
+    """``key`` of ``conf/env/<option>.yaml`` (read once): the value a run has unless overridden."""
+    if option not in _GROUP_DEFAULTS:
+        import yaml
+
+        path = Path(config_dir()) / "env" / f"{option}.yaml"
+        _GROUP_DEFAULTS[option] = yaml.safe_load(path.read_text()) if path.exists() else {}
+    return (_GROUP_DEFAULTS[option] or {}).get(key)
 
 
 # ---------------------------------------------------------------------------- validation helpers
@@ -278,6 +297,14 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     env_name, env_id, max_steps = _env(env_cfg)
     workers, experiment = _workers_and_experiment(cfg, launcher)
     config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
+    popsize, sigma = _int(cfg, "popsize", 2), _float(cfg, "sigma", 0.0, False)
+    if algo == "cmaes" and popsize < 3:
+        raise ConfigError(f"popsize={popsize}: algo=cmaes needs popsize >= 3 (its recombination weights need at least 2 parents and one non-parent)")
+    if not math.isfinite(sigma * sigma):
+        raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
+    num_params = _policy_size(env_name, env_id, max_steps)
+    _check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0))
+    seeds = _seeds(cfg)
     return RunSpec(
         algo=algo,
         env_name=env_name,
@@ -289,10 +316,10 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         eim_generations=eim_generations,
         reeval_age=reeval_age,
         reeval_prob=reeval_prob,
-        seeds=_int(cfg, "seeds", 1),
+        seeds=seeds,
         generations=_int(cfg, "generations", 1),
-        popsize=_int(cfg, "popsize", 2),
-        sigma=_float(cfg, "sigma", 0.0, False),
+        popsize=popsize,
+        sigma=sigma,
         lr=_float(cfg, "lr", 0.0, False),
         weight_decay=_float(cfg, "weight_decay", 0.0, True),
         weight_decay_form=_choice(cfg.get("weight_decay_form"), "weight_decay_form", WEIGHT_DECAY_FORMS),
@@ -304,6 +331,64 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         config={**config, "mixing": mixing},
         algo_options=algo_options,
     )
+
+
+#: The largest ``seeds``: one CSV (and one progress line of work) per seed; beyond this a run is
+#: a mistake (``seeds=1e9`` would spend minutes listing files before the first generation).
+MAX_SEEDS = 100_000
+
+
+def _seeds(cfg: dict) -> int:
+    seeds = _int(cfg, "seeds", 1)
+    if seeds > MAX_SEEDS:
+        raise ConfigError(f"seeds={seeds}: at most {MAX_SEEDS:,} seeds per run (one CSV per seed); split the work into experiments")
+    return seeds
+
+
+def _policy_size(env_name: str, env_id: str, max_steps: int | None) -> int:
+    """The number of policy parameters d of an env; ConfigError for an env imix cannot evaluate."""
+    try:
+        return _evaluator_shape(env_name if env_name in BUILTIN_ENVS else env_id, max_steps)
+    except ValueError as err:
+        key = "env" if env_name in BUILTIN_ENVS else "env.id"
+        value = env_name if env_name in BUILTIN_ENVS else env_id
+        raise ConfigError(f"{key}={value!r}: {_first_line(err).replace(repr(value) + ': ', '').replace(repr(value) + ' ', '')}") from None
+
+
+_EVALUATOR_SHAPES: dict = {}
+
+
+def _evaluator_shape(key: str, max_steps: int | None) -> int:
+    """make_evaluator(key).num_params, cached per process (a sweep asks once per env, not per point)."""
+    if (key, max_steps) not in _EVALUATOR_SHAPES:
+        from imix_cli.evaluation import make_evaluator
+
+        try:
+            _EVALUATOR_SHAPES[key, max_steps] = make_evaluator(key, max_steps).num_params
+        except ValueError as err:
+            _EVALUATOR_SHAPES[key, max_steps] = err
+    shape = _EVALUATOR_SHAPES[key, max_steps]
+    if isinstance(shape, Exception):
+        raise shape
+    return shape
+
+
+def _check_memory(popsize: int, num_params: int, archive_depth: int) -> None:
+    """Refuse a population whose arrays cannot fit in this machine's memory.
+
+    A generation holds popsize x d float64 numbers about (archive depth + 3) times over
+    (samples, the archive, mixing's and the evaluator's temporaries).
+    """
+    needed = 8 * popsize * (num_params + 16) * (archive_depth + 3)
+    try:
+        available = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # not on Linux: no check
+        return
+    if needed > available:
+        raise ConfigError(
+            f"popsize={popsize}: a population of {popsize:,} x {num_params} parameters needs ~{needed / 2**30:,.1f} GiB, "
+            f"more than this machine's {available / 2**30:,.1f} GiB"
+        )
 
 
 def _workers_and_experiment(cfg: dict, launcher: str | None) -> tuple[int, str]:
@@ -352,7 +437,7 @@ def _ddpg_spec(cfg: dict, algo_cfg: dict, env_cfg: dict, launcher: str | None) -
         eim_generations=PAPER_DEFAULTS["eim_generations"],
         reeval_age=None,
         reeval_prob=0.0,
-        seeds=_int(cfg, "seeds", 1),
+        seeds=_seeds(cfg),
         generations=0,
         popsize=PAPER_DEFAULTS["popsize"],
         sigma=PAPER_DEFAULTS["sigma"],
@@ -471,33 +556,41 @@ def group_options(group: str) -> list[str]:
     return sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml"))
 
 
-_MAX_VALIDATED_POINTS = 2000
-
-
 def validate_overrides(overrides: list[str]) -> list[RunSpec]:
     """Compose and validate the config of every point of a (possibly multirun) command line.
 
-    Raises ConfigError (one line) on the first problem. Sweep forms Hydra can expand without a
-    config (``a,b``, ``range(...)``) are expanded; other sweeps (``glob``) are checked by Hydra.
+    Raises ConfigError (one line) on the first problem, or when two points would share a run
+    folder with different configs (the second would be refused halfway through the sweep).
+    Every point is checked: sweeps (``a,b``, ``range(...)``, ``glob(...)`` over ``algo``/``env``)
+    are expanded here. Hydra composes the config once per combination of config-group choices
+    (``algo``, ``env``, ``hydra/...``) and of ``+``/``~`` overrides; each point's plain
+    ``key=value`` overrides are then applied to a copy by Hydra's own override function, so a
+    point costs milliseconds instead of a full composition.
     """
     from hydra import compose, initialize_config_dir
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import Glob
     from omegaconf import OmegaConf, open_dict
 
+    parser = OverridesParser.create()
     try:
-        parsed = OverridesParser.create().parse_overrides(overrides)
+        parsed = parser.parse_overrides(overrides)
     except Exception as err:
         raise ConfigError(f"cannot parse overrides: {_first_line(err)}") from None
-    choices, passthrough = [], []
+    choices = []
     for override in parsed:
         key = override.key_or_group
         if override.is_sweep_override():
-            try:
+            if isinstance(override.value(), Glob):
+                if key not in ("algo", "env"):
+                    raise ConfigError(f"{override.input_line}: glob() selects options of the config groups algo and env only")
+                values = override.value().filter(group_options(key))
+                if not values:
+                    raise ConfigError(f"{override.input_line}: matches no {key}; valid choices are {', '.join(group_options(key))}")
+            else:
                 values = list(override.sweep_string_iterator())
-            except Exception:
-                passthrough.append(override.input_line)  # e.g. glob(): Hydra expands it later
-                continue
             choices.append([f"{override.get_key_element()}={v}" for v in values])
         else:
             choices.append([override.input_line])
@@ -507,22 +600,65 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
                 value = line.split("=", 1)[1]
                 if value not in valid:
                     raise ConfigError(f"{key}={value}: unknown {key}; valid choices are {', '.join(valid)}")
-    points = list(itertools.islice(itertools.product(*choices), _MAX_VALIDATED_POINTS))
-    specs = []
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
-        for point in points:
+    parse_cache: dict = {}
+
+    def parse_one(line: str):
+        if line not in parse_cache:
             try:
-                cfg = compose("config", overrides=[*point, *passthrough], return_hydra_config=True)
-                launcher = OmegaConf.select(cfg, "hydra.launcher._target_")
-                with open_dict(cfg):
-                    del cfg["hydra"]
-                plain = OmegaConf.to_container(cfg, resolve=True)
+                parse_cache[line] = parser.parse_overrides([line])[0]
             except Exception as err:
-                raise ConfigError(_explain_compose_error(err, point)) from None
-            specs.append(spec_from_config(plain, launcher))
+                raise ConfigError(f"cannot parse overrides: {_first_line(err)}") from None
+        return parse_cache[line]
+
+    specs, composed = [], {}
     GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
+            for point in itertools.product(*choices):
+                parsed_point = [parse_one(line) for line in point]
+                values = [o for o in parsed_point if _is_value_override(o)]
+                base = tuple(line for line, o in zip(point, parsed_point, strict=True) if not _is_value_override(o))
+                try:
+                    if base not in composed:  # hydra.* overrides are in base: the hydra node is done with
+                        full = compose("config", overrides=list(base), return_hydra_config=True)
+                        launcher = OmegaConf.select(full, "hydra.launcher._target_")
+                        with open_dict(full):
+                            del full["hydra"]
+                        composed[base] = (full, launcher)
+                    cfg, launcher = copy.deepcopy(composed[base][0]), composed[base][1]
+                    ConfigLoaderImpl._apply_overrides_to_config(values, cfg)
+                    plain = OmegaConf.to_container(cfg, resolve=True)
+                except Exception as err:
+                    raise ConfigError(_explain_compose_error(err, point)) from None
+                specs.append(spec_from_config(plain, launcher))
+    finally:
+        GlobalHydra.instance().clear()
+    _refuse_shared_folders(specs)
     return specs
+
+
+def _is_value_override(override) -> bool:
+    """A plain ``key=value`` of a config value (not a config group, not ``+``/``~``/``++``)."""
+    key = override.key_or_group
+    return (
+        override.package is None and not override.is_add() and not override.is_delete() and not override.is_force_add()
+        and "/" not in key and key not in ("algo", "env", "hydra") and not key.startswith("hydra.")
+    )  # fmt: skip
+
+
+def _refuse_shared_folders(specs: list[RunSpec]) -> None:
+    """ConfigError if two points would write one run folder with different configs."""
+    first: dict[Path, RunSpec] = {}
+    for spec in specs:
+        other = first.setdefault(spec.run_dir, spec)
+        old, new = other.identity(), spec.identity()
+        differing = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        if differing:
+            changes = ", ".join(f"{k}={old.get(k)!r} / {new.get(k)!r}" for k in differing)
+            raise ConfigError(
+                f"two sweep points would share the folder {spec.run_dir} but differ in {changes}; "
+                "sweep that key in separate commands with their own experiment="
+            )
 
 
 def _first_line(err: Exception) -> str:

@@ -114,6 +114,14 @@ def _row_blocks(n_rows: int, dim: int):
         yield slice(start, min(start + step, n_rows))
 
 
+def _float_dtype(name) -> np.dtype:
+    """A sample dtype read back from a state: float32 or float64 only (ValueError otherwise)."""
+    dtype = np.dtype(str(name))
+    if dtype not in (np.float32, np.float64):
+        raise ValueError(f"sample dtype {name!r} is not float32 or float64")
+    return dtype
+
+
 class DiagonalGaussian:
     """N(mean, diag(std**2)).
 
@@ -196,6 +204,15 @@ class DiagonalGaussian:
         if self._cast is None:
             self._cast = (self.mean.astype(self.dtype), self.std.astype(self.dtype))
         return self._cast
+
+    def to_state(self) -> dict:
+        """Mean, std and sample dtype: a flat dict of arrays and JSON scalars (see :meth:`from_state`)."""
+        return {"mean": self.mean.copy(), "std": self.std.copy(), "dtype": self.dtype.str}
+
+    @classmethod
+    def from_state(cls, state: dict) -> "DiagonalGaussian":
+        """The distribution :meth:`to_state` described (ValueError if it is not a valid one)."""
+        return cls(state["mean"], state["std"], dtype=_float_dtype(state["dtype"]))
 
     def __repr__(self) -> str:
         return f"DiagonalGaussian(dim={self.dim}, sigma_mean={self.sigma_mean:.4g})"
@@ -304,6 +321,14 @@ class FullGaussian:
         # Solve L z = (x - mean)^T: z is the whitened sample, |z|^2 the squared Mahalanobis distance.
         z = solve_triangular(self.chol, (x - self.mean).T, lower=True, check_finite=False)
         return self._log_norm - 0.5 * np.einsum("ij,ij->j", z, z)
+
+    def to_state(self) -> dict:
+        """Mean, covariance and sample dtype (the Cholesky factor is recomputed, bit for bit, on load)."""
+        return {"mean": self.mean.copy(), "cov": self.cov.copy(), "dtype": self.dtype.str}
+
+    @classmethod
+    def from_state(cls, state: dict) -> "FullGaussian":
+        return cls(state["mean"], state["cov"], dtype=_float_dtype(state["dtype"]))
 
     def __repr__(self) -> str:
         return f"FullGaussian(dim={self.dim}, sigma_mean={self.sigma_mean:.4g})"

@@ -39,11 +39,15 @@ COLUMNS = (
     "sigma_mean",  # mean standard deviation of the search distribution
     "nonfinite",  # episodes of the generation whose return was NaN or inf (ranked last by the ES)
     "wall_time",  # seconds since the seed started
+    "diverged",  # 1 on the last row of a seed whose search distribution became non-finite (the seed ends there), else 0
 )
+
+#: Columns a CSV of an older imix may lack, with the value they then hold on every row.
+_OPTIONAL_COLUMNS = {"diverged": 0}
 
 MIXING_NAMES = ("none", "im", "eim")
 
-_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite")
+_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite", "diverged")
 _FLOAT_COLUMNS = ("mean_score", "best_score", "sigma_mean", "wall_time")
 
 
@@ -79,6 +83,15 @@ def atomic_write_bytes(path, data: bytes) -> None:
     path = Path(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        _write_and_rename(fd, tmp, path, data)
+    except OSError as err:
+        if err.filename is None:  # ENOSPC from write/fsync names no file: name the one we were writing
+            raise OSError(err.errno, err.strerror or str(err), str(path)) from None
+        raise
+
+
+def _write_and_rename(fd: int, tmp: str, path: Path, data: bytes) -> None:
+    try:
         os.fchmod(fd, 0o666 & ~_umask())  # mkstemp creates 0600; give the file the usual permissions
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -107,6 +120,10 @@ def _umask() -> int:
 def rows_to_frame(rows) -> pd.DataFrame:
     """Build a contract-conforming DataFrame from a list of dicts (one per generation)."""
     frame = pd.DataFrame(list(rows))
+    for column, value in _OPTIONAL_COLUMNS.items():
+        if column not in frame.columns:
+            frame[column] = value
+        frame[column] = frame[column].fillna(value).astype(type(value))
     missing = [c for c in COLUMNS if c not in frame.columns]
     if missing:
         raise ValueError(f"result rows lack columns {missing}")
@@ -126,6 +143,9 @@ def read_run_csv(path) -> pd.DataFrame:
         frame = pd.read_csv(path)
     except Exception as err:  # pandas raises many types for malformed files
         raise CorruptResultError(f"{path}: unreadable CSV ({type(err).__name__}: {err})") from err
+    for column, value in _OPTIONAL_COLUMNS.items():
+        if column not in frame.columns:
+            frame[column] = value
     missing = [c for c in COLUMNS if c not in frame.columns]
     if missing:
         raise CorruptResultError(f"{path}: missing columns {missing}")

@@ -13,9 +13,11 @@ the other seeds sharing its batch, or whether it was resumed from a checkpoint.
 
 Files (see :mod:`imix_cli.results`): ``seed_<k>.csv`` is written atomically when seed ``k``
 finishes; a checkpoint of its whole state (ES, archive, RNG states, rows so far) is written
-atomically every ``checkpoint_every`` generations to ``.checkpoints/seed_<k>.pkl`` and deleted
-once the CSV exists. Re-running the same command skips finished seeds and resumes the others
-from their checkpoints.
+atomically every ``checkpoint_every`` generations to ``.checkpoints/seed_<k>.npz`` (plain data,
+see :mod:`imix_cli.checkpoints`) and deleted once the CSV exists. Re-running the same command
+skips finished seeds and resumes the others from their checkpoints, saying so on stderr
+(``seed k resumes at generation G``); a checkpoint that is damaged or of another config is
+refused with one warning line and its seed restarts from scratch.
 
 algo=ddpg (the deep-RL baseline of the paper's section 4.3) uses the same run folder, process
 pool and CSV contract, but its own seed loop (section "algo=ddpg" below): seeds run one after
@@ -24,10 +26,12 @@ another in each worker, one CSV row per finished episode, no mid-run checkpoint.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
-import pickle
 import queue as queue_module
+import signal
+import sys
 import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -37,13 +41,14 @@ from pathlib import Path
 import numpy as np
 
 from imix_cli.algorithms import make_es
+from imix_cli.checkpoints import load_or_warn, write_checkpoint
 from imix_cli.config import RunSpec, identity_of
+from imix_cli.divergence import GuardedES
 from imix_cli.evaluation import make_evaluator
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.policy_files import write_seed_policies
 from imix_cli.results import (
     CorruptResultError,
-    atomic_write_bytes,
     atomic_write_text,
     partial_csv_path,
     read_run_csv,
@@ -61,7 +66,8 @@ class RunError(RuntimeError):
 # ----------------------------------------------------------------------------- one seed's state
 @dataclass
 class SeedState:
-    """Everything seed ``seed`` needs to continue; pickled whole as its checkpoint."""
+    """Everything seed ``seed`` needs to continue; saved whole as its checkpoint (field by field,
+    by type: see :mod:`imix_cli.checkpoints`, which needs no change when a field is added)."""
 
     seed: int
     es: object
@@ -84,10 +90,10 @@ class SeedState:
 
 def new_seed_state(spec: RunSpec, seed: int, dim: int) -> SeedState:
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
-    es = make_es(
+    es = GuardedES(make_es(
         spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,
         weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form, **spec.algo_options,
-    )  # fmt: skip
+    ))  # fmt: skip
     return SeedState(seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq))
 
 
@@ -142,27 +148,51 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
 
 # ----------------------------------------------------------------------------- files of a run
 def checkpoint_path(run_dir: Path, seed: int) -> Path:
+    return Path(run_dir) / ".checkpoints" / f"seed_{seed}.npz"
+
+
+def legacy_checkpoint_path(run_dir: Path, seed: int) -> Path:
+    """Where imix 0.1 kept a pickled checkpoint: never opened (unpickling runs code), only removed."""
     return Path(run_dir) / ".checkpoints" / f"seed_{seed}.pkl"
 
 
 def save_checkpoint(run_dir: Path, st: SeedState, identity: dict) -> None:
-    path = checkpoint_path(run_dir, st.seed)
-    path.parent.mkdir(exist_ok=True)
-    atomic_write_bytes(path, pickle.dumps({"identity": identity, "state": st}, protocol=pickle.HIGHEST_PROTOCOL))
+    write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation)
 
 
-def load_checkpoint(run_dir: Path, seed: int, identity: dict) -> SeedState | None:
-    """The saved state of ``seed``, or None if there is none (or it is unreadable or of another config)."""
-    path = checkpoint_path(run_dir, seed)
+def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh: SeedState, warn=None) -> SeedState | None:
+    """The saved state of ``seed`` (built on ``fresh``, a new state of the same run and seed), or None.
+
+    None if there is no checkpoint, or -- after one warning line naming the file and why --
+    if it is damaged, of another seed or config, or a pickle of an older imix.
+    """
+    legacy = legacy_checkpoint_path(run_dir, seed)
+    if legacy.exists():
+        (warn or _warn)(f"{legacy}: checkpoint ignored: a pickle (older imix), never opened since loading it could run code; seed {seed} restarts from scratch")
+    st = load_or_warn(checkpoint_path(run_dir, seed), fresh, identity=identity, seed=seed, warn=warn)
+    if st is not None and (st.seed != seed or st.generation != len(st.rows)):
+        (warn or _warn)(f"{checkpoint_path(run_dir, seed)}: checkpoint ignored: inconsistent state; seed {seed} restarts from scratch")
+        return None
+    return st
+
+
+def _can_checkpoint(es) -> bool:
+    """Whether ``es`` has a state dict; if not, say once that its seeds will not be checkpointed."""
     try:
-        data = pickle.loads(path.read_bytes())
-    except FileNotFoundError:
-        return None
-    except Exception:  # a checkpoint we cannot read only costs recomputation
-        return None
-    if not isinstance(data, dict) or data.get("identity") != identity:
-        return None
-    return data["state"]
+        es.state_dict()
+    except NotImplementedError:
+        _warn(f"algo={es.name} cannot be checkpointed yet: a killed run restarts its unfinished seeds")
+        return False
+    return True
+
+
+def _warn(message: str) -> None:
+    print(f"imix: warning: {message}", file=sys.stderr, flush=True)
+
+
+def _remove_checkpoints(run_dir: Path, seed: int) -> None:
+    checkpoint_path(run_dir, seed).unlink(missing_ok=True)
+    legacy_checkpoint_path(run_dir, seed).unlink(missing_ok=True)
 
 
 def prepare_run_dir(spec: RunSpec) -> list[int]:
@@ -175,12 +205,7 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
 
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise RunError(f"results_dir={spec.results_dir!r}: cannot create {run_dir} ({err.strerror or err})") from None
-    if not os.access(run_dir, os.W_OK):
-        raise RunError(f"results_dir={spec.results_dir!r}: {run_dir} is not writable")
+    _make_run_dir(spec)
     if config_file.exists():
         try:
             existing = yaml.safe_load(config_file.read_text())
@@ -209,14 +234,55 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
         if spec.algo == "ddpg":
             if int(frame["env_steps"].iloc[-1]) > spec.total_steps:
                 raise RunError(f"{path}: has {int(frame['env_steps'].iloc[-1])} env steps, config asks for {spec.total_steps}; move it away or choose another experiment=")
-        elif len(frame) != spec.generations:
+        elif len(frame) != spec.generations and not (len(frame) < spec.generations and frame["diverged"].iloc[-1] == 1):
             raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
     if not config_file.exists():
         atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
-    # Temporaries of writes cut short by a kill are never at a final name; clear them away.
+    # Temporaries of writes cut short by a kill are never at a final name; clear them away. (run()
+    # holds the folder's lock, so no other live run is writing them; an orphaned worker of a
+    # killed run exits within a second and only loses a write that is redone on resume.)
     for stale in [*run_dir.glob(".*.tmp"), *run_dir.glob(".checkpoints/.*.tmp")]:
         stale.unlink(missing_ok=True)
     return todo
+
+
+def _make_run_dir(spec: RunSpec) -> None:
+    run_dir = spec.run_dir
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise RunError(f"results_dir={spec.results_dir!r}: cannot create {run_dir} ({err.strerror or err})") from None
+    if not os.access(run_dir, os.W_OK):
+        raise RunError(f"results_dir={spec.results_dir!r}: {run_dir} is not writable")
+
+
+LOCK_NAME = ".lock"
+
+
+@contextlib.contextmanager
+def run_dir_lock(spec: RunSpec):
+    """Hold the run folder's lock for the ``with`` block; RunError at once if another run holds it.
+
+    ``fcntl.flock`` on ``<run_dir>/.lock``: the kernel drops the lock when its holder exits,
+    however it dies (kill -9 included), so a stale lock file never blocks a re-run. The file
+    holds the holder's pid, for the message.
+    """
+    import fcntl
+
+    _make_run_dir(spec)
+    path = spec.run_dir / LOCK_NAME
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise RunError(f"{spec.run_dir} is in use by another imix run (pid {holder}); wait for it to end, or choose another experiment=") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 # ----------------------------------------------------------------------------- a worker's job
@@ -226,6 +292,8 @@ _progress_queue = None
 def _init_worker(progress_queue) -> None:
     global _progress_queue
     _progress_queue = progress_queue
+    # Ctrl-C reaches the whole process group: the main process alone decides, and stops us.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), daemon=True).start()
 
 
@@ -252,10 +320,14 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     run_dir = spec.run_dir
     states = []
     for seed in seeds:
-        st = load_checkpoint(run_dir, seed, identity) or new_seed_state(spec, seed, evaluator.num_params)
+        # A refused checkpoint may have been half loaded into the ES it was given: start from a new one.
+        st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, evaluator.num_params))
+        st = st or new_seed_state(spec, seed, evaluator.num_params)
         states.append(st)
         if st.generation:
+            print(f"imix: seed {seed} resumes at generation {st.generation} from {checkpoint_path(run_dir, seed)}", file=sys.stderr, flush=True)
             progress(st.generation)
+    checkpoint_every = spec.checkpoint_every if states and _can_checkpoint(states[0].es) else 0
     started = time.perf_counter()
     active = [st for st in states if st.generation < spec.generations]
     while active:
@@ -263,25 +335,35 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
         now = time.perf_counter() - started
         for st in active:
             st.rows[-1]["wall_time"] = st.elapsed + now
-            if st.generation == spec.generations:
+            if end_if_diverged(st):
+                write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
+                _remove_checkpoints(run_dir, st.seed)
+            elif st.generation == spec.generations:
                 write_seed_policies(spec, st.seed, evaluator, st.es.distribution.mean, st.best_params, st.best_return, st.generation)
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
-                checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
-                partial_csv_path(run_dir, st.seed).unlink(missing_ok=True)
-            elif spec.checkpoint_every and st.generation % spec.checkpoint_every == 0:
+                _remove_checkpoints(run_dir, st.seed)
+            elif checkpoint_every and st.generation % checkpoint_every == 0:
                 elapsed, st.elapsed = st.elapsed, st.elapsed + now
                 save_checkpoint(run_dir, st, identity)
                 write_run_csv(partial_csv_path(run_dir, st.seed), rows_to_frame(st.rows))  # live view (imix status/plot)
                 st.elapsed = elapsed
         progress(len(active))
-        active = [st for st in active if st.generation < spec.generations]
+        active = [st for st in active if st.generation < spec.generations and not st.es.diverged]
     for st in states:  # seeds resumed from a checkpoint taken after their last generation
         if not seed_csv_path(run_dir, st.seed).exists():
             write_seed_policies(spec, st.seed, evaluator, st.es.distribution.mean, st.best_params, st.best_return, st.generation)
             write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
-            checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
-            partial_csv_path(run_dir, st.seed).unlink(missing_ok=True)
+            _remove_checkpoints(run_dir, st.seed)
     return list(seeds)
+
+
+def end_if_diverged(st: SeedState) -> bool:
+    """If seed ``st``'s search just diverged, mark its last row and say so (one line); return whether it did."""
+    if not st.es.diverged:
+        return False
+    st.rows[-1]["diverged"] = 1
+    _warn(f"seed {st.seed} diverged at generation {st.generation - 1} ({st.es.diverged}); its CSV ends there")
+    return True
 
 
 def _queue_progress(n: int) -> None:
@@ -348,7 +430,16 @@ def run_ddpg_seeds(spec: RunSpec, seeds: list[int], progress) -> list[int]:
 
 # ----------------------------------------------------------------------------- the whole run
 def run(spec: RunSpec, echo=print) -> dict:
-    """Run every unfinished seed of ``spec``; print and return the summary."""
+    """Run every unfinished seed of ``spec``; print and return the summary.
+
+    The run folder is locked for the whole run (:func:`run_dir_lock`): a second run on it is
+    refused with RunError before it touches anything.
+    """
+    with run_dir_lock(spec):
+        return _run_locked(spec, echo)
+
+
+def _run_locked(spec: RunSpec, echo) -> dict:
     todo = prepare_run_dir(spec)
     total = len(todo) * (spec.total_steps if spec.algo == "ddpg" else spec.generations)
     bar = _progress_bar(spec, total)
@@ -374,7 +465,8 @@ def _run_pool(spec: RunSpec, chunks: list[list[int]], bar) -> None:
         os.environ.setdefault(var, "1")
     ctx = multiprocessing.get_context("spawn")
     progress_queue = ctx.Queue()
-    with ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,)) as pool:
+    pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
+    try:
         pending = {pool.submit(run_seeds, spec, chunk) for chunk in chunks}
         while pending:
             done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
@@ -382,6 +474,21 @@ def _run_pool(spec: RunSpec, chunks: list[list[int]], bar) -> None:
             for future in done:
                 future.result()  # re-raise a worker's error here
         _drain(progress_queue, bar)
+    except BaseException:
+        # Ctrl-C / SIGINT to this process alone, or a worker's error: stop the other workers now
+        # rather than let them finish their seeds (what is checkpointed is kept; writes are atomic).
+        _terminate_workers(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _terminate_workers(pool: ProcessPoolExecutor) -> None:
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=5)
 
 
 def _drain(progress_queue, bar) -> None:
@@ -419,7 +526,7 @@ def summarize(spec: RunSpec, run_dir: Path | None = None) -> dict:
     """Final mean score +- 68 % CI over seeds, evaluations and env steps (total over seeds and per
     seed), reuse %, non-finite returns -- of ``spec``'s run folder, or of ``run_dir`` (a sibling)."""
     run_dir = spec.run_dir if run_dir is None else Path(run_dir)
-    finals, evaluations, env_steps, reused, members, nonfinite = [], 0, 0, 0, 0, 0
+    finals, evaluations, env_steps, reused, members, nonfinite, diverged = [], 0, 0, 0, 0, 0, 0
     mixing = spec.mixing
     paths = [seed_csv_path(run_dir, seed) for seed in range(spec.seeds)]
     if run_dir != spec.run_dir:  # a sibling: whatever seeds it has finished
@@ -433,6 +540,7 @@ def summarize(spec: RunSpec, run_dir: Path | None = None) -> dict:
         members += int(frame["popsize"].sum())
         nonfinite += int(frame["nonfinite"].sum())
         mixing = str(frame["mixing"].iloc[0])
+        diverged += int(frame["diverged"].iloc[-1] == 1)
     mean, half_width, _ = mean_ci(finals, level=0.68)
     n = max(len(paths), 1)
     return {
@@ -447,6 +555,7 @@ def summarize(spec: RunSpec, run_dir: Path | None = None) -> dict:
         "env_steps_per_seed": env_steps / n,
         "reuse_percent": 100.0 * reused / members if members else 0.0,
         "nonfinite_returns": nonfinite,
+        "diverged_seeds": diverged,
     }
 
 
@@ -480,14 +589,14 @@ def format_summary(spec: RunSpec, s: dict) -> str:
     width = max(32, *(len(r["run"]) for r in rows))
     header = (
         f"{'run':<{width}} {'seeds':>5} {'final mean score (68% CI)':>26} {'episodes/seed':>14} "
-        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10}"
+        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10} {'diverged':>8}"
     )
     lines = [header]
     for r in rows:
         score = f"{r['final_mean_score']:.2f}" + (f" ± {r['ci68']:.2f}" if np.isfinite(r["ci68"]) else "")
         lines.append(
             f"{r['run']:<{width}} {r['seeds']:>5} {score:>26} {r['evaluations_per_seed']:>14,.0f} "
-            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10}"
+            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10} {r['diverged_seeds']:>8}"
         )
     without = [r for r in rows if r["mixing"] == "none"]
     with_mixing = [r for r in rows if r["mixing"] != "none"]

@@ -148,6 +148,38 @@ class Adam:
         step_size = self.lr * np.sqrt(1.0 - self.beta2**self.t) / (1.0 - self.beta1**self.t)
         return step_size * self.m / (np.sqrt(self.v) + self.epsilon)
 
+    def state_dict(self) -> dict:
+        """The moments and step count (the hyper-parameters come from the constructor)."""
+        return {"m": self.m.copy(), "v": self.v.copy(), "t": int(self.t)}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.m = _array_like(state["m"], self.m, "m")
+        self.v = _array_like(state["v"], self.v, "v")
+        self.t = int(state["t"])
+
+
+def _array_like(value, reference: np.ndarray, name: str) -> np.ndarray:
+    """``value`` as a float64 copy with ``reference``'s shape; ValueError (naming ``name``) otherwise.
+
+    A state dict is read back from a file: a wrong shape must be refused here rather than
+    surface generations later as a broadcasting error.
+    """
+    value = np.array(value, dtype=np.float64, copy=True)
+    if value.shape != np.shape(reference):
+        raise ValueError(f"state {name!r} has shape {value.shape}, expected {np.shape(reference)}")
+    return value
+
+
+def prefixed(prefix: str, state: dict) -> dict:
+    """``state`` with every key prefixed ``prefix.`` (to nest an optimiser's or distribution's state)."""
+    return {f"{prefix}.{k}": v for k, v in state.items()}
+
+
+def unprefixed(prefix: str, state: dict) -> dict:
+    """The entries of ``state`` under ``prefix.``, without it (the inverse of :func:`prefixed`)."""
+    head = f"{prefix}."
+    return {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}
+
 
 class EvolutionStrategy(ABC):
     """Base class: owns the public ``ask``/``tell``; subclasses fill in ``distribution`` and ``_update``.
@@ -242,6 +274,29 @@ class EvolutionStrategy(ABC):
             penalised = fitness - self.weight_decay * np.einsum("ij,ij->i", samples, samples)
             return centered_ranks(penalised, keys)
         return centered_ranks(fitness, keys) - self.weight_decay * np.mean(samples * samples, axis=1)
+
+    # ------------------------------------------------------------ checkpoints
+    # A state dict is flat: numpy arrays and JSON scalars under string keys (nested parts use
+    # dotted prefixes), so a checkpoint is plain data (.npz + JSON) and never a pickle. It holds
+    # only what changes during a run; the constructor's arguments come from the run's config.
+    def state_dict(self) -> dict:
+        """The ES's mutable state: counters here, the search state from :meth:`_state_dict`."""
+        return {"generation": int(self.generation), "nonfinite_fitness_count": int(self.nonfinite_fitness_count), **self._state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore what :meth:`state_dict` returned (on an ES built with the same arguments).
+
+        Raises ValueError or KeyError if ``state`` does not fit this ES.
+        """
+        self._load_state_dict(state)
+        self.generation = int(state["generation"])
+        self.nonfinite_fitness_count = int(state["nonfinite_fitness_count"])
+
+    def _state_dict(self) -> dict:
+        raise NotImplementedError(f"{type(self).__name__} cannot be checkpointed")
+
+    def _load_state_dict(self, state: dict) -> None:
+        raise NotImplementedError(f"{type(self).__name__} cannot be checkpointed")
 
     # ------------------------------------------------------------ for subclasses
     @abstractmethod

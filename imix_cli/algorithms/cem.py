@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imix_cli.algorithms.base import EvolutionStrategy, rank_weights
+from imix_cli.algorithms.base import EvolutionStrategy, prefixed, rank_weights, unprefixed
 from imix_cli.distributions import DiagonalGaussian
 
 ELITE_WEIGHTS = ("equal", "log")
@@ -148,3 +148,13 @@ class CEM(EvolutionStrategy):
         else:
             var = w @ ((samples - mu) ** 2) + self.extra_variance
         self._dist = DiagonalGaussian(mu, np.sqrt(var))
+
+    def _state_dict(self) -> dict:
+        return {"extra_variance": float(self.extra_variance), **prefixed("dist", self._dist.to_state())}
+
+    def _load_state_dict(self, state: dict) -> None:
+        dist = DiagonalGaussian.from_state(unprefixed("dist", state))
+        if dist.dim != self.dim:
+            raise ValueError(f"state 'dist' has dimension {dist.dim}, expected {self.dim}")
+        self.extra_variance = float(state["extra_variance"])
+        self._dist = dist

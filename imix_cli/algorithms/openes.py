@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imix_cli.algorithms.base import Adam, EvolutionStrategy
+from imix_cli.algorithms.base import Adam, EvolutionStrategy, _array_like, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
 
 
@@ -65,4 +65,12 @@ class OpenES(EvolutionStrategy):
         eps = (samples - self._mu) / self.sigma
         grad = (utilities @ eps) / (n * self.sigma)
         self._mu = self._mu + self.optimizer.step(grad)
+        self._dist = DiagonalGaussian(self._mu, self.sigma)
+
+    def _state_dict(self) -> dict:
+        return {"mu": self._mu.copy(), **prefixed("optimizer", self.optimizer.state_dict())}
+
+    def _load_state_dict(self, state: dict) -> None:
+        self._mu = _array_like(state["mu"], self._mu, "mu")
+        self.optimizer.load_state_dict(unprefixed("optimizer", state))
         self._dist = DiagonalGaussian(self._mu, self.sigma)

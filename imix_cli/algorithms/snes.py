@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imix_cli.algorithms.base import Adam, EvolutionStrategy
+from imix_cli.algorithms.base import Adam, EvolutionStrategy, _array_like, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
 
 
@@ -91,4 +91,19 @@ class SNES(EvolutionStrategy):
         grad_log_sigma = utilities @ (s * s - 1.0) / 2.0
         self._mu = self._mu + self.mu_optimizer.step(grad_mu)
         self._log_sigma = self._log_sigma + self.sigma_optimizer.step(grad_log_sigma)
+        self._dist = DiagonalGaussian(self._mu, np.exp(self._log_sigma))
+
+    def _state_dict(self) -> dict:
+        return {
+            "mu": self._mu.copy(),
+            "log_sigma": self._log_sigma.copy(),
+            **prefixed("mu_optimizer", self.mu_optimizer.state_dict()),
+            **prefixed("sigma_optimizer", self.sigma_optimizer.state_dict()),
+        }
+
+    def _load_state_dict(self, state: dict) -> None:
+        self._mu = _array_like(state["mu"], self._mu, "mu")
+        self._log_sigma = _array_like(state["log_sigma"], self._log_sigma, "log_sigma")
+        self.mu_optimizer.load_state_dict(unprefixed("mu_optimizer", state))
+        self.sigma_optimizer.load_state_dict(unprefixed("sigma_optimizer", state))
         self._dist = DiagonalGaussian(self._mu, np.exp(self._log_sigma))

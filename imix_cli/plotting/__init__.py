@@ -103,7 +103,8 @@ def parse_args(argv: list) -> dict:
                 raise UsageError("bad value for results_dir: empty path")
             settings["results_dir"] = value
         elif key == "experiment":
-            if not value or ".." in Path(value).parts:
+            # A plain name, as `imix run` accepts: an absolute path or ".." would put figures outside results_dir.
+            if not value or ".." in Path(value).parts or Path(value).is_absolute() or "\\" in value:
                 raise UsageError(f"bad value for experiment: {value!r} (expected a folder name)")
             settings["experiment"] = value
         elif key.startswith("threshold."):

@@ -1,0 +1,281 @@
+"""Checkpoints: one seed's whole state as data -- arrays in an ``.npz``, the rest in a JSON header.
+
+Why not a pickle: results folders travel (rsync from a cluster, shared file systems, a
+colleague's results), and unpickling a file runs whatever code it names. Why a checksum and
+an identity: a checkpoint that is damaged, of another seed or of another config must never
+turn into a wrong CSV. A checkpoint therefore either loads *exactly* what was saved, or it is
+refused with one warning line naming the file and the reason, and the seed restarts from
+scratch (that only costs recomputation).
+
+Format (``FORMAT_VERSION`` 1), written atomically (:func:`imix_cli.results.atomic_write_bytes`):
+an uncompressed NumPy ``.npz`` (a zip of ``.npy`` files, read back with
+``np.load(allow_pickle=False)``, so no object array can be loaded) holding
+
+* ``header``: a uint8 array, the UTF-8 JSON object ``{"format": "imix-checkpoint",
+  "version", "imix_version", "config_hash", "seed", "generation", "state", "checksum"}``;
+  ``config_hash`` is the SHA-256 of the run's identity (:meth:`RunSpec.identity`, canonical
+  JSON); ``state`` is the state tree (below);
+* one array per ndarray of the state, named by its path in the tree (``es/mu``,
+  ``archive/0/samples``, ``archive/0/dist/std``, ``archive_returns/1`` ...).
+
+``checksum`` is the SHA-256 over the canonical JSON of the header without it, then, for every
+array in name order, its name, dtype, shape and bytes. Any difference between what was saved
+and what is read -- a bit flip anywhere, a truncation, an array swapped in -- is caught by it
+or by the zip's own structure.
+
+The state tree is a dataclass (the runner's ``SeedState``) encoded field by field, by type,
+so new fields need no change here: JSON scalars stay as they are (floats round-trip exactly,
+NaN included); an ndarray becomes ``{"array": name}``; a list ``{"list": [...]}``; a dict
+``{"dict": {...}}``; a numpy Generator ``{"rng": bit_generator.state}`` (PCG64 only); an ES
+``{"es": state_dict}`` (loaded into a freshly built ES of the same config); a search
+distribution ``{"dist": class name, "state": to_state()}``; an archived
+:class:`~imix_cli.mixing.Generation` ``{"generation": {field: ...}}`` over all its dataclass
+fields, whatever they are.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+import math
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from imix_cli.distributions import DiagonalGaussian, FullGaussian
+from imix_cli.mixing import Generation
+from imix_cli.results import atomic_write_bytes
+
+FORMAT = "imix-checkpoint"
+FORMAT_VERSION = 1
+_HEADER = "header"
+_DISTRIBUTIONS = {cls.__name__: cls for cls in (DiagonalGaussian, FullGaussian)}
+
+
+class CheckpointError(ValueError):
+    """A checkpoint cannot be trusted; ``str(err)`` says why, in a few words."""
+
+
+def config_hash(identity: dict) -> str:
+    """SHA-256 of a run's identity (the result-determining config), as canonical JSON."""
+    return hashlib.sha256(_canonical(identity).encode()).hexdigest()
+
+
+def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int) -> None:
+    """Write dataclass ``state`` (a seed's state at ``generation``) to ``path`` atomically."""
+    from imix_cli import __version__
+
+    arrays: dict[str, np.ndarray] = {}
+    tree = _encode(state, "", arrays)
+    header = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "imix_version": __version__,
+        "config_hash": config_hash(identity),
+        "seed": int(seed),
+        "generation": int(generation),
+        "state": tree,
+    }
+    header["checksum"] = _checksum(header, arrays)
+    buffer = io.BytesIO()
+    np.savez(buffer, **{_HEADER: np.frombuffer(_canonical(header).encode(), dtype=np.uint8)}, **arrays)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def read_checkpoint(path, template, *, identity: dict, seed: int):
+    """The state saved at ``path``, built on ``template`` (a fresh state of the same run and seed).
+
+    Returns a new object of ``template``'s dataclass type, whose ES is ``template``'s ES with the
+    saved state loaded. Raises FileNotFoundError if there is no file, :class:`CheckpointError`
+    if it is damaged, of another format/version/seed/config, or does not fit ``template``.
+    """
+    from imix_cli import __version__
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(path)
+    try:
+        header, arrays = _read_npz(path)
+    except CheckpointError:
+        raise
+    except Exception as err:  # np.load/zipfile raise many types for a damaged file
+        raise CheckpointError(f"unreadable ({type(err).__name__}: {_first_line(err)})") from None
+    if header.get("format") != FORMAT:
+        raise CheckpointError("not an imix checkpoint")
+    if header.get("version") != FORMAT_VERSION:
+        raise CheckpointError(f"checkpoint format version {header.get('version')!r}, this imix reads {FORMAT_VERSION}")
+    checksum = header.pop("checksum", None)
+    if checksum != _checksum(header, arrays):
+        raise CheckpointError("checksum mismatch (damaged file)")
+    if header.get("imix_version") != __version__:
+        raise CheckpointError(f"written by imix {header.get('imix_version')}, this is imix {__version__}")
+    if header.get("seed") != seed:
+        raise CheckpointError(f"holds seed {header.get('seed')!r}, not seed {seed}")
+    if header.get("config_hash") != config_hash(identity):
+        raise CheckpointError("written by a run of another config")
+    try:
+        state = _decode(header["state"], template, arrays)
+    except Exception as err:  # a tree that does not fit this version's state: refuse it
+        raise CheckpointError(f"does not fit this run's state ({type(err).__name__}: {_first_line(err)})") from None
+    if type(state) is not type(template):
+        raise CheckpointError("does not hold a seed's state")
+    return state
+
+
+def load_or_warn(path, template, *, identity: dict, seed: int, warn=None):
+    """:func:`read_checkpoint`, or None: no file, or -- after one warning line -- a checkpoint refused."""
+    try:
+        return read_checkpoint(path, template, identity=identity, seed=seed)
+    except FileNotFoundError:
+        return None
+    except CheckpointError as err:
+        (warn or _stderr)(f"{path}: checkpoint ignored: {err}; seed {seed} restarts from scratch")
+        return None
+
+
+def _stderr(message: str) -> None:
+    print(f"imix: warning: {message}", file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------- file level
+def _read_npz(path: Path) -> tuple[dict, dict]:
+    arrays = {}
+    with np.load(path, allow_pickle=False) as npz:  # a pickle (or anything not npy/npz) is refused here
+        if not isinstance(npz, np.lib.npyio.NpzFile):
+            raise CheckpointError("not an .npz archive")
+        names = list(npz.files)
+        if _HEADER not in names:
+            raise CheckpointError("no header")
+        for name in names:
+            _check_declared_size(npz.zip, name)
+            arrays[name] = npz[name]
+    raw = arrays.pop(_HEADER)
+    if raw.dtype != np.uint8 or raw.ndim != 1:
+        raise CheckpointError("malformed header")
+    try:
+        header = json.loads(raw.tobytes().decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        raise CheckpointError("malformed header (not JSON)") from None
+    if not isinstance(header, dict):
+        raise CheckpointError("malformed header (not a JSON object)")
+    return header, arrays
+
+
+def _check_declared_size(archive: zipfile.ZipFile, name: str) -> None:
+    """Refuse a member whose .npy header declares more data than the member holds.
+
+    numpy allocates the declared shape before reading: a flipped bit in a shape must not
+    become a request for terabytes.
+    """
+    info = archive.getinfo(f"{name}.npy")
+    with archive.open(info) as fh:
+        version = np.lib.format.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+        else:
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+        header_bytes = fh.tell()
+    if dtype.hasobject:
+        raise CheckpointError(f"array {name!r} holds Python objects")
+    if math.prod(shape) * dtype.itemsize != info.file_size - header_bytes:
+        raise CheckpointError(f"array {name!r}: its shape does not match its size")
+
+
+def _checksum(header: dict, arrays: dict) -> str:
+    digest = hashlib.sha256(_canonical(header).encode())
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        digest.update(f"\0{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        digest.update(a.tobytes())
+    return digest.hexdigest()
+
+
+def _canonical(obj) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True)
+
+
+def _first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0][:200] if text else type(err).__name__
+
+
+# ----------------------------------------------------------------------------- the state tree
+def _encode(value, name: str, arrays: dict):
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        if value.dtype.hasobject:
+            raise TypeError(f"{name}: object arrays cannot be checkpointed")
+        arrays[name] = value
+        return {"array": name}
+    if isinstance(value, np.random.Generator):
+        if type(value.bit_generator) is not np.random.PCG64:
+            raise TypeError(f"{name}: only PCG64 generators can be checkpointed")
+        return {"rng": value.bit_generator.state}
+    if isinstance(value, Generation):
+        return {"generation": {f.name: _encode(getattr(value, f.name), f"{name}/{f.name}", arrays) for f in dataclasses.fields(value)}}
+    if type(value).__name__ in _DISTRIBUTIONS and type(value) is _DISTRIBUTIONS[type(value).__name__]:
+        return {"dist": type(value).__name__, "state": _encode(value.to_state(), name, arrays)}
+    if hasattr(value, "state_dict") and hasattr(value, "load_state_dict"):
+        return {"es": _encode(value.state_dict(), name, arrays)}
+    if dataclasses.is_dataclass(value):
+        return {"state": {f.name: _encode(getattr(value, f.name), f"{name}/{f.name}".lstrip("/"), arrays) for f in dataclasses.fields(value)}}
+    if isinstance(value, (list, tuple)):
+        return {"list": [_encode(v, f"{name}/{i}", arrays) for i, v in enumerate(value)]}
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise TypeError(f"{name}: only dicts with string keys can be checkpointed")
+        return {"dict": {k: _encode(v, f"{name}/{k}", arrays) for k, v in value.items()}}
+    raise TypeError(f"{name}: cannot checkpoint a {type(value).__name__}")
+
+
+def _decode(node, template, arrays: dict, field: str = ""):
+    """Rebuild a value; ``template`` is the fresh value of the same place (its ES, its dataclass type)."""
+    if node is None or isinstance(node, (bool, int, float, str)):
+        return node
+    if not isinstance(node, dict) or not node:
+        raise ValueError(f"{field or 'state'}: malformed node")
+    if "dist" in node:
+        cls = _DISTRIBUTIONS[node["dist"]]  # KeyError for an unknown class name: refused by the caller
+        return cls.from_state(_decode(node["state"], None, arrays, field))
+    if len(node) != 1:
+        raise ValueError(f"{field or 'state'}: malformed node")
+    ((tag, body),) = node.items()
+    if tag == "array":
+        return arrays[body]
+    if tag == "rng":
+        rng = np.random.Generator(np.random.PCG64())
+        if not isinstance(body, dict) or body.get("bit_generator") != "PCG64":
+            raise ValueError(f"{field}: not a PCG64 state")
+        rng.bit_generator.state = body
+        return rng
+    if tag == "list":
+        return [_decode(v, None, arrays, field) for v in body]
+    if tag == "dict":
+        return {k: _decode(v, None, arrays, field) for k, v in body.items()}
+    if tag == "generation":
+        names = [f.name for f in dataclasses.fields(Generation)]
+        if sorted(body) != sorted(names):
+            raise ValueError(f"archived generation fields {sorted(body)}, expected {sorted(names)}")
+        return Generation(**{k: _decode(v, None, arrays, k) for k, v in body.items()})
+    if tag == "es":
+        if template is None or not hasattr(template, "load_state_dict"):
+            raise ValueError(f"{field}: an ES where none is expected")
+        template.load_state_dict(_decode(body, None, arrays, field))
+        return template
+    if tag == "state":
+        if template is None or not dataclasses.is_dataclass(template):
+            raise ValueError(f"{field}: a state where none is expected")
+        names = [f.name for f in dataclasses.fields(template)]
+        if sorted(body) != sorted(names):
+            raise ValueError(f"state fields {sorted(body)}, expected {sorted(names)}")
+        values = {k: _decode(v, getattr(template, k), arrays, k) for k, v in body.items()}
+        return type(template)(**values)
+    raise ValueError(f"{field}: unknown node {tag!r}")
