@@ -4,6 +4,7 @@ reward, batched ES evaluator == registered envs, configs, and a two-point grid-s
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -12,10 +13,9 @@ from gymnasium.utils.env_checker import check_env
 
 import imix_cli  # noqa: F401  (registers the ids)
 from imix_cli.cli import main
-from imix_cli.config import BUILTIN_ENVS, ConfigError, validate_overrides
-from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID, seeded_uniform
-from imix_cli.envs import seeding
-from imix_cli.envs.continuous_cartpole import FORCE_MAG, ContinuousCartPoleBatch
+from imix_cli.config import ConfigError, config_dir, validate_overrides
+from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
+from imix_cli.envs.continuous_cartpole import ContinuousCartPoleBatch
 from imix_cli.evaluation import make_evaluator
 from imix_cli.policies import BatchPolicy
 from imix_cli.results import read_run_csv
@@ -70,14 +70,8 @@ def test_registered_and_passes_the_env_checker(env_id):
         check_env(env, skip_render_check=True)  # what gym.make gives, the Hard one's sparse wrapper included
 
 
-def test_seeding_module_moved_with_the_old_import_kept():
-    assert seeded_uniform is seeding.seeded_uniform
-    np.testing.assert_array_equal(seeded_uniform([7], -0.05, 0.05, 4)[0], np.random.default_rng(7).uniform(-0.05, 0.05, 4))
-
-
 def test_full_pushes_are_discrete_cartpoles_pushes():
     """force = 10 N x a: a = +-1 reproduces CartPole-v1 bit for bit (and a = 0.5 is a weaker push)."""
-    assert FORCE_MAG == 10.0
     rng = np.random.default_rng(3)
     for seed in range(5):
         actions = rng.integers(0, 2, 200)
@@ -206,8 +200,6 @@ def test_env_max_steps_caps_both_variants_alike():
 
 # --------------------------------------------------------------------------- configs and the grid search
 def test_configs_name_the_registered_ids():
-    assert BUILTIN_ENVS["continuous_cartpole"] == CONTINUOUS_CARTPOLE_ID
-    assert BUILTIN_ENVS["continuous_cartpole_hard"] == CONTINUOUS_CARTPOLE_HARD_ID
     for name, env_id in NAMES.items():
         (spec,) = validate_overrides(["algo=snes", f"env={name}", "eim=true"])
         assert (spec.env_name, spec.env_id, spec.env_max_steps, spec.evaluator_key) == (name, env_id, 200, name)
@@ -215,10 +207,17 @@ def test_configs_name_the_registered_ids():
         validate_overrides(["algo=ddpg", "env=cartpole"])
 
 
-def test_plot_thresholds_cover_the_continuous_envs():
-    from imix_cli.plotting.data import DEFAULT_THRESHOLDS
+def test_default_plot_thresholds_are_the_registered_reward_thresholds():
+    """`imix plot`'s default threshold for every built-in env (conf/env/, the generic gym aside) is
+    the reward_threshold its gymnasium id is registered with: 195 for the CartPoles, -100 for Acrobot."""
+    from imix_cli.plotting import parse_args
 
-    assert DEFAULT_THRESHOLDS["continuous_cartpole"] == DEFAULT_THRESHOLDS["continuous_cartpole_hard"] == 195.0
+    thresholds = parse_args([])["thresholds"]
+    names = sorted(p.stem for p in (Path(config_dir()) / "env").glob("*.yaml") if p.stem != "gym")
+    assert set(NAMES) < set(names)
+    for name in names:
+        (spec,) = validate_overrides(["algo=snes", f"env={name}"])
+        assert thresholds[name] == gym.spec(spec.env_id).reward_threshold, name
 
 
 def test_two_point_multirun_writes_two_run_folders_and_plots_the_ranking(tmp_path):
