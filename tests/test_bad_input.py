@@ -1,11 +1,14 @@
 """Malformed invocations: one line naming the problem, exit != 0, no traceback, nothing overwritten.
 
 Each case runs `imix run` in-process (imix_cli.cli.main) against a results folder that already
-holds a finished run; the folder's bytes must be identical afterwards.
+holds a finished run; the folder's bytes must be identical afterwards. The finished run is made
+once per module and shared by the cases that must leave it alone; the cases that plant a bad
+file in it first work on a copy of their own.
 """
 
 import errno
 import hashlib
+import shutil
 from pathlib import Path
 
 import pytest
@@ -20,12 +23,19 @@ def snapshot(root: Path) -> dict:
     return {p.relative_to(root): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
-@pytest.fixture
-def results(tmp_path):
-    """A results folder with one finished run in it (what must never be overwritten)."""
-    root = tmp_path / "results"
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A results folder with one finished run in it (what must never be overwritten), and its snapshot."""
+    root = tmp_path_factory.mktemp("bad_input") / "results"
     assert main(["run", *BASE, f"results_dir={root}"]) == 0
-    return root
+    return root, snapshot(root)
+
+
+@pytest.fixture
+def results_copy(finished_run, tmp_path):
+    """A private copy of the finished run, for the cases that plant a bad file in it first."""
+    root, _ = finished_run
+    return Path(shutil.copytree(root, tmp_path / "results"))
 
 
 # (id, extra overrides, expected exit code, text the one-line message must contain)
@@ -63,15 +73,15 @@ CASES = [
 
 
 @pytest.mark.parametrize("extra, code, text", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
-def test_malformed_invocation(results, capsys, extra, code, text):
-    before = snapshot(results)
+def test_malformed_invocation(finished_run, capsys, extra, code, text):
+    results, written = finished_run
     flags = [a for a in extra if a.startswith("-")]
     overrides = [a for a in extra if not a.startswith("-")]
     assert main(["run", *flags, *BASE, *overrides, f"results_dir={results}"]) == code
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     assert text in err and "Traceback" not in err, err
-    assert snapshot(results) == before
+    assert snapshot(results) == written
 
 
 def test_unwritable_results_dir(tmp_path, capsys):
@@ -83,7 +93,8 @@ def test_unwritable_results_dir(tmp_path, capsys):
     assert blocker.read_text() == "not a folder"
 
 
-def test_corrupt_csv_already_in_the_folder(results, capsys):
+def test_corrupt_csv_already_in_the_folder(results_copy, capsys):
+    results = results_copy
     bad = results / RUN_DIR / "seed_1.csv"
     bad.write_text("algo,env\ncem,cartpole,extra,fields\n")
     before = snapshot(results)
@@ -93,7 +104,8 @@ def test_corrupt_csv_already_in_the_folder(results, capsys):
     assert snapshot(results) == before
 
 
-def test_config_yaml_of_a_different_config_in_the_target_folder(results, capsys):
+def test_config_yaml_of_a_different_config_in_the_target_folder(results_copy, capsys):
+    results = results_copy
     config = results / RUN_DIR / "config.yaml"
     text = config.read_text()
     assert "\ngenerations: 3\n" in text
@@ -106,8 +118,9 @@ def test_config_yaml_of_a_different_config_in_the_target_folder(results, capsys)
     assert snapshot(results) == before
 
 
-def test_full_disk_while_writing(results, capsys, monkeypatch):
+def test_full_disk_while_writing(results_copy, capsys, monkeypatch):
     """ENOSPC while a seed's CSV is written: one line, and no partial file at any final name."""
+    results = results_copy
     import imix_cli.results as results_module
 
     real_fsync = results_module.os.fsync
