@@ -25,7 +25,7 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true weight_decay_form=estool progress=false
 
-.PHONY: install test reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 install:  ## create .venv and install imix (non-editable) with every extra
 	$(PYTHON) -m venv $(VENV)
@@ -33,8 +33,11 @@ install:  ## create .venv and install imix (non-editable) with every extra
 	$(PY) -m pip install "$(TORCH)"
 	$(PY) -m pip install ".[all]"
 
-test:  ## run the test suite
+test:  ## run the whole test suite (what CI runs)
 	$(PY) -m pytest -q
+
+test-fast:  ## the suite without the tests marked slow (launchers, wheel build, long statistical and end-to-end runs)
+	$(PY) -m pytest -q -m "not slow"
 
 reproduce: reproduce-main reproduce-grid reproduce-ddpg  ## the whole paper into results/paper*/
 

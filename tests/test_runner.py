@@ -153,6 +153,7 @@ def test_generic_gymnasium_id_runs(tmp_path):
     assert frame["mean_score"].iloc[0] == -200.0  # an untrained policy never reaches the flag
 
 
+@pytest.mark.slow
 def test_wheel_ships_the_configs(tmp_path):
     """`conf/` is packaged as imix_cli.conf so that `imix run` works from any directory after `pip install .`."""
     repo = Path(__file__).resolve().parent.parent
@@ -163,6 +164,7 @@ def test_wheel_ships_the_configs(tmp_path):
         assert f"imix_cli/conf/{conf.relative_to(repo / 'conf').as_posix()}" in names, conf
 
 
+@pytest.mark.slow
 def test_installed_console_script_runs_from_any_directory(tmp_path):
     """The `imix` on PATH (in CI: the non-editable install) runs from a directory without conf/."""
     script = Path(sys.executable).parent / "imix"
