@@ -27,7 +27,8 @@ gym.register("imix_test/FaultyRewardCartPole-v0", entry_point=FaultyRewardCartPo
 
 
 def test_nonfinite_returns_are_counted_not_fatal(tmp_path, capsys):
-    args = ["env=gym", "env.id=imix_test/FaultyRewardCartPole-v0", "seeds=1", "generations=4", "popsize=10", "workers=1", "progress=false", f"results_dir={tmp_path}"]
+    env = ["env=gym", "env.id=imix_test/FaultyRewardCartPole-v0"]
+    args = [*env, "seeds=1", "generations=4", "popsize=10", "workers=1", "progress=false", f"results_dir={tmp_path}"]
     for algo in ("openes", "snes", "cem", "cmaes"):
         assert main(["run", f"algo={algo}", *args]) == 0
         frame = read_run_csv(tmp_path / "default" / f"{algo}-imix_test_FaultyRewardCartPole-v0-none-popsize=10" / "seed_0.csv")

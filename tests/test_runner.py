@@ -147,7 +147,8 @@ def test_top_level_help_and_unknown_command(capsys):
 
 
 def test_generic_gymnasium_id_runs(tmp_path):
-    assert imix("env=gym", "env.id=MountainCar-v0", "algo=openes", "generations=2", "seeds=1", "popsize=4", "progress=false", "workers=1", results_dir=tmp_path) == 0
+    args = ["generations=2", "seeds=1", "popsize=4", "progress=false", "workers=1"]
+    assert imix("env=gym", "env.id=MountainCar-v0", "algo=openes", *args, results_dir=tmp_path) == 0
     frame = read_run_csv(tmp_path / "default" / "openes-MountainCar-v0-none-popsize=4" / "seed_0.csv")
     assert (frame["env"] == "MountainCar-v0").all()
     assert frame["mean_score"].iloc[0] == -200.0  # an untrained policy never reaches the flag
