@@ -56,6 +56,18 @@ def rollout(env_id, action_fn, seed):
             return np.array(rewards), np.array(observations), terminated, truncated
 
 
+def replay(actions):
+    """An action function for :func:`rollout` that plays ``actions`` in order, whatever it observes."""
+    remaining = iter(actions)
+    return lambda obs: next(remaining)
+
+
+def member_policy(params):
+    """An action function for :func:`rollout`: one member's MLP acting on a single env's observation."""
+    policy = BatchPolicy(params[None], 4, 1, discrete=False)
+    return lambda obs: policy(obs[None])[0]
+
+
 # --------------------------------------------------------------------------- registration
 @pytest.mark.parametrize("env_id", IDS)
 def test_registered_and_passes_the_env_checker(env_id):
@@ -80,7 +92,7 @@ def test_full_pushes_are_discrete_cartpoles_pushes():
         o1, _ = discrete.reset(seed=seed)
         o2, _ = continuous.reset(seed=seed)
         np.testing.assert_array_equal(o1, o2)
-        for t, a in enumerate(actions):
+        for a in actions:
             o1, r1, d1, _, _ = discrete.step(int(a))
             o2, r2, d2, tr2, _ = continuous.step(np.array([2.0 * a - 1.0], np.float32))
             np.testing.assert_array_equal(o1, o2)
@@ -113,8 +125,8 @@ def test_hard_reward_is_sparse_and_sums_to_the_dense_return():
     lengths = set()
     for seed in range(8):
         actions = rng.uniform(-1, 1, (200, 1)).astype(np.float32) * rng.uniform(0, 0.3)  # some long episodes
-        dense, obs_d, term_d, trunc_d = rollout(CONTINUOUS_CARTPOLE_ID, lambda o, it=iter(actions): next(it), seed)
-        sparse, obs_s, term_s, trunc_s = rollout(CONTINUOUS_CARTPOLE_HARD_ID, lambda o, it=iter(actions): next(it), seed)
+        dense, obs_d, term_d, trunc_d = rollout(CONTINUOUS_CARTPOLE_ID, replay(actions), seed)
+        sparse, obs_s, term_s, trunc_s = rollout(CONTINUOUS_CARTPOLE_HARD_ID, replay(actions), seed)
         np.testing.assert_array_equal(obs_d, obs_s)  # same seed, same actions: same dynamics
         assert (term_d, trunc_d) == (term_s, trunc_s)
         assert (dense == 1.0).all()
@@ -149,8 +161,7 @@ def test_batched_evaluator_equals_the_registered_env(name):
     returns, steps = ev.evaluate(params, seeds)
     assert 0 < (returns == 200).sum() < len(returns)  # both short and full episodes
     for p, s, ret, n in zip(params, seeds, returns, steps):
-        policy = BatchPolicy(p[None], 4, 1, discrete=False)
-        rewards, _, _, _ = rollout(NAMES[name], lambda o: policy(o[None])[0], s)
+        rewards, _, _, _ = rollout(NAMES[name], member_policy(p), s)
         assert rewards.sum() == ret and len(rewards) == n == ret
 
 
@@ -168,8 +179,7 @@ def test_batched_trajectories_are_bit_identical():
             done |= terminated
         trajectories, rewards = np.array(trajectories), np.array(rewards)
         for i, (p, s) in enumerate(zip(params, seeds)):
-            single = BatchPolicy(p[None], 4, 1, discrete=False)
-            ref_rewards, ref_obs, _, _ = rollout(env_id, lambda o: single(o[None])[0], s)
+            ref_rewards, ref_obs, _, _ = rollout(env_id, member_policy(p), s)
             n = len(ref_rewards)
             np.testing.assert_array_equal(trajectories[: n + 1, i], ref_obs)
             np.testing.assert_array_equal(rewards[:n, i], ref_rewards)
