@@ -32,7 +32,7 @@ def finished_run(tmp_path_factory):
 
 
 @pytest.fixture
-def results_copy(finished_run, tmp_path):
+def results(finished_run, tmp_path):
     """A private copy of the finished run, for the cases that plant a bad file in it first."""
     root, _ = finished_run
     return Path(shutil.copytree(root, tmp_path / "results"))
@@ -93,8 +93,7 @@ def test_unwritable_results_dir(tmp_path, capsys):
     assert blocker.read_text() == "not a folder"
 
 
-def test_corrupt_csv_already_in_the_folder(results_copy, capsys):
-    results = results_copy
+def test_corrupt_csv_already_in_the_folder(results, capsys):
     bad = results / RUN_DIR / "seed_1.csv"
     bad.write_text("algo,env\ncem,cartpole,extra,fields\n")
     before = snapshot(results)
@@ -104,8 +103,7 @@ def test_corrupt_csv_already_in_the_folder(results_copy, capsys):
     assert snapshot(results) == before
 
 
-def test_config_yaml_of_a_different_config_in_the_target_folder(results_copy, capsys):
-    results = results_copy
+def test_config_yaml_of_a_different_config_in_the_target_folder(results, capsys):
     config = results / RUN_DIR / "config.yaml"
     text = config.read_text()
     assert "\ngenerations: 3\n" in text
@@ -118,9 +116,8 @@ def test_config_yaml_of_a_different_config_in_the_target_folder(results_copy, ca
     assert snapshot(results) == before
 
 
-def test_full_disk_while_writing(results_copy, capsys, monkeypatch):
+def test_full_disk_while_writing(results, capsys, monkeypatch):
     """ENOSPC while a seed's CSV is written: one line, and no partial file at any final name."""
-    results = results_copy
     import imix_cli.results as results_module
 
     real_fsync = results_module.os.fsync
