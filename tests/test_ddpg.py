@@ -38,7 +38,6 @@ def test_shipped_config_holds_the_paper_settings():
     assert shipped["default_total_steps"] == {"continuous_cartpole": 200_000, "continuous_cartpole_hard": 1_000_000}
 
 
-@pytest.mark.slow
 def test_paper_settings_reach_sb3_and_survive_training_steps():
     model = make_ddpg(CONTINUOUS_CARTPOLE_ID, seed=0)
     assert isinstance(model, TwoRateDDPG)
