@@ -1,11 +1,14 @@
 """Malformed invocations: one line naming the problem, exit != 0, no traceback, nothing overwritten.
 
 Each case runs `imix run` in-process (imix_cli.cli.main) against a results folder that already
-holds a finished run; the folder's bytes must be identical afterwards.
+holds a finished run; the folder's bytes must be identical afterwards. The finished run is made
+once per module and shared by the cases that must leave it alone; the cases that plant a bad
+file in it first work on a copy of their own.
 """
 
 import errno
 import hashlib
+import shutil
 from pathlib import Path
 
 import pytest
@@ -20,12 +23,19 @@ def snapshot(root: Path) -> dict:
     return {p.relative_to(root): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
-@pytest.fixture
-def results(tmp_path):
-    """A results folder with one finished run in it (what must never be overwritten)."""
-    root = tmp_path / "results"
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A results folder with one finished run in it (what must never be overwritten), and its snapshot."""
+    root = tmp_path_factory.mktemp("bad_input") / "results"
     assert main(["run", *BASE, f"results_dir={root}"]) == 0
-    return root
+    return root, snapshot(root)
+
+
+@pytest.fixture
+def results(finished_run, tmp_path):
+    """A private copy of the finished run, for the cases that plant a bad file in it first."""
+    root, _ = finished_run
+    return Path(shutil.copytree(root, tmp_path / "results"))
 
 
 # (id, extra overrides, expected exit code, text the one-line message must contain)
@@ -63,15 +73,15 @@ CASES = [
 
 
 @pytest.mark.parametrize("extra, code, text", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
-def test_malformed_invocation(results, capsys, extra, code, text):
-    before = snapshot(results)
+def test_malformed_invocation(finished_run, capsys, extra, code, text):
+    results, written = finished_run
     flags = [a for a in extra if a.startswith("-")]
     overrides = [a for a in extra if not a.startswith("-")]
     assert main(["run", *flags, *BASE, *overrides, f"results_dir={results}"]) == code
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     assert text in err and "Traceback" not in err, err
-    assert snapshot(results) == before
+    assert snapshot(results) == written
 
 
 def test_unwritable_results_dir(tmp_path, capsys):

@@ -47,6 +47,7 @@ def test_rollouts_and_mixing_rows_and_columns(capsys):
     assert all(0.0 <= float(r[5]) <= 1.0 for r in rows)
 
 
+@pytest.mark.slow
 def test_memory_breakdown_and_grid(capsys, tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where the runs' temporary folders go
     args = ["memory", "breakdown", "--grid", *TINY, "--algos", "snes", "cem", "--envs", "cartpole", "--workers", "1"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -13,10 +14,8 @@ from gymnasium.utils.env_checker import check_env
 
 import imix_cli  # noqa: F401  (registers the ids)
 from imix_cli.cli import main
-from imix_cli.config import BUILTIN_ENVS, ConfigError, validate_overrides
-from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID, seeded_uniform
-from imix_cli.envs import seeding
-from imix_cli.envs.continuous_cartpole import FORCE_MAG
+from imix_cli.config import ConfigError, config_dir, validate_overrides
+from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
 from imix_cli.evaluation import make_evaluator
 from imix_cli.policies import BatchPolicy
 from imix_cli.results import read_run_csv
@@ -58,6 +57,18 @@ def rollout(env_id, action_fn, seed):
             return np.array(rewards), np.array(observations), terminated, truncated
 
 
+def replay(actions):
+    """An action function for :func:`rollout` that plays ``actions`` in order, whatever it observes."""
+    remaining = iter(actions)
+    return lambda obs: next(remaining)
+
+
+def member_policy(params):
+    """An action function for :func:`rollout`: one member's MLP acting on a single env's observation."""
+    policy = BatchPolicy(params[None], 4, 1, discrete=False)
+    return lambda obs: policy(obs[None])[0]
+
+
 # --------------------------------------------------------------------------- registration
 @pytest.mark.parametrize("env_id", IDS)
 def test_registered_and_passes_the_env_checker(env_id):
@@ -72,14 +83,8 @@ def test_registered_and_passes_the_env_checker(env_id):
         check_env(env, skip_render_check=True)  # what gym.make gives, the Hard one's sparse wrapper included
 
 
-def test_seeding_module_moved_with_the_old_import_kept():
-    assert seeded_uniform is seeding.seeded_uniform
-    np.testing.assert_array_equal(seeded_uniform([7], -0.05, 0.05, 4)[0], np.random.default_rng(7).uniform(-0.05, 0.05, 4))
-
-
 def test_full_pushes_are_discrete_cartpoles_pushes():
     """force = 10 N x a: a = +-1 reproduces CartPole-v1 bit for bit (and a = 0.5 is a weaker push)."""
-    assert FORCE_MAG == 10.0
     rng = np.random.default_rng(3)
     for seed in range(5):
         actions = rng.integers(0, 2, 200)
@@ -88,7 +93,7 @@ def test_full_pushes_are_discrete_cartpoles_pushes():
         o1, _ = discrete.reset(seed=seed)
         o2, _ = continuous.reset(seed=seed)
         np.testing.assert_array_equal(o1, o2)
-        for t, a in enumerate(actions):
+        for a in actions:
             o1, r1, d1, _, _ = discrete.step(int(a))
             o2, r2, d2, tr2, _ = continuous.step(np.array([2.0 * a - 1.0], np.float32))
             np.testing.assert_array_equal(o1, o2)
@@ -121,8 +126,8 @@ def test_hard_reward_is_sparse_and_sums_to_the_dense_return():
     lengths = set()
     for seed in range(8):
         actions = rng.uniform(-1, 1, (200, 1)).astype(np.float32) * rng.uniform(0, 0.3)  # some long episodes
-        dense, obs_d, term_d, trunc_d = rollout(CONTINUOUS_CARTPOLE_ID, lambda o, it=iter(actions): next(it), seed)
-        sparse, obs_s, term_s, trunc_s = rollout(CONTINUOUS_CARTPOLE_HARD_ID, lambda o, it=iter(actions): next(it), seed)
+        dense, obs_d, term_d, trunc_d = rollout(CONTINUOUS_CARTPOLE_ID, replay(actions), seed)
+        sparse, obs_s, term_s, trunc_s = rollout(CONTINUOUS_CARTPOLE_HARD_ID, replay(actions), seed)
         np.testing.assert_array_equal(obs_d, obs_s)  # same seed, same actions: same dynamics
         assert (term_d, trunc_d) == (term_s, trunc_s)
         assert (dense == 1.0).all()
@@ -157,8 +162,7 @@ def test_batched_evaluator_equals_the_registered_env(name):
     returns, steps = ev.evaluate(params, seeds)
     assert 0 < (returns == 200).sum() < len(returns)  # both short and full episodes
     for p, s, ret, n in zip(params, seeds, returns, steps):
-        policy = BatchPolicy(p[None], 4, 1, discrete=False)
-        rewards, _, _, _ = rollout(NAMES[name], lambda o: policy(o[None])[0], s)
+        rewards, _, _, _ = rollout(NAMES[name], member_policy(p), s)
         assert rewards.sum() == ret and len(rewards) == n == ret
 
 
@@ -207,8 +211,6 @@ def test_env_max_steps_caps_both_variants_alike():
 
 # --------------------------------------------------------------------------- configs and the grid search
 def test_configs_name_the_registered_ids():
-    assert BUILTIN_ENVS["continuous_cartpole"] == CONTINUOUS_CARTPOLE_ID
-    assert BUILTIN_ENVS["continuous_cartpole_hard"] == CONTINUOUS_CARTPOLE_HARD_ID
     for name, env_id in NAMES.items():
         (spec,) = validate_overrides(["algo=snes", f"env={name}", "eim=true"])
         assert (spec.env_name, spec.env_id, spec.env_max_steps, spec.evaluator_key) == (name, env_id, 200, name)
@@ -216,10 +218,17 @@ def test_configs_name_the_registered_ids():
         validate_overrides(["algo=ddpg", "env=cartpole"])
 
 
-def test_plot_thresholds_cover_the_continuous_envs():
-    from imix_cli.plotting.data import DEFAULT_THRESHOLDS
+def test_default_plot_thresholds_are_the_registered_reward_thresholds():
+    """`imix plot`'s default threshold for every built-in env (conf/env/, the generic gym aside) is
+    the reward_threshold its gymnasium id is registered with: 195 for the CartPoles, -100 for Acrobot."""
+    from imix_cli.plotting import parse_args
 
-    assert DEFAULT_THRESHOLDS["continuous_cartpole"] == DEFAULT_THRESHOLDS["continuous_cartpole_hard"] == 195.0
+    thresholds = parse_args([])["thresholds"]
+    names = sorted(p.stem for p in (Path(config_dir()) / "env").glob("*.yaml") if p.stem != "gym")
+    assert set(NAMES) < set(names)
+    for name in names:
+        (spec,) = validate_overrides(["algo=snes", f"env={name}"])
+        assert thresholds[name] == gym.spec(spec.env_id).reward_threshold, name
 
 
 def test_two_point_multirun_writes_two_run_folders_and_plots_the_ranking(tmp_path):

@@ -24,12 +24,14 @@ def assert_two_points(results: Path):
             assert len(read_run_csv(results / "default" / f"cem-cartpole-none-popsize={popsize}" / f"seed_{seed}.csv")) == 3
 
 
+@pytest.mark.slow
 def test_joblib_launcher_runs_points_in_parallel_with_in_process_seeds(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     assert main(["run", "-m", "hydra/launcher=joblib", *SWEEP, f"results_dir={tmp_path}"]) == 0
     assert_two_points(tmp_path)
 
 
+@pytest.mark.slow
 def test_submitit_local_launcher(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     proc = subprocess.run([IMIX, "run", "-m", "hydra/launcher=submitit_local", *SWEEP, f"results_dir={tmp_path}"], capture_output=True, text=True, timeout=300)

@@ -37,6 +37,7 @@ def test_1d_generations_follow_new_distribution(variant, shift, scale):
     assert 0.0 < reuse <= 1.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_full_covariance_3d_mahalanobis_is_chi2(variant):
     """Squared Mahalanobis distances to the new distribution follow chi^2(3) iff the members are N(mu, C)."""
