@@ -38,7 +38,8 @@ import numpy as np
 
 from imix_cli.algorithms import make_es
 from imix_cli.config import RunSpec, identity_of
-from imix_cli.evaluation import make_evaluator
+from imix_cli.parallel_evaluation import build_evaluator
+from imix_cli.policies import ObsNormalizer
 from imix_cli.mixing import Generation, mix
 from imix_cli.results import (
     CorruptResultError,
@@ -71,6 +72,7 @@ class SeedState:
     evaluations: int = 0
     env_steps: int = 0
     elapsed: float = 0.0  # wall seconds spent on this seed before the current process took it
+    obs_norm: object = None  # policy.obs_norm: this seed's ObsNormalizer (imix_cli.policies)
 
     @property
     def generation(self) -> int:
@@ -97,21 +99,31 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
     plans = []
     for st in states:
         dist = st.es.distribution
-        if spec.variant is None or not st.archive:
+        # policy.obs_norm: while its statistics still change, stored returns would belong to
+        # another policy function, so the generation neither mixes nor enters the archive.
+        if spec.obs_norm and st.obs_norm is None:
+            st.obs_norm = ObsNormalizer(evaluator.obs_dim, spec.obs_norm_warmup)
+        honest = st.obs_norm is None or st.obs_norm.frozen
+        if spec.variant is None or not st.archive or not honest:
             samples = st.es.ask(st.sample_rng)
             g = Generation(samples, np.zeros(spec.popsize, np.int64), np.full(spec.popsize, -1, np.int64), dist)
         else:
             g = mix(dist, st.archive, spec.popsize, st.sample_rng, variant=spec.variant, alpha=spec.im_alpha, eim_generations=spec.eim_generations)
         fresh = np.flatnonzero(g.source == 0)
         episode_seeds = st.episode_rng.integers(0, np.iinfo(np.int64).max, size=fresh.size, dtype=np.int64)
-        plans.append((g, fresh, episode_seeds))
+        params = g.samples[fresh] if st.obs_norm is None else st.obs_norm.fold(g.samples[fresh], evaluator.out_dim, evaluator.hidden)
+        plans.append((g, fresh, episode_seeds, params, honest))
     returns, steps = evaluator.evaluate(
-        np.concatenate([g.samples[fresh] for g, fresh, _ in plans]),
-        np.concatenate([seeds for _, _, seeds in plans]),
+        np.concatenate([params for *_, params, _ in plans]),
+        np.concatenate([seeds for _, _, seeds, *_ in plans]),
     )
     offset = 0
-    for st, (g, fresh, _) in zip(states, plans):
+    for st, (g, fresh, _, _, honest) in zip(states, plans):
         n = fresh.size
+        if not honest:  # the warm-up: the statistics absorb this generation's observations
+            sums, sumsqs = evaluator.last_obs_stats
+            st.obs_norm.add(sums[offset : offset + n], sumsqs[offset : offset + n], steps[offset : offset + n])
+            st.obs_norm.end_generation()
         fitness = np.empty(spec.popsize)
         fitness[fresh] = returns[offset : offset + n]
         for k, stored in enumerate(st.archive_returns, start=1):  # reused members keep their stored return
@@ -145,7 +157,7 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
         )
         st.es.tell(g.samples, fitness)
         depth = _archive_depth(spec)
-        if depth:
+        if depth and honest:
             st.archive = [g, *st.archive][:depth]
             st.archive_returns = [fitness, *st.archive_returns][:depth]
 
@@ -257,7 +269,7 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     progress = progress or _queue_progress
     if spec.algo == "ddpg":
         return run_ddpg_seeds(spec, seeds, progress)
-    evaluator = make_evaluator(spec.evaluator_key, spec.env_max_steps)
+    evaluator = build_evaluator(spec)  # local, or a process pool / Ray actors (imix_cli.parallel_evaluation)
     identity = spec.identity()
     run_dir = spec.run_dir
     states = []
