@@ -46,6 +46,8 @@ masked (their later data is ignored). On the cartpole/acrobot paths the batch is
 
 from __future__ import annotations
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -288,6 +290,8 @@ def missing_extra_message(env_id: str) -> str | None:
     """One line naming the extra to install if ``env_id`` is a MuJoCo env and mujoco is missing, else None.
 
     Only the physics engine is checked: training needs no rendering backend (no OpenGL).
+    When mujoco is there, its C-level warnings are routed to Python's :mod:`warnings` (see
+    :func:`_route_mujoco_warnings`).
     """
     try:
         entry = str(gym.spec(env_id).entry_point)
@@ -296,10 +300,24 @@ def missing_extra_message(env_id: str) -> str | None:
     if not entry.startswith("gymnasium.envs.mujoco"):
         return None
     try:
-        import mujoco  # noqa: F401
+        import mujoco
     except ImportError:
         return f"env.id={env_id!r} is a MuJoCo environment and the mujoco package is not installed: {MUJOCO_EXTRA_HINT}"
+    _route_mujoco_warnings(mujoco)
     return None
+
+
+def _mujoco_warning(message: str) -> None:
+    category = DeprecationWarning if "deprecated" in message else RuntimeWarning
+    warnings.warn(f"mujoco: {message}", category, stacklevel=2)
+
+
+def _route_mujoco_warnings(mujoco) -> None:
+    """MuJoCo's default warning handler prints to stderr *and appends to ./MUJOCO_LOG.TXT*:
+    with mujoco 4, HalfCheetah-v5's model (``settotalmass``, deprecated) triggers it on every
+    ``gym.make``, littering the working directory. Route the warnings to Python's instead."""
+    if mujoco.get_mju_user_warning() is None:
+        mujoco.set_mju_user_warning(_mujoco_warning)
 
 
 def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, **kwargs) -> BatchEvaluator:

@@ -35,8 +35,11 @@ def imix(*args, results_dir):
 # ------------------------------------------------------------------------------ env configs
 @needs_mujoco
 @pytest.mark.parametrize("name", sorted(MUJOCO_ENVS))
-def test_each_mujoco_env_config_composes_and_runs_two_generations(tmp_path, name):
+def test_each_mujoco_env_config_composes_and_runs_two_generations(tmp_path, name, monkeypatch):
     env_id = MUJOCO_ENVS[name]
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
     (spec,) = validate_overrides([f"env={name}", "algo=snes"])
     assert (spec.env_name, spec.env_id, spec.env_max_steps) == (env_id, env_id, 1000)
     assert imix(f"env={name}", "algo=snes", "eim=true", "policy.hidden=[]", *TINY, results_dir=tmp_path) == 0
@@ -44,6 +47,7 @@ def test_each_mujoco_env_config_composes_and_runs_two_generations(tmp_path, name
     assert len(frame) == 2 and (frame["env"] == env_id).all()
     assert 0 < frame["env_steps"].iloc[-1] <= 1000 * frame["evaluations"].iloc[-1]
     assert np.isfinite(frame["mean_score"]).all()
+    assert list(work.iterdir()) == []  # mujoco 4's warnings (HalfCheetah) must not write ./MUJOCO_LOG.TXT
 
 
 @needs_mujoco
