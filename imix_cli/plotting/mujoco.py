@@ -90,6 +90,19 @@ def load_runs(exp_dir: Path) -> dict:
     return runs
 
 
+def labels(runs_of_env: dict) -> tuple[dict, str]:
+    """Short run labels (``"<algo> <mixing>"`` plus the settings not shared by all runs of the
+    env) and the shared settings, e.g. ``"hidden=linear,popsize=20"``."""
+    suffixes = {}
+    for name, frames in runs_of_env.items():
+        algo, env, mixing = (str(frames[0][c].iloc[0]) for c in ("algo", "env", "mixing"))
+        rest = name[len(f"{algo}-{env}-{mixing}") :].lstrip("-")
+        suffixes[name] = (f"{algo} {mixing}", set(rest.split(",")) - {""})
+    common = set.intersection(*(tokens for _, tokens in suffixes.values())) if suffixes else set()
+    short = {name: " ".join([head, ",".join(sorted(tokens - common))]).strip() for name, (head, tokens) in suffixes.items()}
+    return short, ",".join(sorted(common))
+
+
 def curve(frames: list, column: str, resamples: int):
     """The grid, mean and 95 % bootstrap band of ``mean_score`` against ``column`` over seeds."""
     start = max(float(f[column].iloc[0]) for f in frames)
@@ -112,12 +125,13 @@ def table_rows(runs: dict, thresholds: dict, resamples: int) -> list[dict]:
     rows = []
     for env in sorted(runs):
         threshold = thresholds.get(env)
+        short, _ = labels(runs[env])
         for name, frames in sorted(runs[env].items()):
             finals = np.array([float(f["mean_score"].iloc[-1]) for f in frames])
             mean, low, high = bootstrap_ci(finals[:, None], resamples)
             reached = [r for r in (first_reach(f, threshold) for f in frames) if r is not None] if threshold is not None else []
             rows.append({
-                "env": env, "run": name, "seeds": len(frames), "generations": int(min(len(f) for f in frames)),
+                "env": env, "run": short[name], "folder": name, "seeds": len(frames), "generations": int(min(len(f) for f in frames)),
                 "final_return": float(mean[0]), "ci95_low": float(low[0]), "ci95_high": float(high[0]),
                 "reuse_percent": 100.0 * sum(int(f["reused"].sum()) for f in frames) / max(1, sum(int(f["popsize"].sum()) for f in frames)),
                 "episodes": float(np.mean([f["evaluations"].iloc[-1] for f in frames])),
@@ -154,16 +168,17 @@ def draw_env(env: str, runs_of_env: dict, resamples: int):
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(AXES), figsize=(5.0 * len(AXES), 3.8), constrained_layout=True)
+    short, common = labels(runs_of_env)
     for k, (name, frames) in enumerate(sorted(runs_of_env.items())):
         color = f"C{k % 10}"
         for ax, (column, label) in zip(axes, AXES):
             grid, mean, low, high = curve(frames, column, resamples)
-            ax.plot(grid, mean, color=color, label=f"{name} ({len(frames)} seeds)")
+            ax.plot(grid, mean, color=color, label=f"{short[name]} ({len(frames)} seeds)")
             ax.fill_between(grid, low, high, color=color, alpha=0.2, linewidth=0)
             ax.set_xlabel(label)
     axes[0].set_ylabel("population mean return")
     axes[0].legend(fontsize=7, loc="best")
-    fig.suptitle(f"{env}: mean over seeds, 95 % bootstrap CI")
+    fig.suptitle(f"{env}: population mean return, mean over seeds, 95 % bootstrap CI ({common or 'paper settings'})", fontsize=9)
     return fig
 
 
