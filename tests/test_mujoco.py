@@ -212,3 +212,48 @@ def test_pip_install_with_the_mujoco_extra_then_run_hopper(tmp_path):
     assert proc.returncode == 0, proc.stderr
     for seed in (0, 1):
         assert len(read_run_csv(work / "results" / "default" / "snes-Hopper-v5-eim" / f"seed_{seed}.csv")) == 3
+
+
+# ------------------------------------------------------------------------------ the study's plots
+def test_bootstrap_interval_covers_the_mean_and_shrinks_with_more_seeds():
+    from imix_cli.plotting.mujoco import bootstrap_ci
+
+    rng = np.random.default_rng(0)
+    few, many = rng.normal(100, 30, (5, 1)), rng.normal(100, 30, (80, 1))
+    m5, lo5, hi5 = bootstrap_ci(few)
+    m80, lo80, hi80 = bootstrap_ci(many)
+    assert lo5[0] < m5[0] < hi5[0] and lo80[0] < m80[0] < hi80[0]
+    # The bootstrap distribution of a mean has std s/sqrt(n) (s with ddof 0): the 95 % percentile
+    # interval is close to +-1.96 of it -- within 10 % at n = 80, 30 % at n = 5 (discrete resampling).
+    for values, (m, lo, hi), tolerance in ((few, (m5, lo5, hi5), 0.3), (many, (m80, lo80, hi80), 0.1)):
+        normal = 2 * 1.96 * values.std() / np.sqrt(len(values))
+        assert abs((hi - lo)[0] / normal - 1) < tolerance
+
+
+def test_study_table_counts_episodes_and_wall_time_to_threshold(tmp_path):
+    from imix_cli.plotting.mujoco import main as plot_main
+    from imix_cli.results import write_run_csv
+
+    def rows(algo, mixing, seed, scores, per_gen):
+        out, evaluations = [], 0
+        for g, (score, n) in enumerate(zip(scores, per_gen)):
+            evaluations += n
+            out.append({"algo": algo, "env": "Hopper-v5", "mixing": mixing, "seed": seed, "generation": g, "evaluations": evaluations,
+                        "env_steps": 100 * evaluations, "mean_score": score, "best_score": score, "reused": 10 - n, "reused_im": 10 - n,
+                        "reused_eim": 0, "popsize": 10, "sigma_mean": 0.1, "nonfinite": 0, "wall_time": 2.0 * (g + 1)})  # fmt: skip
+        return out
+
+    for mixing, per_gen in (("none", [10, 10, 10, 10]), ("eim", [10, 4, 4, 4])):
+        run = tmp_path / "mujoco" / f"snes-Hopper-v5-{mixing}-hidden=linear"
+        run.mkdir(parents=True)
+        write_run_csv(run / "seed_0.csv", rows("snes", mixing, 0, [10, 200, 600, 700], per_gen))
+        write_run_csv(run / "seed_1.csv", rows("snes", mixing, 1, [10, 20, 30, 40], per_gen))
+    assert plot_main([f"results_dir={tmp_path}", "experiment=mujoco", "resamples=200"]) == 0
+    import pandas as pd
+
+    table = pd.read_csv(tmp_path / "mujoco" / "figures" / "mujoco_table.csv").set_index("run")
+    assert table.loc["snes none", "reached"] == "1/2" and table.loc["snes none", "episodes_to_threshold"] == 30
+    assert table.loc["snes eim", "episodes_to_threshold"] == 18 and table.loc["snes eim", "wall_time_to_threshold_s"] == 6.0
+    assert table.loc["snes eim", "reuse_percent"] == pytest.approx(100 * 18 / 40)
+    assert (tmp_path / "mujoco" / "figures" / "mujoco_Hopper-v5.png").exists()
+    assert plot_main([f"results_dir={tmp_path}", "experiment=mujoco", "bogus=1"]) == 2
