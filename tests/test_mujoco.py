@@ -203,6 +203,11 @@ def test_pip_install_with_the_mujoco_extra_then_run_hopper(tmp_path):
         [str(py), "-m", "pip", "install", "-q", "--no-build-isolation", f"{repo}[mujoco]"], env=env, capture_output=True, text=True, timeout=600
     )
     assert install.returncode == 0, install.stderr
+    assert "does not provide the extra" not in install.stderr
+    requires = subprocess.run(
+        [str(py), "-c", "import importlib.metadata as m; print(m.requires('imix-cli'))"], env=env, capture_output=True, text=True, check=True
+    ).stdout
+    assert "gymnasium[mujoco]" in requires and 'extra == "mujoco"' in requires
     work = tmp_path / "work"
     work.mkdir()
     proc = subprocess.run(
