@@ -98,3 +98,25 @@ def test_ray_evaluator_on_a_local_ray_equals_local(tmp_path):
     import ray
 
     assert not ray.is_initialized()  # the Ray it started is shut down
+
+
+def test_pool_is_refused_under_a_parallel_hydra_launcher():
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    from imix_cli.config import ConfigError
+
+    with pytest.raises(ConfigError, match="evaluator=pool.*joblib"):
+        validate_overrides(["hydra/launcher=joblib", "env=gym", f"env.id={ENV}", "evaluator=pool"])
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason='needs pip install "imix-cli[cluster]"')
+def test_run_with_evaluator_ray_writes_the_same_csvs_as_local(tmp_path, capfd):
+    common = ["env=gym", f"env.id={ENV}", "algo=openes", "eim=true", "seeds=2", "generations=3", "popsize=6", "progress=false", "policy.hidden=[4]", "workers=1"]
+    frames = {}
+    for evaluator in ("local", "ray"):
+        extra = ["evaluator_workers=2"] if evaluator == "ray" else []
+        assert main(["run", *common, f"evaluator={evaluator}", *extra, f"results_dir={tmp_path}", f"experiment={evaluator}"]) == 0
+        run = tmp_path / evaluator / f"openes-{ENV}-eim-hidden=4,popsize=6"
+        frames[evaluator] = [read_run_csv(run / f"seed_{k}.csv").drop(columns="wall_time") for k in (0, 1)]
+    for a, b in zip(frames["local"], frames["ray"]):
+        assert a.equals(b)
