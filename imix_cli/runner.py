@@ -38,9 +38,9 @@ import numpy as np
 
 from imix_cli.algorithms import make_es
 from imix_cli.config import RunSpec, identity_of
+from imix_cli.mixing import Generation, mix
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.policies import ObsNormalizer
-from imix_cli.mixing import Generation, mix
 from imix_cli.results import (
     CorruptResultError,
     atomic_write_bytes,
