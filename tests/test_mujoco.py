@@ -95,6 +95,24 @@ def test_default_policy_layout_is_unchanged():
     assert num_params(11, 3, ()) == 36 and num_params(11, 3, (64, 64)) == 11 * 64 + 64 + 64 * 64 + 64 + 64 * 3 + 3
 
 
+def test_results_of_before_the_new_keys_still_resume(tmp_path):
+    """The paper's runs are unchanged: a default policy is not written to config.yaml, and the
+    evaluator keys are not part of a run's identity, so a folder made before they existed is
+    accepted as the same run."""
+    import yaml
+
+    args = ["algo=snes", "env=cartpole", "generations=2", "popsize=4", "progress=false"]
+    assert imix(*args, "seeds=1", "workers=1", results_dir=tmp_path) == 0
+    config_file = tmp_path / "default" / "snes-cartpole-none-popsize=4" / "config.yaml"
+    config = yaml.safe_load(config_file.read_text())
+    assert "policy" not in config
+    for key in ("evaluator", "evaluator_workers", "ray_address"):
+        config.pop(key)
+    config_file.write_text(yaml.safe_dump(config, sort_keys=False))
+    assert imix(*args, "seeds=2", "evaluator=pool", "evaluator_workers=1", results_dir=tmp_path) == 0  # seed 1 added to the old folder
+    assert (config_file.parent / "seed_1.csv").exists()
+
+
 def test_linear_policy_is_obs_times_w_plus_b():
     rng = np.random.default_rng(0)
     params, obs = rng.normal(size=(3, 17 * 6 + 6)), rng.normal(size=(3, 17))
