@@ -280,3 +280,32 @@ def test_study_table_counts_episodes_and_wall_time_to_threshold(tmp_path):
     assert table.loc["snes eim", "reuse_percent"] == pytest.approx(100 * 18 / 40)
     assert (tmp_path / "mujoco" / "figures" / "mujoco_Hopper-v5.png").exists()
     assert plot_main([f"results_dir={tmp_path}", "experiment=mujoco", "bogus=1"]) == 2
+
+
+def test_resume_mid_warm_up_equals_not_stopping(tmp_path):
+    """The normaliser is part of a seed's checkpoint: interrupted during the warm-up (checkpoint
+    at generation 2 of 3) and resumed, a run writes the same CSV as one that never stopped."""
+    import pandas as pd
+
+    from imix_cli.runner import checkpoint_path, prepare_run_dir, run_seeds
+
+    common = ["env=gym", "env.id=Pendulum-v1", "algo=snes", "eim=true", "seeds=1", "generations=8", "popsize=6", "policy.hidden=[]",
+              "policy.obs_norm=true", "policy.obs_norm_warmup=3", "checkpoint_every=2", "workers=1", "progress=false"]  # fmt: skip
+    assert main(["run", *common, f"results_dir={tmp_path / 'ref'}"]) == 0
+    (spec,) = validate_overrides([*common, f"results_dir={tmp_path / 'stop'}"])
+    done = {"n": 0}
+
+    def interrupt_after_three_generations(n):
+        done["n"] += 1
+        if done["n"] == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_seeds(spec, prepare_run_dir(spec), progress=interrupt_after_three_generations)
+    assert checkpoint_path(spec.run_dir, 0).exists()
+    assert main(["run", *common, f"results_dir={tmp_path / 'stop'}"]) == 0
+    name = spec.run_dir.relative_to(tmp_path / "stop")
+    expected = read_run_csv(tmp_path / "ref" / name / "seed_0.csv").drop(columns="wall_time")
+    got = read_run_csv(spec.run_dir / "seed_0.csv").drop(columns="wall_time")
+    pd.testing.assert_frame_equal(got, expected)
+    assert got["reused"].sum() > 0
