@@ -25,16 +25,26 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true weight_decay_form=estool progress=false
 
-.PHONY: install test reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install install-all test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
-install:  ## create .venv and install imix (non-editable) with every extra
+# `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
+# (numpy, scipy, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; ~450 MB, ~2 min).
+# `make install-all` adds the DDPG baseline (CPU torch + stable-baselines3) and the cluster
+# launchers (joblib, submitit, Ray), ~1.7 GB: only for `make reproduce-ddpg` / hydra/launcher=...
+install:  ## create .venv and install imix (non-editable): runner, plots, render, tests
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
+	$(PY) -m pip install ".[test,render]"
+
+install-all: install  ## install + the DDPG baseline (CPU torch pin) and the cluster launchers
 	$(PY) -m pip install "$(TORCH)"
 	$(PY) -m pip install ".[all]"
 
-test:  ## run the test suite
+test:  ## the whole test suite (what CI runs; includes the slow end-to-end tests)
 	$(PY) -m pytest -q
+
+test-fast:  ## day-to-day: every test not marked slow
+	$(PY) -m pytest -q -m "not slow"
 
 reproduce: reproduce-main reproduce-grid reproduce-ddpg  ## the whole paper into results/paper*/
 

@@ -2,10 +2,11 @@
 
 Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs every one)::
 
-    rollouts   env-steps/s of the batched evaluator (imix_cli.evaluation.make_evaluator, policy
-               included) for CartPole and Acrobot at several batch sizes, next to a naive loop
+    rollouts   env-steps/s of imix's evaluator (imix_cli.evaluation.make_evaluator: compiled
+               episodes, policy included) for CartPole and Acrobot at several batch sizes (2: what
+               importance mixing leaves fresh per seed; 50: one population), next to a naive loop
                (gymnasium.make + numpy MLP per step, one episode at a time) and gymnasium's
-               SyncVectorEnv stepping the same batched policy; ratios of the three.
+               SyncVectorEnv stepping the same batched numpy policy; ratios of the three.
     mixing     one importance-mixing step (paper, eim, sun2009) against plain sampling of the
                same population (N = 50, K = 3), d = 130 (the paper's CartPole) to 10^6.
     memory     wall time, CPU time and peak RSS (VmHWM) of `imix run algo=snes env=cartpole
@@ -15,6 +16,14 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
     grid       wall time and total env steps of the paper's main grid (4 ES x CartPole,
                Acrobot x 25 seeds at the paper's generation counts), with EIM and without
                mixing, through imix_cli.runner.run into a temporary folder. Takes minutes.
+    peers      the same task in a peer library, in this run: evosax SNES and OpenES + gymnax
+               CartPole-v1 / Acrobot-v1 (both capped at 200 steps), the same 8-8 tanh MLP, pop 50,
+               no mixing, the whole loop jitted with the seeds vmapped (JAX on CPU); next to
+               `imix run algo=snes env=<env> eim=true` and `eim=false` (in this process, all
+               cores, a temporary results folder). Wall times (JAX's compile time included and
+               shown), env steps, final scores and ratios. Default 25 seeds x 1000 generations
+               (minutes); --quick: 3 x 100. Needs the `peers` extra (pip install 'imix-cli[peers]');
+               without it the section says so and the command still exits 0.
 
 Policies of the rollout benchmark (fixed, so episodes have realistic lengths): CartPole, a
 hand-built balancing controller written as an MLP (action = sign of 2 theta + 0.5 theta_dot
@@ -40,9 +49,9 @@ import time
 
 import numpy as np
 
-__all__ = ["SECTIONS", "main", "mixing_rows", "mixing_times", "rollout_rows"]
+__all__ = ["SECTIONS", "main", "mixing_rows", "mixing_times", "peer_rows", "rollout_rows"]
 
-SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "grid")
+SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "grid", "peers")
 DEFAULT_SECTIONS = ("rollouts", "mixing", "memory")
 ROLLOUT_ENVS = {"cartpole": "CartPole-v1", "acrobot": "Acrobot-v1"}  # gymnasium ids of the baselines
 EPISODE_CAP = 200
@@ -164,7 +173,7 @@ def _sync_vector_rollouts(venv, params: np.ndarray, seeds: np.ndarray):
     return total, None
 
 
-def rollout_rows(sizes=(50, 250, 1250), envs=("cartpole", "acrobot"), repeats: int = 3, min_seconds: float = 1.0,
+def rollout_rows(sizes=(2, 50, 1250), envs=("cartpole", "acrobot"), repeats: int = 3, min_seconds: float = 1.0,
                  naive_members: int = 20, echo=None) -> list[dict]:  # fmt: skip
     """Measure the batched evaluator and both baselines; one dict per (env, batch size)."""
     from imix_cli.evaluation import make_evaluator
@@ -173,6 +182,7 @@ def rollout_rows(sizes=(50, 250, 1250), envs=("cartpole", "acrobot"), repeats: i
     for env in envs:
         ev = make_evaluator(env)
         params_all = bench_policies(env, max(sizes))
+        ev.evaluate(params_all[:1], np.arange(1))  # compiles (first run) or loads the kernels: not timed
         n_naive = min(naive_members, max(sizes))
         naive_rate, _ = _median_rate(_naive_rollouts, (env, params_all[:n_naive], np.arange(n_naive)))
         for b in sizes:
@@ -434,6 +444,153 @@ def format_grid(rows: list[dict]) -> str:
     return _table(header, body, "lrrrrrrr")
 
 
+# ------------------------------------------------------------------------------ peers
+QUICK_PEERS = (3, 100)  # --quick: seeds, generations
+PEER_POPSIZE = 50
+PEER_SIGMA, PEER_LR = 0.25, 0.01  # imix's defaults (conf/config.yaml): initial std, OpenES's Adam rate
+PEER_IDS = {"cartpole": "CartPole-v1", "acrobot": "Acrobot-v1"}  # gymnax ids, capped at EPISODE_CAP
+PEERS_INSTALL = "pip install 'imix-cli[peers]'  (jax, evosax, gymnax)"
+
+
+def peers_available(echo) -> bool:
+    """Whether jax, evosax and gymnax import; if not, say how to install them."""
+    try:
+        import evosax  # noqa: F401
+        import gymnax  # noqa: F401
+        import jax  # noqa: F401
+    except ImportError as err:
+        echo(f"The peers are not installed ({err.name or err}): {PEERS_INSTALL}")
+        return False
+    return True
+
+
+def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
+    """evosax ``algo`` (SNES / Open_ES) on gymnax ``env``: every generation of every seed in one
+    jitted function (lax.scan over generations, vmap over seeds and members, lax.scan over the
+    200 steps of an episode, as gymnax is meant to be used). Returns wall/compile seconds,
+    env steps (steps before each episode's end) and the final population mean return."""
+    import gymnax
+    import jax
+    import jax.numpy as jnp
+    import optax
+    from evosax.algorithms import SNES, Open_ES
+
+    from imix_cli.policies import num_params
+
+    environment, env_params = gymnax.make(PEER_IDS[env])
+    env_params = env_params.replace(max_steps_in_episode=EPISODE_CAP)
+    obs_dim = environment.observation_space(env_params).shape[0]
+    n_act = environment.action_space(env_params).n
+    sizes = [obs_dim, 8, 8, n_act]
+    dim = num_params(obs_dim, n_act)
+
+    def policy(flat, obs):  # imix_cli.policies' layout: W1 (in x 8), b1, W2, b2, W3, b3
+        k, x = 0, obs
+        for layer, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+            W, bias = flat[k : k + a * b].reshape(a, b), flat[k + a * b : k + a * b + b]
+            k += a * b + b
+            x = x @ W + bias
+            x = jnp.tanh(x) if layer < 2 else x
+        return jnp.argmax(x)
+
+    def episode(flat, key):
+        k_reset, k_step = jax.random.split(key)
+        obs, state = environment.reset(k_reset, env_params)
+
+        def step(carry, _):
+            obs, state, ret, alive, n = carry
+            obs, state, reward, done, _ = environment.step(k_step, state, policy(flat, obs), env_params)
+            return (obs, state, ret + reward * alive, alive * (1.0 - done), n + alive.astype(jnp.int32)), None
+
+        init = (obs, state, jnp.float32(0.0), jnp.float32(1.0), jnp.int32(0))
+        (_, _, ret, _, n), _ = jax.lax.scan(step, init, None, length=EPISODE_CAP)
+        return ret, n
+
+    solution = jnp.zeros(dim)
+    if algo == "snes":
+        es = SNES(population_size=PEER_POPSIZE, solution=solution)
+        es_params = es.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
+    else:
+        es = Open_ES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR),
+                     std_schedule=optax.constant_schedule(PEER_SIGMA))  # fmt: skip
+        es_params = es.default_params
+
+    def one_seed(key):
+        key, k_init = jax.random.split(key)
+        state = es.init(k_init, solution, es_params)
+
+        def generation(carry, _):
+            state, key = carry
+            key, k_ask, k_eval, k_tell = jax.random.split(key, 4)
+            population, state = es.ask(k_ask, state, es_params)
+            returns, steps = jax.vmap(episode)(population, jax.random.split(k_eval, PEER_POPSIZE))
+            state, _ = es.tell(k_tell, population, -returns, state, es_params)  # evosax minimises
+            return (state, key), (returns.mean(), steps.sum())
+
+        _, (mean_returns, steps) = jax.lax.scan(generation, (state, key), None, length=generations)
+        return mean_returns[-1], steps.sum()
+
+    keys = jax.random.split(jax.random.key(0), seeds)
+    started = time.perf_counter()
+    compiled = jax.jit(jax.vmap(one_seed)).lower(keys).compile()
+    compile_seconds = time.perf_counter() - started
+    final, steps = jax.block_until_ready(compiled(keys))
+    wall = time.perf_counter() - started
+    return {"run": f"evosax {es.__class__.__name__} + gymnax", "env": env, "eim": False, "seeds": seeds,
+            "generations": generations, "wall": wall, "compile": compile_seconds,
+            "env_steps": int(np.asarray(steps, dtype=np.int64).sum()), "final": float(np.mean(final))}  # fmt: skip
+
+
+def _imix_run(env: str, eim: bool, seeds: int, generations: int) -> dict:
+    """``imix run algo=snes env=<env> eim=<eim>`` in this process (its worker pool, all cores)."""
+    from imix_cli.config import validate_overrides
+    from imix_cli.runner import run
+
+    with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
+        overrides = ["algo=snes", f"env={env}", f"eim={str(eim).lower()}", f"seeds={seeds}", f"generations={generations}",
+                     "progress=false", f"results_dir={tmp}", "experiment=peers"]  # fmt: skip
+        (spec,) = validate_overrides(overrides)
+        started = time.perf_counter()
+        summary = run(spec, echo=lambda *_: None)
+        wall = time.perf_counter() - started
+    return {"run": f"imix run algo=snes eim={str(eim).lower()}", "env": env, "eim": eim, "seeds": seeds,
+            "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
+            "final": summary["final_mean_score"]}  # fmt: skip
+
+
+def peer_rows(envs, seeds: int, generations: int, echo=None) -> list[dict]:
+    """The peers and imix's SNES with and without EIM on each env, one after the other."""
+    rows = []
+    for env in envs:
+        for fn, args in (
+            (_peer_run, ("snes", env)), (_peer_run, ("openes", env)), (_imix_run, (env, True)), (_imix_run, (env, False)),
+        ):  # fmt: skip
+            row = fn(*args, seeds, generations)
+            rows.append(row)
+            if echo:
+                echo(f"  {row['run']}, {env}: {row['wall']:.1f} s, {row['env_steps']:,} env steps, final {row['final']:.1f}")
+    return rows
+
+
+def format_peers(rows: list[dict]) -> str:
+    body = [[r["run"], r["env"], r["seeds"], r["generations"], f"{r['wall']:.1f}",
+             "" if r["compile"] is None else f"{r['compile']:.1f}", f"{r['env_steps']:,}", f"{r['final']:.1f}"]
+            for r in rows]  # fmt: skip
+    header = ["run", "env", "seeds", "generations", "wall (s)", "of which JAX compile (s)", "env steps", "final mean score"]
+    return _table(header, body, "llrrrrrr")
+
+
+def format_peer_ratios(rows: list[dict]) -> str:
+    """imix SNES + EIM against each other row of the same env: wall time and env steps ratios."""
+    body = []
+    for env in dict.fromkeys(r["env"] for r in rows):
+        ours = next(r for r in rows if r["env"] == env and r["run"].startswith("imix") and r["eim"])
+        for other in (r for r in rows if r["env"] == env and r is not ours):
+            body.append([env, f"imix SNES + EIM vs {other['run']}", f"{other['wall'] / ours['wall']:.2f}",
+                         f"{other['env_steps'] / max(ours['env_steps'], 1):.1f}"])  # fmt: skip
+    return _table(["env", "comparison", "× faster (wall)", "× fewer env steps"], body, "llrr")
+
+
 # ------------------------------------------------------------------------------ command line
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, exit status 2 (argparse would print the usage too)
@@ -466,22 +623,23 @@ def build_parser() -> argparse.ArgumentParser:
         description=__doc__.replace("``", "`"),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  imix bench\n  imix bench rollouts --sizes 50 250 1250\n  imix bench grid\n"
-        "  imix bench all --seeds 5 --generations 50",
+        "  imix bench all --seeds 5 --generations 50\n  imix bench peers --quick",
     )
     p.add_argument("sections", nargs="*", metavar="section", help=f"any of {', '.join(SECTIONS)}, all (default: {' '.join(DEFAULT_SECTIONS)})")
     p.add_argument("--grid", action="store_true", help="also run the grid section")
     g = p.add_argument_group("rollouts")
-    g.add_argument("--sizes", type=_positive_int, nargs="+", default=[50, 250, 1250], metavar="B", help="batch sizes (default: 50 250 1250)")
-    g.add_argument("--envs", nargs="+", choices=sorted(ROLLOUT_ENVS), default=["cartpole", "acrobot"], help="environments (rollouts, grid, breakdown)")
+    g.add_argument("--sizes", type=_positive_int, nargs="+", default=[2, 50, 1250], metavar="B", help="batch sizes (default: 2 50 1250)")
+    g.add_argument("--envs", nargs="+", choices=sorted(ROLLOUT_ENVS), default=["cartpole", "acrobot"], help="environments (rollouts, grid, breakdown, peers)")
     g.add_argument("--repeats", type=_positive_int, default=3, help="timed repeats per measurement (default: 3)")
     g.add_argument("--min-seconds", type=_positive_float, default=1.0, help="minimum time per batched measurement (default: 1)")
     g.add_argument("--naive-members", type=_positive_int, default=20, help="episodes of the naive loop (default: 20)")
     g = p.add_argument_group("mixing")
     g.add_argument("--dims", type=_positive_int, nargs="+", default=[130, 1_000, 100_000, 1_000_000], metavar="D", help="dimensions (default: 130 1000 100000 1000000)")
-    g = p.add_argument_group("memory, breakdown, grid")
+    g = p.add_argument_group("memory, breakdown, grid, peers")
     g.add_argument("--seeds", type=_positive_int, default=None, help="seeds per run (default: 25; breakdown: 13, one worker's share)")
     g.add_argument("--generations", type=_positive_int, default=None, help="generations per run (default: the paper's, per algorithm)")
     g.add_argument("--workers", type=_positive_int, default=None, help="memory run's worker processes (default: all cores)")
+    g.add_argument("--quick", action="store_true", help=f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless --seeds/--generations say otherwise")
     g.add_argument("--algos", nargs="+", choices=["openes", "snes", "cem", "cmaes"], default=["openes", "snes", "cem", "cmaes"], help="grid and breakdown algorithms")
     return p
 
@@ -545,6 +703,18 @@ def main(argv: list[str] | None = None) -> int:
             echo("## Where a run's time goes (lockstep seeds of one worker, in-process)")
             configs = [[f"algo={a}", f"env={e}", "eim=true", "weight_decay_form=estool"] for e in args.envs for a in args.algos]
             echo(format_breakdown(breakdown_rows(configs, args.seeds or 13, args.generations)))
+        elif section == "peers":
+            seeds = args.seeds or (QUICK_PEERS[0] if args.quick else 25)
+            generations = args.generations or (QUICK_PEERS[1] if args.quick else 1000)
+            echo(f"## Peers: evosax + gymnax (JAX, jitted, no mixing) vs imix, {seeds} seeds x {generations} generations, pop 50")
+            if not peers_available(echo):
+                echo(f"({section}: skipped)")
+                continue
+            rows = peer_rows(args.envs, seeds, generations, echo=echo)
+            echo(format_peers(rows))
+            echo()
+            echo("## Ratios: imix SNES + EIM against each other run on the same env")
+            echo(format_peer_ratios(rows))
         elif section == "grid":
             echo("## The paper's main grid (as `make reproduce`), without mixing and with EIM")
             extra = [o for o in PAPER_GRID if not o.startswith(("algo=", "env="))]

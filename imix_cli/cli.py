@@ -1,4 +1,4 @@
-"""``imix run | plot | bench``: a thin dispatcher, nothing else.
+"""``imix run | plot | bench | eval | render | status``: a thin dispatcher, nothing else.
 
 Hydra has no subcommands, so ``main`` takes the subcommand off the command line and hands the
 rest to the right entry point: ``run`` to a ``@hydra.main`` function (so ``-m``, sweepers,
@@ -34,13 +34,22 @@ commands:
           `imix plot --help` lists its keys.
   bench   print the speed benchmarks (batched rollouts, mixing, a grid)
             imix bench
+  eval    evaluate the saved policies of every seed on fresh episodes; writes eval.csv per run
+            imix eval experiment=try episodes=100 which=mean
+  render  write a GIF (or .mp4 with ffmpeg) of one saved policy acting in its env
+            imix render experiment=try run=snes-cartpole-eim seed=0 out=policy.gif
+  status  seeds done / running / not started of each run, last generation, scores (read-only)
+            imix status experiment=try
 
 Results go to results/<experiment>/<algo>-<env>-<mixing>[-<overrides>]/seed_<k>.csv.
 """
 
-COMMANDS = ("run", "plot", "bench")
+COMMANDS = ("run", "plot", "bench", "eval", "render", "status")
 # Flags that ask Hydra for information only: no validation, no run.
 _HYDRA_INFO_FLAGS = ("--help", "-h", "--hydra-help", "--cfg", "-c", "--info", "-i", "--resolve", "--package", "-p", "--version", "--shell-completion", "-sc")
+
+# Hydra's other long flags; any other `--x` is a key given the argparse way.
+_HYDRA_RUN_FLAGS = ("--multirun", "--run", "--config-path", "--config-name", "--config-dir", "--experimental-rerun")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,6 +68,10 @@ def main(argv: list[str] | None = None) -> int:
         from imix_cli.bench import main as bench_main
 
         return bench_main(rest)
+    if command in ("eval", "render", "status"):
+        from importlib import import_module
+
+        return import_module(f"imix_cli.{ {'eval': 'evaluate'}.get(command, command)}").main(rest)
     print(f"imix: unknown command {command!r}; valid commands: {', '.join(COMMANDS)} (see imix --help)", file=sys.stderr)
     return 2
 
@@ -74,6 +87,11 @@ def run_command(args: list[str]) -> int:
 
     info_only = any(a in _HYDRA_INFO_FLAGS or a.startswith("--cfg=") for a in args)
     if not info_only:
+        dashed = next((a for a in args if a.startswith("--") and a.split("=", 1)[0] not in _HYDRA_RUN_FLAGS), None)
+        if dashed is not None:  # `--seeds 3` or `--seeds=3`: keys are Hydra overrides, key=value
+            key = dashed[2:].split("=", 1)[0]
+            value = dashed.split("=", 1)[1] if "=" in dashed else (args[args.index(dashed) + 1] if args.index(dashed) + 1 < len(args) else "...")
+            return _error(f"unknown option {dashed!r}; keys are given as key=value, e.g. {key}={value} (see imix run --help)", 2)
         overrides = [a for a in args if not a.startswith("-")]
         try:
             validate_overrides(overrides)

@@ -19,11 +19,17 @@ import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from imix_cli.algorithms.cmaes import MAX_DIM as CMAES_CLASS_MAX_DIM
 from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
 
 ES_NAMES = ("openes", "snes", "cem", "cmaes")
 ALGO_NAMES = (*ES_NAMES, "ddpg")  # ddpg: the deep-RL baseline of section 4.3 (stable-baselines3)
-MIXING_VARIANTS = ("paper", "sun2009")
+MIXING_VARIANTS = ("paper", "sun2009")  # im=true
+#: eim=true: "exact" is imix's multi-generation rule, unbiased over chains (mixing.py); "paper" the
+#: paper's Algorithm 3, kept for reproduction: its generations drift from their distribution
+#: over chains of generations (README, "Correctness of importance mixing").
+EIM_VARIANTS = {"exact": "eim", "paper": "eim_paper"}
+CEM_STYLES = ("imix", "cemrl")
 WEIGHT_DECAY_FORMS = ("paper", "estool")
 
 #: Built-in environments with a batched evaluator: config name -> gymnasium id it reproduces.
@@ -43,11 +49,17 @@ PAPER_DEFAULTS = {
     "sigma": 0.25,
     "lr": 0.01,
     "weight_decay": 0.05,
-    "weight_decay_form": "paper",
+    "weight_decay_form": "estool",
     "im_variant": "paper",
+    "eim_variant": "exact",
     "im_alpha": 0.0,
     "eim_generations": 3,
+    "reeval_age": None,
+    "reeval_prob": 0.0,
 }
+
+#: Per-ES options of the ``algo`` group and their defaults (conf/algo/<name>.yaml).
+ALGO_OPTION_DEFAULTS = {"style": "imix"}
 
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
 #: carries, as ``-key=value,...``, the ones that differ from these.
@@ -56,8 +68,9 @@ DDPG_DEFAULTS = PAPER_SETTINGS
 #: Top-level keys of the evolution strategies only: algo=ddpg ignores them (and leaves them out
 #: of its config.yaml, so they never make two DDPG runs differ). ``total_steps`` is ddpg's only.
 ES_ONLY_KEYS = (
-    "im", "eim", "im_variant", "im_alpha", "eim_generations", "generations", "popsize", "sigma", "lr",
-    "weight_decay", "weight_decay_form", "checkpoint_every", "policy", "evaluator", "evaluator_workers", "ray_address",
+    "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age", "reeval_prob",
+    "generations", "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "checkpoint_every",
+    "policy", "evaluator", "evaluator_workers", "ray_address",
 )  # fmt: skip
 
 #: Keys that do not change a run's results (everything else in config.yaml must match to resume).
@@ -67,7 +80,8 @@ NON_IDENTITY_KEYS = (
 )  # fmt: skip
 
 TOP_LEVEL_KEYS = (
-    "algo", "env", "im", "eim", "im_variant", "im_alpha", "eim_generations", "seeds", "generations",
+    "algo", "env", "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age",
+    "reeval_prob", "seeds", "generations",
     "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
     "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
 )  # fmt: skip
@@ -106,9 +120,11 @@ class RunSpec:
     env_id: str
     env_max_steps: int | None
     mixing: str  # none | im | eim
-    variant: str | None  # mix() variant: paper | sun2009 | eim; None without mixing
+    variant: str | None  # mix() variant: paper | sun2009 | eim | eim_paper; None without mixing
     im_alpha: float
     eim_generations: int
+    reeval_age: int | None  # re-evaluate a reused member whose return is older than this (None: never)
+    reeval_prob: float  # ... and any reused member with this probability
     seeds: int
     generations: int
     popsize: int
@@ -122,6 +138,7 @@ class RunSpec:
     results_dir: str
     experiment: str
     config: dict = field(repr=False, compare=False)  # the resolved config, written as config.yaml
+    algo_options: dict = field(default_factory=dict, compare=False)  # per-ES options (algo.style of cem)
     # algo=ddpg only (the ES fields above then hold inert placeholders: generations 0, mixing none):
     total_steps: int | None = None  # environment steps of each seed
     ddpg: dict | None = field(default=None, compare=False)  # validated conf/algo/ddpg.yaml settings
@@ -153,7 +170,12 @@ class RunSpec:
             values["im_alpha"] = self.im_alpha
         if self.mixing == "eim":
             values["eim_generations"] = self.eim_generations
+            values["eim_variant"] = next(k for k, v in EIM_VARIANTS.items() if v == self.variant)
+        if self.mixing != "none":
+            values["reeval_age"] = self.reeval_age
+            values["reeval_prob"] = self.reeval_prob
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
+        changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != ALGO_OPTION_DEFAULTS.get(k)})
         if self.hidden != POLICY_DEFAULTS["hidden"]:
             changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"
         if self.obs_norm:
@@ -250,14 +272,24 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         return _ddpg_spec(cfg, algo_cfg, env_cfg, launcher)
     im, eim = _bool(cfg, "im"), _bool(cfg, "eim")
     im_variant = _choice(cfg.get("im_variant"), "im_variant", MIXING_VARIANTS)
+    eim_variant = _choice(cfg.get("eim_variant", PAPER_DEFAULTS["eim_variant"]), "eim_variant", tuple(EIM_VARIANTS))
+    reeval_age = cfg.get("reeval_age")
+    if reeval_age is not None:
+        reeval_age = _int(cfg, "reeval_age", 1)
+    reeval_prob = _float(cfg, "reeval_prob", 0.0, True, 1.0, False)
+    algo_options = {}
+    if algo == "cem":
+        algo_options["style"] = _choice(algo_cfg.get("style", "imix"), "algo.style", CEM_STYLES)
     im_alpha = _float(cfg, "im_alpha", 0.0, True, 1.0, False)
     eim_generations = _int(cfg, "eim_generations", 1)
     if eim and im_variant != "paper":
-        raise ConfigError(f"im_variant={im_variant}: contradicts eim=true (extended mixing is the paper's Algorithm 3); drop one")
+        raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant=exact|paper")
     if im_alpha != 0.0 and not (im and not eim and im_variant == "sun2009"):
         raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
     mixing = "eim" if eim else ("im" if im else "none")
-    variant = "eim" if eim else (im_variant if im else None)
+    variant = EIM_VARIANTS[eim_variant] if eim else (im_variant if im else None)
+    if mixing == "none" and (reeval_age is not None or reeval_prob):
+        raise ConfigError("reeval_age/reeval_prob: only apply with im=true or eim=true (they re-evaluate reused members)")
 
     env_name, env_id, max_steps = _env(env_cfg)
     policy = _policy_and_evaluator(cfg, algo, env_name, env_id, max_steps, launcher)
@@ -276,6 +308,8 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         variant=variant,
         im_alpha=im_alpha,
         eim_generations=eim_generations,
+        reeval_age=reeval_age,
+        reeval_prob=reeval_prob,
         seeds=_int(cfg, "seeds", 1),
         generations=_int(cfg, "generations", 1),
         popsize=_int(cfg, "popsize", 2),
@@ -289,6 +323,7 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         results_dir=_name(cfg, "results_dir"),
         experiment=experiment,
         config={**config, "mixing": mixing},
+        algo_options=algo_options,
         hidden=policy["hidden"],
         obs_norm=policy["obs_norm"],
         obs_norm_warmup=policy["obs_norm_warmup"],
@@ -319,8 +354,8 @@ def _workers_and_experiment(cfg: dict, launcher: str | None, pool: bool = False)
 POLICY_DEFAULTS = {"hidden": (8, 8), "obs_norm": False, "obs_norm_warmup": 5}
 EVALUATORS = ("local", "pool", "ray")
 #: CMA-ES keeps a d x d covariance and eigendecomposes it (O(d^2) memory, O(d^3) time): above
-#: this many parameters imix refuses it before anything runs (README, MuJoCo section).
-CMAES_MAX_DIM = 2000
+#: this many parameters imix refuses it before anything runs (the CMAES class's own limit).
+CMAES_MAX_DIM = CMAES_CLASS_MAX_DIM
 #: Observation and output sizes of the built-in environments (their policies' input and output).
 BUILTIN_POLICY_DIMS = {"cartpole": (4, 2), "acrobot": (6, 3), "continuous_cartpole": (4, 1), "continuous_cartpole_hard": (4, 1)}
 
@@ -426,6 +461,8 @@ def _ddpg_spec(cfg: dict, algo_cfg: dict, env_cfg: dict, launcher: str | None) -
         variant=None,
         im_alpha=PAPER_DEFAULTS["im_alpha"],
         eim_generations=PAPER_DEFAULTS["eim_generations"],
+        reeval_age=None,
+        reeval_prob=0.0,
         seeds=_int(cfg, "seeds", 1),
         generations=0,
         popsize=PAPER_DEFAULTS["popsize"],
@@ -509,10 +546,30 @@ def _env(env_cfg: dict):
         raise ConfigError(f"env.id={env_id!r}: not a registered gymnasium environment ({reason})") from None
     from imix_cli.evaluation import missing_extra_message
 
-    missing = missing_extra_message(env_id)
+    missing = missing_extra_message(env_id)  # names imix's extra, before gymnasium's generic hint
     if missing:
         raise ConfigError(missing)
+    _check_env_dependencies(env_id)
     return env_id, env_id, max_steps
+
+
+def _check_env_dependencies(env_id: str) -> None:
+    """Import the env's module now, so a missing extra (Box2D, MuJoCo, ...) is one line before anything is written.
+
+    gymnasium raises ``DependencyNotInstalled`` with its install hint when the module loads.
+    """
+    import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
+
+    entry_point = gym.spec(env_id).entry_point
+    if not isinstance(entry_point, str):
+        return
+    try:
+        load_env_creator(entry_point)
+    except gym.error.DependencyNotInstalled as err:
+        raise ConfigError(f"env.id={env_id!r}: a dependency is missing: {_first_line(err)}") from None
+    except ImportError as err:
+        raise ConfigError(f"env.id={env_id!r}: cannot import its module ({_first_line(err)})") from None
 
 
 # ------------------------------------------------------------------- whole command-line checks

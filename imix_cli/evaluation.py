@@ -14,17 +14,19 @@ the episode starts from the same state as ``gym.make(id).reset(seed=seeds[i])``.
 Environments (``env_name``):
 
 * ``"cartpole"``: CartPole-v0 semantics (CartPole-v1 dynamics, episodes capped at 200
-  steps, reward 1 per step, so return == steps), stepped with gymnasium's
-  ``CartPoleVectorEnv`` arithmetic, bit for bit (see :mod:`imix_cli.envs.cartpole`);
+  steps, reward 1 per step, so return == steps);
 * ``"acrobot"``: Acrobot-v1 dynamics capped at 200 steps as in the paper (reward -1 per
-  step, 0 on the terminating step, as gymnasium), stepped by the numpy batch in
-  :mod:`imix_cli.envs.acrobot` (identical to gymnasium's to ~1e-14 per step);
+  step, 0 on the terminating step, as gymnasium);
 * ``"continuous_cartpole"`` / ``"continuous_cartpole_hard"``: ``imix/ContinuousCartPole-v0``
   and ``imix/ContinuousCartPoleHard-v0`` (paper section 4.3: CartPole with a force of
   10 N x a, a in [-1, 1]; the Hard one pays the episode's total on its last step only), 200
-  steps, stepped by the numpy batch in :mod:`imix_cli.envs.continuous_cartpole` (the same
-  dynamics function as the registered envs; one tanh-bounded output). The returns equal
-  the registered envs' and, for both variants, the episode length;
+  steps, one tanh-bounded output. The returns equal the registered envs' and, for both
+  variants, the episode length.
+
+  These four run whole episodes, policy and dynamics together, in numba-compiled kernels
+  (:mod:`imix_cli.envs.kernels`: gymnasium's arithmetic, operation for operation; a batch of
+  2 costs what its steps cost). The first call in a fresh install compiles them (seconds,
+  once: the machine code is cached on disk);
 * any other registered gymnasium id (e.g. ``"MountainCar-v0"``, ``"Pendulum-v1"``,
   ``"Hopper-v5"``): one ``gymnasium.make(id)`` env per member, reset with
   ``reset(seed=seeds[i])`` (as ``make_vec`` with a list of seeds) and stepped until its
@@ -39,9 +41,8 @@ Discrete actions: ``start + argmax`` of the outputs. Box actions: ``tanh`` of th
 mapped affinely onto ``[low, high]`` (``high * tanh`` for symmetric bounds, so ``[-1, 1]``
 is plain ``tanh``); the bounds must be finite.
 
-All members roll out as one batch: every live env is stepped together, finished members are
-masked (their later data is ignored). On the cartpole/acrobot paths the batch is compacted
-(finished members dropped from the env and the policy) whenever at most half of it is alive.
+On the generic path all members roll out as one batch: every live env is stepped together,
+finished members are masked (their later data is ignored).
 """
 
 from __future__ import annotations
@@ -52,9 +53,6 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from imix_cli.envs.acrobot import AcrobotBatch
-from imix_cli.envs.cartpole import CartPoleBatch
-from imix_cli.envs.continuous_cartpole import ContinuousCartPoleBatch
 from imix_cli.policies import HIDDEN, BatchPolicy, num_params
 
 __all__ = ["BatchEvaluator", "make_evaluator", "missing_extra_message", "MUJOCO_EXTRA_HINT", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS", "CONTINUOUS_ENVS"]
@@ -89,6 +87,13 @@ class BatchEvaluator:
 
     def evaluate(self, params: np.ndarray, episode_seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """One episode per member: ``(returns (B,) float64, steps (B,) int64)``."""
+        params, seeds = self._checked(params, episode_seeds)
+        if params.shape[0] == 0:
+            return np.zeros(0), np.zeros(0, dtype=np.int64)
+        return self._evaluate_checked(params, seeds)
+
+    def _checked(self, params, episode_seeds) -> tuple[np.ndarray, np.ndarray]:
+        """``(params (B, num_params) float64, seeds (B,))``, or ``ValueError`` naming what is wrong."""
         params = np.asarray(params, dtype=np.float64)
         if params.ndim == 1:
             params = params[None, :]
@@ -99,8 +104,9 @@ class BatchEvaluator:
             raise ValueError(f"{self.env_name}: {params.shape[0]} members but {seeds.shape[0]} episode seeds")
         if seeds.size and (seeds.dtype.kind not in "iu" or seeds.min() < 0):
             raise ValueError(f"{self.env_name}: episode seeds must be non-negative integers")
-        if params.shape[0] == 0:
-            return np.zeros(0), np.zeros(0, dtype=np.int64)
+        return params, seeds
+
+    def _evaluate_checked(self, params: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self._run(self.policy(params), seeds)
 
     def _run(self, policy: BatchPolicy, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -113,72 +119,87 @@ class BatchEvaluator:
         )
 
 
-class _CompactingEvaluator(BatchEvaluator):
-    """Rollout loop over a batch simulator with ``reset/step/select`` (cartpole, acrobot)."""
+class _CompiledEvaluator(BatchEvaluator):
+    """A built-in environment: whole episodes, policy included, in a compiled kernel
+    (:mod:`imix_cli.envs.kernels`), one member after the other."""
 
-    compact_fraction = 0.5  # compact when at most this fraction of the slots is alive
-
-    def __init__(self, sim, env_name: str, obs_dim: int, out_dim: int, max_steps: int, compact: bool = True):
-        self.sim, self.env_name = sim, env_name
-        self.obs_dim, self.out_dim, self.discrete = obs_dim, out_dim, True
+    def __init__(self, env_name: str, obs_dim: int, out_dim: int, discrete: bool, max_steps: int):
+        self.env_name, self.obs_dim, self.out_dim, self.discrete = env_name, obs_dim, out_dim, discrete
         self.max_steps = int(max_steps)
-        self.compact = bool(compact)
+        if self.max_steps < 1:
+            raise ValueError(f"{env_name}: max_steps must be >= 1, got {max_steps}")
+        from imix_cli.envs import kernels  # numba: loaded (and compiled on first use) only here
 
-    def _run(self, policy, seeds):
-        sim, max_steps = self.sim, self.max_steps
-        n = len(seeds)
-        returns, steps = np.zeros(n), np.zeros(n, dtype=np.int64)
-        idx = np.arange(n)  # member held by each slot
-        ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
-        alive = np.ones(n, dtype=bool)
-        threshold = int(self.compact_fraction * n) if self.compact else -1
-        obs = sim.reset(seeds)
-        for t in range(max_steps):
-            obs, reward, terminated = sim.step(policy(obs))
-            np.add(ret, reward, out=ret, where=alive)
-            np.add(length, alive, out=length)
-            np.greater(alive, terminated, out=alive)  # alive &= ~terminated
-            n_alive = np.count_nonzero(alive)
-            if n_alive == 0:
-                break
-            if n_alive <= threshold and t + 1 < max_steps:
-                returns[idx], steps[idx] = ret, length
-                rows = np.flatnonzero(alive)
-                idx, ret, length, alive, obs = idx[rows], ret[rows], length[rows], alive[rows], obs[rows]
-                sim.select(rows)
-                policy.select(rows)
-                threshold = int(self.compact_fraction * n_alive)
-        returns[idx], steps[idx] = ret, length
+        self._kernels = kernels
+        self._no_trace = np.empty((0, 0, 0))
+
+    def _sizes(self) -> np.ndarray:
+        return np.array([self.obs_dim, *self.hidden, self.out_dim], dtype=np.int64)
+
+    def _evaluate_checked(self, params, seeds):
+        n = params.shape[0]
+        returns, steps = np.empty(n), np.empty(n, dtype=np.int64)
+        self._episodes(np.ascontiguousarray(params), seeds.astype(np.uint64), returns, steps, self._no_trace)
         return returns, steps
 
+    def trajectories(self, params: np.ndarray, episode_seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``evaluate`` that also returns every member's states: (returns, steps, states
+        (B, max_steps + 1, 4) float64, row t = the state after t steps; rows after the end: NaN)."""
+        params, seeds = self._checked(params, episode_seeds)
+        n = params.shape[0]
+        returns, steps = np.empty(n), np.empty(n, dtype=np.int64)
+        trace = np.full((n, self.max_steps + 1, 4), np.nan)
+        if n:
+            self._episodes(np.ascontiguousarray(params), seeds.astype(np.uint64), returns, steps, trace)
+        return returns, steps, trace
 
-class CartPoleEvaluator(_CompactingEvaluator):
-    """CartPole-v0 semantics, stepped as gymnasium's ``CartPoleVectorEnv`` (:class:`~imix_cli.envs.cartpole.CartPoleBatch`)."""
+    def _episodes(self, params, seeds, returns, steps, trace) -> None:
+        raise NotImplementedError
 
-    def __init__(self, max_steps: int | None = None, compact: bool = True):
+
+class CartPoleEvaluator(_CompiledEvaluator):
+    """CartPole-v0 semantics: CartPole-v1 dynamics (``CartPoleEnv.step``, compiled), 200 steps."""
+
+    def __init__(self, max_steps: int | None = None):
         max_steps = CARTPOLE_MAX_STEPS if max_steps is None else int(max_steps)
-        super().__init__(CartPoleBatch(max_episode_steps=max_steps), "cartpole", 4, 2, max_steps, compact)
+        super().__init__("cartpole", 4, 2, True, max_steps)
+
+    def _episodes(self, params, seeds, returns, steps, trace):
+        self._kernels.cartpole_episodes(params, seeds, self._sizes(), False, False, self.max_steps, returns, steps, trace)
 
 
-class AcrobotEvaluator(_CompactingEvaluator):
-    """Acrobot-v1 dynamics (numpy batch), capped at 200 steps by default."""
+class AcrobotEvaluator(_CompiledEvaluator):
+    """Acrobot-v1 dynamics (``AcrobotEnv``'s rk4, compiled), capped at 200 steps by default."""
 
-    def __init__(self, max_steps: int | None = None, compact: bool = True, exact: bool = False):
+    def __init__(self, max_steps: int | None = None):
         max_steps = ACROBOT_MAX_STEPS if max_steps is None else int(max_steps)
-        super().__init__(AcrobotBatch(exact=exact), "acrobot", 6, 3, max_steps, compact)
+        super().__init__("acrobot", 6, 3, True, max_steps)
+
+    def _episodes(self, params, seeds, returns, steps, trace):
+        # gymnasium's reset(seed=s): a float32 state and its observation computed in float32
+        # by numpy's cos/sin (not libm's, hence here rather than in the kernel)
+        s32 = self._kernels.seeded_uniform_rows(seeds, -0.1, 0.1, 4).astype(np.float32)
+        obs0 = np.empty((len(s32), 6))
+        obs0[:, 0:4:2] = np.cos(s32[:, :2])
+        obs0[:, 1:4:2] = np.sin(s32[:, :2])
+        obs0[:, 4:] = s32[:, 2:]
+        self._kernels.acrobot_episodes(
+            params, s32.astype(np.float64), obs0, self._sizes(), self.max_steps, returns, steps, trace
+        )
 
 
-class ContinuousCartPoleEvaluator(_CompactingEvaluator):
-    """ContinuousCartPole(Hard) on :class:`~imix_cli.envs.continuous_cartpole.ContinuousCartPoleBatch`.
+class ContinuousCartPoleEvaluator(_CompiledEvaluator):
+    """``imix/ContinuousCartPole(Hard)-v0`` (compiled): one output squashed by ``tanh`` into
+    the action range [-1, 1], force 10 N x a; the Hard variant's sparse reward gives the same return."""
 
-    One continuous output per member, squashed by ``tanh`` into the action range [-1, 1].
-    """
-
-    def __init__(self, hard: bool = False, max_steps: int | None = None, compact: bool = True):
+    def __init__(self, hard: bool = False, max_steps: int | None = None):
         max_steps = CARTPOLE_MAX_STEPS if max_steps is None else int(max_steps)
         name = "continuous_cartpole_hard" if hard else "continuous_cartpole"
-        super().__init__(ContinuousCartPoleBatch(sparse=hard, max_steps=max_steps), name, 4, 1, max_steps, compact)
-        self.discrete = False
+        super().__init__(name, 4, 1, False, max_steps)
+        self.hard = bool(hard)
+
+    def _episodes(self, params, seeds, returns, steps, trace):
+        self._kernels.cartpole_episodes(params, seeds, self._sizes(), True, self.hard, self.max_steps, returns, steps, trace)
 
 
 class GymEvaluator(BatchEvaluator):
@@ -323,30 +344,26 @@ def _route_mujoco_warnings(mujoco) -> None:
         mujoco.set_mju_user_warning(_mujoco_warning)
 
 
-def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, **kwargs) -> BatchEvaluator:
+def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN) -> BatchEvaluator:
     """Evaluator for ``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
     ``"continuous_cartpole_hard"`` or a gymnasium id (see the module docstring).
 
     ``hidden``: the policy's hidden layer sizes (``()``: linear), default the paper's (8, 8).
-    ``kwargs`` go to the built-in evaluators (``compact=False`` disables compaction;
-    ``exact=True`` makes acrobot bit-identical to gymnasium, ~25% slower).
     Raises ``ValueError`` for an unknown environment id, or a MuJoCo id without mujoco installed.
     """
     hidden = tuple(int(h) for h in hidden)
     key = str(env_name).lower()
     builtin = None
     if key == "cartpole":
-        builtin = CartPoleEvaluator(max_steps, **kwargs)
+        builtin = CartPoleEvaluator(max_steps)
     elif key == "acrobot":
-        builtin = AcrobotEvaluator(max_steps, **kwargs)
+        builtin = AcrobotEvaluator(max_steps)
     elif key in CONTINUOUS_ENVS:
-        builtin = ContinuousCartPoleEvaluator(CONTINUOUS_ENVS[key], max_steps, **kwargs)
+        builtin = ContinuousCartPoleEvaluator(CONTINUOUS_ENVS[key], max_steps)
     if builtin is not None:
         if hidden != HIDDEN:
-            builtin.hidden = hidden
+            builtin.hidden = hidden  # the compiled kernels read the layer sizes from it
         return builtin
-    if kwargs:
-        raise ValueError(f"options {sorted(kwargs)} only apply to the built-in environments, not {env_name!r}")
     try:
         gym.spec(env_name)
     except (gym.error.UnregisteredEnv, gym.error.DeprecatedEnv, gym.error.RegistrationError) as err:

@@ -22,35 +22,70 @@ max(0, 1 - p_old/p_new), and what it keeps is uniform in the leftover. An old
 sample lands in the overlap with probability lambda, a fresh one in the
 leftover with probability 1 - lambda: trying one of each in turn therefore
 feeds both parts in proportion to their volumes, and the union is uniform under
-p_new -- the new generation is distributed as p_new, yet only the rule-2
-samples (about (1 - lambda) N of them) must be evaluated. The fitness of a
-reused sample is already known.
+p_new -- one generation built this way from an independent sample of p_old is
+distributed as p_new, yet only the rule-2 samples (about (1 - lambda) N of them)
+must be evaluated. The fitness of a reused sample is already known. Whether a
+*chain* of such generations stays distributed as its distributions is another
+question, answered per variant below.
 
 Variants (``mix(..., variant=...)``)
 ------------------------------------
-``"paper"``   Algorithm 2: alternate rule 1 on the previous generation (in a
-              random order) and rule 2 on a fresh draw; stop as soon as the
-              generation is full; if the last step overfilled it, drop one
-              member at random; fill what is still missing with plain draws.
-``"eim"``     Algorithm 3 (extended IM): the same alternation over the K most
-              recent generations in turn, newest first, each tested against
-              the density of its own generation (the ``dist`` of its archive
-              entry), until full. A point present in several archive entries
-              (because it was itself reused) is taken at most once.
-``"sun2009"`` Sun et al. (2009): rule 1 on every sample of the previous
-              generation with acceptance min(1, (1 - alpha) p_new/p_old), then
-              rule 2 with acceptance max(alpha, 1 - p_old/p_new) until full;
-              alpha is the minimal refresh rate. With alpha = 0 the expected
-              reuse rate is exactly lambda.
+``"paper"``     Algorithm 2: alternate rule 1 on the previous generation (in a
+                random order) and rule 2 on a fresh draw; stop as soon as the
+                generation is full; if the last step overfilled it, drop one
+                member at random; fill what is still missing with plain draws.
+                Reuses 1.4-2.4 members fewer than lambda N at N = 50 (it fills with
+                fresh draws after N steps), and over-represents the overlap at very
+                small N (N = 2); unbiased over chains at N = 50 (tests).
+``"sun2009"``   Sun et al. (2009): rule 1 on every sample of the previous
+                generation with acceptance min(1, (1 - alpha) p_new/p_old), then
+                rule 2 with acceptance max(alpha, 1 - p_old/p_new) until full;
+                alpha is the minimal refresh rate. With alpha = 0 it takes a
+                Binomial(N, lambda) number of members from the overlap and the rest
+                from the leftover: exactly the law of N independent draws.
+``"eim"``       imix's multi-generation rule (``eim=true``): ``"sun2009"``'s step
+                from the previous generation, then rule-2 draws that land in an older
+                generation's exclusive region are swapped for unused old members of
+                that region (below). Exact over chains; reuses more than
+                ``"sun2009"``.
+``"eim_paper"`` the paper's Algorithm 3: Algorithm 2's alternation over the K most
+                recent generations in turn, newest first, each tested against the
+                density of its own generation, until full; a point present in several
+                archive entries is taken at most once (a departure from the paper and
+                the authors' code, which could take it twice). Kept for reproduction:
+                its generations are NOT distributed as their distribution over chains
+                of generations -- in a random walk of the search distribution
+                (lambda ~ 0.95, K = 3) their variance is 1.14 times the target, and in a
+                drift their mean runs ahead (tests/test_mixing.py).
 
-Which density to test an archived sample against
-------------------------------------------------
-A generation produced by mixing is, as a whole, distributed as its own
-search distribution, whatever mixture of reused and fresh members it holds.
-Rule 1 therefore tests every member of archive entry k against that entry's
-``dist`` -- for a member reused into entry k from an older generation too.
-(Testing such a member against the density it was first drawn from, instead,
-would mis-weight it; the test suite measures both choices.)
+Multi-generation mixing: why Algorithm 3 drifts and what ``"eim"`` does instead
+------------------------------------------------------------------------------
+Testing each archived generation against its own density treats it as a fresh,
+independent sample. It is not: generations share members, and a member of generation
+t-2 that is *not* in generation t-1 carries the information that rule 1 rejected it --
+it lies where p_{t-2} exceeds p_{t-1}. Re-testing it with a fresh uniform ignores that.
+
+Keep instead, for every archived member, the height y = u p(x) that decided its fate
+(``Generation.log_u``, drawn when the generation is first mixed from). Generation t-1 is
+N independent uniform points (x, y) under the graph of p_{t-1}. Its points under the new
+graph are kept (rule 1 with that height: Sun et al.'s step), a Binomial(N, lambda) count of
+uniform points of the overlap. The rest of generation t must be uniform points of the
+leftover L = {p_{t-1}(x) <= y < p_t(x)}: rule-2 draws, fresh (x, y) under p_t kept when
+above p_{t-1}. Such a draw may land in the region E_k of an older generation k: under
+p_k's graph and under no newer archived graph. The members of generation k in E_k were
+never taken by a newer generation (a newer generation takes every point of its
+predecessor under its own graph, and swaps only inside its own region), so they are
+independent uniform points of E_k; those also under p_t are uniform points of E_k and of
+the new graph -- the very cell the rule-2 draw landed in. Replacing a uniform point of a
+cell by another, independent uniform point of the same cell changes no law: the draw is
+swapped for an unused such member (chosen at random), and only draws that find no member
+left in their cell are evaluated. Each generation is then exactly N independent draws
+from p_t, over any chain of (exogenous) distributions, and a point is never taken twice.
+Heights are drawn when a generation is first mixed from (not carried from the mix that
+built it), so members do not stick longer than under ``"sun2009"``: carried heights kept
+CEM's population frozen under neutral selection (98 % reuse, sigma growing) in a trial.
+Like ``"sun2009"``, it needs rule-2 draws in proportion to 1/(1 - lambda): after
+200 draws per missing member the rest is filled with plain draws (never hit in practice).
 
 Everything is computed in log space: a Gaussian density underflows at d = 10^4
 while log p is an ordinary number. Rule 1 accepts when log u < log p_new -
@@ -77,7 +112,7 @@ from imix_cli.distributions import DiagonalGaussian, DiagonalLogRatio, FullGauss
 
 __all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "mix", "VARIANTS"]
 
-VARIANTS = ("paper", "eim", "sun2009")
+VARIANTS = ("paper", "sun2009", "eim", "eim_paper")
 
 # Sun et al.'s rule-2 loop accepts a fresh draw with probability ~(1 - lambda); when the two
 # distributions nearly coincide that can take very many draws. After this many candidate
@@ -106,6 +141,11 @@ class Generation:
         The distribution the generation is distributed as (the ``new_dist`` given to ``mix``).
     trials : int
         Number of rule-1/rule-2 steps taken (old samples tried).
+    log_u : (popsize,) float array or None
+        Each member's *height* under the graph of ``dist``, as log(y / p_dist(x)), a number in
+        (-inf, 0] (``"eim"`` only; see "Multi-generation mixing"). None until the generation
+        is first mixed from; drawn then and kept, because the older-generation steps of later
+        mixes must see the heights that decided which members went on.
     """
 
     samples: np.ndarray
@@ -113,6 +153,7 @@ class Generation:
     index: np.ndarray
     dist: object
     trials: int = 0
+    log_u: np.ndarray | None = None
 
     @property
     def fresh(self) -> np.ndarray:
@@ -223,8 +264,8 @@ class _Builder:
             return np.all(samples[rows] == self.samples[members], axis=1)
         return np.array([np.array_equal(samples[r], self.samples[m]) for r, m in zip(rows, members)], dtype=bool)
 
-    def add(self, rows: np.ndarray, source: int = 0, index=-1) -> None:
-        """Append the rows (2-D) of one source; ``index`` gives their rows in that archive entry."""
+    def add(self, rows: np.ndarray, source=0, index=-1) -> None:
+        """Append the rows (2-D); ``source``/``index``: their archive entry and row (scalars or arrays)."""
         n = rows.shape[0]
         members = slice(self.size, self.size + n)
         self.samples[members] = rows
@@ -322,12 +363,87 @@ def _sun2009(builder: _Builder, new_dist, old_dist, old_samples, alpha, rng) -> 
     return n_old
 
 
+def _heights(entry, rng) -> np.ndarray:
+    """An archive entry's persistent log-heights, drawn once (and kept on a Generation) if it has none.
+
+    A plain ``(dist, samples)`` pair cannot keep them: each call then treats it as a fresh,
+    independent sample of its ``dist`` (which is what such a pair usually is).
+    """
+    log_u = getattr(entry, "log_u", None)
+    if log_u is None:
+        log_u = _log_uniform(rng, _unpack_entry(entry)[1].shape[0])
+        if isinstance(entry, Generation):
+            entry.log_u = log_u
+    return log_u
+
+
+def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> int:
+    """The ``"eim"`` rule: Sun et al.'s step from the previous generation, then the leftover filled by
+    rule 2, with rule-2 draws that land in an older generation's exclusive region swapped for an
+    unused old member of the same region (module docstring, "Multi-generation mixing").
+    Returns the number of rule-2 candidates drawn.
+    """
+    entries = list(archive[:depth])
+    dists = [_unpack_entry(e)[0] for e in entries]
+    xs = [_unpack_entry(e)[1] for e in entries]
+    heights = [_heights(e, rng) for e in entries]
+
+    # The previous generation: every member below the new graph is kept (count ~ Binomial(N, lambda)).
+    ratio_1 = _log_ratio(new_dist, dists[0])
+    r_1 = ratio_1.of_rows(xs[0], np.arange(xs[0].shape[0]))
+    kept = np.flatnonzero(heights[0] < r_1)
+    if kept.size > builder.popsize:  # only possible if the old generation was larger
+        kept = np.sort(rng.choice(kept, builder.popsize, replace=False))
+    builder.add(xs[0][kept], 1, kept)
+    if builder.missing == 0:
+        return 0
+
+    # Older generations: the members that no newer archived generation's region covers, and that
+    # lie below the new graph, are the substitutes (in a random order) for rule-2 draws of their region.
+    pools = []
+    for k in range(1, len(entries)):
+        rows = np.arange(xs[k].shape[0])
+        for j in range(k):  # drop rows covered by newer generation j
+            rows = rows[heights[k][rows] >= _log_ratio(dists[j], dists[k]).of_rows(xs[k], rows)]
+        r_new = _log_ratio(new_dist, dists[k]).of_rows(xs[k], rows)
+        below = heights[k][rows] < r_new
+        order = rng.permutation(int(np.count_nonzero(below)))
+        pools.append(list(rows[below][order]))
+
+    max_draws = _SUN2009_MAX_TRIALS_PER_MEMBER * builder.missing
+    draws = 0
+    while builder.missing > 0 and draws < max_draws:
+        n = builder.missing
+        candidates, cand_r_1 = ratio_1.sample(n, rng)
+        log_u = _log_uniform(rng, n)
+        leftover = np.flatnonzero(log_u >= -cand_r_1)[: builder.missing]  # rule 2: above the previous graph
+        draws += n
+        if leftover.size == 0:
+            continue
+        # Newest older generation whose region holds each candidate (-1: none).
+        region = np.full(leftover.size, -1)
+        for k in range(1, len(entries)):
+            open_rows = np.flatnonzero(region < 0)
+            if open_rows.size == 0:
+                break
+            rows = leftover[open_rows]
+            inside = log_u[rows] < -_log_ratio(new_dist, dists[k]).of_rows(candidates, rows)
+            region[open_rows[inside]] = k
+        for pos, k in zip(leftover.tolist(), region.tolist()):
+            if k > 0 and pools[k - 1]:
+                row = pools[k - 1].pop()
+                builder.add(xs[k][row : row + 1], k + 1, row)
+            else:
+                builder.add(candidates[pos : pos + 1])
+    return draws
+
+
 def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str = "paper", alpha: float = 0.0, eim_generations: int = 3) -> Generation:
     """Build a generation of ``popsize`` members distributed as ``new_dist``, reusing archived samples.
 
     Parameters
     ----------
-    new_dist : DiagonalGaussian or FullGaussian (anything with ``sample_with_log_prob`` and ``log_prob``)
+    new_dist : DiagonalGaussian or FullGaussian, or any object with ``sample(n, rng)``, ``log_prob(x)``, ``dim`` (and optionally ``dtype``)
         The search distribution of the new generation.
     archive : list of ``(dist, samples[n, d])`` pairs or :class:`Generation` objects
         Earlier generations, newest first; ``dist`` is the distribution that generation is distributed as.
@@ -336,9 +452,11 @@ def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str 
         Size N of the new generation.
     rng : numpy.random.Generator
         Source of all randomness (acceptance tests, fresh draws, orderings).
-    variant : {"paper", "eim", "sun2009"}
-        See the module docstring. ``"paper"`` uses ``archive[0]`` only, ``"eim"`` up to
-        ``eim_generations`` entries, ``"sun2009"`` ``archive[0]`` only.
+    variant : {"paper", "sun2009", "eim", "eim_paper"}
+        See the module docstring. ``"paper"`` and ``"sun2009"`` use ``archive[0]`` only,
+        ``"eim"`` and ``"eim_paper"`` up to ``eim_generations`` entries. ``"eim"`` keeps each
+        Generation's heights in it (``log_u``): pass the same Generation objects again; a
+        plain ``(dist, samples)`` pair is taken as a fresh independent sample at every call.
     alpha : float in [0, 1)
         Minimal refresh rate of ``"sun2009"`` (ignored by the other variants).
     eim_generations : int >= 1
@@ -369,6 +487,10 @@ def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str 
     if entries and variant == "sun2009":
         old_dist, old_samples = entries[0]
         trials = _sun2009(builder, new_dist, old_dist, old_samples, alpha, rng)
+    elif variant == "eim":
+        if archive:
+            trials = _multi_generation(builder, new_dist, list(archive), eim_generations, rng)
+        return builder.finish(new_dist, rng, trials)
     elif entries:
         depth = 1 if variant == "paper" else eim_generations
         for number, (old_dist, old_samples) in enumerate(entries[:depth], start=1):

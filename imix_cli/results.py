@@ -34,6 +34,7 @@ COLUMNS = (
     "reused",  # members taken from earlier generations
     "reused_im",  # ... of which from the previous generation
     "reused_eim",  # ... of which from older generations
+    "reevaluated",  # reused members whose return was measured again this generation (reeval_age / reeval_prob)
     "popsize",  # members in the generation
     "sigma_mean",  # mean standard deviation of the search distribution
     "nonfinite",  # episodes of the generation whose return was NaN or inf (ranked last by the ES)
@@ -42,7 +43,7 @@ COLUMNS = (
 
 MIXING_NAMES = ("none", "im", "eim")
 
-_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "popsize", "nonfinite")
+_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite")
 _FLOAT_COLUMNS = ("mean_score", "best_score", "sigma_mean", "wall_time")
 
 
@@ -52,6 +53,15 @@ class CorruptResultError(ValueError):
 
 def seed_csv_path(run_dir, seed: int) -> Path:
     return Path(run_dir) / f"seed_{seed}.csv"
+
+
+def partial_csv_path(run_dir, seed: int) -> Path:
+    """``seed_<k>.partial.csv``: the rows of an unfinished seed as of its last checkpoint (same columns).
+
+    Written atomically at each checkpoint and removed once ``seed_<k>.csv`` exists, so that
+    ``imix plot`` and ``imix status`` can show a running experiment without touching the run.
+    """
+    return Path(run_dir) / f"seed_{seed}.partial.csv"
 
 
 def run_dir_name(algo: str, env: str, mixing: str, overrides: str = "") -> str:

@@ -24,6 +24,7 @@ another in each worker, one CSV row per finished episode, no mid-run checkpoint.
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import pickle
@@ -38,13 +39,15 @@ import numpy as np
 
 from imix_cli.algorithms import make_es
 from imix_cli.config import RunSpec, identity_of
-from imix_cli.mixing import Generation, mix
+from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.policies import ObsNormalizer
+from imix_cli.policy_files import write_seed_policies
 from imix_cli.results import (
     CorruptResultError,
     atomic_write_bytes,
     atomic_write_text,
+    partial_csv_path,
     read_run_csv,
     rows_to_frame,
     seed_csv_path,
@@ -66,12 +69,15 @@ class SeedState:
     es: object
     sample_rng: np.random.Generator  # sampling and mixing
     episode_rng: np.random.Generator  # one episode seed per fresh member
-    archive: list = field(default_factory=list)  # Generation objects, newest first
-    archive_returns: list = field(default_factory=list)  # the returns of their members
+    archive: Archive = field(default_factory=Archive)  # earlier generations, their returns and ages
     rows: list = field(default_factory=list)
     evaluations: int = 0
     env_steps: int = 0
     elapsed: float = 0.0  # wall seconds spent on this seed before the current process took it
+    # The best-ever member (a finite return, fresh or reused) and its return, for policy_<k>_best.npz:
+    # a plain (d,) float64 array and a float so that checkpoints stay data. None / -inf until one exists.
+    best_params: np.ndarray | None = None
+    best_return: float = -np.inf
     obs_norm: object = None  # policy.obs_norm: this seed's ObsNormalizer (imix_cli.policies)
 
     @property
@@ -83,53 +89,40 @@ def new_seed_state(spec: RunSpec, seed: int, dim: int) -> SeedState:
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
     es = make_es(
         spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,
-        weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form,
+        weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form, **spec.algo_options,
     )  # fmt: skip
     return SeedState(seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq))
 
 
-def _archive_depth(spec: RunSpec) -> int:
-    if spec.variant is None:
-        return 0
-    return spec.eim_generations if spec.variant == "eim" else 1
+def mixing_settings(spec: RunSpec) -> MixingSettings:
+    return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob)
 
 
 def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
-    """Run one generation of every seed in ``states``, with one batched rollout for all fresh members."""
-    plans = []
+    """Run one generation of every seed in ``states``, with one batched rollout for all members to evaluate."""
+    mixing = mixing_settings(spec)
+    # policy.obs_norm: while a seed's statistics still change (its warm-up), stored returns would
+    # belong to another policy function, so its generation neither mixes nor enters the archive.
+    warming = []
     for st in states:
-        dist = st.es.distribution
-        # policy.obs_norm: while its statistics still change, stored returns would belong to
-        # another policy function, so the generation neither mixes nor enters the archive.
         if spec.obs_norm and st.obs_norm is None:
             st.obs_norm = ObsNormalizer(evaluator.obs_dim, spec.obs_norm_warmup)
-        honest = st.obs_norm is None or st.obs_norm.frozen
-        if spec.variant is None or not st.archive or not honest:
-            samples = st.es.ask(st.sample_rng)
-            g = Generation(samples, np.zeros(spec.popsize, np.int64), np.full(spec.popsize, -1, np.int64), dist)
-        else:
-            g = mix(dist, st.archive, spec.popsize, st.sample_rng, variant=spec.variant, alpha=spec.im_alpha, eim_generations=spec.eim_generations)
-        fresh = np.flatnonzero(g.source == 0)
-        episode_seeds = st.episode_rng.integers(0, np.iinfo(np.int64).max, size=fresh.size, dtype=np.int64)
-        params = g.samples[fresh] if st.obs_norm is None else st.obs_norm.fold(g.samples[fresh], evaluator.out_dim, evaluator.hidden)
-        plans.append((g, fresh, episode_seeds, params, honest))
+        warming.append(st.obs_norm is not None and not st.obs_norm.frozen)
+    settings = [dataclasses.replace(mixing, variant=None) if w else mixing for w in warming]
+    plans = [plan_generation(st.es, st.archive, s, st.sample_rng) for st, s in zip(states, settings)]
+    episode_seeds = [st.episode_rng.integers(0, np.iinfo(np.int64).max, size=p.evaluate.size, dtype=np.int64) for st, p in zip(states, plans)]
     returns, steps = evaluator.evaluate(
-        np.concatenate([params for *_, params, _ in plans]),
-        np.concatenate([seeds for _, _, seeds, *_ in plans]),
+        np.concatenate([raw_obs_params(st, p.generation.samples[p.evaluate], evaluator) for st, p in zip(states, plans)]),
+        np.concatenate(episode_seeds),
     )
     offset = 0
-    for st, (g, fresh, _, _, honest) in zip(states, plans):
-        n = fresh.size
-        if not honest:  # the warm-up: the statistics absorb this generation's observations
+    for st, plan, s, warm in zip(states, plans, settings, warming):
+        g, n = plan.generation, plan.evaluate.size
+        dist = st.es.distribution  # the distribution g was drawn from, before tell moves it
+        fitness = finish_generation(st.es, st.archive, s, plan, returns[offset : offset + n])
+        if warm:  # the warm-up: the statistics absorb this generation's observations (after its best is kept)
             sums, sumsqs = evaluator.last_obs_stats
-            st.obs_norm.add(sums[offset : offset + n], sumsqs[offset : offset + n], steps[offset : offset + n])
-            st.obs_norm.end_generation()
-        fitness = np.empty(spec.popsize)
-        fitness[fresh] = returns[offset : offset + n]
-        for k, stored in enumerate(st.archive_returns, start=1):  # reused members keep their stored return
-            from_k = g.source == k
-            if from_k.any():
-                fitness[from_k] = stored[g.index[from_k]]
+            observed = (sums[offset : offset + n], sumsqs[offset : offset + n], steps[offset : offset + n])
         st.evaluations += n
         st.env_steps += int(steps[offset : offset + n].sum())
         offset += n
@@ -149,17 +142,27 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
                 "reused": g.reused,
                 "reused_im": g.reused_from_previous,
                 "reused_eim": g.reused_from_older,
+                "reevaluated": plan.reevaluated,
                 "popsize": spec.popsize,
-                "sigma_mean": g.dist.sigma_mean,
+                "sigma_mean": dist.sigma_mean,
                 "nonfinite": int(np.count_nonzero(~finite)),
                 "wall_time": 0.0,  # filled in by the caller, which owns the clock
             }
         )
-        st.es.tell(g.samples, fitness)
-        depth = _archive_depth(spec)
-        if depth and honest:
-            st.archive = [g, *st.archive][:depth]
-            st.archive_returns = [fitness, *st.archive_returns][:depth]
+        if finite.any() and np.max(fitness[finite]) > st.best_return:  # strictly better: the first best is kept
+            top = np.flatnonzero(finite)[np.argmax(fitness[finite])]
+            # with policy.obs_norm, as the policy on raw observations it was evaluated as
+            st.best_params, st.best_return = raw_obs_params(st, g.samples[top : top + 1], evaluator)[0], float(fitness[top])
+        if warm:
+            st.obs_norm.add(*observed)
+            st.obs_norm.end_generation()
+
+
+def raw_obs_params(st: SeedState, params: np.ndarray, evaluator) -> np.ndarray:
+    """``params`` (B, d) as a policy on raw observations: the seed's normaliser folded in, if any."""
+    if st.obs_norm is None:
+        return np.array(params, dtype=np.float64)
+    return st.obs_norm.fold(params, evaluator.out_dim, evaluator.hidden)
 
 
 # ----------------------------------------------------------------------------- files of a run
@@ -269,7 +272,7 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     progress = progress or _queue_progress
     if spec.algo == "ddpg":
         return run_ddpg_seeds(spec, seeds, progress)
-    evaluator = build_evaluator(spec)  # local, or a process pool / Ray actors (imix_cli.parallel_evaluation)
+    evaluator = build_evaluator(spec)
     identity = spec.identity()
     run_dir = spec.run_dir
     states = []
@@ -286,18 +289,23 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
         for st in active:
             st.rows[-1]["wall_time"] = st.elapsed + now
             if st.generation == spec.generations:
+                write_seed_policies(spec, st.seed, evaluator, raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0], st.best_params, st.best_return, st.generation)
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
                 checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+                partial_csv_path(run_dir, st.seed).unlink(missing_ok=True)
             elif spec.checkpoint_every and st.generation % spec.checkpoint_every == 0:
                 elapsed, st.elapsed = st.elapsed, st.elapsed + now
                 save_checkpoint(run_dir, st, identity)
+                write_run_csv(partial_csv_path(run_dir, st.seed), rows_to_frame(st.rows))  # live view (imix status/plot)
                 st.elapsed = elapsed
         progress(len(active))
         active = [st for st in active if st.generation < spec.generations]
     for st in states:  # seeds resumed from a checkpoint taken after their last generation
         if not seed_csv_path(run_dir, st.seed).exists():
+            write_seed_policies(spec, st.seed, evaluator, raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0], st.best_params, st.best_return, st.generation)
             write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
             checkpoint_path(run_dir, st.seed).unlink(missing_ok=True)
+            partial_csv_path(run_dir, st.seed).unlink(missing_ok=True)
     return list(seeds)
 
 
@@ -335,6 +343,7 @@ def ddpg_row(spec: RunSpec, seed: int, episode, wall_time: float) -> dict:
         "reused": 0,
         "reused_im": 0,
         "reused_eim": 0,
+        "reevaluated": 0,
         "popsize": 1,
         "sigma_mean": float(spec.ddpg["ou_sigma"]),
         "nonfinite": 0 if finite else 1,
@@ -426,33 +435,95 @@ def _progress_bar(spec: RunSpec, total: int):
 
 
 # ----------------------------------------------------------------------------- the summary
-def summarize(spec: RunSpec) -> dict:
-    """Final mean score +- 68 % CI over seeds, total evaluations and env steps, reuse %, non-finite returns."""
+#: Config keys that only say how (and whether) mixing is done: runs that differ in these alone are
+#: "the same config with and without mixing", compared in the summary.
+MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "mixing")
+
+
+def summarize(spec: RunSpec, run_dir: Path | None = None) -> dict:
+    """Final mean score +- 68 % CI over seeds, evaluations and env steps (total over seeds and per
+    seed), reuse %, non-finite returns -- of ``spec``'s run folder, or of ``run_dir`` (a sibling)."""
+    run_dir = spec.run_dir if run_dir is None else Path(run_dir)
     finals, evaluations, env_steps, reused, members, nonfinite = [], 0, 0, 0, 0, 0
-    for seed in range(spec.seeds):
-        frame = read_run_csv(seed_csv_path(spec.run_dir, seed))
+    mixing = spec.mixing
+    paths = [seed_csv_path(run_dir, seed) for seed in range(spec.seeds)]
+    if run_dir != spec.run_dir:  # a sibling: whatever seeds it has finished
+        paths = sorted(run_dir.glob("seed_*[0-9].csv"))
+    for path in paths:
+        frame = read_run_csv(path)
         finals.append(float(frame["mean_score"].iloc[-1]))
         evaluations += int(frame["evaluations"].iloc[-1])
         env_steps += int(frame["env_steps"].iloc[-1])
         reused += int(frame["reused"].sum())
         members += int(frame["popsize"].sum())
         nonfinite += int(frame["nonfinite"].sum())
+        mixing = str(frame["mixing"].iloc[0])
     mean, half_width, _ = mean_ci(finals, level=0.68)
+    n = max(len(paths), 1)
     return {
-        "run": spec.run_name,
-        "seeds": spec.seeds,
+        "run": run_dir.name,
+        "mixing": mixing,
+        "seeds": len(paths),
         "final_mean_score": mean,
         "ci68": half_width,
-        "evaluations": evaluations,
-        "env_steps": env_steps,
+        "evaluations": evaluations,  # total over seeds
+        "evaluations_per_seed": evaluations / n,
+        "env_steps": env_steps,  # total over seeds
+        "env_steps_per_seed": env_steps / n,
         "reuse_percent": 100.0 * reused / members if members else 0.0,
         "nonfinite_returns": nonfinite,
     }
 
 
+def counterpart_runs(spec: RunSpec) -> list[Path]:
+    """Sibling run folders of the same experiment holding the same config with other mixing settings
+    (and at least one finished seed), e.g. the ``-none`` run of an ``-eim`` run."""
+    import yaml
+
+    mine = {k: v for k, v in spec.identity().items() if k not in MIXING_KEYS}
+    found = []
+    for other in sorted(spec.run_dir.parent.iterdir()):
+        if other == spec.run_dir or not (other / "config.yaml").is_file() or not any(other.glob("seed_*[0-9].csv")):
+            continue
+        try:
+            config = yaml.safe_load((other / "config.yaml").read_text())
+        except Exception:  # an unreadable sibling is simply not compared
+            continue
+        if isinstance(config, dict) and {k: v for k, v in identity_of(config).items() if k not in MIXING_KEYS} == mine:
+            found.append(other)
+    return found
+
+
 def format_summary(spec: RunSpec, s: dict) -> str:
-    header = f"{'run':<32} {'seeds':>5} {'final mean score (68% CI)':>26} {'evaluations':>12} {'env steps':>12} {'reuse':>7} {'non-finite':>10}"
-    score = f"{s['final_mean_score']:.2f} ± {s['ci68']:.2f}"
-    line = f"{s['run']:<32} {s['seeds']:>5} {score:>26} {s['evaluations']:>12,} {s['env_steps']:>12,} {s['reuse_percent']:>6.1f}% {s['nonfinite_returns']:>10}"
-    where = f"results: {spec.run_dir}/seed_*.csv  ({s['seeds_run']} seed(s) run now, {s['wall_time']:.1f} s)" if "seeds_run" in s else ""
-    return "\n".join([header, line, where]).rstrip()
+    """The summary table: this run, then any sibling with the same config and other mixing, and the reduction."""
+    rows = [s]
+    for other in counterpart_runs(spec) if spec.algo != "ddpg" else []:
+        try:
+            rows.append(summarize(spec, other))
+        except CorruptResultError:
+            continue
+    width = max(32, *(len(r["run"]) for r in rows))
+    header = (
+        f"{'run':<{width}} {'seeds':>5} {'final mean score (68% CI)':>26} {'episodes/seed':>14} "
+        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10}"
+    )
+    lines = [header]
+    for r in rows:
+        score = f"{r['final_mean_score']:.2f}" + (f" ± {r['ci68']:.2f}" if np.isfinite(r["ci68"]) else "")
+        lines.append(
+            f"{r['run']:<{width}} {r['seeds']:>5} {score:>26} {r['evaluations_per_seed']:>14,.0f} "
+            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10}"
+        )
+    without = [r for r in rows if r["mixing"] == "none"]
+    with_mixing = [r for r in rows if r["mixing"] != "none"]
+    for base in without[:1]:
+        for r in with_mixing:
+            if r["evaluations_per_seed"]:
+                lines.append(
+                    f"  {r['run']} vs {base['run']}: {base['evaluations_per_seed'] / r['evaluations_per_seed']:.2f}x fewer "
+                    f"episodes for the same {spec.generations} generations (final mean score {r['final_mean_score']:.2f} vs "
+                    f"{base['final_mean_score']:.2f}; sample efficiency to a threshold: imix plot)"
+                )
+    if "seeds_run" in s:
+        lines.append(f"results: {spec.run_dir}/seed_*.csv  ({s['seeds_run']} seed(s) run now, {s['wall_time']:.1f} s)")
+    return "\n".join(lines)

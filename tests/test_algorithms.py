@@ -4,8 +4,7 @@
 * Optimisation on sphere / rotated ellipsoid / Rastrigin (maximising -f, weight_decay=0):
   every threshold below is stated with its starting value and budget and was chosen with
   a margin of >= 2x over the worst of 5 seeds observed when writing the test.
-* CMA-ES: pycma driven with our own samples equals pycma's own ask/tell loop, and
-  far-away (reused) members are neither clipped nor re-weighted.
+* CMA-ES against pycma, ties and checkpoints: tests/test_cmaes.py.
 
 The test functions live in tests/objectives.py.
 """
@@ -13,9 +12,7 @@ The test functions live in tests/objectives.py.
 from __future__ import annotations
 
 import pickle
-import warnings
 
-import cma
 import numpy as np
 import pytest
 from objectives import RotatedEllipsoid, rastrigin, sphere
@@ -134,7 +131,7 @@ def test_weight_decay_forms_run(name):
 
 
 def test_two_rows():
-    """The base class accepts n >= 2; pycma's CMA-ES needs 3 and says so."""
+    """The base class accepts n >= 2; CMA-ES needs 3 (as pycma) and says so."""
     rng = np.random.default_rng(0)
     for name in ("openes", "snes", "cem"):
         es = build(name)
@@ -218,132 +215,3 @@ def test_cem_extra_variance_schedule():
         expected = 1e-5 + (0.25 - 1e-5) * 0.95**t
         np.testing.assert_allclose(es.distribution.std**2, expected, rtol=1e-12)
         np.testing.assert_array_equal(es.mean, samples[np.argmax(fitness)])
-
-
-# --------------------------------------------------------------------------- CMA-ES / pycma
-class _FixedNormals:
-    """A pycma ``randn`` that hands out prescribed standard-normal vectors."""
-
-    def __init__(self, z):
-        self.z = np.asarray(z, dtype=float)
-
-    def __call__(self, n, d):
-        assert (n, d) == self.z.shape
-        return self.z.copy()
-
-
-def _reference_pycma(dim, popsize, x0, sigma, randn):
-    """pycma configured as CMAES configures it, but sampling by itself."""
-    opts = dict(popsize=popsize, verbose=-9, verb_disp=0, verb_log=0, seed=np.nan, randn=randn,
-                CMA_mirrors=0, updatecovwait=0)
-    return cma.CMAEvolutionStrategy(x0, sigma, opts)
-
-
-def _assert_same_pycma_state(ours: cma.CMAEvolutionStrategy, ref: cma.CMAEvolutionStrategy, rtol=1e-10):
-    np.testing.assert_allclose(ours.mean, ref.mean, rtol=rtol, atol=1e-14)
-    np.testing.assert_allclose(ours.sigma, ref.sigma, rtol=rtol)
-    np.testing.assert_allclose(ours.sm.C, ref.sm.C, rtol=rtol, atol=1e-14)
-    np.testing.assert_allclose(ours.pc, ref.pc, rtol=rtol, atol=1e-14)
-    np.testing.assert_allclose(ours.adapt_sigma.ps, ref.adapt_sigma.ps, rtol=rtol, atol=1e-14)
-    assert ours.countiter == ref.countiter
-
-
-def test_cmaes_equals_pycma_own_ask_tell_loop():
-    """Same samples, same ranking => our ask-free driving of pycma equals pycma's own loop."""
-    dim, popsize = 10, 16
-    f = RotatedEllipsoid(dim, cond=1e2, seed=3)
-    gen = np.random.default_rng(0)
-    ref = _reference_pycma(dim, popsize, np.ones(dim), 0.3, lambda n, d: gen.standard_normal((n, d)))
-    ours = CMAES(dim, popsize=popsize, sigma=0.3, weight_decay=0.0, mean=np.ones(dim))
-    for _ in range(60):
-        samples = np.array(ref.ask())
-        ref.tell(list(samples), f(samples).tolist())
-        ours.tell(samples, -f(samples))
-        _assert_same_pycma_state(ours.pycma, ref)
-    assert f(ours.mean)[0] < 1e-2 * f(np.ones(dim))[0]  # and it did optimise
-
-
-def test_cmaes_distribution_is_what_pycma_ask_samples():
-    """pycma's ask maps z to mean + A z. With z = e_1..e_d it returns the columns of A,
-    so Y^T Y = A A^T must equal our distribution's covariance (here after C has adapted)."""
-    dim = 8
-    es = CMAES(dim, popsize=20, weight_decay=0.0, mean=np.ones(dim))
-    run_generations(es, np.random.default_rng(1), 80, RotatedEllipsoid(dim, cond=1e3, seed=2))
-    pycma_copy = pickle.loads(pickle.dumps(es.pycma))
-    pycma_copy.sm.randn = _FixedNormals(np.eye(dim))
-    y = np.array(pycma_copy.ask(number=dim)) - es.mean
-    cov = es.distribution.cov
-    np.testing.assert_allclose(y.T @ y, cov, rtol=1e-9, atol=1e-12 * np.abs(cov).max())
-    assert np.linalg.cond(cov) > 30  # C really adapted (it is not sigma^2 I)
-
-
-def test_cmaes_reused_far_members_are_not_clipped():
-    """Far-away (but legitimate) members enter pycma's update unchanged.
-
-    Reference: make pycma's own ask return exactly the population (far members included)
-    through its randn; pycma never repairs solutions it produced itself. Our tell of the
-    same population must give the same state. Counter-check: pycma's default
-    check_points=None on the same, unknown, points clips them and changes the mean.
-    """
-    dim, popsize = 10, 20
-    es = CMAES(dim, popsize=popsize, weight_decay=0.0, mean=np.ones(dim))
-    run_generations(es, np.random.default_rng(4), 10)
-    rng = np.random.default_rng(5)
-    dist = es.distribution
-    population = dist.sample(popsize, rng)
-    # 4 members at Mahalanobis distance 4 x the clipping radius sqrt(d) + 2d/(d+2)
-    radius = np.sqrt(dim) + 2 * dim / (dim + 2)
-    directions = rng.standard_normal((4, dim))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    population[:4] = dist.mean + 4 * radius * directions @ dist.chol.T
-    fitness = -sphere(population)
-    fitness[:4] = fitness.max() + np.arange(4, 0, -1)  # the far members rank best
-
-    # pycma produces this very population through ask (z = A^-1 (x - mean), up to round-off)
-    ref = pickle.loads(pickle.dumps(es.pycma))
-    scaling = np.broadcast_to(np.asarray(ref.sigma_vec.scaling, dtype=float), (dim,))
-    a = ref.sigma * scaling[:, None] * (ref.sm.B * ref.sm.D)
-    ref.sm.randn = _FixedNormals(np.linalg.solve(a, (population - ref.mean).T).T)
-    asked = np.array(ref.ask())
-    np.testing.assert_allclose(asked, population, rtol=1e-12, atol=1e-12)
-    counterfactual = pickle.loads(pickle.dumps(es))
-    given = asked.copy()
-
-    ref.tell(list(asked), (-fitness).tolist())
-    es.tell(given, fitness)
-    np.testing.assert_array_equal(given, asked)  # our input is not modified either
-    _assert_same_pycma_state(es.pycma, ref)
-
-    # the new mean is the weighted recombination of the *unclipped* best mu members
-    mu_weights = np.asarray(es.pycma.sp.weights.positive_weights)
-    best = asked[np.argsort(-fitness, kind="stable")[: len(mu_weights)]]
-    np.testing.assert_allclose(es.mean, mu_weights @ best, rtol=1e-12, atol=1e-12)
-
-    # counter-check: pycma's default on points it does not know clips them
-    counterfactual._emulate_ask(popsize)
-    counterfactual.pycma.tell(asked.copy(), (-fitness).tolist())  # check_points=None
-    assert np.linalg.norm(counterfactual.pycma.mean - es.mean) > 0.1 * np.linalg.norm(es.mean - dist.mean)
-
-
-def test_cmaes_leaves_global_rng_and_warnings_alone():
-    """pycma must not reseed or draw from numpy's global RNG (its randn raises if called),
-    and an ordinary run -- including odd population sizes -- emits no warnings."""
-    np.random.seed(123)
-    before = np.random.get_state()[1].copy()
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        es = CMAES(6, popsize=12, weight_decay=0.05)
-        rng = np.random.default_rng(0)
-        run_generations(es, rng, 5)
-        for n in (3, 8, 20):
-            samples = es.distribution.sample(n, rng)
-            es.tell(samples, -sphere(samples))
-    np.testing.assert_array_equal(np.random.get_state()[1], before)
-    assert es.pycma.sp.popsize == 12  # the temporary parameters for n < mu were restored
-
-
-def test_cmaes_rejects_pinned_options():
-    with pytest.raises(ValueError, match="pins"):
-        CMAES(5, cma_options={"CMA_mirrors": 1})
-    es = CMAES(5, cma_options={"CMA_active": False})  # other options pass through
-    assert not es.pycma.opts["CMA_active"]

@@ -2,6 +2,7 @@
 arguments give one line and exit status 2. (No timings are asserted: speed is measured by
 `imix bench` itself, on a machine of the user's choosing.)"""
 
+import sys
 import tempfile
 
 import pytest
@@ -87,3 +88,34 @@ def test_help(capsys):
     assert cli_main(["bench", "--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("usage: imix bench") and all(s in out for s in ("rollouts", "mixing", "memory", "grid"))
+
+
+def test_peers_without_the_extra_say_how_to_install_and_exit_0(capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "evosax", None)  # import evosax -> ImportError
+    assert cli_main(["bench", "peers", "--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "pip install 'imix-cli[peers]'" in out and "evosax" in out and "|" not in out  # no table
+
+
+@pytest.mark.slow
+def test_peers_rows_and_columns(capsys, tmp_path, monkeypatch):
+    pytest.importorskip("evosax")
+    pytest.importorskip("gymnax")
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    assert cli_main(["bench", "peers", "--seeds", "1", "--generations", "2", "--envs", "cartpole"]) == 0
+    tables = _tables(capsys.readouterr().out)
+    header, rows = _table(tables, "Peers")
+    assert header == ["run", "env", "seeds", "generations", "wall (s)", "of which JAX compile (s)", "env steps",
+                      "final mean score"]  # fmt: skip
+    assert [r[0] for r in rows] == ["evosax SNES + gymnax", "evosax Open_ES + gymnax", "imix run algo=snes eim=true",
+                                    "imix run algo=snes eim=false"]  # fmt: skip
+    steps = [int(r[6].replace(",", "")) for r in rows]
+    assert all(r[1:4] == ["cartpole", "1", "2"] for r in rows)
+    # no mixing in the first generation: 50 episodes each; the peers' episodes count their own steps only
+    assert all(50 <= s < 50 * 200 for s in steps) and rows[0][5] and not rows[2][5]  # early episodes are short
+    header, rows = _table(tables, "Ratios")
+    assert header == ["env", "comparison", "× faster (wall)", "× fewer env steps"]
+    assert [r[1] for r in rows] == ["imix SNES + EIM vs evosax SNES + gymnax", "imix SNES + EIM vs evosax Open_ES + gymnax",
+                                    "imix SNES + EIM vs imix run algo=snes eim=false"]  # fmt: skip
+    assert all(float(r[2]) > 0 and float(r[3]) > 0 for r in rows)
+    assert not any(tmp_path.iterdir())

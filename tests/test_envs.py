@@ -1,14 +1,15 @@
-"""Batched environments and evaluator: equivalence with gymnasium, batch independence, determinism."""
+"""Compiled environments and evaluator: equivalence with gymnasium (directly: there is no other
+implementation to compare with), batch independence, determinism."""
 
 from __future__ import annotations
+
+import math
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
-from imix_cli.envs import seeded_uniform
-from imix_cli.envs.acrobot import AcrobotBatch, dsdt, rk4_step
-from imix_cli.envs.cartpole import CartPoleBatch
+from imix_cli.envs import kernels, seeded_uniform
 from imix_cli.evaluation import make_evaluator
 from imix_cli.policies import BatchPolicy, act, forward, num_params
 
@@ -39,6 +40,27 @@ def acrobot_params(rng, n_random=8, n_good=12):
     """Random members (mostly 200 steps) and noisy swing-up pumpers (terminate in ~70-130 steps)."""
     good = linear_mlp([0, 0, 0, 0, 0, 1], [-1, 0, 1]) + 0.05 * rng.standard_normal((n_good, 155))
     return np.vstack([2 * rng.standard_normal((n_random, 155)), good])
+
+
+def reference_outputs(p, obs, sizes):
+    """The MLP in plain Python floats (math.tanh, sums in layer order): what the kernels compute."""
+    x, k = [float(v) for v in obs], 0
+    for layer, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+        y = []
+        for j in range(n_out):
+            acc = 0.0
+            for i in range(n_in):
+                acc += float(p[k + i * n_out + j]) * x[i]
+            acc = acc + float(p[k + n_in * n_out + j])
+            y.append(math.tanh(acc) if layer < len(sizes) - 2 else acc)
+        k += n_in * n_out + n_out
+        x = y
+    return x
+
+
+def reference_action(p, obs, sizes):
+    y = reference_outputs(p, obs, sizes)
+    return max(range(len(y)), key=lambda j: (y[j], -j))  # argmax, ties to the lowest index
 
 
 def random_acrobot_states(rng, n):
@@ -104,32 +126,50 @@ def test_seeded_uniform_matches_numpy():
     )
 
 
+# ---------------------------------------------------------------------------------- policy (compiled)
+@pytest.mark.parametrize("sizes", [(4, 8, 8, 2), (6, 8, 8, 3), (4, 8, 8, 1), (3, 5, 2), (4, 16, 7, 9, 2)])
+def test_compiled_mlp_is_the_documented_layout(sizes):
+    """kernels.mlp_forward == the flat layout of imix_cli.policies, evaluated in plain Python,
+    bit for bit (any layer sizes); and to round-off the numpy BatchPolicy of the generic path."""
+    rng = np.random.default_rng(9)
+    sizes_arr = np.array(sizes, dtype=np.int64)
+    d = num_params(sizes[0], sizes[-1], sizes[1:-1])
+    for _ in range(50):
+        p = rng.standard_normal(d)
+        obs = rng.standard_normal(sizes[0])
+        x, y = np.zeros(max(sizes)), np.zeros(max(sizes))
+        x[: sizes[0]] = obs
+        out = kernels.mlp_forward(p, sizes_arr, x, y)[: sizes[-1]]
+        assert list(out) == reference_outputs(p, obs, sizes)
+        ref = BatchPolicy(p[None], sizes[0], sizes[-1], hidden=sizes[1:-1]).outputs(obs[None])[0]
+        np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12)
+
+
 # ---------------------------------------------------------------------------------- acrobot
 def test_acrobot_dsdt_matches_gymnasium():
     env = gym.make("Acrobot-v1").unwrapped
     rng = np.random.default_rng(1)
     n = 3000
     s_aug = np.column_stack([random_acrobot_states(rng, n) * 1.5, rng.choice([-1.0, 0.0, 1.0], n)])
-    ref = np.array([env._dsdt(row) for row in s_aug], dtype=np.float64)
-    np.testing.assert_array_equal(dsdt(s_aug.T, exact=True).T, ref)
-    fast = dsdt(s_aug.T).T
-    np.testing.assert_allclose(fast, ref, rtol=1e-12, atol=1e-12)
-    assert np.mean(np.all(fast == ref, axis=1)) > 0.99  # only x**2 rounding differs, rarely
+    ref = np.array([env._dsdt(row)[:4] for row in s_aug], dtype=np.float64)
+    got, k = np.empty((n, 4)), np.empty(4)
+    for i, row in enumerate(s_aug):
+        kernels.acrobot_dsdt(*row, k)
+        got[i] = k
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+    assert np.mean(np.all(got == ref, axis=1)) > 0.99  # only gymnasium's pow(x, 2) rounding differs, rarely
 
 
 def _acrobot_test_states(rng):
     """Random states over the whole box, plus states visited by swing-up episodes (near the goal)."""
-    states = [random_acrobot_states(rng, 3000)]
-    sim = AcrobotBatch()
-    pol = BatchPolicy(acrobot_params(rng, 4, 16), 6, 3)
-    obs = sim.reset(rng.integers(0, 2**32, 20))
-    for _ in range(150):
-        states.append(sim.state)
-        obs, _, _ = sim.step(pol(obs))
-    return np.vstack(states)
+    _, steps, trace = make_evaluator("acrobot").trajectories(acrobot_params(rng, 4, 16), rng.integers(0, 2**32, 20))
+    visited = [trace[i, : steps[i]] for i in range(len(steps))]
+    return np.vstack([random_acrobot_states(rng, 3000), *visited])
 
 
 def test_acrobot_steps_match_gymnasium():
+    """kernels.acrobot_steps == AcrobotEnv.step from the same states: next states within 1e-12,
+    identical terminations, rewards and (float32) observations, over ~6000 states."""
     env = gym.make("Acrobot-v1").unwrapped
     rng = np.random.default_rng(2)
     S = _acrobot_test_states(rng)
@@ -145,124 +185,106 @@ def test_acrobot_steps_match_gymnasium():
         ref_term.append(term)
     ref_state, ref_obs = np.array(ref_state), np.array(ref_obs)
     ref_rew, ref_term = np.array(ref_rew), np.array(ref_term)
+    state, obs, term = kernels.acrobot_steps(S, A)
     # the comparison covers terminations, angle wrapping and velocity clipping
-    raw = rk4_step(S.T, np.array([-1.0, 0.0, 1.0])[A]).T
-    assert ref_term.sum() > 100
-    assert (np.abs(raw[:, :2]) > np.pi).sum() > 100
-    assert (np.abs(raw[:, 2:]) > MAX_VEL).sum() > 100
-    for exact in (False, True):
-        sim = AcrobotBatch(exact=exact)
-        sim.set_state(S)
-        obs, rew, term = sim.step(A)
-        diff = np.abs(sim.state - ref_state).max()
-        assert diff <= 1e-9
-        if exact:
-            assert diff == 0.0
-        np.testing.assert_array_equal(term, ref_term)
-        np.testing.assert_array_equal(rew, ref_rew)
-        assert obs.dtype == np.float32
-        np.testing.assert_allclose(obs, ref_obs, rtol=0, atol=1e-6)
+    assert len(S) > 4000 and ref_term.sum() > 100
+    assert (np.abs(ref_state[:, :2]) > 3.0).sum() > 100 and (np.abs(ref_state[:, 2:]) == MAX_VEL).sum() > 100
+    assert np.abs(state - ref_state).max() <= 1e-12
+    assert np.mean(np.all(state == ref_state, axis=1)) > 0.99
+    np.testing.assert_array_equal(term, ref_term)
+    np.testing.assert_array_equal(np.where(term, 0.0, -1.0), ref_rew)
+    assert obs.dtype == np.float32
+    np.testing.assert_allclose(obs, ref_obs, rtol=0, atol=1e-6)
+
+
+def _check_episodes_against_gymnasium(env_id, evaluator, P, seeds, act, tolerance):
+    """Each member's compiled episode against gymnasium's env from reset(seed=s), step by step.
+
+    At every step the env is put in the kernel's state (so round-off cannot build up in a
+    chaotic system), the reference policy ``act(p, obs)`` picks the action from the env's own
+    observation, and the env's next state must match the kernel's next state within
+    ``tolerance``; terminations, lengths and returns must be identical.
+    """
+    returns, steps, trace = evaluator.trajectories(P, seeds)
+    env = gym.make(env_id, max_episode_steps=evaluator.max_steps)
+    worst = 0.0
+    for i, seed in enumerate(seeds):
+        obs, _ = env.reset(seed=int(seed))
+        np.testing.assert_array_equal(env.unwrapped.state, trace[i, 0])  # reset(seed) == the kernel's start
+        ret, t, done = 0.0, 0, False
+        while not done:
+            if t:
+                env.unwrapped.state = trace[i, t].copy()
+                obs = np.array(env.unwrapped.state, dtype=np.float32) if "CartPole" in env_id else env.unwrapped._get_ob()
+            obs, r, term, trunc, _ = env.step(act(P[i], obs))
+            ret, t, done = ret + r, t + 1, term or trunc
+            worst = max(worst, np.abs(np.asarray(env.unwrapped.state, dtype=np.float64) - trace[i, t]).max())
+            assert term == (t == steps[i] and (t < evaluator.max_steps or term)), (i, t)
+        assert (t, ret) == (steps[i], returns[i]), i
+    assert worst <= tolerance
+    return steps
 
 
 def test_acrobot_episodes_match_gymnasium():
-    """Whole episodes from reset(seed=s): exact mode reproduces gymnasium step by step."""
     rng = np.random.default_rng(3)
     P = acrobot_params(rng, 6, 10)
     seeds = rng.integers(0, 2**63, len(P), dtype=np.uint64)
-    env = gym.make("Acrobot-v1", max_episode_steps=200)
-    sim = AcrobotBatch(exact=True)
-    pol = BatchPolicy(P, 6, 3)
-    obs = sim.reset(seeds)
-    traj, terms = [sim.state], []
-    for _ in range(200):
-        obs, _, term = sim.step(pol(obs))
-        traj.append(sim.state)
-        terms.append(term)
-    traj, terms = np.array(traj), np.array(terms)
-    ref_returns, ref_steps = [], []
-    for i, seed in enumerate(seeds):
-        single = BatchPolicy(P[i : i + 1], 6, 3)
-        o, _ = env.reset(seed=int(seed))
-        np.testing.assert_array_equal(env.unwrapped.state, traj[0, i])
-        ret, t, done = 0.0, 0, False
-        while not done:
-            o, r, term, trunc, _ = env.step(int(single(o[None])[0]))
-            ret, t, done = ret + r, t + 1, term or trunc
-            np.testing.assert_array_equal(env.unwrapped.state, traj[t, i])
-            assert term == terms[t - 1, i]
-        ref_returns.append(ret)
-        ref_steps.append(t)
-    assert sum(s < 200 for s in ref_steps) >= 8  # terminations are exercised
-    for exact in (True, False):  # the default mode gives the same episodes here too
-        r, s = make_evaluator("acrobot", exact=exact).evaluate(P, seeds)
-        np.testing.assert_array_equal(r, ref_returns)
-        np.testing.assert_array_equal(s, ref_steps)
+    sizes = (6, 8, 8, 3)
+    steps = _check_episodes_against_gymnasium(
+        "Acrobot-v1", make_evaluator("acrobot"), P, seeds, lambda p, o: reference_action(p, o, sizes), 1e-12
+    )
+    assert sum(s < 200 for s in steps) >= 8  # terminations are exercised
 
 
 # ---------------------------------------------------------------------------------- cartpole
-def test_cartpole_episodes_match_single_gymnasium_env():
-    """CartPoleVectorEnv rollouts == single CartPole-v1 episodes from reset(seed=s), capped at 200."""
+def test_cartpole_episodes_match_gymnasium_bit_for_bit():
+    """Compiled episodes == CartPole-v1 episodes from reset(seed=s), capped at 200, every state exact."""
     rng = np.random.default_rng(4)
     P = cartpole_params(rng, 12, 12)
     seeds = rng.integers(0, 2**63, len(P), dtype=np.uint64)
-    sim, pol = CartPoleBatch(), BatchPolicy(P, 4, 2)
-    obs = sim.reset(seeds)
-    traj = [sim.state]
-    for _ in range(200):
-        obs, _, _ = sim.step(pol(obs))
-        traj.append(sim.state)
-    traj = np.array(traj)
-    env = gym.make("CartPole-v1", max_episode_steps=200)
-    ref_returns, ref_steps, max_diff = [], [], 0.0
-    for i, seed in enumerate(seeds):
-        single = BatchPolicy(P[i : i + 1], 4, 2)
-        o, _ = env.reset(seed=int(seed))
-        np.testing.assert_array_equal(env.unwrapped.state, traj[0, i])
-        ret, t, done = 0.0, 0, False
-        while not done:
-            o, r, term, trunc, _ = env.step(int(single(o[None])[0]))
-            ret, t, done = ret + r, t + 1, term or trunc
-            max_diff = max(max_diff, np.abs(env.unwrapped.state - traj[t, i]).max())
-        ref_returns.append(ret)
-        ref_steps.append(t)
-    assert max_diff <= 1e-9
-    assert min(ref_steps) < 50 and max(ref_steps) == 200
-    for compact in (True, False):
-        r, s = make_evaluator("cartpole", compact=compact).evaluate(P, seeds)
-        np.testing.assert_array_equal(r, ref_returns)
-        np.testing.assert_array_equal(s, ref_steps)
+    sizes = (4, 8, 8, 2)
+    steps = _check_episodes_against_gymnasium(
+        "CartPole-v1", make_evaluator("cartpole"), P, seeds, lambda p, o: reference_action(p, o, sizes), 0.0
+    )
+    assert min(steps) < 50 and max(steps) == 200
 
 
-def test_cartpole_steps_equal_gymnasium_vector_env_bit_for_bit():
-    """CartPoleBatch.step == gymnasium's CartPoleVectorEnv.step, bit for bit, over 4000 x 64 steps.
+@pytest.mark.parametrize("env,env_id", [("cartpole", "CartPole-v1"), ("acrobot", "Acrobot-v1")])
+def test_compiled_episodes_follow_the_evaluators_hidden_sizes(env, env_id):
+    """The kernels take the layer sizes from the evaluator (``hidden``), any depth and width."""
+    ev = make_evaluator(env)
+    ev.hidden = (5, 3, 4)
+    sizes = (ev.obs_dim, *ev.hidden, ev.out_dim)
+    assert ev.num_params == num_params(ev.obs_dim, ev.out_dim, ev.hidden)
+    rng = np.random.default_rng(13)
+    P = rng.standard_normal((8, ev.num_params))
+    steps = _check_episodes_against_gymnasium(
+        env_id, ev, P, rng.integers(0, 2**63, 8, dtype=np.uint64), lambda p, o: reference_action(p, o, sizes),
+        0.0 if env == "cartpole" else 1e-12,
+    )
+    assert env == "acrobot" or len(set(steps)) > 2  # (random Acrobot policies all hang on for 200 steps)
 
-    Each step both start from the same states (random, including ones beyond the termination
-    limits and large velocities) and take the same random actions; the vector env's autoreset
-    is kept out of the way by clearing its ``prev_done`` flags before every step.
-    """
-    from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
 
-    n, steps = 64, 4000
+def test_cartpole_steps_equal_gymnasium_bit_for_bit():
+    """kernels.cartpole_steps == CartPoleEnv.step from the same states, bit for bit, over 20000
+    random states (both sides of the termination limits, large velocities) and actions."""
+    env = gym.make("CartPole-v1").unwrapped
     rng = np.random.default_rng(12)
-    venv = CartPoleVectorEnv(num_envs=n, max_episode_steps=10**9)
-    venv.reset(seed=0)
-    sim = CartPoleBatch()
-    scale = np.array([3.0, 4.0, 0.3, 4.0])  # x, x_dot, theta, theta_dot: both sides of the limits
-    terminations = 0
-    for t in range(steps):
-        if t % 50 == 0:  # fresh random states now and then, so trajectories do not all diverge
-            sim.set_state(rng.uniform(-1, 1, (n, 4)) * scale)
-        venv.state = sim.state.T.copy()
-        venv.prev_done = np.zeros(n, dtype=bool)
-        actions = rng.integers(0, 2, n)
-        ref_obs, ref_reward, ref_term, _, _ = venv.step(actions)
-        obs, reward, term = sim.step(actions)
-        np.testing.assert_array_equal(sim.state.T, venv.state)  # next states: float64, exact
-        np.testing.assert_array_equal(obs, ref_obs)
-        np.testing.assert_array_equal(term, ref_term)
-        np.testing.assert_array_equal(reward, ref_reward)
-        terminations += int(term.sum())
-    assert 0.2 * n * steps < terminations < 0.9 * n * steps  # both outcomes exercised
+    n = 20000
+    S = rng.uniform(-1, 1, (n, 4)) * np.array([3.0, 4.0, 0.3, 4.0])  # x, x_dot, theta, theta_dot
+    A = rng.integers(0, 2, n)
+    ref_state, ref_obs, ref_term = [], [], []
+    for s, a in zip(S, A):
+        env.state, env.steps_beyond_terminated = s.copy(), None
+        obs, _, term, _, _ = env.step(int(a))
+        ref_state.append(env.state)
+        ref_obs.append(obs)
+        ref_term.append(term)
+    state, term = kernels.cartpole_steps(S, np.where(A == 1, 10.0, -10.0))
+    np.testing.assert_array_equal(state, np.array(ref_state))
+    np.testing.assert_array_equal(state.astype(np.float32), np.array(ref_obs))
+    np.testing.assert_array_equal(term, ref_term)
+    assert 0.2 * n < term.sum() < 0.9 * n  # both outcomes exercised
 
 
 # ---------------------------------------------------------------------------------- evaluator
@@ -306,10 +328,6 @@ def test_batch_independence_and_determinism(name, max_steps):
     rb, sb = ev.evaluate(big_P, big_seeds)
     np.testing.assert_array_equal(rb[3 : 3 + B], r)
     np.testing.assert_array_equal(sb[3 : 3 + B], s)
-    if name in ("cartpole", "acrobot"):
-        rn, sn = make_evaluator(name, max_steps, compact=False).evaluate(P, seeds)
-        np.testing.assert_array_equal(rn, r)
-        np.testing.assert_array_equal(sn, s)
     if name == "cartpole":
         assert np.array_equal(r, s) and s.min() < 50 and s.max() == 200
     if name == "Pendulum-v1":
@@ -353,3 +371,14 @@ def test_unknown_env_id(bad):
         make_evaluator(bad)
     msg = str(info.value)
     assert bad in msg and "\n" not in msg
+
+
+def test_kernels_refuse_params_that_do_not_fit_the_layer_sizes():
+    """The kernels read parameters without bounds checks: a layout mismatch must raise, not read past the rows."""
+    sizes = np.array([4, 8, 8, 2], dtype=np.int64)
+    out, steps = np.empty(1), np.empty(1, dtype=np.int64)
+    for d in (129, 131):
+        with pytest.raises(ValueError, match="parameter count"):
+            kernels.cartpole_episodes(np.zeros((1, d)), np.zeros(1, np.uint64), sizes, False, False, 5, out, steps, np.empty((0, 0, 0)))
+    with pytest.raises(ValueError, match="parameter count"):
+        kernels.acrobot_episodes(np.zeros((1, 130)), np.zeros((1, 4)), np.zeros((1, 6)), np.array([6, 8, 8, 3]), 5, out, steps, np.empty((0, 0, 0)))

@@ -177,10 +177,10 @@ def test_reused_returns_were_measured_under_the_current_normaliser():
         advance_lockstep([st], spec, ev)
         row = st.rows[-1]
         if generation < spec.obs_norm_warmup:
-            assert row["reused"] == 0 and not st.archive
+            assert row["reused"] == 0 and not st.archive.generations
             continue
         assert st.obs_norm.frozen
-        g = st.archive[0]  # this generation
+        g = st.archive.generations[0]  # this generation
         for i in np.flatnonzero(g.source > 0):
             folded = st.obs_norm.fold(g.samples[i : i + 1], ev.out_dim, ev.hidden)[0]
             assert folded.tobytes() in ev.seen, f"generation {generation}: member {i} reused under other statistics"
@@ -263,7 +263,7 @@ def test_study_table_counts_episodes_and_wall_time_to_threshold(tmp_path):
             evaluations += n
             out.append({"algo": algo, "env": "Hopper-v5", "mixing": mixing, "seed": seed, "generation": g, "evaluations": evaluations,
                         "env_steps": 100 * evaluations, "mean_score": score, "best_score": score, "reused": 10 - n, "reused_im": 10 - n,
-                        "reused_eim": 0, "popsize": 10, "sigma_mean": 0.1, "nonfinite": 0, "wall_time": 2.0 * (g + 1)})  # fmt: skip
+                        "reused_eim": 0, "reevaluated": 0, "popsize": 10, "sigma_mean": 0.1, "nonfinite": 0, "wall_time": 2.0 * (g + 1)})  # fmt: skip
         return out
 
     for mixing, per_gen in (("none", [10, 10, 10, 10]), ("eim", [10, 4, 4, 4])):

@@ -245,3 +245,97 @@ def test_didactic_rules_match_the_paper():
     from scipy.stats import norm
 
     assert accepted.mean() == pytest.approx(2 * norm.cdf(-0.25), abs=0.02)
+
+
+# --------------------------------------------------------------------------- issue 16: every run, live runs, robust statistics
+
+
+def _legend_texts(fig):
+    return [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+
+
+def test_every_run_folder_is_its_own_labelled_curve_and_row(tmp_path):
+    from imix_cli.plotting.data import PlotOptions
+    from imix_cli.plotting.figures import efficiency_figures
+
+    write_group(tmp_path, "snes", "cartpole", "none", range(5))
+    write_group(tmp_path, "snes", "cartpole", "none", range(5), overrides="weight_decay_form=estool", config={"weight_decay_form": "estool"})
+    write_group(tmp_path, "snes", "cartpole", "eim", range(5))
+    exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
+    (_, fig), = list(efficiency_figures(exp, PlotOptions()))
+    assert {"SNES", "SNES (weight_decay_form=estool)"} <= set(_legend_texts(fig))
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=threshold,iqm"]) == 0
+    table = pd.read_csv(figures_dir(tmp_path) / "evaluations_to_threshold.csv")
+    assert sorted(table["overrides"].fillna("")) == ["", "", "weight_decay_form=estool"]
+    assert len(pd.read_csv(figures_dir(tmp_path) / "iqm.csv")) == 3
+
+
+def test_grid_search_points_left_out_of_main_figures_are_named(tmp_path, capsys):
+    for popsize in (10, 20):
+        write_group(tmp_path, "snes", "cartpole", "eim", range(2), overrides=f"popsize={popsize}", popsize=popsize)
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=efficiency"]) == 0
+    err = capsys.readouterr().err
+    assert "left out of the main figures" in err and "snes-cartpole-eim-popsize=10" in err and "snes-cartpole-eim-popsize=20" in err
+
+
+def test_running_seeds_are_read_from_partial_csvs_and_curves_reach_the_longest(tmp_path, capsys):
+    from imix_cli.results import partial_csv_path
+
+    run_dir = write_group(tmp_path, "snes", "cartpole", "none", range(2), gens=40)
+    write_run_csv(partial_csv_path(run_dir, 2), run_rows("snes", "cartpole", "none", 2, np.linspace(20, 60, 12)))
+    warnings = []
+    exp = load_experiment(tmp_path, EXPERIMENT, warn=warnings.append)
+    (group,) = exp.groups
+    assert sorted(group.seeds) == [0, 1, 2] and group.partial == {2}
+    assert any("still running" in w and "2" in w for w in warnings)
+    from imix_cli.plotting.data import align_by_generation
+
+    gens, matrix = align_by_generation(group)
+    assert len(gens) == 40 and np.isnan(matrix[2, 12:]).all() and np.isfinite(matrix[:2]).all()
+    grid, matrix = align_on_grid(group)
+    assert grid[-1] == 400  # the longest seed's 40 generations x 10 episodes, not the running seed's 120
+    # a finished seed wins over a stale partial file of the same seed
+    write_run_csv(partial_csv_path(run_dir, 0), run_rows("snes", "cartpole", "none", 0, [1.0, 2.0]))
+    exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
+    assert len(exp.groups[0].seeds[0]) == 40 and exp.groups[0].partial == {2}
+
+
+def test_efficiency_panels_share_x_and_bands_stay_within_achievable_returns(tmp_path):
+    from matplotlib.collections import PolyCollection
+
+    from imix_cli.plotting.data import PlotOptions
+    from imix_cli.plotting.figures import efficiency_figures
+
+    for mixing in ("none", "eim"):
+        run_dir = tmp_path / EXPERIMENT / run_dir_name("snes", "cartpole", mixing)
+        run_dir.mkdir(parents=True)
+        for seed, top in enumerate((200.0, 200.0, 120.0)):  # two seeds at the cap, one far below: a wide CI
+            write_run_csv(run_dir / f"seed_{seed}.csv", run_rows("snes", "cartpole", mixing, seed, np.linspace(50, top, 10)))
+    exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
+    (_, fig), = list(efficiency_figures(exp, PlotOptions()))
+    a, b = fig.axes[:2]
+    assert a.get_shared_x_axes().joined(a, b)
+    for ax in (a, b):
+        bands = [c for c in ax.collections if isinstance(c, PolyCollection)]
+        assert bands and max(path.vertices[:, 1].max() for c in bands for path in c.get_paths()) <= 200.0
+    assert "3 seeds, <5: weak CI" in " ".join(ax.get_title(loc="left") for ax in (a, b))
+
+
+def test_iqm_and_improvement_tables_hand_values(tmp_path):
+    # eim reaches 195 at generation 2 (10 + 2*2 = 14 episodes) on every seed; none at generation 5 (60 episodes)
+    for mixing, cost, reach in (("none", 10, 5), ("eim", 2, 2)):
+        run_dir = tmp_path / EXPERIMENT / run_dir_name("cem", "cartpole", mixing)
+        run_dir.mkdir(parents=True)
+        for seed in range(8):
+            scores = [100.0] * reach + [190.0 + seed] * (10 - reach)
+            scores[reach] = 200.0  # the crossing
+            write_run_csv(run_dir / f"seed_{seed}.csv", run_rows("cem", "cartpole", mixing, seed, scores, 10, [0] + [10 - cost] * 9))
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=iqm,improvement,profile"]) == 0
+    iqm = pd.read_csv(figures_dir(tmp_path) / "iqm.csv").set_index("mixing")
+    assert iqm.loc["eim", "episodes_iqm"] == 14 and iqm.loc["none", "episodes_iqm"] == 60
+    # final returns 190..197: IQM of 8 cuts 2 at each end -> mean(192..195) = 193.5
+    assert iqm.loc["none", "final_iqm"] == pytest.approx(193.5)
+    assert iqm.loc["none", "final_iqm_low"] <= 193.5 <= iqm.loc["none", "final_iqm_high"]
+    improvement = pd.read_csv(figures_dir(tmp_path) / "improvement.csv")
+    assert improvement["p_fewer_episodes"].tolist() == [1.0] and improvement["ci_low"].tolist() == [1.0]
+    assert (figures_dir(tmp_path) / "profile_cartpole.png").stat().st_size > 1000

@@ -9,12 +9,16 @@ Fitness is *maximised*. Before an ES sees it, :meth:`EvolutionStrategy.tell`
 turns raw fitness into per-member *utilities* (higher is better) through
 weight decay and centred-rank fitness shaping, as in the paper's section 4.1:
 
-``weight_decay_form="paper"`` (default)
+``weight_decay_form="estool"`` (default)
+    The authors' estool-derived code: centred ranks of the raw fitness, then
+    -w * mean(theta^2) is added to the ranks. The paper's published curves come from
+    this form (README, "Which weight decay").
+``weight_decay_form="paper"``
     The paper's text: the penalty -w * ||theta||^2 is added to each raw fitness,
     then the penalised fitness is turned into centred ranks.
-``weight_decay_form="estool"``
-    The authors' estool-derived code: centred ranks of the raw fitness, then
-    -w * mean(theta^2) is added to the ranks.
+
+Tied fitness values share their ranks (:func:`centered_ranks`), so no ES depends on the
+order of the population it is told.
 
 Non-finite fitness (NaN, +-inf from a user's environment) is ranked last
 (worst) and counted in :attr:`EvolutionStrategy.nonfinite_fitness_count`.
@@ -29,18 +33,61 @@ import numpy as np
 WEIGHT_DECAY_FORMS = ("paper", "estool")
 
 
+def _tie_groups(values: np.ndarray):
+    """``order, starts, ends, group_of``: ``values[order]`` ascending, tied runs ``[starts[g], ends[g])``.
+
+    ``group_of[i]`` is the run holding position i of the sorted order.
+    """
+    order = np.argsort(values, kind="stable")
+    ascending = values[order]
+    first = np.ones(values.shape[0], dtype=bool)
+    first[1:] = ascending[1:] != ascending[:-1]
+    starts = np.flatnonzero(first)
+    ends = np.append(starts[1:], values.shape[0])
+    return order, starts, ends, np.cumsum(first) - 1
+
+
 def centered_ranks(values: np.ndarray) -> np.ndarray:
     """Map values to ranks scaled into [-0.5, 0.5] (the worst gets -0.5, the best +0.5).
 
-    Ties are broken by position (stable sort), so the result is deterministic.
+    Tied values get the average of the ranks they span ("fractional ranking"), so the result
+    never depends on the order of the values. Why it matters: with importance mixing a
+    generation lists its reused members first, and on CartPole ~40 of 50 members tie at the
+    maximum return; breaking ties by position put the reused members at the bottom of the
+    tie, i.e. made the fresh rule-2 draws (which sit where the new density exceeds the old)
+    the elites, and pushed the distribution outward (issue 11: CMA-ES + EIM ended at 181.8
+    instead of 196 on CartPole, sigma 3x too large).
     """
     values = np.asarray(values, dtype=np.float64)
     n = values.shape[0]
-    ranks = np.empty(n, dtype=np.float64)
-    ranks[np.argsort(values, kind="stable")] = np.arange(n, dtype=np.float64)
     if n == 1:
         return np.zeros(1)
+    order, starts, ends, group_of = _tie_groups(values)
+    ranks = np.empty(n, dtype=np.float64)
+    ranks[order] = ((starts + ends - 1) / 2.0)[group_of]
     return ranks / (n - 1) - 0.5
+
+
+def rank_weights(utilities: np.ndarray, weights_by_rank: np.ndarray) -> np.ndarray:
+    """The weight of each member when the best gets ``weights_by_rank[0]``, the next ``[1]``, ...
+
+    ``weights_by_rank`` has one entry per member (pad with zeros for non-elites). Members with
+    tied utilities share equally the weights of the rank positions they occupy, so the
+    result does not depend on the order of the members (see :func:`centered_ranks`). This
+    is what selection-based ES (CEM's elites, CMA-ES's recombination) use instead of an
+    ``argsort`` that would break ties by position.
+    """
+    utilities = np.asarray(utilities, dtype=np.float64)
+    n = utilities.shape[0]
+    weights_by_rank = np.asarray(weights_by_rank, dtype=np.float64)
+    if weights_by_rank.shape != (n,):
+        raise ValueError(f"weights_by_rank must have shape ({n},), got {weights_by_rank.shape}")
+    order, starts, ends, group_of = _tie_groups(-utilities)  # best first
+    cumulative = np.concatenate([[0.0], np.cumsum(weights_by_rank)])
+    group_mean = (cumulative[ends] - cumulative[starts]) / (ends - starts)
+    weights = np.empty(n, dtype=np.float64)
+    weights[order] = group_mean[group_of]
+    return weights
 
 
 class Adam:
@@ -78,7 +125,7 @@ class EvolutionStrategy(ABC):
         Adam learning rate of the gradient-based ES (OpenES, SNES); ignored by CEM and CMA-ES.
     weight_decay : float, default 0.05
         Weight-decay coefficient w; 0 disables it.
-    weight_decay_form : {"paper", "estool"}, default "paper"
+    weight_decay_form : {"estool", "paper"}, default "estool"
         How the penalty enters the utilities; see the module docstring.
     mean : array-like of shape (d,), optional
         Initial mean; zeros by default.
@@ -94,7 +141,7 @@ class EvolutionStrategy(ABC):
         sigma: float = 0.25,
         lr: float = 0.01,
         weight_decay: float = 0.05,
-        weight_decay_form: str = "paper",
+        weight_decay_form: str = "estool",
         mean=None,
     ):
         if dim < 1:

@@ -16,21 +16,38 @@ One generation t = 1, 2, ... over the n told samples, ranked by utility (best fi
     eps_t    = floor + (eps_0 - floor) * tau**t              # extra variance schedule
     sigma^2 <- sum_i w_i (x_{i:n} - mu)**2 + eps_t           # ML diagonal variance + extra
 
-eps_0 defaults to the initial variance sigma^2 (as CEM-RL's damp starts at its initial
-variance), tau = 0.95 and floor = 1e-5 (CEM-RL's damp_limit), so the extra variance
-halves about every 14 generations and is ~0.5 % of eps_0 after 100. The floor keeps
-every standard deviation >= sqrt(1e-5) ~ 3e-3, which also keeps the distribution
-well-defined when K = 1.
+eps_0 defaults to the initial variance sigma^2, tau = 0.95 and floor = 1e-5 (CEM-RL's
+damp_limit), so the extra variance halves about every 14 generations and is ~0.5 % of
+eps_0 after 100. The floor keeps every standard deviation >= sqrt(1e-5) ~ 3e-3, which also
+keeps the distribution well-defined when K = 1.
+
+Ties: elites are chosen by utility, and tied members share the weights of the rank
+positions they span (:func:`~imix_cli.algorithms.base.rank_weights`), so the update never
+depends on the order of the told population (with mixing, reused members come first).
+
+``style="cemrl"``: the authors' own CEM (apourchot/CEM-RL ``ES.py``, ``sepCEM.tell``),
+which differs from the textbook update above in four constants and one formula::
+
+    w_i      = ln((K + 1) / i) / sum                          # log weights
+    damp    <- 0.95 damp + 0.05 * 1e-5,  damp_0 = 1e-3         # extra variance, updated first
+    mu      <- sum_i w_i x_{i:n}
+    sigma^2 <- (1/K) sum_i w_i (x_{i:n} - mu_old)**2 + damp     # about the OLD mean, times 1/K
+
+The 1/K factor makes the fitted variance K times smaller than the elites' spread, so the
+distribution contracts within a few generations to the scale of ``damp``; this is the
+update the authors' importance-mixing experiments ran with (issue 11, item 5 measures
+what it does to the reuse rate).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from imix_cli.algorithms.base import EvolutionStrategy
+from imix_cli.algorithms.base import EvolutionStrategy, rank_weights
 from imix_cli.distributions import DiagonalGaussian
 
 ELITE_WEIGHTS = ("equal", "log")
+STYLES = ("imix", "cemrl")
 
 
 class CEM(EvolutionStrategy):
@@ -52,6 +69,10 @@ class CEM(EvolutionStrategy):
         tau, geometric decay factor per generation (CEM-RL).
     extra_variance_floor : float, default 1e-5
         Limit of the extra variance (CEM-RL's damp_limit); must be > 0.
+    style : {"imix", "cemrl"}, default "imix"
+        "imix": the update above. "cemrl": the authors' sepCEM (module docstring): log
+        weights, extra variance 1e-3 decaying to 1e-5 unless given, variance about the old
+        mean scaled by 1/K.
     """
 
     name = "cem"
@@ -63,15 +84,23 @@ class CEM(EvolutionStrategy):
         sigma: float = 0.25,
         lr: float = 0.01,
         weight_decay: float = 0.05,
-        weight_decay_form: str = "paper",
+        weight_decay_form: str = "estool",
         mean=None,
         elite_fraction: float = 0.5,
         elite_weights: str = "equal",
         extra_variance_init: float | None = None,
         extra_variance_decay: float = 0.95,
         extra_variance_floor: float = 1e-5,
+        style: str = "imix",
     ):
         super().__init__(dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean)
+        if style not in STYLES:
+            raise ValueError(f"style must be one of {STYLES}, got {style!r}")
+        self.style = style
+        if style == "cemrl":
+            elite_weights = "log"
+            if extra_variance_init is None:
+                extra_variance_init = 1e-3  # CEM-RL's damp
         if not 0.0 < elite_fraction <= 1.0:
             raise ValueError(f"elite_fraction must be in (0, 1], got {elite_fraction}")
         if elite_weights not in ELITE_WEIGHTS:
@@ -105,13 +134,17 @@ class CEM(EvolutionStrategy):
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
         n = samples.shape[0]
         k = max(1, int(self.elite_fraction * n))
-        # stable sort of -u: the best first, ties kept in row order (deterministic)
-        elites = samples[np.argsort(-utilities, kind="stable")[:k]]
-        w = self._weights(k)
-        mu = w @ elites
+        by_rank = np.zeros(n)
+        by_rank[:k] = self._weights(k)
+        w = rank_weights(utilities, by_rank)  # elites' weights, ties sharing theirs; 0 for the rest
+        old_mu = self._dist.mean
+        mu = w @ samples
         self.extra_variance = (
             self.extra_variance_decay * self.extra_variance
             + (1.0 - self.extra_variance_decay) * self.extra_variance_floor
         )
-        var = w @ ((elites - mu) ** 2) + self.extra_variance
+        if self.style == "cemrl":
+            var = (w @ ((samples - old_mu) ** 2)) / k + self.extra_variance
+        else:
+            var = w @ ((samples - mu) ** 2) + self.extra_variance
         self._dist = DiagonalGaussian(mu, np.sqrt(var))

@@ -1,106 +1,175 @@
-"""CMA-ES through pycma, told populations that it did not sample itself.
+"""CMA-ES in numpy: pycma 4.5's update, written out, for populations it did not sample.
 
 Hansen & Ostermeier (2001), "Completely derandomized self-adaptation in evolution
 strategies", Evolutionary Computation 9(2); Hansen (2016), "The CMA Evolution Strategy:
-A Tutorial", arXiv:1604.00772. Implementation: pycma (``cma``, Hansen et al.). Paper
+A Tutorial", arXiv:1604.00772 (cited below as [T], with equation numbers). Paper
 section 2.1.4 of Pourchot, Perrin & Sigaud (2018): full covariance, rank-based
 recombination weights, evolution paths, step-size control.
 
-pycma does all of the maths (weights, mean, p_c, p_sigma, rank-one + rank-mu + active
-update, CSA); this module only drives it so that *we* sample (our rng, possibly members
-reused by importance mixing) and pycma only updates. See :class:`CMAES` for what was
-verified in pycma's source to make that legitimate.
+Why our own and not pycma (``cma``): driving pycma with samples it did not draw worked
+(the previous version of this module did it), but its ``tell`` cost ~2.5 ms per generation
+at d = 130, lambda = 50 -- 57-72 % of a CMA-ES + importance-mixing run -- mostly Python
+bookkeeping around two O(d^3) steps, and its state is a Python object that can only be
+pickled, while checkpoints are data. This module does the same maths in a few numpy calls
+and keeps its state in arrays (:meth:`CMAES.state_dict`).
+
+Same maths as pycma: every constant and every formula below was read from pycma 4.5's
+source (``cma/evolution_strategy.py`` ``tell``/``ask_geno``, ``cma/sampler.py``
+``GaussFullSampler``, ``cma/recombination_weights.py``, ``cma/options_parameters.py``
+``CMAParameters``, ``cma/sigma_adaptation.py`` ``CMAAdaptSigmaCSA``) with the options the
+pycma wrapper used: default weights with active CMA (negative weights), CSA, rank-one +
+rank-mu, hsig, no mirrors, ``updatecovwait=0`` (eigendecomposition after every update),
+``conditioncov_alleviate=[1e8, 1e12]``, pycma's initial C = diag(exp(1e-4 k / d)) (a
+tie-breaking hack for its eigensolver, kept for equality). ``tests/test_cmaes.py`` drives
+pycma's own ask/tell loop and tells the same samples to this class: mean, sigma, C, p_sigma
+and p_c agree to round-off over hundreds of generations at d = 10 and d = 130.
+
+Where we differ from pycma, on purpose:
+
+* Ties. pycma ranks by ``np.argsort`` (order among equal values: whatever the sort does).
+  Here a group of tied utilities shares the weights of the rank positions it occupies
+  (fractional ranking), so the update does not depend on the order of tied members. On
+  CartPole ~40 of 50 members tie at the maximum return. A position's weight enters the
+  covariance update through two parts -- positive weights as is, negative weights times
+  the member's Mahalanobis rescaling d / ||C^-1/2 y||^2 -- so each member gets the mean
+  positive part and the mean negative part of its group's positions: the expectation of
+  pycma's update over all orders of the tied members. Without ties this is pycma's update.
+* Step-size control is CSA at every d (pycma switches to TPA for d >= 300, which needs
+  samples injected by its own ``ask``).
+* No termination criteria, no logging, no bounds, no integer variables, no elitism.
 """
 
 from __future__ import annotations
 
-import warnings
-from typing import TYPE_CHECKING
+import math
 
 import numpy as np
 
 from imix_cli.algorithms.base import EvolutionStrategy
 from imix_cli.distributions import FullGaussian
 
-if TYPE_CHECKING:
-    import cma
+#: Largest dimension CMAES accepts. Each seed keeps four d x d float64 matrices (C, its
+#: eigenvectors, the distribution's covariance and Cholesky factor: 128 MB at d = 2000) and
+#: eigendecomposes C every generation, O(d^3). Measured ``tell`` per generation, lambda = 50
+#: (benchmarks/cmaes_speed.py --big, shared 2-core AMD EPYC VM): d = 500 0.18 s, 1000 1.1 s,
+#: 2000 7.9 s, i.e. 53 min per seed for the paper's 400 generations at d = 2000, and ~15x
+#: that (d^3) at 5000. Above the limit SNES/OpenES (O(d) per member) are the tools.
+MAX_DIM = 2000
+
+#: CMA options this class implements (pycma option names and defaults).
+SUPPORTED_OPTIONS = {
+    # active CMA: negative recombination weights in the covariance update
+    "CMA_active": True,
+    # [coordinate condition, condition] of C above which pycma re-parametrises (see
+    # CMAES._alleviate_conditioning); a false value switches it off
+    "conditioncov_alleviate": (1e8, 1e12),
+}
+
+# pycma's GaussFullSampler raises when an eigenvalue is <= 0 and retries after adding the
+# smallest previous eigenvalue to the diagonal; it recurses without limit, we give up here.
+_MAX_EIGEN_REPAIRS = 20
 
 
-def _pycma():
-    """pycma, imported on first use: ``import cma`` pulls in scipy.stats and matplotlib (~1 s),
-    which every spawned worker of a non-CMA-ES run would otherwise pay at start-up."""
-    import cma
-    import cma.options_parameters
-    import cma.utilities.utils
-
-    return cma
-
-#: options we set and the caller may not override: quiet, no files, no pycma sampling
-#: or global reseeding, nothing that would change the sampling distribution
-#: (mirrors, bounds) or need pycma's own ask (TPA injections).
-_PINNED_OPTIONS = ("popsize", "verbose", "verb_disp", "verb_log", "seed", "randn", "CMA_mirrors", "bounds", "AdaptSigma")
+def check_dimension(dim: int) -> None:
+    """Raise ValueError (one line) if CMA-ES is unreasonable in ``dim`` dimensions."""
+    if dim > MAX_DIM:
+        raise ValueError(
+            f"algo=cmaes: d = {dim} parameters exceeds CMA-ES's limit of {MAX_DIM} "
+            f"(a {dim}x{dim} covariance, O(d^3) per generation); use algo=snes or algo=openes (or cem)"
+        )
 
 
-def _pycma_must_not_sample(*args, **kwargs):
-    """pycma's ``randn`` option: we sample ourselves; any draw by pycma is a bug."""
-    raise RuntimeError("pycma tried to draw random numbers; imix's CMAES samples with its own rng")
+def expected_norm(dim: int) -> float:
+    """E||N(0, I_d)||, as pycma's ``Mh.chiN``: exact for d <= 100 (pycma's table),
+    sqrt(d) (1 - 1/(4d) + 1/(32 d^2)) above (pycma's approximation, relative error < 1e-5)."""
+    if dim <= 100:
+        return math.sqrt(2.0) * math.gamma((dim + 1) / 2) / math.gamma(dim / 2)
+    return dim**0.5 * (1 - 1.0 / (4 * dim) + 1.0 / (32 * dim**2))
+
+
+class _Parameters:
+    """Strategy parameters for population size ``lam`` in dimension ``dim`` (pycma's values).
+
+    Attributes: ``weights`` (lam values, decreasing; positive ones sum to 1), ``mu`` (number
+    of positive weights), ``mueff``, ``cc``, ``c1``, ``cmu``.
+    """
+
+    def __init__(self, dim: int, lam: int, active: bool):
+        # [T] (49): w'_i = ln((lam + 1) / 2) - ln i; pycma normalises the positive ones to
+        # sum 1 and the negative ones to sum -1 (RecombinationWeights.__init__), in Python
+        # floats, summed left to right as pycma does.
+        w = [math.log((lam + 1) / 2.0) - math.log(i) for i in range(1, lam + 1)]
+        mu = sum(x > 0 for x in w)
+        spos = sum(w[:mu])
+        w = [x / spos for x in w]
+        mueff = 1 / sum(x**2 for x in w[:mu])  # [T] (8): variance effective selection mass
+        sneg = sum(w[mu:])
+        if sneg != 0:
+            w[mu:] = [x / -sneg for x in w[mu:]]
+        n = float(dim)
+        # learning rates as pycma's sampler gives them (interfaces.parameters), [T] (56), (57)
+        c1 = min((1, lam / 6)) * 2 / ((n + 1.3) ** 2.0 + mueff)
+        cmu = min((1 - c1, 2 * (0.25 + mueff - 2 + 1 / mueff) / ((n + 2) ** 2 + 2 * mueff / 2)))
+        # [T] (56) with pycma's limit_fac_cc = 4: cc = (4 + mueff/n) / (n + 4 + 2 mueff/n)
+        cc = 1.0 * (4.0 + mueff / n) ** 1.0 / (n**1.0 + (4.0 + 2 * mueff / n) ** 1.0)
+        if w[-1] < 0:
+            if active and cmu > 0:
+                # RecombinationWeights.finalize_negative_weights, [T] (53): scale the negative
+                # weights to sum -(1 + c1/cmu) (no decay of C), then cap their sum so that C
+                # stays positive definite, and by 1 + 2 mueff^- / (mueff + 2).
+                w = self._set_negative_sum(w, mu, 1 + c1 / cmu)
+                w = self._limit_negative_sum(w, mu, (1 - c1 - cmu) / cmu / n)
+                sneg = sum(w[mu:])
+                mueff_minus = 0 if sneg == 0 else sneg**2 / sum(x**2 for x in w[mu:])
+                w = self._limit_negative_sum(w, mu, 1 + 2 * mueff_minus / (mueff + 2))
+            elif not active:
+                w = [x if x >= 0 else 0.0 * x for x in w]  # zero_negative_weights
+        self.lam, self.mu, self.mueff = lam, mu, mueff
+        self.weights = w
+        self.cc, self.c1, self.cmu = cc, c1, cmu
+
+    @staticmethod
+    def _set_negative_sum(w, mu, value):
+        factor = abs(abs(value) / sum(w[mu:]))
+        return w[:mu] + [x * factor for x in w[mu:]]
+
+    @staticmethod
+    def _limit_negative_sum(w, mu, value):
+        value = abs(value)
+        if sum(w[mu:]) >= -value:
+            return w
+        factor = abs(value / sum(w[mu:]))
+        return w if factor >= 1 else w[:mu] + [x * factor for x in w[mu:]]
+
+    def resized(self, n: int) -> list:
+        """pycma's ``RecombinationWeights.__call__``: ``n`` weights for a population of ``n``
+        (n >= mu): the mu positive weights, then the most negative ones, zeros padded in."""
+        w, mu, lam = self.weights, self.mu, self.lam
+        if n < lam:
+            return w[:mu] + w[mu - n :]
+        if n > lam:
+            return w[:mu] + (n - lam) * [0] + w[mu:]
+        return w
 
 
 class CMAES(EvolutionStrategy):
-    """CMA-ES (pycma): N(mean, sigma^2 C) with full C; pycma updates, we sample.
-
-    What driving pycma with foreign samples needed, read from pycma 4.5's source
-    (``cma/evolution_strategy.py``, ``cma/sampler.py``) and checked by
-    ``tests/test_algorithms.py``:
-
-    * ``tell(solutions, f, check_points=False)``: with ``check_points=None`` (the default)
-      every solution pycma did not hand out in ``ask`` goes through ``repair_genotype``,
-      which clips its Mahalanobis distance to sqrt(d) + 2d/(d+2) -- that would shrink
-      legitimate reused members. ``False`` skips both repair loops; the points enter the
-      update unchanged. (Ordinary tail draws also exceed that radius: with ``None``
-      even the ask/tell equivalence test below fails.) The test gives pycma a population it produced itself through
-      ``ask`` (solutions it knows are never repaired) that contains far-away points, and
-      shows that our ``tell`` of the same points yields the same mean, sigma, C and paths,
-      while pycma's default ``check_points`` on unknown points would have moved the mean.
-    * No re-weighting: negative weights are multiplied by ``CMA_active_injected`` only for
-      solutions registered through ``inject``, which we never call; every row gets the
-      rank weight of its (-utility) rank.
-    * ``tell`` without ``ask``: ``ask_geno`` sets a little bookkeeping (``_flgtelldone``,
-      ``number_of_injections``, ``number_of_solutions_asked``, ``_is_independent_sample``,
-      ``evaluations_per_f_value``, ``timer``) that ``tell`` reads; ``_emulate_ask``
-      sets exactly these, without sampling. Before sampling, ``ask`` also alleviates
-      extreme conditioning and brings the sampler's eigendecomposition (B, D) up to date
-      (``tell`` uses B, D for p_sigma and the active update); ``_prepare_sampler`` does
-      the same after each ``tell``. The test checks that our trajectory equals, to
-      round-off, pycma's own ask/tell loop fed the same samples.
-    * pycma never draws random numbers here: its ``randn`` option is a function that
-      raises, and ``seed=nan`` keeps it from reseeding numpy's global RNG.
-    * Sampling distribution: ``ask`` returns mean + sigma * sigma_vec * B (D z), z ~ N(0, I)
-      (geno = pheno: no bounds, no ``transformation``, no fixed variables; no mirrors,
-      no TPA injections). So ``distribution`` is FullGaussian(mean, A A^T) with
-      A = sigma diag(sigma_vec) B diag(D), i.e. sigma^2 C with the decomposed C. (pycma's
-      initial C is diag(exp(1e-4 k / d)), k = 0..d-1, not exactly I: a 1e-4 relative
-      tie-breaking hack, reproduced as is.)
-    * Utilities: pycma minimises and uses only the ranking of what it is told (plus
-      termination diagnostics we do not use), so it gets -utilities: the base class's
-      weight decay, centred ranks and non-finite handling decide the ranking.
-    * Populations whose size differs from ``popsize``: n >= mu uses pycma's own handling
-      (same mu and positive weights, negative weights trimmed or zero-padded); for
-      3 <= n < mu pycma refuses, so that one tell runs with pycma's strategy parameters
-      for popsize n. pycma needs n >= 3.
+    """CMA-ES: N(mean, sigma^2 C) with full C, pycma's update (see the module docstring).
 
     Parameters
     ----------
     dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean
-        See :class:`~imix_cli.algorithms.base.EvolutionStrategy`. ``popsize`` is
-        pycma's population size lambda (mu = lambda/2 positive weights), ``sigma`` its
-        sigma0 and ``mean`` its x0; ``lr`` is ignored.
+        See :class:`~imix_cli.algorithms.base.EvolutionStrategy`. ``popsize`` is lambda
+        (mu = lambda // 2 positive weights), ``sigma`` the initial step size sigma0 and
+        ``mean`` x0; ``lr`` is ignored. ``dim`` must be <= :data:`MAX_DIM`.
     cma_options : dict, optional
-        Further pycma options (``cma.CMAOptions()``), e.g. ``{"CMA_active": False}``.
-        The options in ``_PINNED_OPTIONS`` are set here and may not be given.
-        ``updatecovwait`` defaults to 0: decompose C after every update. pycma's
-        default lazy gap, 1 / (10 d (c1 + cmu)), is < 1 generation -- i.e. the same --
-        for lambda = 50 up to d ~ 260 (0.60 at d = 155).
+        The pycma options of :data:`SUPPORTED_OPTIONS`, e.g. ``{"CMA_active": False}``;
+        any other key is refused.
+
+    Populations whose size n differs from ``popsize`` (the base class allows it): for
+    n >= mu, pycma's handling -- the same mu, mueff, learning rates and positive weights,
+    the most negative weights kept for the worst members, zeros padded in the middle if
+    n > lambda. For 3 <= n < mu (pycma refuses), that one update uses the strategy
+    parameters of lambda = n (weights, mueff, c1, cmu, cc; cs and damps stay). n >= 3.
     """
 
     name = "cmaes"
@@ -112,104 +181,271 @@ class CMAES(EvolutionStrategy):
         sigma: float = 0.25,
         lr: float = 0.01,
         weight_decay: float = 0.05,
-        weight_decay_form: str = "paper",
+        weight_decay_form: str = "estool",
         mean=None,
         cma_options: dict | None = None,
     ):
         super().__init__(dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean)
         if self.popsize < 3:
-            raise ValueError(f"CMAES needs popsize >= 3 (pycma), got {self.popsize}")
-        user = dict(cma_options or {})
-        pinned = sorted(set(user) & set(_PINNED_OPTIONS))
-        if pinned:
-            raise ValueError(f"cma_options may not set {pinned}: CMAES pins them")
-        opts = {"updatecovwait": 0}
-        opts.update(user)
-        opts.update(
-            popsize=self.popsize,
-            verbose=-9,  # no messages
-            verb_disp=0,  # no console table
-            verb_log=0,  # no outcmaes/ files
-            seed=np.nan,  # "do nothing": leave numpy's global RNG alone
-            randn=_pycma_must_not_sample,
-            CMA_mirrors=0,  # no (antithetic) mirrored samples
-            bounds=[None, None],
-            AdaptSigma=True,  # CSA; TPA would need pycma's ask for its injected pair
-        )
-        self._es = _pycma().CMAEvolutionStrategy(self.initial_mean, self.sigma, opts)
-        if not self._es.gp.isidentity or self._es.boundary_handler.has_bounds():
-            raise ValueError("cma_options must not introduce a genotype-phenotype transformation or bounds")
-        if not isinstance(self._es.sm, _pycma().sampler.GaussFullSampler):
-            # e.g. CMA_diagonal or CMA_sampler: another sampler, another sampling formula
-            raise ValueError("CMAES supports pycma's full-covariance sampler (GaussFullSampler) only")
-        self._prepare_sampler()
+            raise ValueError(f"CMAES needs popsize >= 3, got {self.popsize}")
+        check_dimension(self.dim)
+        unknown = sorted(set(cma_options or {}) - set(SUPPORTED_OPTIONS))
+        if unknown:
+            raise ValueError(f"cma_options: unsupported {unknown}; CMAES implements {sorted(SUPPORTED_OPTIONS)}")
+        opts = {**SUPPORTED_OPTIONS, **(cma_options or {})}
+        self.active = bool(opts["CMA_active"])
+        alleviate = opts["conditioncov_alleviate"]
+        self.alleviate_limits = (float(alleviate[0]), float(alleviate[-1])) if alleviate else (0.0, 0.0)
+
+        d = self.dim
+        self._params = {self.popsize: _Parameters(d, self.popsize, self.active)}
+        p = self._params[self.popsize]
+        # CSA constants (CMAAdaptSigmaCSA.compute_cs / compute_damps; [T] (55)) with no
+        # mirrors: cs = min(1/2, (mueff + 2) / (d + mueff + 3)),
+        # damps = 1 + 2 max(0, a sqrt((mueff - 1) / (d + 1)) - 1) + cs, a = max(1, 3 (1 - 2^(-d/9)))
+        self.cs = min((0.5, (p.mueff + 2) ** 1.0 / (d**1.0 + (p.mueff + 3) ** 1.0)))
+        damp_in = max((1, 3 * (1 - 0.5 ** (d / 9))))
+        self.damps = 0.5 + min((1, (0 / (0.159 * self.popsize) - 1) ** 2)) ** 1 / 2 + 2 * max(
+            (0, damp_in * ((p.mueff - 1) / (d + 1)) ** 0.5 - 1)
+        ) + self.cs
+        self.chi_d = expected_norm(d)
+
+        # state (everything in state_dict): pycma's genotype coordinates, x = T g; T = I
+        # until the 1e12 condition alleviation sets it
+        self.step_size = self.sigma  # pycma's sigma; self.sigma stays sigma0
+        self.mean_geno = self.initial_mean.copy()
+        self.C = np.diag(np.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
+        self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()  # D, ascending; C = B D^2 B^T
+        self.eigenvectors = np.eye(d)  # B, columns
+        self.scaling = np.ones(d)  # pycma's sigma_vec (coordinate condition alleviation)
+        self.p_sigma = np.zeros(d)
+        self.p_c = np.zeros(d)
+        self.transform = None  # T and T^-1 once pycma's alleviate_conditioning has fired
+        self.transform_inverse = None
+        self.countiter = 0  # pycma's countiter: number of updates
+        self._set_distribution()
 
     # ------------------------------------------------------------ distribution
     @property
     def distribution(self) -> FullGaussian:
         return self._dist
 
-    @property
-    def pycma(self) -> cma.CMAEvolutionStrategy:
-        """The wrapped ``cma.CMAEvolutionStrategy`` (read it; do not call its ask/tell)."""
-        return self._es
-
-    def _prepare_sampler(self) -> None:
-        """Do what pycma's ``ask`` does before it samples, then cache the sampling distribution."""
-        es = self._es
-        if es.opts["conditioncov_alleviate"]:
-            es.alleviate_conditioning_in_coordinates(es.opts["conditioncov_alleviate"][0])
-            es.alleviate_conditioning(es.opts["conditioncov_alleviate"][-1])
-        es.sm.update_now()  # eigendecomposition C = B D^2 B^T, as sm.sample() would
-        es._updateBDfromSM(es.sm)
-        # ask: x = mean + sigma * sigma_vec * (B @ (D * z)), so x ~ N(mean, A A^T)
-        scaling = np.broadcast_to(np.asarray(es.sigma_vec.scaling, dtype=np.float64), (self.dim,))
-        a = es.sigma * scaling[:, None] * (es.sm.B * es.sm.D)
-        self._dist = FullGaussian(np.array(es.mean, dtype=np.float64), a @ a.T)
+    def _set_distribution(self) -> None:
+        """x = T (mean + sigma * scaling * B D z): N(T mean, sigma^2 T S C S T^T), S = diag(scaling)."""
+        cov = self.C * (self.step_size**2 * np.outer(self.scaling, self.scaling))
+        mean = self.mean_geno
+        if self.transform is not None:
+            mean = self.transform @ mean
+            cov = self.transform @ cov @ self.transform.T
+        self._dist = FullGaussian(mean, cov)
 
     # ------------------------------------------------------------------ update
-    def _emulate_ask(self, n: int) -> None:
-        """Set the bookkeeping pycma's ``ask`` leaves for ``tell`` (n i.i.d. samples, no injections)."""
-        es = self._es
-        if es.countiter == 0:
-            es.timer = _pycma().utilities.utils.ElapsedWCTime()
-        else:
-            es.timer.tic  # noqa: B018  (a property with a side effect: pycma's ask calls it too)
-        es._flgtelldone = False
-        es.ary = []
-        es.number_of_injections = 0
-        es.number_of_solutions_asked = n
-        es._is_independent_sample = n * [True]
-        es.evaluations_per_f_value = 1
+    def _parameters(self, n: int) -> tuple[_Parameters, list]:
+        """Strategy parameters and the n position weights for a population of n."""
+        base = self._params[self.popsize]
+        if n >= base.mu:
+            return base, base.resized(n)
+        if n not in self._params:
+            self._params[n] = _Parameters(self.dim, n, self.active)
+        return self._params[n], self._params[n].weights
 
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
         n = samples.shape[0]
         if n < 3:
-            raise ValueError(f"CMAES.tell needs at least 3 samples (pycma), got {n}")
-        es = self._es
-        costs = -utilities  # pycma minimises; only the ranking matters
-        self._emulate_ask(n)
-        sp = es.sp
-        try:
-            with warnings.catch_warnings():
-                # pycma warns when n differs from popsize by > 2; here that is deliberate
-                warnings.filterwarnings("ignore", message="The number of solutions passed to `tell`")
-                if n < sp.weights.mu:
-                    es.sp = self._parameters_for(n)
-                es.tell(samples.copy(), costs.tolist(), check_points=False)
-        finally:
-            es.sp = sp
-        if es.pop_injection_directions or es.pop_injection_solutions:
-            raise RuntimeError("pycma queued injections for its own ask; CMAES cannot honour them")
-        self._prepare_sampler()
+            raise ValueError(f"CMAES.tell needs at least 3 samples, got {n}")
+        p, weights = self._parameters(n)
+        d, sigma, cs, cc = self.dim, self.step_size, self.cs, p.cc
+        B, D, scaling = self.eigenvectors, self.eigenvalues_sqrt, self.scaling
+        x = samples if self.transform is None else samples @ self.transform_inverse.T  # genotypes
+        self.countiter += 1
 
-    def _parameters_for(self, n: int):
-        """pycma's strategy parameters (weights, c1, cmu, cc, ...) for a population of n."""
-        es = self._es
-        cma = _pycma()
-        opts = cma.CMAOptions(es.opts)
-        opts["popsize"] = n
-        sp = cma.options_parameters.CMAParameters(es.N, opts, verbose=False)
-        p = es.sm.parameters(mueff=sp.weights.mueff, lam=sp.weights.lambda_)
-        sp.weights.finalize_negative_weights(es.N, p["c1"], p["cmu"])
-        return sp
+        # Selection: best first. Tied utilities share their positions' weights, separately
+        # for the positive and the negative parts (module docstring).
+        order = np.argsort(-utilities, kind="stable")
+        x = x[order]
+        w_pos, w_neg = _shared_among_ties(np.asarray(weights, dtype=np.float64), utilities[order])
+
+        # [T] (9): m' = sum_i w_i x_{i:lambda} over the positive weights (pycma: cmean = 1)
+        mean_old = self.mean_geno
+        k = int(np.flatnonzero(w_pos)[-1]) + 1  # without ties: mu
+        self.mean_geno = np.dot(w_pos[:k], x[:k])
+        dm = self.mean_geno - mean_old
+
+        # [T] (43): p_sigma <- (1 - cs) p_sigma + sqrt(cs (2 - cs) mueff) C^-1/2 (m' - m) / sigma,
+        # C^-1/2 = B D^-1 B^T from the decomposition before this update
+        z = B @ ((B.T @ (dm / scaling)) / D)
+        z *= p.mueff**0.5 / sigma / 1.0
+        self.p_sigma *= 1 - cs
+        self.p_sigma += math.sqrt(cs * (2 - cs)) * z
+        # hsig ([T] p. 29; pycma's bias-corrected form): stall p_c when ||p_sigma|| is large
+        squared_sum = np.sum(self.p_sigma**2) / (1 - (1 - cs) ** (2 * self.countiter))
+        hsig = bool(squared_sum / d - 1 < 1 + 4.0 / (d + 1))
+        # [T] (45): p_c <- (1 - cc) p_c + hsig sqrt(cc (2 - cc) mueff) (m' - m) / sigma
+        self.p_c = (1 - cc) * self.p_c + hsig * ((cc * (2 - cc) * p.mueff) ** 0.5 / sigma / 1.0) * dm / scaling
+
+        # [T] (47), (46): C <- (1 + c1 delta(hsig) - c1 - cmu sum w) C + c1 p_c p_c^T
+        #                       + cmu sum_i w_i° y_i y_i^T,   y_i = (x_i - m) / sigma,
+        # w_i° = w_i for w_i >= 0 and w_i d / ||C^-1/2 y_i||^2 otherwise (active CMA).
+        # pycma folds delta(hsig) into c1a and gives p_c the weight c1a with length rescaled
+        # so that c1a ||v||^2 = c1 ||p_c||^2; we do the same, for equal round-off.
+        c1, cmu = p.c1, p.cmu
+        c1a = c1 * (1 - (1 - hsig**2) * cc * (2 - cc))
+        y = (x - mean_old) / (sigma * scaling)
+        decay = 1 + 0 - sum([c1a] + [cmu * w for w in weights])  # sampler.update, in Python order
+        coef = cmu * w_pos
+        negative = np.flatnonzero(w_neg)
+        if negative.size:
+            whitened = (y[negative] @ B) / D  # B^T y / D, row by row
+            norms = np.sqrt(np.einsum("ij,ij->i", whitened, whitened))
+            coef[negative] += (cmu * w_neg[negative]) * (d / (norms + 1e-9) ** 2)
+        vectors = np.vstack(((c1 / (c1a + 1e-23)) ** 0.5 * self.p_c, y))
+        self.C *= decay
+        self.C += np.dot(np.concatenate(([c1a], coef)) * vectors.T, vectors)
+
+        # [T] (44): sigma <- sigma exp(cs / damps (||p_sigma|| / E||N(0, I)|| - 1)), change of
+        # log sigma clipped to +-1 (pycma's max_delta_log_sigma)
+        s = np.sqrt(np.sum(np.square(self.p_sigma))) / self.chi_d - 1
+        s *= cs / self.damps
+        self.step_size *= float(np.exp(min(max(s, -1), 1)))
+        # pycma moves a huge sigma into C (_redistribute_sigma_above = 1e9), same distribution
+        if self.step_size > 1e9 * self.sigma:
+            alpha = float(self.step_size / np.max(np.diag(self.C)) ** 0.5)
+            if alpha > 1:
+                self.C *= alpha
+                self.eigenvalues_sqrt = self.eigenvalues_sqrt * alpha**0.5
+                self.step_size /= alpha**0.5
+
+        # what pycma's ask does before it samples: alleviate conditioning, then decompose C
+        if not self._alleviate_conditioning():
+            self._decompose()
+        self._set_distribution()
+
+    def _decompose(self) -> None:
+        """C = B D^2 B^T on the symmetrised C, eigenvalues ascending (GaussFullSampler._decompose_C)."""
+        previous = self.eigenvalues_sqrt
+        for _ in range(_MAX_EIGEN_REPAIRS):
+            self.C = (self.C + self.C.T) / 2
+            try:
+                eigenvalues, eigenvectors = np.linalg.eigh(self.C)
+                if np.all(eigenvalues > 0):
+                    break
+            except np.linalg.LinAlgError:
+                pass
+            # pycma: "covariance matrix eigen decomposition failed"; add the smallest
+            # previous eigenvalue to the diagonal (and to the previous ones) and try again
+            shift = np.min(previous) ** 2
+            self.C[np.diag_indices(self.dim)] += shift
+            previous = (previous**2 + shift) ** 0.5
+        else:
+            raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
+        if np.any(np.diff(eigenvalues) < 0):  # LAPACK returns them ascending; pycma sorts anyway
+            idx = np.argsort(eigenvalues)
+            eigenvalues, eigenvectors = eigenvalues[idx], eigenvectors[:, idx]
+        self.eigenvectors = eigenvectors
+        self.eigenvalues_sqrt = eigenvalues**0.5
+
+    def _alleviate_conditioning(self) -> bool:
+        """pycma's ``conditioncov_alleviate``; True if C was decomposed (or reset) here.
+
+        * Coordinate condition max(diag C) / min(diag C) >= limit[0]
+          (``alleviate_conditioning_in_coordinates``): C becomes its correlation matrix,
+          the standard deviations move into ``scaling`` (pycma's ``sigma_vec``).
+        * Condition of C >= limit[1], judged from the previous decomposition as pycma
+          does (``alleviate_conditioning``, once per run): the coordinates become
+          g = T^-1 x with T = S C^1/2 (from that decomposition) and C is reset, p_c mapped
+          along. The sampling distribution stays the same up to the C update of this
+          generation, which pycma discards here.
+        """
+        coordinate_limit, limit = self.alleviate_limits
+        decomposed = False
+        diag = np.diag(self.C)
+        if coordinate_limit and np.max(diag) / np.min(diag) >= coordinate_limit:
+            self._decompose()  # pycma's to_correlation_matrix decomposes first (and symmetrises)
+            factors = np.diag(self.C) ** 0.5
+            corr = self.C / factors[None, :] / factors[:, None]
+            self.C = (corr + corr.T) / 2.0
+            self._decompose()
+            self.scaling = self.scaling * factors
+            self.p_c = self.p_c / factors
+            decomposed = True
+        D = self.eigenvalues_sqrt
+        if self.transform is None and limit and (D[-1] / D[0]) ** 2 >= limit:
+            B = self.eigenvectors
+            tf_inv = np.dot(B / D, B.T)
+            tf = np.dot(B * D, B.T)
+            d = self.dim
+            self.C = np.diag(np.exp((1e-4 / d) * np.arange(d)))  # sampler reset, not decomposed again
+            self.eigenvectors = np.eye(d)
+            self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()
+            self.p_c = np.dot(tf_inv, self.p_c)
+            self.transform = self.scaling[:, None] * tf
+            self.transform_inverse = tf_inv / self.scaling[None, :]
+            self.scaling = np.ones(d)
+            self.mean_geno = self.transform_inverse @ self.mean_geno
+            decomposed = True
+        return decomposed
+
+    # ------------------------------------------------------------ checkpoints
+    _ARRAYS = ("mean_geno", "C", "eigenvalues_sqrt", "eigenvectors", "scaling", "p_sigma", "p_c")
+
+    def state_dict(self) -> dict:
+        """Everything that changes during a run: numpy arrays and int/float scalars.
+
+        Arrays: ``mean_geno``, ``C``, ``eigenvalues_sqrt`` and ``eigenvectors`` (the last
+        decomposition, which the next update uses), ``scaling``, ``p_sigma``, ``p_c``, and
+        ``transform``/``transform_inverse`` once the condition alleviation has set them.
+        Scalars: ``step_size``, ``countiter`` and the base class's ``generation`` and
+        ``nonfinite_fitness_count``. Constructor arguments (the config) are not included.
+        """
+        state = {name: getattr(self, name).copy() for name in self._ARRAYS}
+        if self.transform is not None:
+            state["transform"] = self.transform.copy()
+            state["transform_inverse"] = self.transform_inverse.copy()
+        state.update(
+            step_size=float(self.step_size),
+            countiter=int(self.countiter),
+            generation=int(self.generation),
+            nonfinite_fitness_count=int(self.nonfinite_fitness_count),
+        )
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore :meth:`state_dict`'s output; continuing is then bit-identical."""
+        d = self.dim
+        shapes = {"C": (d, d), "eigenvectors": (d, d), "transform": (d, d), "transform_inverse": (d, d)}
+        for name in self._ARRAYS + ("transform", "transform_inverse"):
+            if name not in state:
+                if name.startswith("transform"):
+                    setattr(self, name, None)
+                    continue
+                raise ValueError(f"CMAES state: missing {name!r}")
+            value = np.array(state[name], dtype=np.float64)
+            if value.shape != shapes.get(name, (d,)):
+                raise ValueError(f"CMAES state: {name} has shape {value.shape}, expected {shapes.get(name, (d,))}")
+            setattr(self, name, value)
+        missing = [k for k in ("step_size", "countiter", "generation", "nonfinite_fitness_count") if k not in state]
+        if missing:
+            raise ValueError(f"CMAES state: missing {missing}")
+        self.step_size = float(state["step_size"])
+        self.countiter = int(state["countiter"])
+        self.generation = int(state["generation"])
+        self.nonfinite_fitness_count = int(state["nonfinite_fitness_count"])
+        self._set_distribution()
+
+
+def _shared_among_ties(weights: np.ndarray, sorted_utilities: np.ndarray):
+    """Per position of a best-first ranking: the mean positive and mean negative weight of
+    the group of tied utilities the position belongs to (fractional ranking).
+
+    Without ties these are max(w, 0) and min(w, 0) themselves.
+    """
+    w_pos = np.maximum(weights, 0.0)
+    w_neg = np.minimum(weights, 0.0)
+    new_group = np.empty(sorted_utilities.shape[0], dtype=bool)
+    new_group[0] = True
+    np.not_equal(sorted_utilities[1:], sorted_utilities[:-1], out=new_group[1:])
+    if new_group.all():
+        return w_pos, w_neg
+    group = np.cumsum(new_group) - 1
+    sizes = np.bincount(group)
+    return (np.bincount(group, weights=w_pos) / sizes)[group], (np.bincount(group, weights=w_neg) / sizes)[group]

@@ -46,7 +46,7 @@ class OpenES(EvolutionStrategy):
         sigma: float = 0.25,
         lr: float = 0.01,
         weight_decay: float = 0.05,
-        weight_decay_form: str = "paper",
+        weight_decay_form: str = "estool",
         mean=None,
         beta1: float = 0.99,
         beta2: float = 0.999,

@@ -64,7 +64,7 @@ class SNES(EvolutionStrategy):
         sigma: float = 0.25,
         lr: float = 0.01,
         weight_decay: float = 0.05,
-        weight_decay_form: str = "paper",
+        weight_decay_form: str = "estool",
         mean=None,
         sigma_lr: float | None = None,
         beta1: float = 0.99,

@@ -1,11 +1,13 @@
-"""Environments: the batched simulators used by :mod:`imix_cli.evaluation`, and imix's gymnasium ids.
+"""Environments: the compiled episodes used by :mod:`imix_cli.evaluation`, and imix's gymnasium ids.
 
-* :mod:`imix_cli.envs.cartpole`: per-member-seeded CartPole episodes, ``CartPoleVectorEnv``'s arithmetic in numpy;
-* :mod:`imix_cli.envs.acrobot`: a numpy batch with gymnasium's Acrobot-v1 dynamics;
+* :mod:`imix_cli.envs.kernels`: CartPole, Acrobot and ContinuousCartPole(Hard) episodes,
+  policy included, compiled with numba (gymnasium's dynamics, operation for operation);
 * :mod:`imix_cli.envs.continuous_cartpole`: ContinuousCartPole(Hard) (paper section 4.3), the
-  registered gymnasium envs and their numpy batch;
+  registered gymnasium envs;
 * :func:`seeded_uniform` (:mod:`imix_cli.envs.seeding`): the initial-state draw of
   ``reset(seed=s)`` for many seeds at once.
+
+Importing this package does not load numba; the kernels module does, on first use.
 
 Importing this package (``import imix_cli`` does) registers with gymnasium:
 

@@ -24,11 +24,10 @@ initial state ``uniform(-0.05, 0.05, 4)`` from ``reset(seed=...)`` as CartPole.
   Over any episode the sparse sum equals the dense return. Being outside the time limit, the
   wrapper sees whatever step ends the episode, including with ``gym.make(id, max_episode_steps=N)``.
 
-Batched copy for the ES (:class:`ContinuousCartPoleBatch`): n episodes stepped at once in
-numpy by the same :func:`cartpole_dynamics` function the registered env calls (state
-``(4, n)`` instead of ``(4,)``), initial states from :func:`imix_cli.envs.seeded_uniform`
-(exactly ``reset(seed=s)``'s), and the Hard variant's sparse reward paid on termination or
-at the caller's step cap. ``tests/test_continuous.py`` checks batch == registered env.
+The ES does not step these registered envs: ``imix_cli.evaluation`` runs whole episodes in
+the compiled kernel :func:`imix_cli.envs.kernels.cartpole_episodes` (same force mapping, the
+Hard variant's sparse reward paid on termination or at the step cap);
+``tests/test_continuous.py`` checks its episodes against these registered envs.
 """
 
 from __future__ import annotations
@@ -38,17 +37,13 @@ import numpy as np
 from gymnasium import logger, spaces
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
-from imix_cli.envs.seeding import seeded_uniform
-
 __all__ = [
     "FORCE_MAG",
     "OBS_DIM",
     "ACTION_DIM",
     "ContinuousCartPoleEnv",
     "SparseEpisodeReward",
-    "ContinuousCartPoleBatch",
     "cartpole_dynamics",
-    "initial_states",
 ]
 
 OBS_DIM = 4
@@ -61,7 +56,7 @@ def cartpole_dynamics(p, state: np.ndarray, force):
 
     ``p`` holds the physical constants (a ``CartPoleEnv``), ``state`` is ``(4,)`` or ``(4, n)``
     float64 ``[x, x_dot, theta, theta_dot]`` and ``force`` a scalar or ``(n,)``. The expressions
-    are gymnasium's, operation for operation, so a single env and a batch compute the same bits.
+    are gymnasium's, operation for operation.
     """
     x, x_dot, theta, theta_dot = state
     costheta = np.cos(theta)
@@ -86,11 +81,6 @@ def action_to_force(action) -> np.ndarray:
     """``FORCE_MAG * clip(a, -1, 1)`` (float64), NaN actions giving force 0."""
     a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
     return FORCE_MAG * np.where(np.isnan(a), 0.0, a)
-
-
-def initial_states(seeds: np.ndarray) -> np.ndarray:
-    """(n, 4) float64 initial states, identical to ``reset(seed=s)`` per seed (as CartPole)."""
-    return seeded_uniform(seeds, -0.05, 0.05, 4)
 
 
 class ContinuousCartPoleEnv(CartPoleEnv):
@@ -150,54 +140,3 @@ class SparseEpisodeReward(gym.Wrapper, gym.utils.RecordConstructorArgs):
         info = dict(info)
         info["dense_reward"] = reward
         return obs, (self._total if terminated or truncated else 0.0), terminated, truncated, info
-
-
-class ContinuousCartPoleBatch:
-    """n ContinuousCartPole episodes stepped together (the ``reset/step/select`` protocol of
-    :class:`imix_cli.evaluation._CompactingEvaluator`).
-
-    ``reset(seeds)`` starts one episode per seed and returns observations (n, 4) float32;
-    ``step(actions)`` takes actions (n, 1) or (n,) and returns ``(obs, reward, terminated)``;
-    ``select(rows)`` keeps only the given members. With ``sparse=True`` (the Hard variant) a
-    member's reward is 0 except on its terminating step or its ``max_steps``-th step, which
-    carries its accumulated dense return. Members that terminated keep being stepped (the
-    caller masks them); their later data is meaningless.
-    """
-
-    def __init__(self, sparse: bool = False, max_steps: int = 200):
-        self.sparse = bool(sparse)
-        self.max_steps = int(max_steps)
-        self._p = ContinuousCartPoleEnv()  # the physical constants, shared with the registered env
-        self.state = np.zeros((4, 0))
-        self._acc = np.zeros(0)
-        self._t = np.zeros(0, dtype=np.int64)
-
-    @property
-    def n(self) -> int:
-        return self.state.shape[1]
-
-    def set_state(self, states: np.ndarray) -> np.ndarray:
-        """Start episodes from ``states`` (n, 4) float64; returns the observations."""
-        self.state = np.ascontiguousarray(np.asarray(states, dtype=np.float64).reshape(-1, 4).T)
-        self._acc = np.zeros(self.n)
-        self._t = np.zeros(self.n, dtype=np.int64)
-        return self.state.T.astype(np.float32)
-
-    def reset(self, seeds: np.ndarray) -> np.ndarray:
-        return self.set_state(initial_states(seeds))
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        force = action_to_force(np.asarray(actions).reshape(self.n, -1)[:, 0])
-        self.state, terminated = cartpole_dynamics(self._p, self.state, force)
-        self._t += 1
-        if self.sparse:
-            self._acc += 1.0
-            reward = np.where(terminated | (self._t >= self.max_steps), self._acc, 0.0)
-        else:
-            reward = np.ones(self.n)
-        return self.state.T.astype(np.float32), reward, terminated
-
-    def select(self, rows: np.ndarray) -> None:
-        rows = np.asarray(rows)
-        self.state = np.ascontiguousarray(self.state[:, rows])
-        self._acc, self._t = self._acc[rows], self._t[rows]

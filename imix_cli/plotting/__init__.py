@@ -36,9 +36,18 @@ keys:
   dpi=N                   resolution of PNG figures, 50-600 (default: 150)
 
 Figures show the mean over seeds with a shaded confidence interval of the mean
-(Student t). Against episodes evaluated, each seed is put on a common grid by
-holding the score of its last generation whose cumulative evaluations do not
-exceed the grid point; curves stop where the shortest seed stops.
+(Student t), clipped to the env's achievable returns. Against episodes
+evaluated, each seed is put on a common grid by holding the score of its last
+generation whose cumulative evaluations do not exceed the grid point; curves run
+to the longest seed, dotted where fewer seeds remain. Every run folder is its own
+curve, labelled with its non-default settings (grid-search points: gridsearch
+figures). Seeds still running (seed_<k>.partial.csv) are included up to their
+last checkpoint, with a warning. Groups with fewer than 5 seeds are flagged.
+
+Robust statistics (Agarwal et al. 2021; 95 %, stratified bootstrap): the iqm table
+(interquartile mean of final return and episodes to threshold), the improvement
+table (probability that mixing needs fewer episodes than no mixing) and the
+profile figures (performance profiles of the final return).
 """
 
 _FORMATS = ("png", "pdf", "svg")
@@ -154,7 +163,7 @@ def main(argv: list | None = None) -> int:
         print(f"imix plot: {err}", file=sys.stderr)
         return 2
 
-    from .data import DEFAULT_THRESHOLDS, PlotOptions, load_experiment
+    from .data import DEFAULT_THRESHOLDS, PlotOptions, load_experiment, select_main_groups
     from .figures import FIGURES, save_figure, style
     from .tables import TABLES, write_table
 
@@ -178,6 +187,7 @@ def main(argv: list | None = None) -> int:
         formats=settings["formats"],
     )
     exp = load_experiment(settings["results_dir"], settings["experiment"], warn=opts.warn)
+    select_main_groups(exp.groups, warn=opts.warn)  # names the grid-search runs the main figures leave out
     if needs_data and not exp.groups:
         opts.warn(f"no readable runs under {exp_dir}; only figures that need no data are drawn")
     for env in sorted(set(settings["thresholds"]) - set(exp.envs()) - set(DEFAULT_THRESHOLDS)):

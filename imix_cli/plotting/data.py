@@ -24,8 +24,11 @@ Statistics
     deviation (ddof = 1). With 25 seeds this is 1.02 SEM; with 3 seeds 1.19 SEM.
     One seed gives no interval (NaN, no band drawn).
 
-    :func:`align_by_generation` -- seeds share the generation axis; curves stop at
-    the generation the shortest seed reached, so every point averages all seeds.
+    :func:`align_by_generation` -- seeds share the generation axis; the matrix runs
+    to the longest seed, NaN where a seed has no row (an in-progress seed, a seed of
+    another length). Means and CIs at a point use the seeds present there; figures
+    draw the part where every seed is present solid and the rest dotted, so curves
+    never stop silently at the shortest seed nor hide that fewer seeds remain.
 
     :func:`align_on_grid` -- seeds have different evaluation counts per generation
     (reused members cost nothing), so each seed's curve is put on a common grid
@@ -34,8 +37,13 @@ Statistics
     i.e. the population the algorithm had once it had spent x episodes.
     Generations that cost no episode (full reuse) share an evaluation count with
     the one before; the later generation wins. The grid runs from the largest
-    first-generation count to the smallest final count over the seeds (the
-    common support), so again every point averages all seeds.
+    first-generation count to the largest final count over the seeds; beyond a
+    seed's last generation its value is NaN (fewer seeds, drawn dotted).
+
+Running experiments
+    A seed without ``seed_<k>.csv`` but with ``seed_<k>.partial.csv`` (written by
+    the runner at each checkpoint) is read as in progress: its rows up to the last
+    checkpoint join the group, and a warning names the run and those seeds.
 
     :func:`first_crossing` / :func:`threshold_stats` -- evaluations needed for the
     population mean score to first reach a threshold: the cumulative
@@ -57,7 +65,7 @@ import numpy as np
 
 import pandas as pd
 
-from imix_cli.results import CorruptResultError, read_run_csv, run_dir_name
+from imix_cli.results import CorruptResultError, read_run_csv, run_dir_name, seed_csv_path
 from imix_cli.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 
 __all__ = [
@@ -91,7 +99,7 @@ EPISODE_ROW_ALGOS = {"ddpg"}
 #: Hyper-parameters a grid search varies (read from config.yaml, then the folder's overrides suffix).
 HYPERPARAMS = ("popsize", "sigma", "lr")
 
-_SEED_FILE = re.compile(r"^seed_(\d+)\.csv$")
+_SEED_FILE = re.compile(r"^seed_(\d+)(\.partial)?\.csv$")
 #: Sub-folders of an experiment that are not runs.
 _NOT_RUNS = {"figures"}
 
@@ -122,6 +130,7 @@ class RunGroup:
     path: Path
     config: dict
     seeds: dict  # seed index -> DataFrame (contract columns)
+    partial: frozenset = frozenset()  # seeds read from seed_<k>.partial.csv (still running)
 
     @property
     def name(self) -> str:
@@ -201,11 +210,15 @@ def _read_config(path: Path, warn) -> dict:
 
 
 def _load_group(run_dir: Path, warn) -> RunGroup | None:
-    csvs = []
+    found = {}
     for path in run_dir.iterdir():
         match = _SEED_FILE.match(path.name)
-        if match:
-            csvs.append((int(match.group(1)), path))
+        if match:  # a finished seed's CSV wins over its partial one (removed right after)
+            seed, partial = int(match.group(1)), bool(match.group(2))
+            if seed not in found or (found[seed][1] and not partial):
+                found[seed] = (path, partial)
+    csvs = [(seed, path) for seed, (path, _) in found.items()]
+    partial_seeds = frozenset(seed for seed, (_, partial) in found.items() if partial)
     if not csvs:
         warn(f"{run_dir}: no seed_<k>.csv files; skipped")
         return None
@@ -218,8 +231,14 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
             warn(f"skipped corrupt result {err}")
             continue
         except OSError as err:
-            warn(f"skipped unreadable result {path}: {err}")
-            continue
+            if seed in partial_seeds and seed_csv_path(run_dir, seed).exists():  # finished while we listed
+                try:
+                    frame, partial_seeds = read_run_csv(seed_csv_path(run_dir, seed)), partial_seeds - {seed}
+                except (CorruptResultError, OSError):
+                    continue
+            else:
+                warn(f"skipped unreadable result {path}: {err}")
+                continue
         ident = tuple(frame[c].astype(str).unique().tolist() for c in ("algo", "env", "mixing"))
         if any(len(values) != 1 for values in ident):
             warn(f"skipped corrupt result {path}: algo/env/mixing change between rows")
@@ -251,7 +270,10 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
     else:
         overrides = run_dir.name  # unexpected folder name: keep it distinct from the standard group
     config = _read_config(run_dir / "config.yaml", warn)
-    return RunGroup(algo, env, mixing, overrides, run_dir, config, seeds)
+    running = sorted(partial_seeds & set(seeds))
+    if running:
+        warn(f"{run_dir.name}: seed(s) {', '.join(map(str, running))} still running; their rows up to the last checkpoint are included")
+    return RunGroup(algo, env, mixing, overrides, run_dir, config, seeds, frozenset(running))
 
 
 def load_experiment(results_dir, experiment: str, warn: Callable[[str], None] = _stderr_warn) -> Experiment:
@@ -289,7 +311,7 @@ def _flag_uneven(groups: list, warn) -> None:
         if len(lengths) > 1 and group.algo not in EPISODE_ROW_ALGOS:
             warn(
                 f"{group.name}: seeds stop at different generations ({min(lengths)} to {max(lengths)} rows); "
-                f"per-generation curves stop at the shortest"
+                f"curves continue to the longest, dotted where fewer seeds remain"
             )
 
 
@@ -309,22 +331,22 @@ def sort_groups(groups) -> list:
     return sorted(groups, key=lambda g: (g.env, _algo_rank(g.algo), _mixing_rank(g.mixing), g.overrides))
 
 
-def select_main_groups(groups) -> list:
-    """One group per (algo, env, mixing) for the paper's main figures and tables.
+def select_main_groups(groups, warn: Callable[[str], None] | None = None) -> list:
+    """The groups of the paper's main figures and tables: every run folder, but grid searches.
 
-    If a combination has a single folder it is used whatever its overrides; if it
-    has several (a grid search), the one without overrides is used, and none if
-    there is no such folder -- sweeps are shown by the grid-search figures.
+    Every run folder is its own curve / row (labelled with its non-default settings), except the
+    points of a grid search (:func:`sweep_families`: runs of one algorithm, env and mixing at two
+    or more popsize / sigma / lr points), which the grid-search figures and ranking show; of those,
+    only the folder without overrides (if any) is kept, and ``warn`` names the ones left out.
     """
-    by_combo = {}
-    for group in groups:
-        by_combo.setdefault((group.algo, group.env, group.mixing), []).append(group)
-    chosen = []
-    for members in by_combo.values():
-        if len(members) == 1:
-            chosen.append(members[0])
-        else:
-            chosen.extend(g for g in members if not g.overrides)
+    swept = {id(g) for members in sweep_families(groups).values() for g in members}
+    chosen = [g for g in groups if id(g) not in swept or not g.overrides]
+    left_out = sorted(g.name for g in groups if id(g) in swept and g.overrides)
+    if warn is not None and left_out:
+        warn(
+            f"{len(left_out)} grid-search run(s) left out of the main figures and tables "
+            f"(shown by the gridsearch figures and ranking): {', '.join(left_out)}"
+        )
     return sort_groups(chosen)
 
 
@@ -332,10 +354,13 @@ def select_main_groups(groups) -> list:
 
 
 def align_by_generation(group: RunGroup, column: str = "mean_score"):
-    """``(generations, Y)`` with ``Y[s, g]`` the value of seed s at generation g, up to the shortest seed."""
+    """``(generations, Y)`` with ``Y[s, g]`` the value of seed s at generation g, up to the longest
+    seed (NaN after a seed's last row)."""
     frames = group.frames()
-    length = min(len(f) for f in frames)
-    matrix = np.vstack([f[column].to_numpy(dtype=float)[:length] for f in frames])
+    length = max(len(f) for f in frames)
+    matrix = np.full((len(frames), length), np.nan)
+    for row, frame in zip(matrix, frames):
+        row[: len(frame)] = frame[column].to_numpy(dtype=float)
     return np.arange(length), matrix
 
 
@@ -353,16 +378,16 @@ def _step_values(x, y, grid):
 def align_on_grid(group: RunGroup, x: str = "evaluations", y: str = "mean_score", points: int = 400, log: bool = False):
     """``(grid, Y)``: every seed's ``y`` on a common grid of ``x`` (see the module docstring).
 
-    The grid spans the common support [max of first x, min of last x] over seeds
-    (the union if the seeds do not overlap, with NaN outside each seed's range);
-    it is geometric when ``log`` is true (x must then be positive).
+    The grid spans [max of first x, max of last x] over seeds (from min of first x
+    if the seeds do not overlap), NaN outside each seed's range; it is geometric
+    when ``log`` is true (x must then be positive).
     """
     frames = group.frames()
     xs = [f[x].to_numpy(dtype=float) for f in frames]
     lo = max(v[0] for v in xs)
-    hi = min(v[-1] for v in xs)
-    if hi < lo:
-        lo, hi = min(v[0] for v in xs), max(v[-1] for v in xs)
+    hi = max(v[-1] for v in xs)
+    if min(v[-1] for v in xs) < lo:
+        lo = min(v[0] for v in xs)
     if log:
         lo = max(lo, 1.0)
         hi = max(hi, lo)

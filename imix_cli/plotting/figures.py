@@ -188,11 +188,40 @@ def _save_png(fig: Figure, path: Path, dpi: int) -> None:
         palette.save(path, format="png", optimize=True)
 
 
-def _draw_band(ax, x, matrix, color, label, level, linestyle="-", median=False):
-    mean, half, _ = mean_ci(matrix, level, axis=0)
-    (line,) = ax.plot(x, mean, color=color, label=label, linestyle=linestyle)
+#: The returns an env can give (per episode), for clipping CI bands; other envs use the data's range.
+RETURN_RANGES = {
+    "cartpole": (0.0, 200.0),
+    "acrobot": (-200.0, 0.0),
+    "continuous_cartpole": (0.0, 200.0),
+    "continuous_cartpole_hard": (0.0, 200.0),
+}
+
+
+def achievable_range(env: str, matrix) -> tuple:
+    """The env's return range (:data:`RETURN_RANGES`), widened to the data's if they exceed it (an
+    env.max_steps override); the data's own range for other envs. A mean cannot leave it."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        lo, hi = float(np.nanmin(matrix)), float(np.nanmax(matrix))
+    if env in RETURN_RANGES:
+        lo, hi = min(lo, RETURN_RANGES[env][0]), max(hi, RETURN_RANGES[env][1])
+    return lo, hi
+
+
+def _draw_band(ax, x, matrix, color, label, level, linestyle="-", median=False, clip=None):
+    """Mean over seeds (solid where every seed has a value, dotted where fewer do) and its CI band,
+    clipped to ``clip`` = (low, high) (the achievable range) if given."""
+    mean, half, n = mean_ci(matrix, level, axis=0)
+    full = np.where(n == matrix.shape[0], mean, np.nan)
+    (line,) = ax.plot(x, full, color=color, label=label, linestyle=linestyle)
+    if np.any((n > 0) & (n < matrix.shape[0])):
+        fewer = np.where(n > 0, mean, np.nan)
+        ax.plot(x, fewer, color=color, linestyle=":", linewidth=1.1, zorder=line.get_zorder() - 0.1)
     if np.any(np.isfinite(half)):
-        ax.fill_between(x, mean - half, mean + half, color=color, alpha=BAND_ALPHA, linewidth=0)
+        low, high = mean - half, mean + half
+        if clip is not None:
+            low, high = np.clip(low, *clip), np.clip(high, *clip)
+        ax.fill_between(x, low, high, color=color, alpha=BAND_ALPHA, linewidth=0)
     if median:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns (no seed there) give NaN: fine
@@ -201,14 +230,46 @@ def _draw_band(ax, x, matrix, color, label, level, linestyle="-", median=False):
     return line
 
 
+#: Fewer seeds than this: the group's CI is flagged as unreliable in captions and tables.
+MIN_SEEDS = 5
+
+
 def _seeds_note(groups) -> str:
     counts = {g.n_seeds for g in groups}
+    flag = ", <5: weak CI" if min(counts) < MIN_SEEDS else ""
+    running = sum(len(g.partial) for g in groups)
+    flag += f", {running} running" if running else ""
     if len(counts) == 1:
         n = counts.pop()
-        return f"{n} seed{'s' if n != 1 else ''}"
+        return f"{n} seed{'s' if n != 1 else ''}{flag}"
     most = max(counts)
     fewer = ", ".join(f"{algo_name(g.algo)} {g.n_seeds}" for g in groups if g.n_seeds < most)
-    return f"{most} seeds; {fewer}"
+    return f"{most} seeds; {fewer}{flag}"
+
+
+def common_settings(groups) -> dict:
+    """Non-default settings (the run folders' overrides) shared by every group: said once, in the title."""
+    from .data import parse_overrides
+
+    parsed = [parse_overrides(g.overrides) for g in groups]
+    if not parsed:
+        return {}
+    return {k: v for k, v in parsed[0].items() if all(p.get(k) == v for p in parsed[1:])}
+
+
+def settings_text(settings: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in sorted(settings.items()))
+
+
+def own_settings_label(group, common: dict, with_mixing: bool = False) -> str:
+    """Algorithm (+ mixing) and the group's non-default settings that are not common to the figure."""
+    from .data import parse_overrides
+
+    label = algo_name(group.algo) + (MIXING_SHORT.get(group.mixing, f" + {group.mixing}") if with_mixing else "")
+    own = {k: v for k, v in parse_overrides(group.overrides).items() if common.get(k) != v}
+    if not own and group.overrides and "=" not in group.overrides:
+        return f"{label} ({group.overrides})"  # a folder name of another form: keep it distinct
+    return f"{label} ({settings_text(own)})" if own else label
 
 
 _THRESHOLD_STYLE = dict(color="0.35", linestyle=(0, (4, 3)), linewidth=0.9)
@@ -236,9 +297,15 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
     mixings = sorted({g.mixing for g in groups}, key=lambda m: ("none", "im", "eim").index(m) if m in ("none", "im", "eim") else 9)
     n = len(mixings)
     fig = new_figure(max(0.6 + 3.5 * n, 5.0), 3.4 if n > 1 else 3.7)
-    axes = fig.subplots(1, n, sharey=True, squeeze=False)[0]
+    # A shared x-axis: with and without mixing on one scale, so the episodes saved show as distance.
+    axes = fig.subplots(1, n, sharey=True, sharex=True, squeeze=False)[0]
     handles = {}
     threshold = opts.thresholds.get(env) if by_evaluations else None
+    common = common_settings(groups)
+    variants = {}  # runs of one algorithm with different settings: one line style each
+    for group in groups:
+        variants.setdefault(group.algo, {}).setdefault(own_settings_label(group, common), len(variants.get(group.algo, {})))
+    styles = ("-", "--", "-.", (0, (5, 1, 1, 1)))
     for letter, ax, mixing in zip("abcdefgh", axes, mixings):
         panel = [g for g in groups if g.mixing == mixing]
         for group in panel:
@@ -246,8 +313,10 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
                 x, matrix = align_on_grid(group, "evaluations", "mean_score")
             else:
                 x, matrix = align_by_generation(group, "mean_score")
-            line = _draw_band(ax, x, matrix, algo_color(group.algo), algo_name(group.algo), opts.ci_level)
-            handles.setdefault(group.algo, line)
+            label = own_settings_label(group, common)
+            style_ = styles[variants[group.algo][label] % len(styles)]
+            line = _draw_band(ax, x, matrix, algo_color(group.algo), label, opts.ci_level, linestyle=style_, clip=achievable_range(env, matrix))
+            handles.setdefault(label, line)
         _threshold_line(ax, threshold)
         title = MIXING_NAMES.get(mixing, f"with {mixing}")
         ax.set_title(f"({letter}) {title}  [{_seeds_note(panel)}]", loc="left")
@@ -255,15 +324,16 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
         ax.xaxis.set_major_formatter(FuncFormatter(_short_number))
         ax.set_xlim(left=0)
     axes[0].set_ylabel("population mean return")
-    order = sorted(handles, key=lambda a: [g.algo for g in groups].index(a))
-    legend_handles = [handles[a] for a in order]
-    legend_labels = [algo_name(a) for a in order]
+    legend_labels = list(handles)
+    legend_handles = [handles[label] for label in legend_labels]
     _add_threshold_entry(legend_handles, legend_labels, threshold)
-    fig.legend(legend_handles, legend_labels, loc="outside lower center", ncols=len(legend_handles))
+    fig.legend(legend_handles, legend_labels, loc="outside lower center", ncols=min(len(legend_handles), 5))
     what = "episodes evaluated" if by_evaluations else "generation"
     title = f"{env_name(env)}: population mean return vs {what}"
-    note = f"(mean ± {opts.ci_level:.0%} CI over seeds)"
-    fig.suptitle(f"{title} {note}" if n > 1 else f"{title}\n{note}")
+    note = f"(mean ± {opts.ci_level:.0%} Student-t CI over seeds, clipped to the achievable returns; dotted: fewer seeds)"
+    if common:
+        title += f"; {settings_text(common)}"
+    fig.suptitle(f"{title}\n{note}")
     return fig
 
 
@@ -318,7 +388,12 @@ def ddpg_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
             label = group_label(group, with_mixing=group.algo not in NON_ES)
             if group.algo in NON_ES and len([g for g in groups if g.algo == group.algo]) == 1:
                 label = group_label(group, with_overrides=False)
-            handles.append(_draw_band(ax, x, matrix, algo_color(group.algo), f"{label} [{group.n_seeds} seeds]", opts.ci_level, median=True))
+            if group.algo not in NON_ES:  # the settings the run used (its config.yaml), not only the non-default ones
+                label = f"{group_label(group, with_mixing=True, with_overrides=False)} ({es_settings_text(group)})"
+            flag = ", <5: CI unreliable" if group.n_seeds < MIN_SEEDS else ""
+            handles.append(
+                _draw_band(ax, x, matrix, algo_color(group.algo), f"{label} [{group.n_seeds} seeds{flag}]", opts.ci_level, median=True, clip=achievable_range(env, matrix))
+            )
         _threshold_line(ax, opts.thresholds.get(env))
         ax.set_xscale("log")
         ax.set_xlabel("environment steps (log scale)")
@@ -331,6 +406,71 @@ def ddpg_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
             f"(solid: mean ± {opts.ci_level:.0%} CI over seeds; dotted: median)"
         )
         yield f"ddpg_{slug(env)}", fig
+
+
+def es_settings_text(group) -> str:
+    """``popsize 10, σ 0.1, lr 0.1, 1500 generations, weight_decay_form=estool``: from the run's config.yaml
+    (then its folder name), so that a legend states what the run actually used."""
+    hp = group.hyperparams()
+    parts = [f"popsize {hp['popsize']:g}" if hp.get("popsize") is not None else None,
+             f"σ {hp['sigma']:g}" if hp.get("sigma") is not None else None,
+             f"lr {hp['lr']:g}" if hp.get("lr") is not None and group.algo in ("openes", "snes") else None]  # fmt: skip
+    generations = group.config.get("generations")
+    if isinstance(generations, int) and not isinstance(generations, bool):
+        parts.append(f"{generations} generations")
+    form = group.config.get("weight_decay_form")
+    if form and form != "paper":
+        parts.append(f"weight_decay_form={form}")
+    return ", ".join(p for p in parts if p) or group.overrides or "paper settings"
+
+
+# --------------------------------------------------------------------------- performance profiles
+
+
+def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
+    """Performance profiles (Agarwal et al. 2021) of the final population mean return, per env.
+
+    For each return tau, the fraction of runs (seeds) whose final population mean return exceeds
+    tau, with a 95 % stratified-bootstrap band (:func:`imix_cli.stats.performance_profile_ci`).
+    A curve further up and right is better everywhere, not only on average.
+    """
+    from imix_cli.stats import performance_profile_ci
+
+    groups = select_main_groups(exp.groups)
+    for env in sorted({g.env for g in groups}):
+        members = [g for g in groups if g.env == env]
+        finals = {g.name: np.array([f["mean_score"].to_numpy(dtype=float)[-1] for f in g.frames()]) for g in members}
+        values = np.concatenate(list(finals.values()))
+        values = values[np.isfinite(values)]
+        if values.size == 0:
+            continue
+        lo, hi = achievable_range(env, values)
+        taus = np.linspace(lo, hi, 201)
+        fig = new_figure(6.4, 3.9)
+        ax = fig.subplots()
+        common = common_settings(members)
+        for i, group in enumerate(members):
+            scores = finals[group.name][np.isfinite(finals[group.name])]
+            if scores.size == 0:
+                continue
+            point, low, high = performance_profile_ci(scores, taus, level=0.95, seed=i)
+            color = algo_color(group.algo)
+            style_ = "-" if group.mixing != "none" else "--"
+            label = f"{own_settings_label(group, common, with_mixing=True)} [{group.n_seeds}]"
+            ax.step(taus, point, where="post", color=color, linestyle=style_, label=label)
+            ax.fill_between(taus, low, high, step="post", color=color, alpha=BAND_ALPHA, linewidth=0)
+        _threshold_vline = opts.thresholds.get(env)
+        if _threshold_vline is not None:
+            ax.axvline(_threshold_vline, zorder=1, **_THRESHOLD_STYLE)
+        ax.set_xlabel("final population mean return τ")
+        ax.set_ylabel("fraction of runs with return > τ")
+        ax.set_ylim(-0.02, 1.02)
+        ax.legend(loc="best", fontsize=7.5)
+        title = f"{env_name(env)}: performance profile of the final return"
+        if common:
+            title += f"; {settings_text(common)}"
+        fig.suptitle(f"{title}\n(run-score distribution, 95 % stratified-bootstrap band; [seeds]; {_seeds_note(members)})")
+        yield f"profile_{slug(env)}", fig
 
 
 # --------------------------------------------------------------------------- paper Figs 9-11
@@ -381,7 +521,7 @@ def gridsearch_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
                 label = f"{value:g}"
                 if values.count(value) > 1:  # the same point run twice (e.g. base run and explicit override)
                     label += f" ({group.overrides or 'no overrides'})"
-                handles.append(_draw_band(ax, x, matrix, color, f"{label}  [{group.n_seeds} seeds]", opts.ci_level))
+                handles.append(_draw_band(ax, x, matrix, color, f"{label}  [{group.n_seeds} seeds]", opts.ci_level, clip=achievable_range(env, matrix)))
             _threshold_line(ax, threshold)
             labels = [h.get_label() for h in handles]
             _add_threshold_entry(handles, labels, threshold)
@@ -418,4 +558,5 @@ FIGURES = [
     FigureSpec("efficiency", "Figs 7-8", efficiency_figures),
     FigureSpec("gridsearch", "Figs 9-11", gridsearch_figures),
     FigureSpec("ddpg", "Figs 12-13", ddpg_figures),
+    FigureSpec("profile", "Agarwal et al. 2021", profile_figures),
 ]

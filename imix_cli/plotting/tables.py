@@ -221,11 +221,10 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
             }
         )
     frame = pd.DataFrame(records)
-    baseline = {
-        (r.env, r.algo, r.overrides): r.evaluations_mean for r in frame.itertuples() if r.mixing == "none"
-    }
+    frame["pair_key"] = [_twin_key(g) for g in groups]
+    baseline = {r.pair_key: r.evaluations_mean for r in frame.itertuples() if r.mixing == "none"}
     frame["reduction"] = [
-        (baseline.get((r.env, r.algo, r.overrides), math.nan) / r.evaluations_mean)
+        (baseline.get(r.pair_key, math.nan) / r.evaluations_mean)
         if r.mixing != "none" and r.evaluations_mean and math.isfinite(r.evaluations_mean)
         else math.nan
         for r in frame.itertuples()
@@ -261,7 +260,127 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
         "table:evaluations_to_threshold",
         align="llllrrrr",
     )
-    yield Table("evaluations_to_threshold", frame, markdown_table(header, rows, notes), latex)
+    if (frame["seeds"] < 5).any():
+        notes += " Fewer than 5 seeds in: " + ", ".join(f"{_label(g)} {MIXING_LABELS.get(g.mixing, g.mixing)} ({g.n_seeds})" for g in groups if g.n_seeds < 5) + " (CIs unreliable)."
+    yield Table("evaluations_to_threshold", frame.drop(columns="pair_key"), markdown_table(header, rows, notes), latex)
+
+
+# --------------------------------------------------------------------------- robust statistics (Agarwal et al. 2021)
+
+#: Overrides that only set how mixing is done: stripped when pairing a run with its no-mixing twin.
+_MIXING_OVERRIDES = ("eim_generations", "im_variant", "im_alpha")
+BOOTSTRAP_REPS = 2000
+
+
+def _twin_key(group) -> tuple:
+    """(env, algo, overrides without the mixing-only ones): equal for a run and its no-mixing twin."""
+    from .data import parse_overrides
+
+    rest = {k: v for k, v in parse_overrides(group.overrides).items() if k not in _MIXING_OVERRIDES}
+    return (group.env, group.algo, tuple(sorted(rest.items())))
+
+
+def episodes_to_threshold(group, threshold: float) -> list:
+    """Per seed, the episodes until the population mean return first reaches ``threshold``; +inf if never."""
+    from .data import first_crossing
+
+    return [math.inf if v is None else v for v in (first_crossing(f, threshold) for f in group.frames())]
+
+
+def _flag(n: int) -> str:
+    return "<5 seeds" if n < 5 else ""
+
+
+def _interval(point, lo, hi, digits=0) -> str:
+    if not math.isfinite(point):
+        return "not reached (> 25 % of seeds never do)" if point == math.inf else "–"
+    hi_text = "∞" if hi == math.inf else _fmt(hi, digits)
+    return f"{_fmt(point, digits)} [{_fmt(lo, digits)}, {hi_text}]"
+
+
+def iqm_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
+    """IQM with 95 % stratified-bootstrap CIs of the final return and of the episodes to the threshold,
+    beside the mean ± 95 % Student-t CI (Agarwal et al. 2021)."""
+    from imix_cli.stats import iqm_ci, mean_ci
+
+    groups = [g for g in select_main_groups(exp.groups) if g.algo not in NON_ES]
+    if not groups:
+        return
+    records, rows = [], []
+    for i, group in enumerate(groups):
+        finals = [float(f["mean_score"].to_numpy(dtype=float)[-1]) for f in group.frames()]
+        finals = [v for v in finals if math.isfinite(v)]
+        f_iqm, f_lo, f_hi = iqm_ci(finals, 0.95, BOOTSTRAP_REPS, seed=i) if finals else (math.nan,) * 3
+        f_mean, f_half, _ = mean_ci(finals, 0.95) if finals else (math.nan, math.nan, 0)
+        threshold = opts.thresholds.get(group.env)
+        if threshold is not None:
+            episodes = episodes_to_threshold(group, threshold)
+            e_iqm, e_lo, e_hi = iqm_ci(episodes, 0.95, BOOTSTRAP_REPS, seed=i)
+            reached = sum(math.isfinite(v) for v in episodes)
+        else:
+            e_iqm = e_lo = e_hi = math.nan
+            reached = None
+        records.append(
+            {"env": group.env, "algo": group.algo, "mixing": group.mixing, "overrides": group.overrides, "seeds": group.n_seeds,
+             "flag": _flag(group.n_seeds), "final_iqm": f_iqm, "final_iqm_low": f_lo, "final_iqm_high": f_hi,
+             "final_mean": f_mean, "final_mean_ci95": f_half, "threshold": threshold if threshold is not None else math.nan,
+             "reached": reached if reached is not None else math.nan,
+             "episodes_iqm": e_iqm, "episodes_iqm_low": e_lo, "episodes_iqm_high": e_hi}
+        )  # fmt: skip
+        rows.append(
+            [_env(group.env), _label(group), MIXING_LABELS.get(group.mixing, group.mixing), f"{group.n_seeds}{' ⚠' if group.n_seeds < 5 else ''}",
+             _interval(f_iqm, f_lo, f_hi, 1), _pm(f_mean, f_half, 1),
+             "–" if threshold is None else f"{reached}/{group.n_seeds}",
+             "–" if threshold is None else _interval(e_iqm, e_lo, e_hi, 0)]
+        )  # fmt: skip
+    header = ["Env", "Algorithm", "Mixing", "Seeds", "Final return IQM [95% CI]", "Final return mean ± 95% CI",
+              "Reached", "Episodes to threshold IQM [95% CI]"]  # fmt: skip
+    notes = (
+        "IQM: interquartile mean (mean of the middle 50 % of seeds), 95 % CI by stratified percentile bootstrap "
+        f"({BOOTSTRAP_REPS} resamples, Agarwal et al. 2021); mean ± 95 % Student-t CI for reference. Episodes to "
+        "threshold: a seed that never reaches it counts as +inf, so the IQM is finite while fewer than 25 % of "
+        "seeds fail. ⚠: fewer than 5 seeds, CIs unreliable."
+    )
+    latex = latex_table(header, rows, "Interquartile mean (IQM) with 95 % stratified-bootstrap CIs over seeds.", "table:iqm", align="llll" + "rrrr")
+    yield Table("iqm", pd.DataFrame(records), markdown_table(header, rows, notes), latex)
+
+
+def improvement_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
+    """P(a run with mixing needs fewer episodes to the threshold than its no-mixing twin), with a 95 % CI."""
+    from imix_cli.stats import probability_of_improvement_ci
+
+    groups = [g for g in select_main_groups(exp.groups) if g.algo not in NON_ES and opts.thresholds.get(g.env) is not None]
+    baselines = {_twin_key(g): g for g in groups if g.mixing == "none"}
+    records, rows = [], []
+    for i, group in enumerate(g for g in groups if g.mixing != "none"):
+        base = baselines.get(_twin_key(group))
+        if base is None:
+            continue
+        threshold = opts.thresholds[group.env]
+        mixed = [-v for v in episodes_to_threshold(group, threshold)]  # higher is better: fewer episodes
+        plain = [-v for v in episodes_to_threshold(base, threshold)]
+        point, lo, hi = probability_of_improvement_ci(mixed, plain, 0.95, BOOTSTRAP_REPS, seed=i)
+        n = min(group.n_seeds, base.n_seeds)
+        records.append(
+            {"env": group.env, "algo": group.algo, "mixing": group.mixing, "overrides": group.overrides,
+             "baseline": base.name, "seeds_mixing": group.n_seeds, "seeds_none": base.n_seeds, "flag": _flag(n),
+             "threshold": threshold, "p_fewer_episodes": point, "ci_low": lo, "ci_high": hi}
+        )  # fmt: skip
+        rows.append(
+            [_env(group.env), _label(group), MIXING_LABELS.get(group.mixing, group.mixing), f"{group.n_seeds} vs {base.n_seeds}{' ⚠' if n < 5 else ''}",
+             f"{threshold:g}", f"{point:.2f} [{lo:.2f}, {hi:.2f}]"]
+        )  # fmt: skip
+    if not records:
+        return
+    header = ["Env", "Algorithm", "Mixing", "Seeds", "Threshold", "P(fewer episodes than no mixing) [95% CI]"]
+    notes = (
+        "Probability that a seed with mixing reaches the threshold with fewer episodes than a seed of the same "
+        "config without mixing (Mann-Whitney U / (n_x n_y), ties count half; a seed that never reaches it needs "
+        "+inf episodes). 0.5: no difference. 95 % CI: stratified percentile bootstrap, both groups resampled "
+        f"({BOOTSTRAP_REPS} resamples). ⚠: fewer than 5 seeds."
+    )
+    latex = latex_table(header, rows, "Probability of improvement of mixing over no mixing in episodes to the threshold.", "table:improvement", align="llllrr")
+    yield Table("improvement", pd.DataFrame(records), markdown_table(header, rows, notes), latex)
 
 
 # --------------------------------------------------------------------------- grid search ranking
@@ -341,6 +460,8 @@ TABLES = [
     TableSpec("reuse", "Table 1", reuse_tables),
     TableSpec("threshold", "text of section 4.2", threshold_tables),
     TableSpec("gridsearch", "section 4.3 grid search", gridsearch_tables),
+    TableSpec("iqm", "Agarwal et al. 2021", iqm_tables),
+    TableSpec("improvement", "Agarwal et al. 2021", improvement_tables),
 ]
 
 

@@ -1,0 +1,240 @@
+"""``imix render``: a saved policy acting in its env, as a GIF (or an MP4 when ffmpeg is present).
+
+Why: a learning curve says how much a policy scores, not what it does; watching it is how one
+spots a policy that exploits the time limit or balances by luck. Frames come from gymnasium's
+``render_mode="rgb_array"`` of the policy's env (``env_id`` and episode cap from the policy file's
+header), on the first of the seed's evaluation episodes (:func:`imix_cli.evaluate.eval_episode_seeds`),
+so the rendered episode is one that ``imix eval`` counts.
+
+Backends (what to install):
+
+* classic control (CartPole, Acrobot, imix/ContinuousCartPole*): pygame, i.e. ``pip install
+  "gymnasium[classic-control]"`` (or imix's ``render`` extra). Drawn off-screen
+  (``SDL_VIDEODRIVER=dummy`` is set when unset): no display needed.
+* MuJoCo: ``pip install "gymnasium[mujoco]"`` and an off-screen OpenGL backend chosen by
+  ``MUJOCO_GL``: ``egl`` (GPU or Mesa's EGL; ``apt install libegl1``) or ``osmesa`` (software,
+  slower; ``apt install libosmesa6``). imix sets neither; a failure names both.
+* GIFs are written with Pillow (a matplotlib dependency, always present); ``.mp4`` pipes raw
+  frames to the ``ffmpeg`` executable, which must be on PATH.
+
+The output file is written atomically (a temporary file, then a rename).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from imix_cli.evaluate import UsageError, eval_episode_seeds, parse_args, run_folders
+
+HELP = """\
+usage: imix render [key=value ...]
+
+Render one saved policy of a run (policy_<seed>_<which>.npz) acting in its env, on the first
+episode imix eval uses for that seed, into a GIF (or an MP4 if ffmpeg is installed).
+
+keys:
+  results_dir=PATH   folder holding the experiments (default: results)
+  experiment=NAME    experiment (default: default)
+  run=NAME           run folder (needed when the experiment has several runs)
+  seed=K             seed whose policy is shown (default: 0)
+  which=mean|best    final distribution mean or best-ever member (default: mean)
+  out=FILE           output, .gif or .mp4 (default: policy.gif)
+  frames=N           at most N frames (default: the whole episode: reset + every step)
+  scale=F            resize frames by F in (0, 1] (default: 1; 0.5 halves a GIF's size)
+  fps=N              frames per second (default: the env's render_fps, else 30)
+
+Needs pygame for classic control (pip install "gymnasium[classic-control]") and, for MuJoCo,
+MUJOCO_GL=egl or MUJOCO_GL=osmesa.
+"""
+
+_MUJOCO_HINT = (
+    "MuJoCo renders off-screen through OpenGL: set MUJOCO_GL=egl (needs libEGL, e.g. apt install libegl1) "
+    "or MUJOCO_GL=osmesa (apt install libosmesa6), and pip install \"gymnasium[mujoco]\""
+)
+
+
+def _one_line(err: BaseException) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+def _is_mujoco(env_id: str) -> bool:
+    import gymnasium as gym
+
+    entry = gym.spec(env_id).entry_point
+    return "mujoco" in str(entry).lower()
+
+
+def make_render_env(header: dict):
+    """``gym.make`` of the policy's env with ``render_mode="rgb_array"``; UsageError (1) naming what to install."""
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # pygame draws to a surface, no display
+    import gymnasium as gym
+
+    import imix_cli.envs  # noqa: F401  (registers imix/ ids)
+
+    env_id = header["env_id"]
+    try:
+        with warnings.catch_warnings():  # CartPole-v0 "out of date": imix reproduces v0 on purpose
+            warnings.simplefilter("ignore", DeprecationWarning)
+            env = gym.make(env_id, render_mode="rgb_array", max_episode_steps=int(header["max_steps"]))
+    except gym.error.DependencyNotInstalled as err:
+        raise UsageError(f"cannot render {env_id}: {_one_line(err)}", 1) from None
+    except Exception as err:  # noqa: BLE001 - GL and driver errors come in many types
+        hint = _MUJOCO_HINT if _is_mujoco(env_id) else _one_line(err)
+        raise UsageError(f"cannot render {env_id}: {hint}", 1) from None
+    return env
+
+
+def policy_frames(policy, frames: int | None = None) -> list:
+    """RGB frames (H, W, 3) uint8 of the policy's first evaluation episode: after reset, then after each step."""
+    h = policy.header
+    if h.get("obs_normalizer") is not None:
+        raise UsageError(f"policy of run {h.get('run')!r} seed {h.get('seed')} normalises observations; this imix render cannot apply a normaliser yet", 1)
+    env = make_render_env(h)
+    act = policy.batch_policy(1)
+    out = []
+    try:
+        seed = int(eval_episode_seeds(h["seed"], 1)[0])
+        try:
+            obs, _ = env.reset(seed=seed)
+            out.append(np.asarray(env.render()))
+        except Exception as err:  # noqa: BLE001
+            if isinstance(err, ImportError) or "DependencyNotInstalled" in type(err).__name__:
+                raise UsageError(f"cannot render {h['env_id']}: {_one_line(err)}", 1) from None
+            hint = _MUJOCO_HINT if _is_mujoco(h["env_id"]) else _one_line(err)
+            raise UsageError(f"cannot render {h['env_id']}: {hint}", 1) from None
+        limit = frames if frames is not None else int(h["max_steps"]) + 1
+        space = env.action_space
+        while len(out) < limit:
+            a = act(np.asarray(obs, dtype=np.float64).reshape(1, -1))
+            if h["discrete"]:
+                action = int(a[0]) + int(h.get("action_start") or 0)
+            else:
+                action = np.asarray(a[0]).reshape(space.shape).astype(space.dtype)
+            obs, _, terminated, truncated, _ = env.step(action)
+            out.append(np.asarray(env.render()))
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    return out
+
+
+def _scaled(frames: list, scale: float) -> list:
+    from PIL import Image
+
+    images = [Image.fromarray(np.ascontiguousarray(f[..., :3]).astype(np.uint8)) for f in frames]
+    if scale != 1.0:
+        size = (max(1, round(images[0].width * scale)), max(1, round(images[0].height * scale)))
+        images = [im.resize(size, Image.Resampling.LANCZOS) for im in images]
+    return images
+
+
+def write_gif(path, frames: list, fps: float, scale: float = 1.0) -> None:
+    """An endlessly looping GIF (adaptive 256-colour palette per frame), written atomically.
+
+    Pillow stores a frame identical to the one before as a longer display of that frame, so the
+    file may hold fewer images than ``frames``; the total duration is always ``len(frames) / fps``.
+    """
+    import io
+
+    from PIL import Image
+
+    from imix_cli.results import atomic_write_bytes
+
+    images = [im.convert("P", palette=Image.Palette.ADAPTIVE, colors=256) for im in _scaled(frames, scale)]
+    buffer = io.BytesIO()
+    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=max(20, round(1000 / fps)), loop=0, optimize=True)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def write_mp4(path, frames: list, fps: float, scale: float = 1.0) -> None:
+    """H.264 MP4 through the ``ffmpeg`` executable (UsageError naming it if absent), written atomically."""
+    ffmpeg = shutil.which("ffmpeg")
+    if ffmpeg is None:
+        raise UsageError("writing .mp4 needs the ffmpeg executable on PATH (e.g. apt install ffmpeg); out=<name>.gif needs nothing", 1)
+    images = _scaled(frames, scale)
+    w, h = images[0].size
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp.mp4")
+    os.close(fd)
+    try:
+        cmd = [
+            ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps:g}",
+            "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-c:v", "libx264", tmp,
+        ]  # fmt: skip
+        proc = subprocess.run(cmd, input=b"".join(im.tobytes() for im in images), capture_output=True)
+        if proc.returncode != 0:
+            raise UsageError(f"ffmpeg failed: {_one_line(RuntimeError(proc.stderr.decode(errors='replace')))}", 1)
+        os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _pick_run(folders: list, run: str | None) -> Path:
+    if run is not None or len(folders) == 1:
+        return folders[0]
+    raise UsageError(f"the experiment has {len(folders)} runs; choose one with run= ({', '.join(p.name for p in folders)})")
+
+
+def main(argv: list | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if any(a in ("-h", "--help", "help") for a in argv):
+        print(HELP, end="")
+        return 0
+    from imix_cli.policy_files import PolicyFileError, policy_path, read_policy
+
+    try:
+        s = parse_args(
+            argv, "render",
+            {"results_dir": "results", "experiment": "default", "run": None, "seed": 0, "which": "mean",
+             "out": "policy.gif", "frames": None, "scale": "1", "fps": None},
+            choices={"which": ("mean", "best")}, ints={"seed": 0, "frames": 1, "fps": 1},
+        )  # fmt: skip
+        out = Path(s["out"])
+        if out.suffix.lower() not in (".gif", ".mp4"):
+            raise UsageError(f"bad value for out: {s['out']!r} (expected a .gif or .mp4 file name)")
+        try:
+            scale = float(s["scale"])
+        except ValueError:
+            scale = -1.0
+        if not 0.0 < scale <= 1.0:
+            raise UsageError(f"bad value for scale: {s['scale']!r} (expected a number in (0, 1])")
+        if not out.parent.is_dir():
+            raise UsageError(f"bad value for out: folder {out.parent} does not exist")
+        run_dir = _pick_run(run_folders(s["results_dir"], s["experiment"], s["run"]), s["run"])
+        policy = read_policy(policy_path(run_dir, s["seed"], s["which"]))
+        frames = policy_frames(policy, s["frames"])
+        import gymnasium as gym
+
+        fps = s["fps"] or gym.spec(policy.header["env_id"]).kwargs.get("render_fps") or _env_fps(policy.header["env_id"])
+        (write_mp4 if out.suffix.lower() == ".mp4" else write_gif)(out, frames, float(fps), scale)
+    except UsageError as err:
+        print(f"imix render: {err}", file=sys.stderr)
+        return err.status
+    except PolicyFileError as err:
+        print(f"imix render: {err}", file=sys.stderr)
+        return 1
+    print(f"wrote {out} ({len(frames)} frames, {out.stat().st_size / 1024:.0f} KiB, {policy.header['env_id']}, seed {s['seed']}, {s['which']})")
+    return 0
+
+
+def _env_fps(env_id: str) -> int:
+    import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
+
+    entry = gym.spec(env_id).entry_point
+    creator = load_env_creator(entry) if isinstance(entry, str) else entry
+    return int(getattr(creator, "metadata", {}).get("render_fps") or 30)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,62 @@
+"""What `imix run` leaves for the user: the summary's comparison with and without mixing, and the
+partial CSV that lets `imix plot` / `imix status` follow a running seed."""
+
+from __future__ import annotations
+
+from imix_cli.cli import main
+from imix_cli.config import validate_overrides
+from imix_cli.results import partial_csv_path, read_run_csv
+from imix_cli.runner import run_seeds
+
+TINY = ["algo=cem", "env=cartpole", "generations=4", "popsize=8", "progress=false", "workers=1"]
+
+
+def test_summary_compares_with_and_without_mixing_and_has_no_nan(tmp_path, capsys):
+    assert main(["run", *TINY, "seeds=1", "eim=false", f"results_dir={tmp_path}"]) == 0
+    first = capsys.readouterr().out
+    assert "nan" not in first  # one seed: the value without a CI
+    assert main(["run", *TINY, "seeds=1", "eim=true", f"results_dir={tmp_path}"]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert "episodes/seed" in lines[0]
+    runs = [line.split()[0] for line in lines[1:3]]
+    assert runs == ["cem-cartpole-eim-popsize=8", "cem-cartpole-none-popsize=8"]
+    none = read_run_csv(tmp_path / "default" / "cem-cartpole-none-popsize=8" / "seed_0.csv")["evaluations"].iloc[-1]
+    eim = read_run_csv(tmp_path / "default" / "cem-cartpole-eim-popsize=8" / "seed_0.csv")["evaluations"].iloc[-1]
+    assert f"{none / eim:.2f}x fewer episodes for the same 4 generations" in out
+    # the header's columns line up with long run names
+    assert lines[0].index("seeds") + len("seeds") == lines[1].index(" 1 ") + 2
+
+
+def test_partial_csv_at_each_checkpoint_then_removed(tmp_path):
+    spec = validate_overrides([*TINY, "seeds=1", "generations=5", "checkpoint_every=2", f"results_dir={tmp_path}"])[0]
+    spec.run_dir.mkdir(parents=True)
+    seen = []
+
+    def progress(_n):  # called after every generation, once its checkpoint (if any) is written
+        path = partial_csv_path(spec.run_dir, 0)
+        seen.append(len(read_run_csv(path)) if path.exists() else 0)
+
+    run_seeds(spec, [0], progress=progress)
+    assert seen == [0, 2, 2, 4, 0]  # rows up to the last checkpoint; gone once seed_0.csv exists
+    assert not partial_csv_path(spec.run_dir, 0).exists() and (spec.run_dir / "seed_0.csv").exists()
+
+
+def test_missing_env_extra_is_one_line_with_its_install_hint(tmp_path, capsys):
+    import importlib.util
+
+    import pytest
+
+    if importlib.util.find_spec("Box2D") is not None:
+        pytest.skip("Box2D is installed here")
+    assert main(["run", "env=gym", "env.id=LunarLander-v3", "seeds=1", "generations=1", f"results_dir={tmp_path}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "LunarLander-v3" in err[0] and 'pip install "gymnasium[box2d]"' in err[0]
+    assert not any(tmp_path.iterdir())  # nothing written, not even config.yaml
+
+
+def test_argparse_style_option_suggests_key_value(tmp_path, capsys):
+    assert main(["run", "--seeds", "3", f"results_dir={tmp_path}"]) == 2
+    assert main(["run", "--seeds=3", f"results_dir={tmp_path}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all("seeds=3" in line for line in err)
