@@ -309,3 +309,18 @@ def test_resume_mid_warm_up_equals_not_stopping(tmp_path):
     got = read_run_csv(spec.run_dir / "seed_0.csv").drop(columns="wall_time")
     pd.testing.assert_frame_equal(got, expected)
     assert got["reused"].sum() > 0
+
+
+def test_policy_files_of_a_normalised_linear_run_are_raw_observation_policies(tmp_path):
+    """The written policies have the statistics folded in (the files carry no normaliser) and
+    ``imix eval`` rebuilds the run's linear architecture from them."""
+    from imix_cli.policy_files import read_policy
+
+    args = ["env=gym", "env.id=Pendulum-v1", "algo=snes", "seeds=1", "generations=4", "popsize=6", "policy.hidden=[]",
+            "policy.obs_norm=true", "policy.obs_norm_warmup=2", "progress=false", "workers=1"]  # fmt: skip
+    assert imix(*args, results_dir=tmp_path) == 0
+    run = tmp_path / "default" / "snes-Pendulum-v1-none-hidden=linear,obs_norm=2,popsize=6"
+    best = read_policy(run / "policy_0_best.npz")
+    assert best.header["obs_normalizer"] is None and list(best.header["hidden"]) == []
+    assert main(["eval", f"results_dir={tmp_path}", f"run={run.name}", "episodes=2"]) == 0
+    assert (run / "eval.csv").exists()
