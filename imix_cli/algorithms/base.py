@@ -17,8 +17,9 @@ weight decay and centred-rank fitness shaping, as in the paper's section 4.1:
     The paper's text: the penalty -w * ||theta||^2 is added to each raw fitness,
     then the penalised fitness is turned into centred ranks.
 
-Tied fitness values share their ranks (:func:`centered_ranks`), so no ES depends on the
-order of the population it is told.
+Tied fitness values are ranked in a random order keyed on the members' parameters
+(:func:`centered_ranks`, :func:`member_keys`), so no ES depends on the order of the
+population it is told, and no tiny term (the estool penalty) decides every tie.
 
 Non-finite fitness (NaN, +-inf from a user's environment) is ranked last
 (worst) and counted in :attr:`EvolutionStrategy.nonfinite_fitness_count`.
@@ -47,25 +48,63 @@ def _tie_groups(values: np.ndarray):
     return order, starts, ends, np.cumsum(first) - 1
 
 
-def centered_ranks(values: np.ndarray) -> np.ndarray:
+def centered_ranks(values: np.ndarray, tie_break: np.ndarray | None = None) -> np.ndarray:
     """Map values to ranks scaled into [-0.5, 0.5] (the worst gets -0.5, the best +0.5).
 
-    Tied values get the average of the ranks they span ("fractional ranking"), so the result
-    never depends on the order of the values. Why it matters: with importance mixing a
-    generation lists its reused members first, and on CartPole ~40 of 50 members tie at the
-    maximum return; breaking ties by position put the reused members at the bottom of the
-    tie, i.e. made the fresh rule-2 draws (which sit where the new density exceeds the old)
-    the elites, and pushed the distribution outward (issue 11: CMA-ES + EIM ended at 181.8
-    instead of 196 on CartPole, sigma 3x too large).
+    Ties never depend on the order of the values. Without ``tie_break``, tied values get
+    the average of the ranks they span ("fractional ranking"). With ``tie_break`` (one key
+    per value), tied values are ordered by their keys -- :meth:`EvolutionStrategy.utilities`
+    passes a hash of each member's parameters, i.e. a random order that is a function of the
+    members, not of where they stand in the population.
+
+    Why it matters: with importance mixing a generation lists its reused members first, and
+    on CartPole ~40 of 50 members tie at the maximum return; breaking ties by position put
+    the reused members at the bottom of the tie, i.e. made the fresh rule-2 draws (which sit
+    where the new density exceeds the old) the elites, and pushed the distribution outward
+    (issue 11: CMA-ES + EIM ended at 181.8 instead of 196, sigma 3x too large). And why the
+    ES breaks ties at random rather than sharing ranks: the estool weight decay is then added
+    to the ranks, and between exactly equal ranks that tiny penalty decides the order --
+    CEM and CMA-ES then select the smallest members of every tie, which pulled CMA-ES on
+    CartPole to a mean return of 60 (measured, 5 seeds).
     """
     values = np.asarray(values, dtype=np.float64)
     n = values.shape[0]
     if n == 1:
         return np.zeros(1)
-    order, starts, ends, group_of = _tie_groups(values)
     ranks = np.empty(n, dtype=np.float64)
-    ranks[order] = ((starts + ends - 1) / 2.0)[group_of]
+    if tie_break is not None:
+        ranks[np.lexsort((tie_break, values))] = np.arange(n, dtype=np.float64)
+    else:
+        order, starts, ends, group_of = _tie_groups(values)
+        ranks[order] = ((starts + ends - 1) / 2.0)[group_of]
     return ranks / (n - 1) - 0.5
+
+
+_HASH_MULTIPLIERS: dict[int, np.ndarray] = {}
+
+
+def member_keys(samples: np.ndarray) -> np.ndarray:
+    """A pseudo-random 64-bit key per row that depends only on the row's values (its float64 bits).
+
+    A fixed random odd multiplier per coordinate, a wrapping sum over the row, then
+    splitmix64's finaliser: two members get the same key only if their parameters are equal
+    (or by a 2^-64 accident), and the keys carry no information about the members' size or
+    position, so ordering tied members by them is a random tie-break that no reordering of
+    the population can change.
+    """
+    bits = np.ascontiguousarray(samples, dtype=np.float64).view(np.uint64)
+    dim = bits.shape[1]
+    mult = _HASH_MULTIPLIERS.get(dim)
+    if mult is None:
+        mult = np.random.default_rng(0x5EED).integers(0, 2**64, size=dim, dtype=np.uint64, endpoint=False) | np.uint64(1)
+        _HASH_MULTIPLIERS[dim] = mult
+    h = (bits * mult).sum(axis=1, dtype=np.uint64)
+    h ^= h >> np.uint64(30)
+    h *= np.uint64(0xBF58476D1CE4E5B9)
+    h ^= h >> np.uint64(27)
+    h *= np.uint64(0x94D049BB133111EB)
+    h ^= h >> np.uint64(31)
+    return h
 
 
 def rank_weights(utilities: np.ndarray, weights_by_rank: np.ndarray) -> np.ndarray:
@@ -198,10 +237,11 @@ class EvolutionStrategy(ABC):
         finite = np.isfinite(fitness)
         self.nonfinite_fitness_count += int(np.count_nonzero(~finite))
         fitness = np.where(finite, fitness, -np.inf)
+        keys = member_keys(samples)  # ties: a random order that the population's order cannot change
         if self.weight_decay_form == "paper":
             penalised = fitness - self.weight_decay * np.einsum("ij,ij->i", samples, samples)
-            return centered_ranks(penalised)
-        return centered_ranks(fitness) - self.weight_decay * np.mean(samples * samples, axis=1)
+            return centered_ranks(penalised, keys)
+        return centered_ranks(fitness, keys) - self.weight_decay * np.mean(samples * samples, axis=1)
 
     # ------------------------------------------------------------ for subclasses
     @abstractmethod
