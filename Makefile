@@ -71,3 +71,22 @@ reproduce-quick:  ## the main figures from 3 seeds x 30 generations, in about a 
 
 bench:  ## speed benchmarks (rollouts, mixing, grid) with baselines measured in the same run
 	$(IMIX) bench
+
+# Beyond the paper (docs/readme-mujoco.md): SNES and OpenES, without and with EIM, on Swimmer,
+# Hopper and HalfCheetah (MuJoCo v5; needs the mujoco extra), MUJOCO_SEEDS seeds each. Linear
+# policies on observations normalised with statistics frozen after a 3-generation warm-up
+# (honest reuse). Each generation's fresh episodes, over all seeds in lockstep, run on every
+# core (evaluator=pool). Budget: 12 runs x 5 seeds x 150 generations x 20 members, estimated
+# at ~65-80 min on a quiet 2-core machine from the measured episode costs (see the docs file);
+# finished runs are skipped, so an interrupted study resumes. Smoke test:
+#   make reproduce-mujoco MUJOCO_SEEDS=2 MUJOCO_GENERATIONS=5 MUJOCO_EXPERIMENT=mujoco_smoke
+MUJOCO_SEEDS       ?= 5
+MUJOCO_GENERATIONS ?= 150
+MUJOCO_POPSIZE     ?= 20
+MUJOCO_EXPERIMENT  ?= mujoco
+MUJOCO_GRID = algo=snes,openes env=swimmer,hopper,halfcheetah eim=false,true 'policy.hidden=[]' policy.obs_norm=true policy.obs_norm_warmup=3 sigma=0.1 lr=0.02 evaluator=pool
+
+.PHONY: reproduce-mujoco
+reproduce-mujoco:  ## MuJoCo study (SNES/OpenES x EIM x Swimmer/Hopper/HalfCheetah) + figures into results/mujoco/figures/
+	$(IMIX) run -m $(MUJOCO_GRID) seeds=$(MUJOCO_SEEDS) generations=$(MUJOCO_GENERATIONS) popsize=$(MUJOCO_POPSIZE) experiment=$(MUJOCO_EXPERIMENT) progress=false
+	$(PY) -m imix_cli.plotting.mujoco experiment=$(MUJOCO_EXPERIMENT)

@@ -20,6 +20,7 @@ import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from imix_cli.algorithms.cmaes import MAX_DIM as CMAES_CLASS_MAX_DIM
 from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
 
 ES_NAMES = ("openes", "snes", "cem", "cmaes")
@@ -70,16 +71,20 @@ DDPG_DEFAULTS = PAPER_SETTINGS
 ES_ONLY_KEYS = (
     "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age", "reeval_prob",
     "generations", "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "checkpoint_every",
+    "policy", "evaluator", "evaluator_workers", "ray_address",
 )  # fmt: skip
 
 #: Keys that do not change a run's results (everything else in config.yaml must match to resume).
-NON_IDENTITY_KEYS = ("seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every")
+NON_IDENTITY_KEYS = (
+    "seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every",
+    "evaluator", "evaluator_workers", "ray_address",  # where episodes run never changes their results
+)  # fmt: skip
 
 TOP_LEVEL_KEYS = (
     "algo", "env", "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age",
     "reeval_prob", "seeds", "generations",
     "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
-    "progress", "results_dir", "experiment", "total_steps",
+    "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
 )  # fmt: skip
 
 
@@ -138,6 +143,13 @@ class RunSpec:
     # algo=ddpg only (the ES fields above then hold inert placeholders: generations 0, mixing none):
     total_steps: int | None = None  # environment steps of each seed
     ddpg: dict | None = field(default=None, compare=False)  # validated conf/algo/ddpg.yaml settings
+    # The ES policy and where its episodes run (see _policy_and_evaluator):
+    hidden: tuple = (8, 8)  # policy.hidden: tanh hidden layer sizes, () = linear
+    obs_norm: bool = False  # policy.obs_norm: observation normalisation, frozen after the warm-up
+    obs_norm_warmup: int = 0  # policy.obs_norm_warmup: generations of statistics (mixing off) before it freezes
+    evaluator: str = "local"  # local | pool | ray (imix_cli.parallel_evaluation)
+    evaluator_workers: int = 1  # processes (pool) or actors (ray)
+    ray_address: str | None = None  # ray.init(address=...) for evaluator=ray
 
     @property
     def evaluator_key(self) -> str:
@@ -170,6 +182,10 @@ class RunSpec:
             values["reeval_prob"] = self.reeval_prob
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
         changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != ALGO_OPTION_DEFAULTS.get(k)})
+        if self.hidden != POLICY_DEFAULTS["hidden"]:
+            changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"
+        if self.obs_norm:
+            changed["obs_norm"] = self.obs_norm_warmup  # the warm-up in generations
         return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
 
     @property
@@ -295,16 +311,22 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         raise ConfigError("reeval_age/reeval_prob: only apply with im=true or eim=true (they re-evaluate reused members)")
 
     env_name, env_id, max_steps = _env(env_cfg)
-    workers, experiment = _workers_and_experiment(cfg, launcher)
+    policy = _policy_and_evaluator(cfg, algo, env_name, env_id, max_steps, launcher)
+    workers, experiment = _workers_and_experiment(cfg, launcher, pool=policy["evaluator"] == "pool")
     config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
     popsize, sigma = _int(cfg, "popsize", 2), _float(cfg, "sigma", 0.0, False)
     if algo == "cmaes" and popsize < 3:
         raise ConfigError(f"popsize={popsize}: algo=cmaes needs popsize >= 3 (its recombination weights need at least 2 parents and one non-parent)")
     if not math.isfinite(sigma * sigma):
         raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
-    num_params = _policy_size(env_name, env_id, max_steps)
+    _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
+    num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"])
     _check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0))
     seeds = _seeds(cfg)
+    if policy["stored"] is None:
+        config.pop("policy", None)  # the default policy: config.yaml stays as it was before the key existed
+    else:
+        config["policy"] = policy["stored"]
     return RunSpec(
         algo=algo,
         env_name=env_name,
@@ -330,6 +352,12 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         experiment=experiment,
         config={**config, "mixing": mixing},
         algo_options=algo_options,
+        hidden=policy["hidden"],
+        obs_norm=policy["obs_norm"],
+        obs_norm_warmup=policy["obs_norm_warmup"],
+        evaluator=policy["evaluator"],
+        evaluator_workers=policy["evaluator_workers"],
+        ray_address=policy["ray_address"],
     )
 
 
@@ -391,18 +419,102 @@ def _check_memory(popsize: int, num_params: int, archive_depth: int) -> None:
         )
 
 
-def _workers_and_experiment(cfg: dict, launcher: str | None) -> tuple[int, str]:
+def _workers_and_experiment(cfg: dict, launcher: str | None, pool: bool = False) -> tuple[int, str]:
     workers, parallel = cfg.get("workers"), parallel_launcher_name(launcher)
     if workers is None:
-        workers = 1 if parallel else default_workers()
+        workers = 1 if parallel or pool else default_workers()
     else:
         workers = _int(cfg, "workers", 1)
         if parallel and workers > 1:
             raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
+        if pool and workers > 1:
+            raise ConfigError(f"workers={workers}: evaluator=pool already spreads each generation over evaluator_workers processes; use workers=1 (or leave it null)")
     experiment = _name(cfg, "experiment")
     if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
         raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
     return workers, experiment
+
+
+# ------------------------------------------------------------------ policy and evaluator keys
+#: ``policy.*`` defaults (conf/config.yaml): the paper's 8x8 tanh MLP without normalisation.
+POLICY_DEFAULTS = {"hidden": (8, 8), "obs_norm": False, "obs_norm_warmup": 5}
+EVALUATORS = ("local", "pool", "ray")
+#: CMA-ES keeps a d x d covariance and eigendecomposes it (O(d^2) memory, O(d^3) time): above
+#: this many parameters imix refuses it before anything runs (the CMAES class's own limit).
+CMAES_MAX_DIM = CMAES_CLASS_MAX_DIM
+#: Observation and output sizes of the built-in environments (their policies' input and output).
+BUILTIN_POLICY_DIMS = {"cartpole": (4, 2), "acrobot": (6, 3), "continuous_cartpole": (4, 1), "continuous_cartpole_hard": (4, 1)}
+
+
+def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_steps, launcher: str | None) -> dict:
+    """Validate ``policy.*``, ``evaluator``, ``evaluator_workers``, ``ray_address``; refuse CMA-ES at large d."""
+    policy = cfg.get("policy")
+    policy = {} if policy is None else policy
+    if not isinstance(policy, dict):
+        raise ConfigError(f"policy={policy!r}: must be a mapping with keys hidden, obs_norm, obs_norm_warmup")
+    unknown = sorted(set(policy) - set(POLICY_DEFAULTS))
+    if unknown:
+        raise ConfigError(f"unknown key 'policy.{unknown[0]}'; valid policy keys: {', '.join(POLICY_DEFAULTS)}")
+    hidden = policy.get("hidden", list(POLICY_DEFAULTS["hidden"]))
+    if not isinstance(hidden, (list, tuple)) or not all(_is_number(h) and float(h).is_integer() and h >= 1 for h in hidden):
+        raise ConfigError(f"policy.hidden={hidden!r}: must be a list of layer sizes >= 1, e.g. [64,64], or [] for a linear policy")
+    hidden = tuple(int(h) for h in hidden)
+    p = {f"policy.{k}": policy.get(k, v) for k, v in POLICY_DEFAULTS.items()}
+    obs_norm = _bool(p, "policy.obs_norm")
+    warmup = _int(p, "policy.obs_norm_warmup", 1)
+    if obs_norm and env_name in BUILTIN_ENVS:
+        raise ConfigError(f"policy.obs_norm=true: only on gymnasium environments (env=gym or a MuJoCo env), not the built-in env={env_name}")
+    evaluator = _choice(cfg.get("evaluator", "local"), "evaluator", EVALUATORS)
+    n_workers = cfg.get("evaluator_workers")
+    if n_workers is not None:
+        n_workers = _int(cfg, "evaluator_workers", 1)
+    elif evaluator == "pool":
+        n_workers = default_workers()
+    address = cfg.get("ray_address")
+    if address is not None and (not isinstance(address, str) or not address.strip()):
+        raise ConfigError(f"ray_address={address!r}: must be an address such as auto or ray://host:10001 (or null: a local Ray)")
+    if address is not None and evaluator != "ray":
+        raise ConfigError(f"ray_address={address}: only used with evaluator=ray")
+    if evaluator == "pool" and parallel_launcher_name(launcher):
+        raise ConfigError(f"evaluator=pool: hydra/launcher={parallel_launcher_name(launcher)} already runs jobs in parallel; use evaluator=local")
+    if evaluator == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ConfigError('evaluator=ray: ray is not installed; pip install "imix-cli[cluster]"') from None
+    if algo == "cmaes":
+        dim = _policy_dim(env_name, env_id, max_steps, hidden)
+        if dim > CMAES_MAX_DIM:
+            raise ConfigError(
+                f"algo=cmaes: the {'x'.join(map(str, hidden)) or 'linear'} policy on {env_id} has {dim} parameters, more than "
+                f"CMA-ES's limit of {CMAES_MAX_DIM} (O(d^2) memory, O(d^3) time); use algo=snes or algo=openes (diagonal), or a smaller policy.hidden"
+            )
+    default = hidden == POLICY_DEFAULTS["hidden"] and not obs_norm
+    stored = None if default else {"hidden": list(hidden), "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else None}
+    return {
+        "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else 0, "evaluator": evaluator,
+        "evaluator_workers": n_workers or 1, "ray_address": address, "stored": stored,
+    }  # fmt: skip
+
+
+def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple) -> int:
+    """Number of policy parameters on this env (a gymnasium env is made once to read its spaces)."""
+    from imix_cli.policies import num_params
+
+    if env_name in BUILTIN_POLICY_DIMS:
+        return num_params(*BUILTIN_POLICY_DIMS[env_name], hidden)
+    import gymnasium as gym
+
+    try:
+        probe = gym.make(env_id, **({} if max_steps is None else {"max_episode_steps": max_steps}))
+    except Exception as err:
+        raise ConfigError(f"env.id={env_id!r}: cannot be made ({_first_line(err)})") from None
+    try:
+        obs_space, act_space = probe.observation_space, probe.action_space
+    finally:
+        probe.close()
+    out = int(act_space.n) if isinstance(act_space, gym.spaces.Discrete) else math.prod(act_space.shape or (1,))
+    return num_params(math.prod(obs_space.shape or (1,)), out, hidden)
 
 
 # ------------------------------------------------------------------------------ algo=ddpg
@@ -518,6 +630,11 @@ def _env(env_cfg: dict):
     except Exception as err:  # gymnasium raises several error types for unknown/deprecated ids
         reason = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ConfigError(f"env.id={env_id!r}: not a registered gymnasium environment ({reason})") from None
+    from imix_cli.evaluation import missing_extra_message
+
+    missing = missing_extra_message(env_id)  # names imix's extra, before gymnasium's generic hint
+    if missing:
+        raise ConfigError(missing)
     _check_env_dependencies(env_id)
     return env_id, env_id, max_steps
 

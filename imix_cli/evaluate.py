@@ -127,10 +127,11 @@ def evaluator_for(header: dict, cache: dict | None = None):
             "this imix eval cannot apply a normaliser yet", 1
         )  # fmt: skip
     name = header["env_name"] if header["env_name"] in BUILTIN_ENVS else header["env_id"]
-    key = (name, header["max_steps"])
+    hidden = tuple(int(h) for h in header["hidden"])  # policy.hidden of the run
+    key = (name, header["max_steps"], hidden)
     cache = {} if cache is None else cache
     if key not in cache:
-        cache[key] = make_evaluator(name, header["max_steps"])
+        cache[key] = make_evaluator(name, header["max_steps"], hidden=hidden)
     return cache[key]
 
 

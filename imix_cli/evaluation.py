@@ -27,13 +27,16 @@ Environments (``env_name``):
   (:mod:`imix_cli.envs.kernels`: gymnasium's arithmetic, operation for operation; a batch of
   2 costs what its steps cost). The first call in a fresh install compiles them (seconds,
   once: the machine code is cached on disk);
-* any other registered gymnasium id (e.g. ``"MountainCar-v0"``, ``"Pendulum-v1"``): a
-  ``gymnasium.make_vec(id, num_envs=B, vectorization_mode="sync")`` reset with
-  ``seed=[seeds...]``. Slower, but any env with a Box observation space and a Discrete or
-  Box action space. The env's own time limit applies unless ``max_steps`` is given (then it
-  replaces it); an env without a time limit needs ``max_steps``.
+* any other registered gymnasium id (e.g. ``"MountainCar-v0"``, ``"Pendulum-v1"``,
+  ``"Hopper-v5"``): one ``gymnasium.make(id)`` env per member, reset with
+  ``reset(seed=seeds[i])`` (as ``make_vec`` with a list of seeds) and stepped until its
+  episode ends (finished members are not stepped on). Slower, but any env with a Box
+  observation space and a Discrete or Box action space. The env's own time limit applies
+  unless ``max_steps`` is given (then it replaces it); an env without a time limit needs
+  ``max_steps``. MuJoCo ids need the ``mujoco`` extra (:func:`missing_extra_message`).
 
-Policies (:mod:`imix_cli.policies`): MLP obs -> 8 -> 8 -> out with tanh hidden units.
+Policies (:mod:`imix_cli.policies`): MLP obs -> 8 -> 8 -> out with tanh hidden units by
+default; ``make_evaluator(..., hidden=(64, 64))`` or ``hidden=()`` (linear) for others.
 Discrete actions: ``start + argmax`` of the outputs. Box actions: ``tanh`` of the outputs
 mapped affinely onto ``[low, high]`` (``high * tanh`` for symmetric bounds, so ``[-1, 1]``
 is plain ``tanh``); the bounds must be finite.
@@ -44,7 +47,7 @@ finished members are masked (their later data is ignored).
 
 from __future__ import annotations
 
-from collections import OrderedDict
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -52,7 +55,7 @@ from gymnasium import spaces
 
 from imix_cli.policies import HIDDEN, BatchPolicy, num_params
 
-__all__ = ["BatchEvaluator", "make_evaluator", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS", "CONTINUOUS_ENVS"]
+__all__ = ["BatchEvaluator", "make_evaluator", "missing_extra_message", "MUJOCO_EXTRA_HINT", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS", "CONTINUOUS_ENVS"]
 
 CARTPOLE_MAX_STEPS = 200  # CartPole-v0 (reward threshold 195)
 ACROBOT_MAX_STEPS = 200  # the paper's cap (Acrobot-v1 itself allows 500)
@@ -200,24 +203,34 @@ class ContinuousCartPoleEvaluator(_CompiledEvaluator):
 
 
 class GymEvaluator(BatchEvaluator):
-    """Any registered gymnasium id, through ``make_vec(..., vectorization_mode="sync")``."""
+    """Any registered gymnasium id, one ``gym.make`` env per member, stepped while it is alive.
 
-    cache_size = 2  # vector envs kept per batch size
+    Each member's env is reset with ``reset(seed=seeds[i])`` (what ``make_vec`` does with a
+    list of seeds) and stepped only until its episode ends: no autoreset, no stepping of
+    finished members, which matters where episodes end at very different times (Hopper,
+    Walker2d). Envs are made once and kept (as many as the largest batch seen).
 
-    def __init__(self, env_id: str, max_steps: int | None = None):
+    After every :meth:`evaluate`, :attr:`last_obs_stats` holds ``(sums, sumsqs)`` (B, obs_dim):
+    per member, the sum and sum of squares of the observations its policy acted on (``steps[i]``
+    of them), for :class:`imix_cli.policies.ObsNormalizer`.
+    """
+
+    def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN):
         self.env_name = env_id
+        self.hidden = tuple(int(h) for h in hidden)
         spec = gym.spec(env_id)
         limit = spec.max_episode_steps if max_steps is None else int(max_steps)
         if limit is None:
             raise ValueError(f"gymnasium env {env_id!r} has no time limit: pass max_steps")
         self.max_steps = int(limit)
         self._make_kwargs = {} if max_steps is None else {"max_episode_steps": self.max_steps}
+        message = missing_extra_message(env_id)
+        if message:
+            raise ValueError(message)
         probe = gym.make(env_id, **self._make_kwargs)
-        try:
-            obs_space, act_space = probe.observation_space, probe.action_space
-        finally:
-            probe.close()
+        obs_space, act_space = probe.observation_space, probe.action_space
         if not isinstance(obs_space, spaces.Box):
+            probe.close()
             raise ValueError(f"gymnasium env {env_id!r}: unsupported observation space {obs_space} (need a Box)")
         self.obs_dim = int(np.prod(obs_space.shape))
         self._low = self._high = None
@@ -229,60 +242,128 @@ class GymEvaluator(BatchEvaluator):
             self._low = act_space.low.astype(np.float64).reshape(-1)
             self._high = act_space.high.astype(np.float64).reshape(-1)
             if not (np.all(np.isfinite(self._low)) and np.all(np.isfinite(self._high))):
+                probe.close()
                 raise ValueError(f"gymnasium env {env_id!r}: Box actions need finite bounds, got {act_space}")
         else:
+            probe.close()
             raise ValueError(f"gymnasium env {env_id!r}: unsupported action space {act_space}")
         self._act_space = act_space
-        self._venvs: OrderedDict[int, gym.vector.VectorEnv] = OrderedDict()
+        self._envs: list = [probe]  # the probe is the first member's env
+        self.last_obs_stats: tuple[np.ndarray, np.ndarray] | None = None
 
     def policy(self, params):
         return BatchPolicy(
             params, self.obs_dim, self.out_dim, discrete=self.discrete, hidden=self.hidden, low=self._low, high=self._high
         )
 
-    def _venv(self, n: int):
-        venv = self._venvs.pop(n, None)
-        if venv is None:
-            venv = gym.make_vec(self.env_name, num_envs=n, vectorization_mode="sync", **self._make_kwargs)
-        self._venvs[n] = venv
-        while len(self._venvs) > self.cache_size:
-            self._venvs.popitem(last=False)[1].close()
-        return venv
+    def _env_list(self, n: int) -> list:
+        while len(self._envs) < n:
+            self._envs.append(gym.make(self.env_name, **self._make_kwargs))
+        return self._envs[:n]
+
+    def close(self) -> None:
+        for env in self._envs:
+            env.close()
+        self._envs = []
 
     def _run(self, policy, seeds):
         n = len(seeds)
-        venv = self._venv(n)
-        obs, _ = venv.reset(seed=[int(s) for s in seeds])
+        envs = self._env_list(n)
+        obs = np.empty((n, self.obs_dim))
+        for i, env in enumerate(envs):
+            obs[i] = np.asarray(env.reset(seed=int(seeds[i]))[0], dtype=np.float64).reshape(-1)
         ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
+        sums, sumsqs = np.zeros((n, self.obs_dim)), np.zeros((n, self.obs_dim))
+        idx = np.arange(n)  # member held by each policy slot
         alive = np.ones(n, dtype=bool)
+        shape, dtype = self._act_space.shape, self._act_space.dtype
         for _ in range(self.max_steps):
-            a = policy(np.asarray(obs, dtype=np.float64).reshape(n, -1))
-            if self.discrete:
-                a = a + self._start if self._start else a
-            else:
-                a = a.reshape((n, *self._act_space.shape)).astype(self._act_space.dtype)
-            obs, reward, terminated, truncated, _ = venv.step(a)
-            np.add(ret, reward, out=ret, where=alive)
-            np.add(length, alive, out=length)
-            alive &= ~(terminated | truncated)
-            if not alive.any():
+            actions = policy(obs)
+            live = np.flatnonzero(alive)
+            members = idx[live]
+            sums[members] += obs[live]
+            sumsqs[members] += obs[live] * obs[live]
+            for j, i in zip(live, members):
+                a = actions[j] + self._start if self.discrete else actions[j].reshape(shape).astype(dtype)
+                o, reward, terminated, truncated, _ = envs[i].step(a)
+                ret[i] += float(reward)
+                length[i] += 1
+                if terminated or truncated:
+                    alive[j] = False
+                else:
+                    obs[j] = np.asarray(o, dtype=np.float64).reshape(-1)
+            n_alive = np.count_nonzero(alive)
+            if n_alive == 0:
                 break
+            if n_alive <= alive.size // 2:  # drop finished members from the policy batch
+                rows = np.flatnonzero(alive)
+                idx, obs, alive = idx[rows], obs[rows], alive[rows]
+                policy.select(rows)
+        self.last_obs_stats = (sums, sumsqs)
         return ret, length
 
 
-def make_evaluator(env_name: str, max_steps: int | None = None) -> BatchEvaluator:
+#: Gymnasium's MuJoCo environments need the ``mujoco`` package: imix's ``mujoco`` extra.
+MUJOCO_EXTRA_HINT = 'pip install "imix-cli[mujoco]"'
+
+
+def missing_extra_message(env_id: str) -> str | None:
+    """One line naming the extra to install if ``env_id`` is a MuJoCo env and mujoco is missing, else None.
+
+    Only the physics engine is checked: training needs no rendering backend (no OpenGL).
+    When mujoco is there, its C-level warnings are routed to Python's :mod:`warnings` (see
+    :func:`_route_mujoco_warnings`).
+    """
+    try:
+        entry = str(gym.spec(env_id).entry_point)
+    except Exception:
+        return None
+    if not entry.startswith("gymnasium.envs.mujoco"):
+        return None
+    try:
+        import mujoco
+    except ImportError:
+        return f"env.id={env_id!r} is a MuJoCo environment and the mujoco package is not installed: {MUJOCO_EXTRA_HINT}"
+    _route_mujoco_warnings(mujoco)
+    return None
+
+
+def _mujoco_warning(message: str) -> None:
+    if "is deprecated" in message:  # a model file's attribute: gymnasium's to update, harmless for training
+        return
+    warnings.warn(f"mujoco: {message}", RuntimeWarning, stacklevel=2)
+
+
+def _route_mujoco_warnings(mujoco) -> None:
+    """MuJoCo's default warning handler prints to stderr *and appends to ./MUJOCO_LOG.TXT*:
+    with mujoco 4, HalfCheetah-v5's model (``settotalmass``, deprecated) triggers it on every
+    ``gym.make``, littering the working directory and every worker's stderr. Route the
+    warnings to Python's instead, minus deprecations of model attributes (the model still
+    loads as before: HalfCheetah's random-policy returns are the usual ~-280)."""
+    if mujoco.get_mju_user_warning() is None:
+        mujoco.set_mju_user_warning(_mujoco_warning)
+
+
+def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN) -> BatchEvaluator:
     """Evaluator for ``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
     ``"continuous_cartpole_hard"`` or a gymnasium id (see the module docstring).
 
-    Raises ``ValueError`` for an unknown environment id.
+    ``hidden``: the policy's hidden layer sizes (``()``: linear), default the paper's (8, 8).
+    Raises ``ValueError`` for an unknown environment id, or a MuJoCo id without mujoco installed.
     """
+    hidden = tuple(int(h) for h in hidden)
     key = str(env_name).lower()
+    builtin = None
     if key == "cartpole":
-        return CartPoleEvaluator(max_steps)
-    if key == "acrobot":
-        return AcrobotEvaluator(max_steps)
-    if key in CONTINUOUS_ENVS:
-        return ContinuousCartPoleEvaluator(CONTINUOUS_ENVS[key], max_steps)
+        builtin = CartPoleEvaluator(max_steps)
+    elif key == "acrobot":
+        builtin = AcrobotEvaluator(max_steps)
+    elif key in CONTINUOUS_ENVS:
+        builtin = ContinuousCartPoleEvaluator(CONTINUOUS_ENVS[key], max_steps)
+    if builtin is not None:
+        if hidden != HIDDEN:
+            builtin.hidden = hidden  # the compiled kernels read the layer sizes from it
+        return builtin
     try:
         gym.spec(env_name)
     except (gym.error.UnregisteredEnv, gym.error.DeprecatedEnv, gym.error.RegistrationError) as err:
@@ -291,4 +372,4 @@ def make_evaluator(env_name: str, max_steps: int | None = None) -> BatchEvaluato
             f"unknown environment {env_name!r}: not 'cartpole', 'acrobot', 'continuous_cartpole', "
             f"'continuous_cartpole_hard' or a registered gymnasium id ({msg})"
         ) from None
-    return GymEvaluator(env_name, max_steps)
+    return GymEvaluator(env_name, max_steps, hidden=hidden)

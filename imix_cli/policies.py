@@ -9,6 +9,11 @@ so that ``y = tanh(tanh(obs @ W1 + b1) @ W2 + b2) @ W3 + b3``. With ``hidden=(8,
 that is 130 parameters for CartPole (obs 4, 2 actions) and 155 for Acrobot (obs 6,
 3 actions).
 
+Other sizes (config key ``policy.hidden``) keep the same layout, layer after layer: any
+number of tanh hidden layers, and ``hidden=()`` is the linear policy ``y = obs @ W + b``
+(Mania et al. 2018's ARS policies on MuJoCo). :func:`num_params` and this layout are the
+contract with every rollout (the numpy one here and compiled ones): do not change them.
+
 Actions:
 
 * discrete: ``argmax(y)``, computed by comparisons: output j replaces the best so far only
@@ -24,6 +29,34 @@ matrix once per rollout into member-last weight stacks and evaluates all members
 member's actions never depend on which other members share its batch (BLAS-backed
 ``matmul`` would be no faster and gives no such guarantee). :func:`unpack` gives the
 per-layer weights in the natural ``(B, in, out)`` layout, for inspection and tests.
+
+Observation normalisation, and why it is frozen (``policy.obs_norm``)
+--------------------------------------------------------------------
+ES on MuJoCo needs normalised observations (Salimans et al. 2017; Mania et al. 2018): the
+raw coordinates differ in scale by orders of magnitude, and one sigma cannot fit them all.
+The policy then sees ``(obs - mean) / std`` with running statistics of the observations
+seen so far. That makes the policy *function* of a parameter vector depend on the
+statistics -- and importance mixing reuses a member's stored return as if it had been
+measured under the current policy function. A normaliser that keeps changing (as in ARS)
+silently turns every reused return into the return of another policy.
+
+imix keeps reuse honest by freezing the statistics (:class:`ObsNormalizer`): during a
+warm-up of ``policy.obs_norm_warmup`` generations the statistics absorb the observations of
+every episode and the runner does not mix (every member is fresh, nothing is archived);
+after the warm-up they never change again, and only generations evaluated entirely under
+the frozen statistics enter the archive. Every reused return was therefore measured under
+the very policy function the member has now. The alternatives were weighed: re-measuring
+archived members after every change defeats the purpose of reuse; clearing the archive at
+each change (say every K generations) only delays the same trade-off, costs a full
+generation per change, and makes reuse rates depend on K; a frozen normaliser costs
+nothing after the warm-up. Its price is that the statistics describe the early, clumsy
+policies' states; on MuJoCo a few generations already pin the scale of each coordinate,
+which is what matters for one shared sigma. (tests/test_mujoco.py checks that every reused
+member's policy function equals the one its return was measured under.)
+
+The normalisation is folded into the first layer (:func:`fold_normalizer`):
+``((obs - m) / s) @ W1 + b1 == obs @ (W1 / s) + (b1 - (m / s) @ W1)``, so rollouts --
+numpy, compiled, or remote -- only ever see plain flat parameter vectors.
 """
 
 from __future__ import annotations
@@ -34,7 +67,7 @@ import numpy as np
 
 HIDDEN: tuple[int, ...] = (8, 8)
 
-__all__ = ["HIDDEN", "num_params", "unpack", "BatchPolicy", "forward", "act"]
+__all__ = ["HIDDEN", "num_params", "unpack", "BatchPolicy", "forward", "act", "ObsNormalizer", "fold_normalizer"]
 
 
 def num_params(obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> int:
@@ -215,3 +248,82 @@ def act(
     obs = np.asarray(obs)
     pol = BatchPolicy(params, obs.shape[1], out_dim, discrete=discrete, hidden=hidden, low=low, high=high)
     return pol(obs)
+
+
+# ------------------------------------------------------------------ observation normalisation
+#: Lower bound of the variance used to scale an observation coordinate (Salimans et al. 2017's
+#: 1e-2): a coordinate that barely moves during the warm-up is not blown up by 1/std.
+OBS_VAR_FLOOR = 1e-2
+
+
+def fold_normalizer(
+    params: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequence[int], mean: np.ndarray, std: np.ndarray
+) -> np.ndarray:
+    """Parameters (B, d) whose policy on raw observations equals ``params``' policy on ``(obs - mean) / std``.
+
+    Only the first layer changes (see the module docstring); a new array is returned.
+    """
+    params = np.array(params, dtype=np.float64, ndmin=2)
+    d = num_params(obs_dim, out_dim, hidden)
+    if params.shape[1] != d:
+        raise ValueError(f"params have {params.shape[1]} columns, the {obs_dim}->{tuple(hidden)}->{out_dim} MLP needs {d}")
+    h1 = int(hidden[0]) if len(hidden) else int(out_dim)
+    mean = np.asarray(mean, dtype=np.float64).reshape(obs_dim)
+    std = np.asarray(std, dtype=np.float64).reshape(obs_dim)
+    n = params.shape[0]
+    k = obs_dim * h1
+    W1 = params[:, :k].reshape(n, obs_dim, h1)
+    params[:, k : k + h1] -= np.einsum("i,bij->bj", mean / std, W1)
+    params[:, :k] = (W1 / std[None, :, None]).reshape(n, k)
+    return params
+
+
+class ObsNormalizer:
+    """Running mean and std of observations, frozen after ``warmup`` generations (module docstring).
+
+    ``add(sums, sumsqs, counts)`` takes per-member sums over each episode's observations (in
+    member order, so the statistics do not depend on how the episodes were split over
+    processes); ``end_generation()`` closes a generation and freezes the statistics after the
+    ``warmup``-th. A frozen normaliser ignores ``add``: nothing can change it any more.
+    """
+
+    def __init__(self, obs_dim: int, warmup: int):
+        if warmup < 1:
+            raise ValueError(f"warmup must be >= 1 generation, got {warmup}")
+        self.obs_dim, self.warmup = int(obs_dim), int(warmup)
+        self.count = 0
+        self.sum = np.zeros(self.obs_dim)
+        self.sumsq = np.zeros(self.obs_dim)
+        self.generations = 0
+
+    @property
+    def frozen(self) -> bool:
+        return self.generations >= self.warmup
+
+    def add(self, sums: np.ndarray, sumsqs: np.ndarray, counts: np.ndarray) -> None:
+        if self.frozen:
+            return
+        sums, sumsqs = np.asarray(sums, np.float64).reshape(-1, self.obs_dim), np.asarray(sumsqs, np.float64).reshape(-1, self.obs_dim)
+        for s, q, c in zip(sums, sumsqs, np.asarray(counts).reshape(-1)):
+            if c > 0 and np.all(np.isfinite(s)) and np.all(np.isfinite(q)):
+                self.sum += s
+                self.sumsq += q
+                self.count += int(c)
+
+    def end_generation(self) -> None:
+        self.generations += 1
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.sum / self.count if self.count else np.zeros(self.obs_dim)
+
+    @property
+    def std(self) -> np.ndarray:
+        if not self.count:
+            return np.ones(self.obs_dim)
+        var = np.maximum(self.sumsq / self.count - self.mean**2, 0.0)
+        return np.sqrt(np.maximum(var, OBS_VAR_FLOOR))
+
+    def fold(self, params: np.ndarray, out_dim: int, hidden: Sequence[int]) -> np.ndarray:
+        """``params`` with the current statistics folded in (:func:`fold_normalizer`)."""
+        return fold_normalizer(params, self.obs_dim, out_dim, hidden, self.mean, self.std)

@@ -27,6 +27,7 @@ another in each worker, one CSV row per finished episode, no mid-run checkpoint.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import multiprocessing
 import os
 import queue as queue_module
@@ -44,8 +45,9 @@ from imix_cli.algorithms import make_es
 from imix_cli.checkpoints import load_or_warn, write_checkpoint
 from imix_cli.config import RunSpec, identity_of
 from imix_cli.divergence import GuardedES
-from imix_cli.evaluation import make_evaluator
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.parallel_evaluation import build_evaluator
+from imix_cli.policies import ObsNormalizer
 from imix_cli.policy_files import write_seed_policies
 from imix_cli.results import (
     CorruptResultError,
@@ -82,6 +84,7 @@ class SeedState:
     # a plain (d,) float64 array and a float so that checkpoints stay data. None / -inf until one exists.
     best_params: np.ndarray | None = None
     best_return: float = -np.inf
+    obs_norm: object = None  # policy.obs_norm: this seed's ObsNormalizer (imix_cli.policies)
 
     @property
     def generation(self) -> int:
@@ -103,18 +106,29 @@ def mixing_settings(spec: RunSpec) -> MixingSettings:
 
 def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
     """Run one generation of every seed in ``states``, with one batched rollout for all members to evaluate."""
-    settings = mixing_settings(spec)
-    plans = [plan_generation(st.es, st.archive, settings, st.sample_rng) for st in states]
+    mixing = mixing_settings(spec)
+    # policy.obs_norm: while a seed's statistics still change (its warm-up), stored returns would
+    # belong to another policy function, so its generation neither mixes nor enters the archive.
+    warming = []
+    for st in states:
+        if spec.obs_norm and st.obs_norm is None:
+            st.obs_norm = ObsNormalizer(evaluator.obs_dim, spec.obs_norm_warmup)
+        warming.append(st.obs_norm is not None and not st.obs_norm.frozen)
+    settings = [dataclasses.replace(mixing, variant=None) if w else mixing for w in warming]
+    plans = [plan_generation(st.es, st.archive, s, st.sample_rng) for st, s in zip(states, settings)]
     episode_seeds = [st.episode_rng.integers(0, np.iinfo(np.int64).max, size=p.evaluate.size, dtype=np.int64) for st, p in zip(states, plans)]
     returns, steps = evaluator.evaluate(
-        np.concatenate([p.generation.samples[p.evaluate] for p in plans]),
+        np.concatenate([raw_obs_params(st, p.generation.samples[p.evaluate], evaluator) for st, p in zip(states, plans)]),
         np.concatenate(episode_seeds),
     )
     offset = 0
-    for st, plan in zip(states, plans):
+    for st, plan, s, warm in zip(states, plans, settings, warming):
         g, n = plan.generation, plan.evaluate.size
         dist = st.es.distribution  # the distribution g was drawn from, before tell moves it
-        fitness = finish_generation(st.es, st.archive, settings, plan, returns[offset : offset + n])
+        fitness = finish_generation(st.es, st.archive, s, plan, returns[offset : offset + n])
+        if warm:  # the warm-up: the statistics absorb this generation's observations (after its best is kept)
+            sums, sumsqs = evaluator.last_obs_stats
+            observed = (sums[offset : offset + n], sumsqs[offset : offset + n], steps[offset : offset + n])
         st.evaluations += n
         st.env_steps += int(steps[offset : offset + n].sum())
         offset += n
@@ -143,7 +157,18 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
         )
         if finite.any() and np.max(fitness[finite]) > st.best_return:  # strictly better: the first best is kept
             top = np.flatnonzero(finite)[np.argmax(fitness[finite])]
-            st.best_params, st.best_return = np.array(g.samples[top], dtype=np.float64), float(fitness[top])
+            # with policy.obs_norm, as the policy on raw observations it was evaluated as
+            st.best_params, st.best_return = raw_obs_params(st, g.samples[top : top + 1], evaluator)[0], float(fitness[top])
+        if warm:
+            st.obs_norm.add(*observed)
+            st.obs_norm.end_generation()
+
+
+def raw_obs_params(st: SeedState, params: np.ndarray, evaluator) -> np.ndarray:
+    """``params`` (B, d) as a policy on raw observations: the seed's normaliser folded in, if any."""
+    if st.obs_norm is None:
+        return np.array(params, dtype=np.float64)
+    return st.obs_norm.fold(params, evaluator.out_dim, evaluator.hidden)
 
 
 # ----------------------------------------------------------------------------- files of a run
@@ -315,7 +340,7 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     progress = progress or _queue_progress
     if spec.algo == "ddpg":
         return run_ddpg_seeds(spec, seeds, progress)
-    evaluator = make_evaluator(spec.evaluator_key, spec.env_max_steps)
+    evaluator = build_evaluator(spec)
     identity = spec.identity()
     run_dir = spec.run_dir
     states = []
@@ -339,7 +364,7 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
                 _remove_checkpoints(run_dir, st.seed)
             elif st.generation == spec.generations:
-                write_seed_policies(spec, st.seed, evaluator, st.es.distribution.mean, st.best_params, st.best_return, st.generation)
+                write_seed_policies(spec, st.seed, evaluator, raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0], st.best_params, st.best_return, st.generation)
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
                 _remove_checkpoints(run_dir, st.seed)
             elif checkpoint_every and st.generation % checkpoint_every == 0:
@@ -351,7 +376,7 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
         active = [st for st in active if st.generation < spec.generations and not st.es.diverged]
     for st in states:  # seeds resumed from a checkpoint taken after their last generation
         if not seed_csv_path(run_dir, st.seed).exists():
-            write_seed_policies(spec, st.seed, evaluator, st.es.distribution.mean, st.best_params, st.best_return, st.generation)
+            write_seed_policies(spec, st.seed, evaluator, raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0], st.best_params, st.best_return, st.generation)
             write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
             _remove_checkpoints(run_dir, st.seed)
     return list(seeds)

@@ -1,0 +1,214 @@
+"""Evaluating one generation over many cores or a Ray cluster (config key ``evaluator``).
+
+Why: on MuJoCo an episode costs 0.1-1 s instead of microseconds, so a single seed's
+generation -- even its few fresh members under importance mixing -- is worth spreading over
+every core. The seeds of a run are already spread over processes (``workers``); that is the
+right layer when there are at least as many seeds as cores and episodes are cheap. With
+expensive episodes, or fewer seeds than cores, the members of a generation are the layer to
+parallelise. One layer at a time: ``evaluator=pool`` runs the seeds in one process
+(``workers`` defaults to 1 and a larger value is refused, see :mod:`imix_cli.config`).
+
+``evaluator`` (config key):
+
+``local`` (default)
+    :func:`imix_cli.evaluation.make_evaluator` in the run's own process(es), as always.
+``pool``
+    :class:`PoolEvaluator`: a persistent pool of ``evaluator_workers`` spawned processes
+    (default: all cores), each holding its own evaluator (its own env instances). A call's
+    members are cut into chunks (up to :attr:`PoolEvaluator.chunks_per_worker` per worker,
+    so that short and long episodes balance) and gathered back in order.
+``ray``
+    :class:`RayEvaluator`: the same over Ray actors, one CPU each, on the cluster that
+    ``ray.init(address=ray_address)`` joins (``ray_address`` null: a local Ray started for
+    the run; ``auto``: the cluster this machine belongs to; ``ray://host:10001``: a remote
+    head through Ray Client). ``evaluator_workers`` actors, default: every CPU of the cluster.
+
+Results do not depend on the evaluator nor on the worker count: a member's episode depends
+only on its parameters and its episode seed (:mod:`imix_cli.evaluation`), chunks are
+gathered in member order, and the observation statistics (``last_obs_stats``) are
+per-member sums, so whatever adds them up sees the same numbers in the same order
+(tests/test_parallel_evaluation.py compares 1 and 2 workers bit for bit).
+
+Every evaluator here has ``evaluate(params, seeds) -> (returns, steps)``, the attributes of
+:class:`imix_cli.evaluation.BatchEvaluator` (``num_params``, ``obs_dim``, ``out_dim``,
+``hidden``...), ``last_obs_stats`` and ``close()``. :func:`build_evaluator` makes the one a
+:class:`~imix_cli.config.RunSpec` asks for.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import threading
+import time
+import weakref
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from imix_cli.evaluation import make_evaluator
+
+__all__ = ["PoolEvaluator", "RayEvaluator", "build_evaluator", "EVALUATORS"]
+
+EVALUATORS = ("local", "pool", "ray")
+
+
+def build_evaluator(spec):
+    """The evaluator of ``spec`` (a :class:`~imix_cli.config.RunSpec`): local, pool or ray."""
+    args = (spec.evaluator_key, spec.env_max_steps, spec.hidden)
+    if spec.evaluator == "pool":
+        return PoolEvaluator(*args, workers=spec.evaluator_workers)
+    if spec.evaluator == "ray":
+        return RayEvaluator(*args, workers=spec.evaluator_workers, address=spec.ray_address)
+    return make_evaluator(*args)
+
+
+class _Remote:
+    """What the pool and Ray evaluators share: a local evaluator for the attributes, chunking, gathering."""
+
+    #: Chunks per worker and call: more than 1 lets workers that drew short episodes take more.
+    chunks_per_worker = 4
+
+    def __init__(self, env_key: str, max_steps: int | None, hidden):
+        self._local = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
+        self._make_args = (env_key, max_steps, None if hidden is None else tuple(hidden))
+        self.last_obs_stats = None
+
+    def __getattr__(self, name):  # env_name, obs_dim, out_dim, num_params, hidden, discrete, max_steps, policy
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self._local, name)
+
+    def _check(self, params, seeds):
+        params = np.asarray(params, dtype=np.float64)
+        if params.ndim == 1:
+            params = params[None, :]
+        seeds = np.asarray(seeds).reshape(-1)
+        if params.ndim != 2 or params.shape[1] != self._local.num_params:
+            raise ValueError(f"{self._local.env_name}: params must have shape (B, {self._local.num_params}), got {params.shape}")
+        if seeds.shape[0] != params.shape[0]:
+            raise ValueError(f"{self._local.env_name}: {params.shape[0]} members but {seeds.shape[0]} episode seeds")
+        if seeds.size and (seeds.dtype.kind not in "iu" or seeds.min() < 0):
+            raise ValueError(f"{self._local.env_name}: episode seeds must be non-negative integers")
+        return params, seeds
+
+    def _chunks(self, n: int) -> list[np.ndarray]:
+        if n == 0:
+            return []
+        return np.array_split(np.arange(n), min(n, self.workers * self.chunks_per_worker))
+
+    def _gather(self, results, n: int):
+        returns = np.concatenate([r[0] for r in results]) if results else np.zeros(0)
+        steps = np.concatenate([r[1] for r in results]) if results else np.zeros(0, dtype=np.int64)
+        stats = [r[2] for r in results]
+        if stats and all(s is not None for s in stats):
+            self.last_obs_stats = (np.concatenate([s[0] for s in stats]), np.concatenate([s[1] for s in stats]))
+        else:
+            self.last_obs_stats = None
+        assert returns.shape[0] == n
+        return returns, steps
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self._local.env_name!r}, workers={self.workers}, num_params={self._local.num_params})"
+
+
+# --------------------------------------------------------------------------- process pool
+_worker_evaluator = None
+
+
+def _init_pool_worker(make_args, parent_pid: int) -> None:
+    global _worker_evaluator
+    env_key, max_steps, hidden = make_args
+    _worker_evaluator = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
+    threading.Thread(target=_exit_when_orphaned, args=(parent_pid,), daemon=True).start()
+
+
+def _exit_when_orphaned(parent_pid: int) -> None:
+    """A worker whose run died (kill -9) exits within a second instead of idling forever."""
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent_pid:
+            os._exit(1)
+
+
+def _evaluate_chunk(params: np.ndarray, seeds: np.ndarray):
+    returns, steps = _worker_evaluator.evaluate(params, seeds)
+    return returns, steps, getattr(_worker_evaluator, "last_obs_stats", None)
+
+
+class PoolEvaluator(_Remote):
+    """Evaluation over a persistent pool of ``workers`` spawned processes (module docstring)."""
+
+    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None):
+        super().__init__(env_key, max_steps, hidden)
+        from imix_cli.config import default_workers
+
+        self.workers = int(workers or default_workers())
+        # One BLAS thread per worker process: the workers already use every core.
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
+        ctx = multiprocessing.get_context("spawn")
+        self._pool = ProcessPoolExecutor(
+            max_workers=self.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(self._make_args, os.getpid())
+        )
+        self._finalizer = weakref.finalize(self, self._pool.shutdown, wait=True, cancel_futures=True)
+
+    def evaluate(self, params, seeds) -> tuple[np.ndarray, np.ndarray]:
+        params, seeds = self._check(params, seeds)
+        futures = [self._pool.submit(_evaluate_chunk, params[c], seeds[c]) for c in self._chunks(len(seeds))]
+        return self._gather([f.result() for f in futures], len(seeds))
+
+    def close(self) -> None:
+        self._finalizer()
+
+
+# --------------------------------------------------------------------------- Ray
+class _RayWorker:
+    """A Ray actor holding one evaluator (its own env instances)."""
+
+    def __init__(self, make_args):
+        env_key, max_steps, hidden = make_args
+        self.evaluator = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
+
+    def evaluate(self, params, seeds):
+        returns, steps = self.evaluator.evaluate(params, seeds)
+        return returns, steps, getattr(self.evaluator, "last_obs_stats", None)
+
+
+class RayEvaluator(_Remote):
+    """Evaluation over Ray actors, one CPU each (module docstring).
+
+    ``address``: given to ``ray.init`` (None: start a local Ray for this process, shut down
+    by :meth:`close`). Every node needs imix installed (the same version) in the Python
+    that runs its Ray workers.
+    """
+
+    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, address: str | None = None):
+        super().__init__(env_key, max_steps, hidden)
+        import ray
+
+        self._started_ray = not ray.is_initialized()
+        if self._started_ray:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+        self.workers = int(workers or max(1, int(ray.cluster_resources().get("CPU", 1))))
+        actor = ray.remote(num_cpus=1)(_RayWorker)
+        self._actors = [actor.remote(self._make_args) for _ in range(self.workers)]
+
+    def evaluate(self, params, seeds) -> tuple[np.ndarray, np.ndarray]:
+        from ray.util import ActorPool
+
+        params, seeds = self._check(params, seeds)
+        chunks = self._chunks(len(seeds))
+        pool = ActorPool(self._actors)
+        results = list(pool.map(lambda actor, c: actor.evaluate.remote(params[c], seeds[c]), chunks))  # in order
+        return self._gather(results, len(seeds))
+
+    def close(self) -> None:
+        import ray
+
+        for a in getattr(self, "_actors", []):
+            ray.kill(a)
+        self._actors = []
+        if self._started_ray and ray.is_initialized():
+            ray.shutdown()
+        self._started_ray = False
