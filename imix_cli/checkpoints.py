@@ -48,12 +48,14 @@ import numpy as np
 
 from imix_cli.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.mixing import Generation
+from imix_cli.policies import ObsNormalizer
 from imix_cli.results import atomic_write_bytes
 
 FORMAT = "imix-checkpoint"
 FORMAT_VERSION = 1
 _HEADER = "header"
-_DISTRIBUTIONS = {cls.__name__: cls for cls in (DiagonalGaussian, FullGaussian)}
+#: Value classes saved through their ``to_state()`` and rebuilt by ``cls.from_state(state)``.
+_DISTRIBUTIONS = {cls.__name__: cls for cls in (DiagonalGaussian, FullGaussian, ObsNormalizer)}
 
 
 class CheckpointError(ValueError):

@@ -162,8 +162,11 @@ class RunSpec:
         if given (sorted). Other keys that change results (``generations``, ``algo.*``) do not name
         the folder: a sweep whose points would share one is refused up front (validate_overrides)."""
         # env.max_steps (default: the env's own cap) changes results too: it names the folder when set.
-        default_cap = _env_group_default(self.env_name if self.env_name in BUILTIN_ENVS else "gym", "max_steps")
-        cap = {} if self.env_max_steps == default_cap else {"env.max_steps": self.env_max_steps}
+        if self.env_name in BUILTIN_ENVS:
+            default_caps = {_env_group_default(self.env_name, "max_steps")}
+        else:  # a gymnasium id (env=gym, or a config such as env=hopper): its own registered time limit
+            default_caps = {None, _registered_cap(self.env_id)}
+        cap = {} if self.env_max_steps in default_caps else {"env.max_steps": self.env_max_steps}
         if self.algo == "ddpg":
             changed = {k: v for k, v in (self.ddpg or {}).items() if k in DDPG_DEFAULTS and v != DDPG_DEFAULTS[k]}
             return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
@@ -217,6 +220,15 @@ def _format(value) -> str:
 
 
 _GROUP_DEFAULTS: dict = {}
+
+
+def _registered_cap(env_id: str) -> int | None:
+    import gymnasium as gym
+
+    try:
+        return gym.spec(env_id).max_episode_steps
+    except Exception:  # an id gymnasium cannot resolve has no cap of its own
+        return None
 
 
 def _env_group_default(option: str, key: str):

@@ -296,6 +296,19 @@ class ObsNormalizer:
         self.sumsq = np.zeros(self.obs_dim)
         self.generations = 0
 
+    def to_state(self) -> dict:
+        """Its statistics as arrays and scalars (checkpoints: data, not pickles)."""
+        return {"obs_dim": self.obs_dim, "warmup": self.warmup, "count": self.count, "sum": self.sum.copy(), "sumsq": self.sumsq.copy(), "generations": self.generations}
+
+    @classmethod
+    def from_state(cls, state: dict) -> "ObsNormalizer":
+        norm = cls(int(state["obs_dim"]), int(state["warmup"]))
+        norm.count, norm.generations = int(state["count"]), int(state["generations"])
+        norm.sum, norm.sumsq = np.asarray(state["sum"], dtype=np.float64), np.asarray(state["sumsq"], dtype=np.float64)
+        if norm.sum.shape != (norm.obs_dim,) or norm.sumsq.shape != (norm.obs_dim,):
+            raise ValueError(f"ObsNormalizer state: statistics of shape {norm.sum.shape}, expected ({norm.obs_dim},)")
+        return norm
+
     @property
     def frozen(self) -> bool:
         return self.generations >= self.warmup

@@ -43,7 +43,7 @@ COLUMNS = (
 )
 
 #: Columns a CSV of an older imix may lack, with the value they then hold on every row.
-_OPTIONAL_COLUMNS = {"diverged": 0}
+_OPTIONAL_COLUMNS = {"reevaluated": 0, "diverged": 0}
 
 MIXING_NAMES = ("none", "im", "eim")
 

@@ -216,8 +216,10 @@ def _warn(message: str) -> None:
 
 
 def _remove_checkpoints(run_dir: Path, seed: int) -> None:
+    """A finished seed's checkpoints (and its live-view partial CSV) are no longer needed."""
     checkpoint_path(run_dir, seed).unlink(missing_ok=True)
     legacy_checkpoint_path(run_dir, seed).unlink(missing_ok=True)
+    partial_csv_path(run_dir, seed).unlink(missing_ok=True)
 
 
 def prepare_run_dir(spec: RunSpec) -> list[int]:

@@ -61,7 +61,7 @@ def test_round_trip_restores_everything_and_continues_bit_identically(tmp_path):
     save_checkpoint(spec.run_dir, states[0], spec.identity())
     loaded, warnings = load(spec, evaluator)
     assert warnings == []
-    assert len(loaded.archive) == spec.eim_generations and loaded.generation == 5
+    assert len(loaded.archive.generations) == spec.eim_generations and loaded.generation == 5
     assert encoded(loaded) == encoded(states[0])
     # Continuing both: the next generations (rows, ES, RNG states) are identical.
     other = fresh(spec, evaluator, 1)
@@ -244,7 +244,7 @@ def test_checkpoint_is_a_plain_zip_of_npy_files(tmp_path):
     save_checkpoint(spec.run_dir, states[0], spec.identity())
     with zipfile.ZipFile(checkpoint_path(spec.run_dir, 0)) as z:
         names = z.namelist()
-    assert "header.npy" in names and "es/mu.npy" in names and "archive/0/samples.npy" in names
+    assert "header.npy" in names and "es/mu.npy" in names and "archive/generations/0/samples.npy" in names
     assert not list(spec.run_dir.rglob("*.tmp"))
 
 
@@ -259,10 +259,10 @@ def test_archived_generations_are_saved_field_by_field_whatever_their_fields(tmp
     monkeypatch.setattr(checkpoints, "Generation", Extended)
     spec, states, evaluator = spec_and_states(tmp_path, generations=3)
     st = states[0]
-    st.archive = [Extended(**{f.name: getattr(g, f.name) for f in dataclasses.fields(g)}, weights=np.arange(3.0) + k) for k, g in enumerate(st.archive)]
+    st.archive.generations = [Extended(**{f.name: getattr(g, f.name) for f in dataclasses.fields(g)}, weights=np.arange(3.0) + k) for k, g in enumerate(st.archive.generations)]
     save_checkpoint(spec.run_dir, st, spec.identity())
     loaded, warnings = load(spec, evaluator)
-    assert warnings == [] and [type(g) for g in loaded.archive] == [Extended] * 3
-    for k, g in enumerate(loaded.archive):
+    assert warnings == [] and [type(g) for g in loaded.archive.generations] == [Extended] * 3
+    for k, g in enumerate(loaded.archive.generations):
         np.testing.assert_array_equal(g.weights, np.arange(3.0) + k)
     assert encoded(loaded) == encoded(st)

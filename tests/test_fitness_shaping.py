@@ -32,7 +32,6 @@ def test_centered_ranks_hand_values(values, expected):
     np.testing.assert_array_equal(centered_ranks(np.array(values)), expected)
 
 
-@pytest.mark.xfail(strict=False, reason="tie handling changes in issue 11")
 @pytest.mark.parametrize(
     "values, expected",
     [

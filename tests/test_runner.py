@@ -52,8 +52,11 @@ def test_end_to_end_every_algo_and_env(tmp_path, algo, env):
         assert frame["reused"].iloc[1:].sum() > 0
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert config["algo"]["name"] == algo and config["popsize"] == 8 and config["mixing"] == "eim"
-    # a finished run leaves no temporaries (.*.tmp) and no checkpoints behind, hidden files included
-    assert [p.relative_to(run_dir).as_posix() for p in all_files(run_dir)] == ["config.yaml", "seed_0.csv", "seed_1.csv"]
+    # a finished run leaves no temporaries (.*.tmp), checkpoints or partial CSVs behind, hidden files
+    # included: only its config, lock file (free once the run ends), policies and CSVs
+    policies = [f"policy_{k}_{which}.npz" for k in (0, 1) for which in ("best", "mean")]
+    expected = sorted([".lock", "config.yaml", *policies, "seed_0.csv", "seed_1.csv"])
+    assert sorted(p.relative_to(run_dir).as_posix() for p in all_files(run_dir)) == expected
 
 
 def read_without_wall_time(path):
@@ -107,7 +110,7 @@ def test_a_bad_point_anywhere_in_a_sweep_stops_before_the_first_runs(tmp_path, c
 
 
 # The paper's setting, section 4.1 (and its generation counts: 1000 for OpenES/SNES, 400 for CEM/CMA-ES).
-PAPER_SETTING = {"popsize": 50, "sigma": 0.25, "lr": 0.01, "weight_decay": 0.05, "weight_decay_form": "paper", "im_alpha": 0.0, "eim_generations": 3}
+PAPER_SETTING = {"popsize": 50, "sigma": 0.25, "lr": 0.01, "weight_decay": 0.05, "weight_decay_form": "estool", "im_alpha": 0.0, "eim_generations": 3}
 PAPER_GENERATIONS = {"openes": 1000, "snes": 1000, "cem": 400, "cmaes": 400}
 
 
@@ -132,11 +135,18 @@ def test_run_help_documents_every_key_with_its_shipped_default(capsys):
     assert main(["run", "--help"]) == 0
     out = capsys.readouterr().out
     section = out[out.index("\nKeys:\n") : out.index("\nOutput:")]
-    documented = dict(re.findall(r"^  (\w+)=(\S+)", section, flags=re.MULTILINE))
-    assert sorted(documented) == sorted(keys)
+    documented = dict(re.findall(r"^  ([\w.]+)=(\S+)", section, flags=re.MULTILINE))
+    # a mapping key (policy) is documented by its sub-keys: policy.hidden=..., policy.obs_norm=...
+    flat = {}
     for key in keys:
+        if isinstance(shipped[key], dict):
+            flat.update({f"{key}.{sub}": value for sub, value in shipped[key].items()})
+        else:
+            flat[key] = shipped[key]
+    assert sorted(documented) == sorted(flat)
+    for key, value in flat.items():
         if key != "generations":  # shipped as ${algo.generations}, documented per algorithm
-            assert yaml.safe_load(documented[key]) == shipped[key], key
+            assert yaml.safe_load(documented[key]) == value, key
 
 
 def test_top_level_help_and_unknown_command(capsys):
