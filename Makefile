@@ -9,7 +9,7 @@ IMIX    = $(VENV)/bin/imix
 # `make reproduce` continues where it stopped. The weight decay is the authors' code's form
 # (estool: ranks - 0.05 mean(theta^2)): the paper's published curves come from it, while its
 # text's -0.05|theta|^2 (the config default) keeps population scores far lower (README).
-PAPER_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true weight_decay_form=estool
+PAPER_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true
 
 # torch for the DDPG baseline: the CPU build 2.13.0, installed before the package so that the
 # extra's torch>=2.1 is already satisfied (an unpinned torch pulls several GB of CUDA packages;
@@ -23,7 +23,7 @@ TORCH ?= torch==2.13.0
 GRID_SEEDS      ?= 5
 DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
-SEC43 = eim=true weight_decay_form=estool progress=false
+SEC43 = eim=true progress=false
 
 .PHONY: install install-all test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 

@@ -78,6 +78,7 @@ ES_ONLY_KEYS = (
 NON_IDENTITY_KEYS = (
     "seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every",
     "evaluator", "evaluator_workers", "ray_address",  # where episodes run never changes their results
+    "eval_mean_every", "eval_mean_episodes",  # measuring the distribution mean uses its own random stream
 )  # fmt: skip
 
 TOP_LEVEL_KEYS = (
@@ -85,6 +86,7 @@ TOP_LEVEL_KEYS = (
     "reeval_prob", "seeds", "generations",
     "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
     "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
+    "eval_mean_every", "eval_mean_episodes",
 )  # fmt: skip
 
 
@@ -150,6 +152,11 @@ class RunSpec:
     evaluator: str = "local"  # local | pool | ray (imix_cli.parallel_evaluation)
     evaluator_workers: int = 1  # processes (pool) or actors (ray)
     ray_address: str | None = None  # ray.init(address=...) for evaluator=ray
+    # The return of the distribution mean theta (the policy one deploys), measured on
+    # eval_mean_episodes fresh episodes every eval_mean_every generations (0: never); these episodes
+    # are counted apart (CSV column mean_policy_episodes), never in evaluations or env_steps.
+    eval_mean_every: int = 0
+    eval_mean_episodes: int = 5
 
     @property
     def evaluator_key(self) -> str:
@@ -207,6 +214,11 @@ class RunSpec:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def differing_keys(old: dict, new: dict) -> list[str]:
+    """The keys whose values differ between two identities (a key missing on one side differs)."""
+    return sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
 
 
 def identity_of(config: dict) -> dict:
@@ -359,6 +371,8 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         weight_decay_form=_choice(cfg.get("weight_decay_form"), "weight_decay_form", WEIGHT_DECAY_FORMS),
         workers=workers,
         checkpoint_every=_int(cfg, "checkpoint_every", 0),
+        eval_mean_every=_int(cfg, "eval_mean_every", 0) if "eval_mean_every" in cfg else 0,
+        eval_mean_episodes=_int(cfg, "eval_mean_episodes", 1) if "eval_mean_episodes" in cfg else 5,
         progress=_bool(cfg, "progress"),
         results_dir=_name(cfg, "results_dir"),
         experiment=experiment,
@@ -781,7 +795,7 @@ def _refuse_shared_folders(specs: list[RunSpec]) -> None:
     for spec in specs:
         other = first.setdefault(spec.run_dir, spec)
         old, new = other.identity(), spec.identity()
-        differing = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        differing = differing_keys(old, new)
         if differing:
             changes = ", ".join(f"{k}={old.get(k)!r} / {new.get(k)!r}" for k in differing)
             raise ConfigError(

@@ -39,16 +39,18 @@ COLUMNS = (
     "sigma_mean",  # mean standard deviation of the search distribution
     "nonfinite",  # episodes of the generation whose return was NaN or inf (ranked last by the ES)
     "wall_time",  # seconds since the seed started
+    "mean_policy_score",  # mean return of the distribution mean theta on fresh episodes (eval_mean_every; NaN on other rows)
+    "mean_policy_episodes",  # cumulative episodes spent measuring theta (not counted in evaluations / env_steps)
     "diverged",  # 1 on the last row of a seed whose search distribution became non-finite (the seed ends there), else 0
 )
 
 #: Columns a CSV of an older imix may lack, with the value they then hold on every row.
-_OPTIONAL_COLUMNS = {"reevaluated": 0, "diverged": 0}
+_OPTIONAL_COLUMNS = {"reevaluated": 0, "mean_policy_score": float("nan"), "mean_policy_episodes": 0, "diverged": 0}
 
 MIXING_NAMES = ("none", "im", "eim")
 
-_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite", "diverged")
-_FLOAT_COLUMNS = ("mean_score", "best_score", "sigma_mean", "wall_time")
+_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite", "mean_policy_episodes", "diverged")
+_FLOAT_COLUMNS = ("mean_score", "best_score", "sigma_mean", "wall_time", "mean_policy_score")
 
 
 class CorruptResultError(ValueError):

@@ -43,7 +43,7 @@ import numpy as np
 
 from imix_cli.algorithms import make_es
 from imix_cli.checkpoints import load_or_warn, write_checkpoint
-from imix_cli.config import RunSpec, identity_of
+from imix_cli.config import RunSpec, differing_keys, identity_of
 from imix_cli.divergence import GuardedES
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.parallel_evaluation import build_evaluator
@@ -85,6 +85,10 @@ class SeedState:
     best_params: np.ndarray | None = None
     best_return: float = -np.inf
     obs_norm: object = None  # policy.obs_norm: this seed's ObsNormalizer (imix_cli.policies)
+    # eval_mean_every: episode seeds for measuring the distribution mean, a stream of its own so the
+    # measurement never changes training; and the episodes spent on it so far.
+    mean_eval_rng: np.random.Generator | None = None
+    mean_policy_episodes: int = 0
 
     @property
     def generation(self) -> int:
@@ -97,7 +101,13 @@ def new_seed_state(spec: RunSpec, seed: int, dim: int) -> SeedState:
         spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,
         weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form, **spec.algo_options,
     ))  # fmt: skip
-    return SeedState(seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq))
+    mean_eval_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(MEAN_EVAL_STREAM,)))
+    return SeedState(seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq), mean_eval_rng=mean_eval_rng)
+
+
+#: Spawn key of the episode seeds that measure the distribution mean (training uses the spawn keys 0
+#: and 1 of SeedSequence(seed), ``imix eval`` 0x6576616C "eval"): "mean".
+MEAN_EVAL_STREAM = 0x6D65616E
 
 
 def mixing_settings(spec: RunSpec) -> MixingSettings:
@@ -162,6 +172,32 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
         if warm:
             st.obs_norm.add(*observed)
             st.obs_norm.end_generation()
+    measure_distribution_means(states, spec, evaluator)
+
+
+def measure_distribution_means(states: list[SeedState], spec: RunSpec, evaluator) -> None:
+    """Fill the last row's ``mean_policy_*`` columns; every ``eval_mean_every`` generations (and at
+    the last), the return of each seed's distribution mean on ``eval_mean_episodes`` fresh episodes,
+    all seeds in one batch. ES papers report this policy -- the one a user deploys -- rather than
+    the population's mean return. Its episodes are counted apart, never as evaluations."""
+    every, episodes = spec.eval_mean_every, spec.eval_mean_episodes
+    due = []
+    for st in states:
+        st.rows[-1]["mean_policy_score"] = float("nan")
+        mean = st.es.distribution.mean
+        if every and (st.generation % every == 0 or st.generation == spec.generations) and np.all(np.isfinite(mean)):
+            due.append(st)
+    if due:
+        params = np.concatenate([np.repeat(raw_obs_params(st, st.es.distribution.mean[None, :], evaluator), episodes, axis=0) for st in due])
+        seeds = np.concatenate([st.mean_eval_rng.integers(0, np.iinfo(np.int64).max, size=episodes, dtype=np.int64) for st in due])
+        returns, _ = evaluator.evaluate(params, seeds)
+        for k, st in enumerate(due):
+            mine = returns[k * episodes : (k + 1) * episodes]
+            mine = mine[np.isfinite(mine)]
+            st.rows[-1]["mean_policy_score"] = float(np.mean(mine)) if mine.size else float("nan")
+            st.mean_policy_episodes += episodes
+    for st in states:
+        st.rows[-1]["mean_policy_episodes"] = st.mean_policy_episodes
 
 
 def raw_obs_params(st: SeedState, params: np.ndarray, evaluator) -> np.ndarray:
@@ -241,7 +277,7 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
         if not isinstance(existing, dict):
             raise RunError(f"{config_file}: not a config mapping; move it away or choose another experiment=")
         old, new = identity_of(existing), spec.identity()
-        differing = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        differing = differing_keys(old, new)
         if differing:
             changes = ", ".join(f"{k}={old.get(k)!r} there, {new.get(k)!r} now" for k in differing)
             raise RunError(
@@ -428,6 +464,8 @@ def ddpg_row(spec: RunSpec, seed: int, episode, wall_time: float) -> dict:
         "reused_im": 0,
         "reused_eim": 0,
         "reevaluated": 0,
+        "mean_policy_score": float("nan"),
+        "mean_policy_episodes": 0,
         "popsize": 1,
         "sigma_mean": float(spec.ddpg["ou_sigma"]),
         "nonfinite": 0 if finite else 1,

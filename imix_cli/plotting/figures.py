@@ -317,6 +317,15 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
             style_ = styles[variants[group.algo][label] % len(styles)]
             line = _draw_band(ax, x, matrix, algo_color(group.algo), label, opts.ci_level, linestyle=style_, clip=achievable_range(env, matrix))
             handles.setdefault(label, line)
+            if not by_evaluations:  # the distribution mean's own return, where it was measured
+                gens, theta = align_by_generation(group, "mean_policy_score")
+                measured = np.flatnonzero(np.isfinite(theta).any(axis=0))
+                if measured.size:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", RuntimeWarning)
+                        dots = np.nanmean(theta[:, measured], axis=0)
+                    (mark,) = ax.plot(gens[measured], dots, color=algo_color(group.algo), linestyle="none", marker="o", markersize=2.2, alpha=0.8)
+                    handles.setdefault(THETA_LABEL, mark)
         _threshold_line(ax, threshold)
         title = MIXING_NAMES.get(mixing, f"with {mixing}")
         ax.set_title(f"({letter}) {title}  [{_seeds_note(panel)}]", loc="left")
@@ -330,11 +339,16 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
     fig.legend(legend_handles, legend_labels, loc="outside lower center", ncols=min(len(legend_handles), 5))
     what = "episodes evaluated" if by_evaluations else "generation"
     title = f"{env_name(env)}: population mean return vs {what}"
-    note = f"(mean ± {opts.ci_level:.0%} Student-t CI over seeds, clipped to the achievable returns; dotted: fewer seeds)"
+    note = f"(mean ± {opts.ci_level:.0%} Student-t CI over seeds, clipped to the achievable returns; dotted: fewer seeds"
+    note += ")" if by_evaluations else "; dots: return of the distribution mean θ on fresh episodes, mean over seeds)"
     if common:
         title += f"; {settings_text(common)}"
     fig.suptitle(f"{title}\n{note}")
     return fig
+
+
+#: Legend entry of the distribution mean's measured return (CSV column mean_policy_score).
+THETA_LABEL = "distribution mean θ (dots)"
 
 
 def convergence_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
