@@ -216,6 +216,16 @@ class RunSpec:
         return asdict(self)
 
 
+#: Keys in which a finished run may be continued: a larger value resumes each seed from its final
+#: state (kept in its checkpoint), which gives exactly the run made with that value at once.
+CONTINUABLE_KEYS = ("generations",)
+
+
+def resume_identity(identity: dict) -> dict:
+    """The part of an identity a run folder and its checkpoints must match to be resumed or continued."""
+    return {k: v for k, v in identity.items() if k not in CONTINUABLE_KEYS}
+
+
 def differing_keys(old: dict, new: dict) -> list[str]:
     """The keys whose values differ between two identities (a key missing on one side differs)."""
     return sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))

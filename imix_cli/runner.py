@@ -43,7 +43,7 @@ import numpy as np
 
 from imix_cli.algorithms import make_es
 from imix_cli.checkpoints import load_or_warn, write_checkpoint
-from imix_cli.config import RunSpec, differing_keys, identity_of
+from imix_cli.config import RunSpec, differing_keys, identity_of, resume_identity
 from imix_cli.divergence import GuardedES
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.parallel_evaluation import build_evaluator
@@ -176,8 +176,7 @@ def advance_lockstep(states: list[SeedState], spec: RunSpec, evaluator) -> None:
 
 
 def measure_distribution_means(states: list[SeedState], spec: RunSpec, evaluator) -> None:
-    """Fill the last row's ``mean_policy_*`` columns; every ``eval_mean_every`` generations (and at
-    the last), the return of each seed's distribution mean on ``eval_mean_episodes`` fresh episodes,
+    """Fill the last row's ``mean_policy_*`` columns; every ``eval_mean_every`` generations, the return of each seed's distribution mean on ``eval_mean_episodes`` fresh episodes,
     all seeds in one batch. ES papers report this policy -- the one a user deploys -- rather than
     the population's mean return. Its episodes are counted apart, never as evaluations."""
     every, episodes = spec.eval_mean_every, spec.eval_mean_episodes
@@ -185,7 +184,9 @@ def measure_distribution_means(states: list[SeedState], spec: RunSpec, evaluator
     for st in states:
         st.rows[-1]["mean_policy_score"] = float("nan")
         mean = st.es.distribution.mean
-        if every and (st.generation % every == 0 or st.generation == spec.generations) and np.all(np.isfinite(mean)):
+        # Only at multiples of eval_mean_every (not also at the last generation): a run continued to more
+        # generations must measure exactly where the longer run made at once measures.
+        if every and st.generation % every == 0 and np.all(np.isfinite(mean)):
             due.append(st)
     if due:
         params = np.concatenate([np.repeat(raw_obs_params(st, st.es.distribution.mean[None, :], evaluator), episodes, axis=0) for st in due])
@@ -251,9 +252,11 @@ def _warn(message: str) -> None:
     print(f"imix: warning: {message}", file=sys.stderr, flush=True)
 
 
-def _remove_checkpoints(run_dir: Path, seed: int) -> None:
-    """A finished seed's checkpoints (and its live-view partial CSV) are no longer needed."""
-    checkpoint_path(run_dir, seed).unlink(missing_ok=True)
+def _remove_checkpoints(run_dir: Path, seed: int, keep_final: bool = False) -> None:
+    """A finished seed's checkpoints (and its live-view partial CSV) are no longer needed -- but for
+    its final state (``keep_final``), from which a larger ``generations=`` continues the seed."""
+    if not keep_final:
+        checkpoint_path(run_dir, seed).unlink(missing_ok=True)
     legacy_checkpoint_path(run_dir, seed).unlink(missing_ok=True)
     partial_csv_path(run_dir, seed).unlink(missing_ok=True)
 
@@ -277,12 +280,17 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
         if not isinstance(existing, dict):
             raise RunError(f"{config_file}: not a config mapping; move it away or choose another experiment=")
         old, new = identity_of(existing), spec.identity()
-        differing = differing_keys(old, new)
+        differing = differing_keys(resume_identity(old), resume_identity(new))
         if differing:
             changes = ", ".join(f"{k}={old.get(k)!r} there, {new.get(k)!r} now" for k in differing)
             raise RunError(
                 f"{config_file} holds a different config ({changes}); "
                 "choose another experiment= or move that folder away"
+            )
+        if spec.algo != "ddpg" and isinstance(old.get("generations"), int) and old["generations"] > spec.generations:
+            raise RunError(
+                f"{config_file}: the run has generations={old['generations']}; a run can be continued to more "
+                f"generations, not shortened to {spec.generations}; choose another experiment="
             )
     todo = []
     for seed in range(spec.seeds):
@@ -297,9 +305,17 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
         if spec.algo == "ddpg":
             if int(frame["env_steps"].iloc[-1]) > spec.total_steps:
                 raise RunError(f"{path}: has {int(frame['env_steps'].iloc[-1])} env steps, config asks for {spec.total_steps}; move it away or choose another experiment=")
-        elif len(frame) != spec.generations and not (len(frame) < spec.generations and frame["diverged"].iloc[-1] == 1):
+        elif len(frame) > spec.generations:
             raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
-    if not config_file.exists():
+        elif len(frame) < spec.generations and frame["diverged"].iloc[-1] != 1:  # continue it from its final state
+            if not checkpoint_path(run_dir, seed).exists():
+                raise RunError(
+                    f"{path}: has {len(frame)} of {spec.generations} generations and no final state to continue from "
+                    f"({checkpoint_path(run_dir, seed).name} missing: made with checkpoint_every=0 or an older imix); "
+                    "move it away or choose another experiment="
+                )
+            todo.append(seed)
+    if not config_file.exists() or todo and spec.algo != "ddpg":  # new, or continued to more generations
         atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
     # Temporaries of writes cut short by a kill are never at a final name; clear them away. (run()
     # holds the folder's lock, so no other live run is writing them; an orphaned worker of a
@@ -379,7 +395,7 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
     if spec.algo == "ddpg":
         return run_ddpg_seeds(spec, seeds, progress)
     evaluator = build_evaluator(spec)
-    identity = spec.identity()
+    identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
     run_dir = spec.run_dir
     states = []
     for seed in seeds:
@@ -403,8 +419,12 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
                 _remove_checkpoints(run_dir, st.seed)
             elif st.generation == spec.generations:
                 write_seed_policies(spec, st.seed, evaluator, raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0], st.best_params, st.best_return, st.generation)
+                if checkpoint_every:  # the final state: `generations=` larger continues from it
+                    elapsed, st.elapsed = st.elapsed, st.elapsed + now
+                    save_checkpoint(run_dir, st, identity)
+                    st.elapsed = elapsed
                 write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
-                _remove_checkpoints(run_dir, st.seed)
+                _remove_checkpoints(run_dir, st.seed, keep_final=bool(checkpoint_every))
             elif checkpoint_every and st.generation % checkpoint_every == 0:
                 elapsed, st.elapsed = st.elapsed, st.elapsed + now
                 save_checkpoint(run_dir, st, identity)

@@ -141,7 +141,7 @@ def test_resume_from_checkpoint_equals_not_stopping(tmp_path, algo, capfd):
     # Both seeds really restart from their checkpoint (a run from scratch writes the same CSVs).
     assert "seed 0 resumes at generation 6" in err and "seed 1 resumes at generation 6" in err, err
     assert "warning" not in err
-    assert not checkpoint_path(spec.run_dir, 0).exists()
+    assert checkpoint_path(spec.run_dir, 0).exists()  # the final state, kept so the run can be continued
     expected, got = csvs(tmp_path / "ref"), csvs(tmp_path / "stop")
     assert len(got) == 2
     for name in expected:
@@ -197,3 +197,26 @@ def test_an_unreadable_checkpoint_is_recomputed(tmp_path, capfd):
     run_seeds(spec, todo, progress=lambda n: None)
     assert len(read_run_csv(spec.run_dir / "seed_0.csv")) == 6
     assert "checkpoint ignored" in capfd.readouterr().err
+
+
+def test_a_finished_run_continues_to_more_generations_as_if_run_at_once(tmp_path, capfd):
+    """generations=6 then generations=11 in the same experiment continues each seed from its final
+    state: the CSVs equal those of generations=11 run at once (but for wall_time). Fewer
+    generations than done are refused in one line, and nothing is rewritten."""
+    common = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "popsize=10", "checkpoint_every=4", "workers=1", "progress=false"]
+    assert main(["run", *common, "generations=11", f"results_dir={tmp_path / 'once'}"]) == 0
+    assert main(["run", *common, "generations=6", f"results_dir={tmp_path / 'twice'}"]) == 0
+    capfd.readouterr()
+    assert main(["run", *common, "generations=11", f"results_dir={tmp_path / 'twice'}"]) == 0
+    err = capfd.readouterr().err
+    assert "seed 0 resumes at generation 6" in err and "seed 1 resumes at generation 6" in err, err
+    once, twice = csvs(tmp_path / "once"), csvs(tmp_path / "twice")
+    assert len(twice) == 2 and all(len(frame) == 11 for frame in twice.values())
+    for name in once:
+        pd.testing.assert_frame_equal(twice[name], once[name])
+    (run_dir,) = [p.parent for p in (tmp_path / "twice").rglob("config.yaml")]
+    assert "generations: 11" in (run_dir / "config.yaml").read_text()
+    before = {p: p.read_bytes() for p in run_dir.glob("seed_*.csv")}
+    assert main(["run", *common, "generations=5", f"results_dir={tmp_path / 'twice'}"]) == 1
+    assert "not shortened" in capfd.readouterr().err
+    assert {p: p.read_bytes() for p in run_dir.glob("seed_*.csv")} == before

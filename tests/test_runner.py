@@ -12,6 +12,7 @@ import sys
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -52,10 +53,12 @@ def test_end_to_end_every_algo_and_env(tmp_path, algo, env):
         assert frame["reused"].iloc[1:].sum() > 0
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert config["algo"]["name"] == algo and config["popsize"] == 8 and config["mixing"] == "eim"
-    # a finished run leaves no temporaries (.*.tmp), checkpoints or partial CSVs behind, hidden files
-    # included: only its config, lock file (free once the run ends), policies and CSVs
+    # a finished run leaves no temporaries (.*.tmp) or partial CSVs behind, hidden files included:
+    # only its config, lock file (free once the run ends), policies, CSVs and each seed's final
+    # state (from which a larger generations= continues it)
     policies = [f"policy_{k}_{which}.npz" for k in (0, 1) for which in ("best", "mean")]
-    expected = sorted([".lock", "config.yaml", *policies, "seed_0.csv", "seed_1.csv"])
+    finals = [f".checkpoints/seed_{k}.npz" for k in (0, 1)]
+    expected = sorted([".lock", "config.yaml", *policies, *finals, "seed_0.csv", "seed_1.csv"])
     assert sorted(p.relative_to(run_dir).as_posix() for p in all_files(run_dir)) == expected
 
 
@@ -188,3 +191,20 @@ def test_installed_console_script_runs_from_any_directory(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "results" / "default" / "openes-cartpole-none-popsize=4" / "seed_0.csv").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]  # no Hydra litter in the working directory
+
+
+def test_the_distribution_mean_is_measured_apart_from_training(tmp_path):
+    """eval_mean_every=3: the return of the distribution mean on 2 fresh episodes after generations
+    3 and 6 (rows 2 and 5), its episodes counted in mean_policy_episodes only; training -- every
+    other column -- is exactly that of a run that never measures it (its own random stream)."""
+    args = ["algo=cem", "env=cartpole", "eim=true", "seeds=1", "popsize=8", "generations=7", "eval_mean_episodes=2"]
+    assert imix(*args, "eval_mean_every=3", results_dir=tmp_path / "on") == 0
+    assert imix(*args, "eval_mean_every=0", results_dir=tmp_path / "off") == 0
+    on, off = (read_run_csv(next((tmp_path / d).rglob("seed_0.csv"))) for d in ("on", "off"))
+    measured = np.flatnonzero(np.isfinite(on["mean_policy_score"].to_numpy()))
+    assert measured.tolist() == [2, 5]
+    assert on["mean_policy_episodes"].tolist() == [0, 0, 2, 2, 2, 4, 4]
+    assert (on["mean_policy_score"].iloc[measured] > 0).all()  # CartPole returns are positive
+    assert off["mean_policy_score"].isna().all() and (off["mean_policy_episodes"] == 0).all()
+    training = [c for c in on.columns if c not in ("mean_policy_score", "mean_policy_episodes", "wall_time")]
+    pd.testing.assert_frame_equal(on[training], off[training])
