@@ -324,8 +324,8 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore", RuntimeWarning)
                         dots = np.nanmean(theta[:, measured], axis=0)
-                    (mark,) = ax.plot(gens[measured], dots, color=algo_color(group.algo), linestyle="none", marker="o", markersize=2.2, alpha=0.8)
-                    handles.setdefault(THETA_LABEL, mark)
+                    ax.plot(gens[measured], dots, color=algo_color(group.algo), linestyle="none", marker="o", markersize=2.2, alpha=0.8)
+                    handles.setdefault(THETA_LABEL, Line2D([], [], color="0.35", linestyle="none", marker="o", markersize=3))
         _threshold_line(ax, threshold)
         title = MIXING_NAMES.get(mixing, f"with {mixing}")
         ax.set_title(f"({letter}) {title}  [{_seeds_note(panel)}]", loc="left")
@@ -340,7 +340,7 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
     what = "episodes evaluated" if by_evaluations else "generation"
     title = f"{env_name(env)}: population mean return vs {what}"
     note = f"(mean ± {opts.ci_level:.0%} Student-t CI over seeds, clipped to the achievable returns; dotted: fewer seeds"
-    note += ")" if by_evaluations else "; dots: return of the distribution mean θ on fresh episodes, mean over seeds)"
+    note += ")" if by_evaluations else ";\ndots: return of the distribution mean θ on fresh episodes, mean over seeds)"
     if common:
         title += f"; {settings_text(common)}"
     fig.suptitle(f"{title}\n{note}")
