@@ -10,6 +10,7 @@ composed and validated, so bad input gives one line and exit status 2 before any
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from concurrent.futures.process import BrokenProcessPool
 
@@ -62,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return run_command(rest)
         except KeyboardInterrupt:  # during validation or Hydra's start-up (the run itself reports its own)
-            print("imix run: interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)", file=sys.stderr)
+            print(INTERRUPTED, file=sys.stderr)
             return 130
     if command == "plot":
         from imix_cli.plotting import main as plot_main
@@ -78,6 +79,14 @@ def main(argv: list[str] | None = None) -> int:
         return import_module(f"imix_cli.{ {'eval': 'evaluate'}.get(command, command)}").main(rest)
     print(f"imix: unknown command {command!r}; valid commands: {', '.join(COMMANDS)} (see imix --help)", file=sys.stderr)
     return 2
+
+
+INTERRUPTED = "imix run: interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)"
+
+
+def _interrupted_before_anything_is_written(signum, frame) -> None:
+    print(INTERRUPTED, file=sys.stderr, flush=True)
+    os._exit(130)
 
 
 def _error(message: str, code: int) -> int:
@@ -97,10 +106,15 @@ def run_command(args: list[str]) -> int:
             value = dashed.split("=", 1)[1] if "=" in dashed else (args[args.index(dashed) + 1] if args.index(dashed) + 1 < len(args) else "...")
             return _error(f"unknown option {dashed!r}; keys are given as key=value, e.g. {key}={value} (see imix run --help)", 2)
         overrides = [a for a in args if not a.startswith("-")]
+        # Nothing is written before validation ends: a Ctrl-C then stops at once with one line, even
+        # if it lands in a library that would swallow a KeyboardInterrupt (an import, a plugin scan).
+        previous = signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)
         try:
             validate_overrides(overrides)
         except ConfigError as err:
             return _error(str(err), 2)
+        finally:
+            signal.signal(signal.SIGINT, previous)
     sys.argv = ["imix run", *args]
     try:
         _hydra_run()

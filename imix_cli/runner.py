@@ -289,9 +289,10 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
             )
         if spec.algo != "ddpg" and isinstance(old.get("generations"), int) and old["generations"] > spec.generations:
             raise RunError(
-                f"{config_file}: the run has generations={old['generations']}; a run can be continued to more "
-                f"generations, not shortened to {spec.generations}; choose another experiment="
+                f"{config_file} holds a different config (generations={old['generations']} there, {spec.generations} now): "
+                "a run can be continued to more generations, not shortened; choose another experiment= or move that folder away"
             )
+    continued = config_file.exists() and spec.algo != "ddpg" and old.get("generations") != spec.generations
     todo = []
     for seed in range(spec.seeds):
         path = seed_csv_path(run_dir, seed)
@@ -302,6 +303,7 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
             frame = read_run_csv(path)
         except CorruptResultError as err:
             raise RunError(f"{err}; move or delete it, then re-run") from None
+        partial_csv_path(run_dir, seed).unlink(missing_ok=True)  # left by a kill between the CSV and its clean-up
         if spec.algo == "ddpg":
             if int(frame["env_steps"].iloc[-1]) > spec.total_steps:
                 raise RunError(f"{path}: has {int(frame['env_steps'].iloc[-1])} env steps, config asks for {spec.total_steps}; move it away or choose another experiment=")
@@ -315,7 +317,7 @@ def prepare_run_dir(spec: RunSpec) -> list[int]:
                     "move it away or choose another experiment="
                 )
             todo.append(seed)
-    if not config_file.exists() or todo and spec.algo != "ddpg":  # new, or continued to more generations
+    if not config_file.exists() or continued:  # new, or continued to more generations
         atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
     # Temporaries of writes cut short by a kill are never at a final name; clear them away. (run()
     # holds the folder's lock, so no other live run is writing them; an orphaned worker of a
@@ -419,11 +421,11 @@ def run_seeds(spec: RunSpec, seeds: list[int], progress=None) -> list[int]:
                 _remove_checkpoints(run_dir, st.seed)
             elif st.generation == spec.generations:
                 write_seed_policies(spec, st.seed, evaluator, raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0], st.best_params, st.best_return, st.generation)
+                write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
                 if checkpoint_every:  # the final state: `generations=` larger continues from it
                     elapsed, st.elapsed = st.elapsed, st.elapsed + now
                     save_checkpoint(run_dir, st, identity)
                     st.elapsed = elapsed
-                write_run_csv(seed_csv_path(run_dir, st.seed), rows_to_frame(st.rows))
                 _remove_checkpoints(run_dir, st.seed, keep_final=bool(checkpoint_every))
             elif checkpoint_every and st.generation % checkpoint_every == 0:
                 elapsed, st.elapsed = st.elapsed, st.elapsed + now

@@ -64,8 +64,7 @@ def test_memory_breakdown_and_grid(capsys, tmp_path, monkeypatch):
     assert header == ["run", "seeds", "generations", "wall (s)", "CPU (s)", "env steps", "evaluations", "final mean score"]
     names = [r[0] for r in rows]
     assert names[:4] == [
-        "snes-cartpole-none-weight_decay_form=estool", "cem-cartpole-none-weight_decay_form=estool",
-        "snes-cartpole-eim-weight_decay_form=estool", "cem-cartpole-eim-weight_decay_form=estool",
+        "snes-cartpole-none", "cem-cartpole-none", "snes-cartpole-eim", "cem-cartpole-eim",  # estool: the default now
     ]  # fmt: skip
     assert names[4:] == ["**total, mixing=none**", "**total, mixing=eim**", "**grid total**"]
     assert all(int(r[5].replace(",", "")) > 0 for r in rows[:4])

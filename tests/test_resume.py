@@ -31,7 +31,7 @@ ARGS = ["run", "algo=snes", "env=acrobot", "eim=true", "seeds=4", f"generations=
 
 
 def csvs(root: Path) -> dict:
-    return {p.relative_to(root): pd.read_csv(p).drop(columns=["wall_time"]) for p in sorted(root.rglob("seed_*.csv"))}
+    return {p.relative_to(root): pd.read_csv(p).drop(columns=["wall_time"]) for p in final_csvs(root)}
 
 
 def worker_pids(main_pid: int) -> list[int]:
@@ -51,8 +51,13 @@ def worker_pids(main_pid: int) -> list[int]:
     return pids
 
 
+def final_csvs(root: Path) -> list:
+    """The seeds' CSVs (not the live-view seed_<k>.partial.csv written at checkpoints)."""
+    return [p for p in sorted(root.rglob("seed_*.csv")) if not p.name.endswith(".partial.csv")]
+
+
 def assert_final_files_valid(root: Path) -> None:
-    for path in root.rglob("seed_*.csv"):
+    for path in final_csvs(root):
         assert len(read_run_csv(path)) == GENERATIONS, path  # complete, never partial
 
 
