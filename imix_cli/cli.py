@@ -59,6 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         print(USAGE, end="")
         return 0
     command, rest = argv[0], argv[1:]
+    if command != "run":  # imix_cli's early Ctrl-C handler (see imix_cli/__init__.py) is for `imix run` only
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     if command == "run":
         try:
             return run_command(rest)
@@ -108,13 +110,13 @@ def run_command(args: list[str]) -> int:
         overrides = [a for a in args if not a.startswith("-")]
         # Nothing is written before validation ends: a Ctrl-C then stops at once with one line, even
         # if it lands in a library that would swallow a KeyboardInterrupt (an import, a plugin scan).
-        previous = signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)
+        signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)
         try:
             validate_overrides(overrides)
         except ConfigError as err:
             return _error(str(err), 2)
         finally:
-            signal.signal(signal.SIGINT, previous)
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # the run handles Ctrl-C itself
     sys.argv = ["imix run", *args]
     try:
         _hydra_run()
