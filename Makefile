@@ -28,15 +28,16 @@ SEC43 = eim=true progress=false
 .PHONY: install install-all test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
-# (numpy, scipy, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; ~450 MB, ~2 min).
-# `make install-all` adds the DDPG baseline (CPU torch + stable-baselines3) and the cluster
-# launchers (joblib, submitit, Ray), ~1.7 GB: only for `make reproduce-ddpg` / hydra/launcher=...
+# (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
+# `make install-all` adds the DDPG baseline (CPU torch + stable-baselines3), the cluster launchers
+# (joblib, submitit, Ray) and MuJoCo: for `make reproduce-ddpg`, hydra/launcher=..., evaluator=ray,
+# `make reproduce-mujoco`; the tests of these extras are skipped without them. CI uses it.
 install:  ## create .venv and install imix (non-editable): runner, plots, render, tests
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install ".[test,render]"
 
-install-all: install  ## install + the DDPG baseline (CPU torch pin) and the cluster launchers
+install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers and MuJoCo
 	$(PY) -m pip install "$(TORCH)"
 	$(PY) -m pip install ".[all]"
 
