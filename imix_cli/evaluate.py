@@ -58,6 +58,14 @@ class UsageError(ValueError):
         self.status = status
 
 
+def help_requested(argv: list, text: str) -> bool:
+    """``-h``, ``--help`` or ``help`` among the arguments of ``imix eval|render|status``: print ``text``."""
+    if any(a in ("-h", "--help", "help") for a in argv):
+        print(text, end="")
+        return True
+    return False
+
+
 def parse_args(argv: list, prog: str, defaults: dict, choices: dict | None = None, ints: dict | None = None) -> dict:
     """``key=value`` arguments -> settings; every key must be in ``defaults``. Shared by eval/render/status.
 
@@ -193,8 +201,7 @@ def format_estimate(values, level: float = 0.95) -> str:
 
 def main(argv: list | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if any(a in ("-h", "--help", "help") for a in argv):
-        print(HELP, end="")
+    if help_requested(argv, HELP):
         return 0
     try:
         s = parse_args(

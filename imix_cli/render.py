@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.evaluate import UsageError, eval_episode_seeds, parse_args, run_folders
+from imix_cli.evaluate import UsageError, eval_episode_seeds, help_requested, parse_args, run_folders
 
 HELP = """\
 usage: imix render [key=value ...]
@@ -187,8 +187,7 @@ def _pick_run(folders: list, run: str | None) -> Path:
 
 def main(argv: list | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if any(a in ("-h", "--help", "help") for a in argv):
-        print(HELP, end="")
+    if help_requested(argv, HELP):
         return 0
     from imix_cli.policy_files import PolicyFileError, policy_path, read_policy
 

@@ -29,7 +29,7 @@ import re
 import sys
 from pathlib import Path
 
-from imix_cli.evaluate import UsageError, parse_args, run_folders
+from imix_cli.evaluate import UsageError, help_requested, parse_args, run_folders
 
 HELP = """\
 usage: imix status [key=value ...]
@@ -157,8 +157,7 @@ def format_status(experiment: str, statuses: list) -> str:
 
 def main(argv: list | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if any(a in ("-h", "--help", "help") for a in argv):
-        print(HELP, end="")
+    if help_requested(argv, HELP):
         return 0
     try:
         s = parse_args(argv, "status", {"results_dir": "results", "experiment": None})
