@@ -123,6 +123,9 @@ _SUN2009_MAX_TRIALS_PER_MEMBER = 200
 _SCRATCH_ELEMENTS = 1 << 20
 # Up to this many numbers in an old generation (rows x d), rule 1 is decided for all its rows at once.
 _UPFRONT_ELEMENTS = 1 << 16
+# Up to this many archived numbers, float64 diagonal steps are compiled (mixing_kernels; it copies
+# the archive into one array, 8 MB at most); above, numpy's vectorised step costs little more.
+_COMPILED_MAX_ELEMENTS = 1 << 20
 
 
 @dataclass
@@ -438,7 +441,20 @@ def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> 
     return draws
 
 
-def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str = "paper", alpha: float = 0.0, eim_generations: int = 3) -> Generation:
+def _compiled_applies(new_dist, entries, popsize: int, variant: str) -> bool:
+    """Whether :mod:`imix_cli.mixing_kernels` computes this step (see ``mix``'s ``compiled``)."""
+    if variant == "eim_paper" or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
+        return False
+    archived = 0
+    for dist, samples in entries:
+        if type(dist) is not DiagonalGaussian or samples.dtype != np.float64 or samples.shape[0] > popsize:
+            return False
+        archived += samples.size
+    return archived <= _COMPILED_MAX_ELEMENTS
+
+
+def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str = "paper", alpha: float = 0.0, eim_generations: int = 3,
+        compiled: bool | None = None) -> Generation:
     """Build a generation of ``popsize`` members distributed as ``new_dist``, reusing archived samples.
 
     Parameters
@@ -461,6 +477,12 @@ def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str 
         Minimal refresh rate of ``"sun2009"`` (ignored by the other variants).
     eim_generations : int >= 1
         K, the number of archived generations ``"eim"`` may draw from.
+    compiled : bool or None
+        None (default): take the compiled step (:mod:`imix_cli.mixing_kernels`) where it
+        applies -- ``"paper"``, ``"sun2009"``, ``"eim"`` between float64 DiagonalGaussians,
+        archived generations of at most ``popsize`` members, up to 2^20 archived numbers --
+        and the numpy step otherwise. Both give the same generation from the same ``rng``
+        (to round-off in the log-ratios). False: always numpy; True: compiled or ValueError.
 
     Returns
     -------
@@ -483,6 +505,18 @@ def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str 
         if samples.ndim != 2 or samples.shape[1] != dim:
             raise ValueError(f"archive[{number - 1}] samples have shape {samples.shape}, expected (n, {dim})")
 
+    depth = eim_generations if variant in ("eim", "eim_paper") else 1
+    if compiled is not False and _compiled_applies(new_dist, entries[:depth], popsize, variant):
+        from imix_cli.mixing_kernels import mix_diagonal  # numba: imported on first use only
+
+        used = list(archive[:depth])
+        heights = [_heights(e, rng) for e in used] if variant == "eim" else None
+        dists, samples = zip(*entries[:depth])
+        x, source, index, trials = mix_diagonal(new_dist, dists, samples, heights, popsize, rng, variant, alpha)
+        return Generation(x, source, index, new_dist, trials)
+    if compiled:
+        raise ValueError(f"the compiled mixing step does not apply to variant {variant!r} with {type(new_dist).__name__} and this archive")
+
     trials = 0
     if entries and variant == "sun2009":
         old_dist, old_samples = entries[0]
@@ -492,7 +526,6 @@ def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str 
             trials = _multi_generation(builder, new_dist, list(archive), eim_generations, rng)
         return builder.finish(new_dist, rng, trials)
     elif entries:
-        depth = 1 if variant == "paper" else eim_generations
         for number, (old_dist, old_samples) in enumerate(entries[:depth], start=1):
             trials += _alternate_rules(builder, new_dist, old_dist, old_samples, number, rng)
             if builder.missing <= 0:

@@ -291,3 +291,51 @@ def test_an_oscillating_chain_reuses_older_generations_exactly_and_never_twice()
     assert duplicates == 0
     assert abs(z_mean) < 4 and abs(z_var) < 4, (z_mean, z_var)
     assert older / members > 0.15, older / members
+
+
+def _walk_steps(rng, dim, generations):
+    """A random walk of diagonal Gaussians, mean and per-coordinate std both moving."""
+    mean, std = np.zeros(dim), np.full(dim, 0.3)
+    for _ in range(generations):
+        mean = mean + 0.05 * rng.standard_normal(dim) * std
+        std = std * np.exp(0.02 * rng.standard_normal(dim))
+        yield DiagonalGaussian(mean, std)
+
+
+@pytest.mark.parametrize("variant", ["paper", "sun2009", "eim"])
+@pytest.mark.parametrize("dim,popsize", [(1, 50), (130, 50), (2, 3)])
+def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize):
+    """imix_cli.mixing_kernels draws the same random numbers in the same order as the numpy step:
+    along 100-generation chains, every generation has the same members (source, index, samples to
+    1e-12), the same trial count, the same heights, and leaves the Generator in the same state.
+    This equality is what lets the statistical tests above, which run on the compiled step (the
+    default for float64 diagonal Gaussians), vouch for both paths."""
+    rng = np.random.default_rng(dim * 100 + popsize)
+    archive_numpy, archive_compiled = [], []
+    for t, dist in enumerate(_walk_steps(rng, dim, 100)):
+        r_numpy, r_compiled = np.random.default_rng(t), np.random.default_rng(t)
+        g_numpy = mix(dist, archive_numpy, popsize, r_numpy, variant=variant, compiled=False)
+        g_compiled = mix(dist, archive_compiled, popsize, r_compiled, variant=variant, compiled=None if t == 0 else True)
+        assert np.array_equal(g_numpy.source, g_compiled.source) and np.array_equal(g_numpy.index, g_compiled.index), t
+        np.testing.assert_allclose(g_compiled.samples, g_numpy.samples, rtol=0, atol=1e-12)
+        assert g_numpy.trials == g_compiled.trials and r_numpy.random() == r_compiled.random(), t
+        for a, b in zip(archive_numpy, archive_compiled):
+            assert (a.log_u is None and b.log_u is None) or np.array_equal(a.log_u, b.log_u)
+        archive_numpy = [g_numpy, *archive_numpy][:3]
+        archive_compiled = [g_compiled, *archive_compiled][:3]
+
+
+def test_the_compiled_step_takes_smaller_generations_and_refuses_what_it_does_not_compute():
+    rng = np.random.default_rng(3)
+    dist = DiagonalGaussian(np.zeros(4), np.ones(4))
+    archive = [Generation(dist.sample(n, rng), np.zeros(n, np.int64), np.full(n, -1, np.int64), dist) for n in (30, 40, 20)]
+    new = DiagonalGaussian(np.full(4, 0.1), np.ones(4))
+    a = mix(new, archive, 50, np.random.default_rng(1), variant="eim", compiled=True)
+    for g in archive:
+        g.log_u = None
+    b = mix(new, archive, 50, np.random.default_rng(1), variant="eim", compiled=False)
+    assert np.array_equal(a.source, b.source) and np.array_equal(a.index, b.index)
+    with pytest.raises(ValueError, match="compiled"):
+        mix(FullGaussian(np.zeros(4), np.eye(4)), [(dist, dist.sample(5, rng))], 5, rng, variant="eim", compiled=True)
+    with pytest.raises(ValueError, match="compiled"):  # a generation larger than popsize
+        mix(new, [(dist, dist.sample(60, rng))], 50, rng, variant="sun2009", compiled=True)
