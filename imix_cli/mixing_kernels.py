@@ -34,8 +34,6 @@ from numba import njit
 
 __all__ = ["mix_diagonal"]
 
-PAPER, SUN2009, EIM = 0, 1, 2
-_CODES = {"paper": PAPER, "sun2009": SUN2009, "eim": EIM}
 # As imix_cli.mixing: rule-2 draws per missing member before the rest is filled plainly.
 _MAX_TRIALS_PER_MEMBER = 200
 # As imix_cli.mixing._SCRATCH_ELEMENTS: Algorithm 2's block size is capped by it, and the block
@@ -283,19 +281,37 @@ def _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, 
 
 
 @njit(cache=True)
-def _mix(rng, code, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
-    d = mean.shape[0]
-    out = np.empty((popsize + 1, d))  # one spare row: Algorithm 2's last step may accept two
-    source = np.zeros(popsize + 1, np.int64)
-    index = np.full(popsize + 1, -1, np.int64)
-    if code == PAPER:
-        size, trials = _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, out, source, index)
-    elif code == SUN2009:
-        size, trials = _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, log_keep, alpha, out, source, index)
-    else:
-        size, trials = _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index)
+def _output(popsize, d):
+    # one spare row: Algorithm 2's last step may accept two
+    return np.empty((popsize + 1, d)), np.zeros(popsize + 1, np.int64), np.full(popsize + 1, -1, np.int64)
+
+
+# One compiled entry point per rule, so that a run compiles (once, on first use) only its own rule.
+@njit(cache=True)
+def _mix_paper(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
+    out, source, index = _output(popsize, mean.shape[0])
+    size, trials = _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, out, source, index)
     _fill_plain(rng, mean, std, out, size, popsize)
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
+
+
+@njit(cache=True)
+def _mix_sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
+    out, source, index = _output(popsize, mean.shape[0])
+    size, trials = _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, log_keep, alpha, out, source, index)
+    _fill_plain(rng, mean, std, out, size, popsize)
+    return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
+
+
+@njit(cache=True)
+def _mix_eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
+    out, source, index = _output(popsize, mean.shape[0])
+    size, trials = _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index)
+    _fill_plain(rng, mean, std, out, size, popsize)
+    return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
+
+
+_ENTRY = {"paper": _mix_paper, "sun2009": _mix_sun2009, "eim": _mix_eim}
 
 
 def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random.Generator, variant: str, alpha: float):
@@ -323,7 +339,7 @@ def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random
     log_norms = np.array([dist._log_norm for dist in dists])
     with np.errstate(divide="ignore"):
         log_keep = float(np.log1p(-alpha))
-    return _mix(
-        rng, _CODES[variant], new_dist.mean, new_dist.std, float(new_dist._log_norm),
+    return _ENTRY[variant](
+        rng, new_dist.mean, new_dist.std, float(new_dist._log_norm),
         means, stds, log_norms, xs, h, counts, popsize, log_keep, float(alpha),
     )  # fmt: skip
