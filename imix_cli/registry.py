@@ -102,9 +102,11 @@ ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
     )
 }
 
-#: ``algo=`` choices, and the evolution strategies among them.
+#: ``algo=`` choices, the evolution strategies among them, and the others (no generations, no
+#: mixing, one CSV row per episode: only in the DDPG figure).
 ALGO_NAMES = tuple(ALGORITHM_SPECS)
 ES_NAMES = tuple(name for name, spec in ALGORITHM_SPECS.items() if spec.is_es)
+NON_ES_NAMES = frozenset(name for name, spec in ALGORITHM_SPECS.items() if not spec.is_es)
 
 
 def algo_label(name: str) -> str:
@@ -254,6 +256,27 @@ MIXING_SPECS: dict[str, MixingSpec] = {
         MixingSpec("eim", "with EIM", " + EIM", "EIM", {"exact": "eim", "paper": "eim_paper"}),
     )
 }
+
+def mixing_title(name: str) -> str:
+    """A figure panel's title for ``mixing=<name>`` ("with IM")."""
+    spec = MIXING_SPECS.get(name)
+    return spec.title if spec else f"with {name}"
+
+
+def mixing_suffix(name: str, unknown: str | None = None) -> str:
+    """The suffix of an algorithm's label for ``mixing=<name>`` (" + IM"); ``unknown`` (default
+    " + <name>") for a name not registered."""
+    spec = MIXING_SPECS.get(name)
+    if spec:
+        return spec.short
+    return f" + {name}" if unknown is None else unknown
+
+
+def mixing_label(name: str) -> str:
+    """The table cell of ``mixing=<name>`` ("IM")."""
+    spec = MIXING_SPECS.get(name)
+    return spec.label if spec else name
+
 
 #: The ``mixing`` values, in the order figures and tables list them.
 MIXING_NAMES = tuple(MIXING_SPECS)
