@@ -13,6 +13,7 @@ before the first point runs.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 import math
 import os
@@ -21,12 +22,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from imix_cli.algorithms.base import WEIGHT_DECAY_FORMS, Params
-from imix_cli.algorithms.cem import STYLES as CEM_STYLES
-from imix_cli.algorithms.cem import CEMParams
 from imix_cli.algorithms.cmaes import MAX_DIM as CMAES_CLASS_MAX_DIM
 from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
 from imix_cli.registry import (
     ALGO_NAMES,
+    ALGORITHM_SPECS,
     BUILTIN_ENVS,
     CONTINUOUS_BUILTIN_ENVS,
     EIM_VARIANTS,
@@ -44,8 +44,15 @@ ES_PARAM_KEYS = ("popsize", "sigma", "lr", "weight_decay", "weight_decay_form")
 #: get folders of their own.
 PAPER_DEFAULTS = {**{key: getattr(Params, key) for key in ES_PARAM_KEYS}, **MIXING_DEFAULTS}
 
-#: Per-ES options of the ``algo`` group and their defaults (conf/algo/<name>.yaml).
-ALGO_OPTION_DEFAULTS = {"style": CEMParams.style}
+
+
+def algo_option_fields(algo: str) -> dict:
+    """The ``algo.<key>`` options of an ES (conf/algo/<name>.yaml): key -> its field of the ES's Params."""
+    spec = ALGORITHM_SPECS[algo]
+    if not spec.options:
+        return {}
+    by_name = {f.name: f for f in dataclasses.fields(spec.es_class().Params)}
+    return {key: by_name[key] for key in spec.options}
 
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
 #: carries, as ``-key=value,...``, the ones that differ from these.
@@ -176,7 +183,8 @@ class RunSpec:
             values["reeval_age"] = self.reeval_age
             values["reeval_prob"] = self.reeval_prob
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
-        changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != ALGO_OPTION_DEFAULTS.get(k)})
+        defaults = {k: f.default for k, f in algo_option_fields(self.algo).items()}
+        changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != defaults.get(k)})
         if self.hidden != POLICY_DEFAULTS["hidden"]:
             changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"
         if self.obs_norm:
@@ -302,9 +310,7 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     if reeval_age is not None:
         reeval_age = _int(cfg, "reeval_age", 1)
     reeval_prob = _float(cfg, "reeval_prob", 0.0, True, 1.0, False)
-    algo_options = {}
-    if algo == "cem":
-        algo_options["style"] = _choice(algo_cfg.get("style", ALGO_OPTION_DEFAULTS["style"]), "algo.style", CEM_STYLES)
+    algo_options = _algo_options(algo, algo_cfg)
     im_alpha = _float(cfg, "im_alpha", 0.0, True, 1.0, False)
     eim_generations = _int(cfg, "eim_generations", 1)
     if eim and im_variant != "paper":
@@ -367,6 +373,21 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         evaluator_workers=policy["evaluator_workers"],
         ray_address=policy["ray_address"],
     )
+
+
+def _algo_options(algo: str, algo_cfg: dict) -> dict:
+    """The validated ``algo.<key>`` options of an ES (:func:`algo_option_fields`), defaults filled in."""
+    options = {}
+    for key, f in algo_option_fields(algo).items():
+        value = algo_cfg.get(key, f.default)
+        if "choices" in f.metadata:
+            _choice(value, f"algo.{key}", f.metadata["choices"])
+        options[key] = value
+    try:
+        ALGORITHM_SPECS[algo].es_class().Params(**options)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"algo={algo}: {_first_line(err)}") from None
+    return options
 
 
 #: The largest ``seeds``: one CSV (and one progress line of work) per seed; beyond this a run is

@@ -56,6 +56,10 @@ class AlgorithmSpec:
     uses_lr : bool
         Whether the top-level ``lr`` (Adam's learning rate) reaches the algorithm; the
         figures print it only then.
+    options : tuple of str
+        The ``algo.<key>`` settings of ``conf/algo/<name>.yaml`` that are fields of the ES's
+        ``Params`` (defaults, choices and checks come from there); a value other than the
+        default names the run folder (``-algo.<key>=<value>``).
     """
 
     name: str
@@ -64,6 +68,7 @@ class AlgorithmSpec:
     cls: str | None = None
     generations: int | None = None
     uses_lr: bool = False
+    options: tuple[str, ...] = ()
 
     @property
     def is_es(self) -> bool:
@@ -95,7 +100,7 @@ ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
     for spec in (
         AlgorithmSpec("openes", "OpenES", OKABE_ITO["blue"], "imix_cli.algorithms.openes:OpenES", 1000, uses_lr=True),
         AlgorithmSpec("snes", "SNES", OKABE_ITO["vermillion"], "imix_cli.algorithms.snes:SNES", 1000, uses_lr=True),
-        AlgorithmSpec("cem", "CEM", OKABE_ITO["bluish_green"], "imix_cli.algorithms.cem:CEM", 400),
+        AlgorithmSpec("cem", "CEM", OKABE_ITO["bluish_green"], "imix_cli.algorithms.cem:CEM", 400, options=("style",)),
         AlgorithmSpec("cmaes", "CMA-ES", OKABE_ITO["reddish_purple"], "imix_cli.algorithms.cmaes:CMAES", 400),
         # the deep-RL baseline of section 4.3 (stable-baselines3): one CSV row per episode
         AlgorithmSpec("ddpg", "DDPG", OKABE_ITO["black"]),

@@ -122,3 +122,17 @@ def test_fitness_shaping_and_weight_decay_forms_are_pluggable(monkeypatch):
     monkeypatch.setitem(base.WEIGHT_DECAY_FORMS, "none", NoDecay())
     es: EvolutionStrategy = make_es("openes", 2, popsize=3, fitness_shaping="raw", weight_decay_form="none")
     np.testing.assert_array_equal(es.utilities(np.ones((3, 2)), np.array([3.0, -1.0, 2.0])), [3.0, -1.0, 2.0])
+
+
+def test_algo_options_come_from_the_es_params():
+    """``algo.style`` of CEM: default, choices and the folder name come from ``CEM.Params``."""
+    from imix_cli.config import ConfigError, validate_overrides
+
+    (default,) = validate_overrides(["algo=cem"])
+    assert default.algo_options == {"style": "imix"} and default.run_name == "cem-cartpole-none"
+    (cemrl,) = validate_overrides(["algo=cem", "algo.style=cemrl", "eim=true"])
+    assert cemrl.algo_options == {"style": "cemrl"} and cemrl.run_name == "cem-cartpole-eim-algo.style=cemrl"
+    with pytest.raises(ConfigError, match=r"algo.style='textbook': valid choices are imix, cemrl"):
+        validate_overrides(["algo=cem", "algo.style=textbook"])
+    (snes,) = validate_overrides(["algo=snes"])
+    assert snes.algo_options == {}

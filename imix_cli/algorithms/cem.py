@@ -41,7 +41,7 @@ what it does to the reuse rate).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -72,7 +72,7 @@ class CEMParams(Params):
     #: "imix": the textbook update (module docstring). "cemrl": the authors' sepCEM: log
     #: weights, extra variance 1e-3 decaying to 1e-5 unless given, variance about the old
     #: mean scaled by 1/K (``algo.style`` of conf/algo/cem.yaml).
-    style: str = "imix"
+    style: str = field(default="imix", metadata={"choices": STYLES})
 
     def __post_init__(self):
         super().__post_init__()
