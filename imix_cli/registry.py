@@ -201,6 +201,8 @@ ENV_SPECS: dict[str, EnvSpec] = {
 BUILTIN_ENVS = {name: spec.gym_id for name, spec in ENV_SPECS.items() if spec.builtin}
 #: The built-ins with continuous (Box) actions, the only built-ins algo=ddpg accepts.
 CONTINUOUS_BUILTIN_ENVS = tuple(name for name in BUILTIN_ENVS if ENV_SPECS[name].continuous)
+#: The environments of the paper's main comparison (section 4.2: Figs 5-8, Table 1).
+MAIN_GRID_ENVS = ("cartpole", "acrobot")
 #: The MuJoCo configs: config name -> gymnasium id.
 MUJOCO_ENVS = {name: spec.gym_id for name, spec in ENV_SPECS.items() if not spec.builtin}
 

@@ -17,6 +17,11 @@ weight decay and centred-rank fitness shaping, as in the paper's section 4.1:
     The paper's text: the penalty -w * ||theta||^2 is added to each raw fitness,
     then the penalised fitness is turned into centred ranks.
 
+Both forms, and the fitness shaping (centred ranks), are pieces registered by name
+(:data:`WEIGHT_DECAY_FORMS`, :data:`FITNESS_SHAPINGS`) and chosen by the ES's :class:`Params`,
+the one record of the hyper-parameters every ES shares (documented field by field, with the
+paper's values as defaults); each ES extends it with its own options.
+
 Tied fitness values are ranked in a random order keyed on the members' parameters
 (:func:`centered_ranks`, :func:`member_keys`), so no ES depends on the order of the
 population it is told, and no tiny term (the estool penalty) decides every tie.
