@@ -13,6 +13,7 @@ before the first point runs.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import itertools
 import math
 import os
@@ -20,47 +21,38 @@ import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from imix_cli.algorithms.base import WEIGHT_DECAY_FORMS, Params
 from imix_cli.algorithms.cmaes import MAX_DIM as CMAES_CLASS_MAX_DIM
 from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
+from imix_cli.registry import (
+    ALGO_NAMES,
+    ALGORITHM_SPECS,
+    BUILTIN_ENVS,
+    CONTINUOUS_BUILTIN_ENVS,
+    EIM_VARIANTS,
+    ENV_SPECS,
+    IM_VARIANTS,
+    MIXING_DEFAULTS,
+)
 
-ES_NAMES = ("openes", "snes", "cem", "cmaes")
-ALGO_NAMES = (*ES_NAMES, "ddpg")  # ddpg: the deep-RL baseline of section 4.3 (stable-baselines3)
-MIXING_VARIANTS = ("paper", "sun2009")  # im=true
-#: eim=true: "exact" is imix's multi-generation rule, unbiased over chains (mixing.py); "paper" the
-#: paper's Algorithm 3, kept for reproduction: its generations drift from their distribution
-#: over chains of generations (README, "Correctness of importance mixing").
-EIM_VARIANTS = {"exact": "eim", "paper": "eim_paper"}
-CEM_STYLES = ("imix", "cemrl")
-WEIGHT_DECAY_FORMS = ("paper", "estool")
+#: The top-level keys that set an ES's :class:`~imix_cli.algorithms.base.Params`.
+ES_PARAM_KEYS = ("popsize", "sigma", "lr", "weight_decay", "weight_decay_form")
 
-#: Built-in environments with a batched evaluator: config name -> gymnasium id it reproduces.
-BUILTIN_ENVS = {
-    "cartpole": "CartPole-v0",
-    "acrobot": "Acrobot-v1",
-    "continuous_cartpole": "imix/ContinuousCartPole-v0",
-    "continuous_cartpole_hard": "imix/ContinuousCartPoleHard-v0",
-}
-#: The built-in environments with continuous (Box) actions, the only built-ins algo=ddpg accepts.
-CONTINUOUS_ENVS = ("continuous_cartpole", "continuous_cartpole_hard")
+#: The paper's setting (section 4.1): the defaults of :class:`~imix_cli.algorithms.base.Params`
+#: and of the mixing schemes (:data:`imix_cli.registry.MIXING_DEFAULTS`). A run folder's name
+#: carries, as ``-key=value,...``, the hyper-parameters that differ from these, so sweep points
+#: get folders of their own.
+PAPER_DEFAULTS = {**{key: getattr(Params, key) for key in ES_PARAM_KEYS}, **MIXING_DEFAULTS}
 
-#: The paper's setting (section 4.1). A run folder's name carries, as ``-key=value,...``, the
-#: hyper-parameters that differ from these, so sweep points get folders of their own.
-PAPER_DEFAULTS = {
-    "popsize": 50,
-    "sigma": 0.25,
-    "lr": 0.01,
-    "weight_decay": 0.05,
-    "weight_decay_form": "estool",
-    "im_variant": "paper",
-    "eim_variant": "exact",
-    "im_alpha": 0.0,
-    "eim_generations": 3,
-    "reeval_age": None,
-    "reeval_prob": 0.0,
-}
 
-#: Per-ES options of the ``algo`` group and their defaults (conf/algo/<name>.yaml).
-ALGO_OPTION_DEFAULTS = {"style": "imix"}
+
+def algo_option_fields(algo: str) -> dict:
+    """The ``algo.<key>`` options of an ES (conf/algo/<name>.yaml): key -> its field of the ES's Params."""
+    spec = ALGORITHM_SPECS[algo]
+    if not spec.options:
+        return {}
+    by_name = {f.name: f for f in dataclasses.fields(spec.es_class().Params)}
+    return {key: by_name[key] for key in spec.options}
 
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
 #: carries, as ``-key=value,...``, the ones that differ from these.
@@ -170,7 +162,7 @@ class RunSpec:
         the folder: a sweep whose points would share one is refused up front (validate_overrides)."""
         # env.max_steps (default: the env's own cap) changes results too: it names the folder when set.
         if self.env_name in BUILTIN_ENVS:
-            default_caps = {_env_group_default(self.env_name, "max_steps")}
+            default_caps = {ENV_SPECS[self.env_name].max_steps}
         else:  # a gymnasium id (env=gym, or a config such as env=hopper): its own registered time limit
             default_caps = {None, _registered_cap(self.env_id)}
         cap = {} if self.env_max_steps in default_caps else {"env.max_steps": self.env_max_steps}
@@ -191,7 +183,8 @@ class RunSpec:
             values["reeval_age"] = self.reeval_age
             values["reeval_prob"] = self.reeval_prob
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
-        changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != ALGO_OPTION_DEFAULTS.get(k)})
+        defaults = {k: f.default for k, f in algo_option_fields(self.algo).items()}
+        changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != defaults.get(k)})
         if self.hidden != POLICY_DEFAULTS["hidden"]:
             changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"
         if self.obs_norm:
@@ -241,9 +234,6 @@ def _format(value) -> str:
     return repr(value) if isinstance(value, float) else str(value)
 
 
-_GROUP_DEFAULTS: dict = {}
-
-
 def _registered_cap(env_id: str) -> int | None:
     import gymnasium as gym
 
@@ -251,16 +241,6 @@ def _registered_cap(env_id: str) -> int | None:
         return gym.spec(env_id).max_episode_steps
     except Exception:  # an id gymnasium cannot resolve has no cap of its own
         return None
-
-
-def _env_group_default(option: str, key: str):
-    """``key`` of ``conf/env/<option>.yaml`` (read once): the value a run has unless overridden."""
-    if option not in _GROUP_DEFAULTS:
-        import yaml
-
-        path = Path(config_dir()) / "env" / f"{option}.yaml"
-        _GROUP_DEFAULTS[option] = yaml.safe_load(path.read_text()) if path.exists() else {}
-    return (_GROUP_DEFAULTS[option] or {}).get(key)
 
 
 # ---------------------------------------------------------------------------- validation helpers
@@ -324,15 +304,13 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     if algo == "ddpg":
         return _ddpg_spec(cfg, algo_cfg, env_cfg, launcher)
     im, eim = _bool(cfg, "im"), _bool(cfg, "eim")
-    im_variant = _choice(cfg.get("im_variant"), "im_variant", MIXING_VARIANTS)
+    im_variant = _choice(cfg.get("im_variant"), "im_variant", IM_VARIANTS)
     eim_variant = _choice(cfg.get("eim_variant", PAPER_DEFAULTS["eim_variant"]), "eim_variant", tuple(EIM_VARIANTS))
     reeval_age = cfg.get("reeval_age")
     if reeval_age is not None:
         reeval_age = _int(cfg, "reeval_age", 1)
     reeval_prob = _float(cfg, "reeval_prob", 0.0, True, 1.0, False)
-    algo_options = {}
-    if algo == "cem":
-        algo_options["style"] = _choice(algo_cfg.get("style", "imix"), "algo.style", CEM_STYLES)
+    algo_options = _algo_options(algo, algo_cfg)
     im_alpha = _float(cfg, "im_alpha", 0.0, True, 1.0, False)
     eim_generations = _int(cfg, "eim_generations", 1)
     if eim and im_variant != "paper":
@@ -378,7 +356,7 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         sigma=sigma,
         lr=_float(cfg, "lr", 0.0, False),
         weight_decay=_float(cfg, "weight_decay", 0.0, True),
-        weight_decay_form=_choice(cfg.get("weight_decay_form"), "weight_decay_form", WEIGHT_DECAY_FORMS),
+        weight_decay_form=_choice(cfg.get("weight_decay_form"), "weight_decay_form", tuple(WEIGHT_DECAY_FORMS)),
         workers=workers,
         checkpoint_every=_int(cfg, "checkpoint_every", 0),
         eval_mean_every=_int(cfg, "eval_mean_every", 0) if "eval_mean_every" in cfg else 0,
@@ -395,6 +373,21 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
         evaluator_workers=policy["evaluator_workers"],
         ray_address=policy["ray_address"],
     )
+
+
+def _algo_options(algo: str, algo_cfg: dict) -> dict:
+    """The validated ``algo.<key>`` options of an ES (:func:`algo_option_fields`), defaults filled in."""
+    options = {}
+    for key, f in algo_option_fields(algo).items():
+        value = algo_cfg.get(key, f.default)
+        if "choices" in f.metadata:
+            _choice(value, f"algo.{key}", f.metadata["choices"])
+        options[key] = value
+    try:
+        ALGORITHM_SPECS[algo].es_class().Params(**options)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"algo={algo}: {_first_line(err)}") from None
+    return options
 
 
 #: The largest ``seeds``: one CSV (and one progress line of work) per seed; beyond this a run is
@@ -464,7 +457,9 @@ def _workers_and_experiment(cfg: dict, launcher: str | None, pool: bool = False)
         if parallel and workers > 1:
             raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
         if pool and workers > 1:
-            raise ConfigError(f"workers={workers}: evaluator=pool already spreads each generation over evaluator_workers processes; use workers=1 (or leave it null)")
+            raise ConfigError(
+                f"workers={workers}: evaluator=pool already spreads each generation over evaluator_workers processes; use workers=1 (or leave it null)"
+            )
     experiment = _name(cfg, "experiment")
     if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
         raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
@@ -478,8 +473,6 @@ EVALUATORS = ("local", "pool", "ray")
 #: CMA-ES keeps a d x d covariance and eigendecomposes it (O(d^2) memory, O(d^3) time): above
 #: this many parameters imix refuses it before anything runs (the CMAES class's own limit).
 CMAES_MAX_DIM = CMAES_CLASS_MAX_DIM
-#: Observation and output sizes of the built-in environments (their policies' input and output).
-BUILTIN_POLICY_DIMS = {"cartpole": (4, 2), "acrobot": (6, 3), "continuous_cartpole": (4, 1), "continuous_cartpole_hard": (4, 1)}
 
 
 def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_steps, launcher: str | None) -> dict:
@@ -537,8 +530,8 @@ def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple) -> int:
     """Number of policy parameters on this env (a gymnasium env is made once to read its spaces)."""
     from imix_cli.policies import num_params
 
-    if env_name in BUILTIN_POLICY_DIMS:
-        return num_params(*BUILTIN_POLICY_DIMS[env_name], hidden)
+    if env_name in BUILTIN_ENVS:  # their observation and output sizes are known without making the env
+        return num_params(*ENV_SPECS[env_name].policy_dims, hidden)
     import gymnasium as gym
 
     try:
@@ -606,9 +599,10 @@ def _ddpg_spec(cfg: dict, algo_cfg: dict, env_cfg: dict, launcher: str | None) -
 def _continuous_env_cap(env_name: str, env_id: str, max_steps: int | None) -> int:
     """The episode length cap of a continuous-action env; ConfigError for a discrete one."""
     if env_name in BUILTIN_ENVS:
-        if env_name not in CONTINUOUS_ENVS:
-            raise ConfigError(f"env={env_name}: algo=ddpg needs continuous actions; use env={' or env='.join(CONTINUOUS_ENVS)} (or env=gym env.id=<a Box-action id>)")
-        return max_steps or 200
+        if env_name not in CONTINUOUS_BUILTIN_ENVS:
+            choices = " or env=".join(CONTINUOUS_BUILTIN_ENVS)
+            raise ConfigError(f"env={env_name}: algo=ddpg needs continuous actions; use env={choices} (or env=gym env.id=<a Box-action id>)")
+        return max_steps or ENV_SPECS[env_name].max_steps
     import gymnasium as gym
 
     try:

@@ -54,13 +54,12 @@ import numpy as np
 from gymnasium import spaces
 
 from imix_cli.policies import HIDDEN, BatchPolicy, num_params
+from imix_cli.registry import BUILTIN_ENVS, ENV_SPECS
 
-__all__ = ["BatchEvaluator", "make_evaluator", "missing_extra_message", "MUJOCO_EXTRA_HINT", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS", "CONTINUOUS_ENVS"]
+__all__ = ["BatchEvaluator", "make_evaluator", "missing_extra_message", "MUJOCO_EXTRA_HINT", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS"]
 
-CARTPOLE_MAX_STEPS = 200  # CartPole-v0 (reward threshold 195)
-ACROBOT_MAX_STEPS = 200  # the paper's cap (Acrobot-v1 itself allows 500)
-#: Built-in continuous-action environments: evaluator name -> sparse (Hard) reward or not.
-CONTINUOUS_ENVS = {"continuous_cartpole": False, "continuous_cartpole_hard": True}
+CARTPOLE_MAX_STEPS = ENV_SPECS["cartpole"].max_steps  # CartPole-v0 (reward threshold 195)
+ACROBOT_MAX_STEPS = ENV_SPECS["acrobot"].max_steps  # the paper's cap (Acrobot-v1 itself allows 500)
 
 
 class BatchEvaluator:
@@ -121,11 +120,13 @@ class BatchEvaluator:
 
 class _CompiledEvaluator(BatchEvaluator):
     """A built-in environment: whole episodes, policy included, in a compiled kernel
-    (:mod:`imix_cli.envs.kernels`), one member after the other."""
+    (:mod:`imix_cli.envs.kernels`), one member after the other. Its sizes and default episode
+    cap are those of its record in :data:`imix_cli.registry.ENV_SPECS`."""
 
-    def __init__(self, env_name: str, obs_dim: int, out_dim: int, discrete: bool, max_steps: int):
-        self.env_name, self.obs_dim, self.out_dim, self.discrete = env_name, obs_dim, out_dim, discrete
-        self.max_steps = int(max_steps)
+    def __init__(self, env_name: str, max_steps: int | None):
+        spec = ENV_SPECS[env_name]
+        self.env_name, (self.obs_dim, self.out_dim), self.discrete = env_name, spec.policy_dims, not spec.continuous
+        self.max_steps = spec.max_steps if max_steps is None else int(max_steps)
         if self.max_steps < 1:
             raise ValueError(f"{env_name}: max_steps must be >= 1, got {max_steps}")
         from imix_cli.envs import kernels  # numba: loaded (and compiled on first use) only here
@@ -161,8 +162,7 @@ class CartPoleEvaluator(_CompiledEvaluator):
     """CartPole-v0 semantics: CartPole-v1 dynamics (``CartPoleEnv.step``, compiled), 200 steps."""
 
     def __init__(self, max_steps: int | None = None):
-        max_steps = CARTPOLE_MAX_STEPS if max_steps is None else int(max_steps)
-        super().__init__("cartpole", 4, 2, True, max_steps)
+        super().__init__("cartpole", max_steps)
 
     def _episodes(self, params, seeds, returns, steps, trace):
         self._kernels.cartpole_episodes(params, seeds, self._sizes(), False, False, self.max_steps, returns, steps, trace)
@@ -172,8 +172,7 @@ class AcrobotEvaluator(_CompiledEvaluator):
     """Acrobot-v1 dynamics (``AcrobotEnv``'s rk4, compiled), capped at 200 steps by default."""
 
     def __init__(self, max_steps: int | None = None):
-        max_steps = ACROBOT_MAX_STEPS if max_steps is None else int(max_steps)
-        super().__init__("acrobot", 6, 3, True, max_steps)
+        super().__init__("acrobot", max_steps)
 
     def _episodes(self, params, seeds, returns, steps, trace):
         # gymnasium's reset(seed=s): a float32 state and its observation computed in float32
@@ -193,9 +192,7 @@ class ContinuousCartPoleEvaluator(_CompiledEvaluator):
     the action range [-1, 1], force 10 N x a; the Hard variant's sparse reward gives the same return."""
 
     def __init__(self, hard: bool = False, max_steps: int | None = None):
-        max_steps = CARTPOLE_MAX_STEPS if max_steps is None else int(max_steps)
-        name = "continuous_cartpole_hard" if hard else "continuous_cartpole"
-        super().__init__(name, 4, 1, False, max_steps)
+        super().__init__("continuous_cartpole_hard" if hard else "continuous_cartpole", max_steps)
         self.hard = bool(hard)
 
     def _episodes(self, params, seeds, returns, steps, trace):
@@ -345,22 +342,17 @@ def _route_mujoco_warnings(mujoco) -> None:
 
 
 def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN) -> BatchEvaluator:
-    """Evaluator for ``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
-    ``"continuous_cartpole_hard"`` or a gymnasium id (see the module docstring).
+    """Evaluator for a built-in (``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
+    ``"continuous_cartpole_hard"``: :data:`imix_cli.registry.BUILTIN_ENVS`) or a gymnasium id
+    (see the module docstring).
 
     ``hidden``: the policy's hidden layer sizes (``()``: linear), default the paper's (8, 8).
     Raises ``ValueError`` for an unknown environment id, or a MuJoCo id without mujoco installed.
     """
     hidden = tuple(int(h) for h in hidden)
     key = str(env_name).lower()
-    builtin = None
-    if key == "cartpole":
-        builtin = CartPoleEvaluator(max_steps)
-    elif key == "acrobot":
-        builtin = AcrobotEvaluator(max_steps)
-    elif key in CONTINUOUS_ENVS:
-        builtin = ContinuousCartPoleEvaluator(CONTINUOUS_ENVS[key], max_steps)
-    if builtin is not None:
+    if key in BUILTIN_ENVS:
+        builtin = ENV_SPECS[key].evaluator(max_steps)
         if hidden != HIDDEN:
             builtin.hidden = hidden  # the compiled kernels read the layer sizes from it
         return builtin
@@ -369,7 +361,6 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN) -
     except (gym.error.UnregisteredEnv, gym.error.DeprecatedEnv, gym.error.RegistrationError) as err:
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ValueError(
-            f"unknown environment {env_name!r}: not 'cartpole', 'acrobot', 'continuous_cartpole', "
-            f"'continuous_cartpole_hard' or a registered gymnasium id ({msg})"
+            f"unknown environment {env_name!r}: not {', '.join(map(repr, BUILTIN_ENVS))} or a registered gymnasium id ({msg})"
         ) from None
     return GymEvaluator(env_name, max_steps, hidden=hidden)

@@ -109,10 +109,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from imix_cli.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
+from imix_cli.registry import MIX_VARIANTS as VARIANTS  # what im_variant / eim_variant select (MIXING_SPECS)
 
 __all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "mix", "VARIANTS"]
-
-VARIANTS = ("paper", "sun2009", "eim", "eim_paper")
 
 # Sun et al.'s rule-2 loop accepts a fresh draw with probability ~(1 - lambda); when the two
 # distributions nearly coincide that can take very many draws. After this many candidate

@@ -47,9 +47,11 @@ COLUMNS = (
 #: Columns a CSV of an older imix may lack, with the value they then hold on every row.
 _OPTIONAL_COLUMNS = {"reevaluated": 0, "mean_policy_score": float("nan"), "mean_policy_episodes": 0, "diverged": 0}
 
-MIXING_NAMES = ("none", "im", "eim")
 
-_INT_COLUMNS = ("seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite", "mean_policy_episodes", "diverged")
+_INT_COLUMNS = (
+    "seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite",
+    "mean_policy_episodes", "diverged",
+)  # fmt: skip
 _FLOAT_COLUMNS = ("mean_score", "best_score", "sigma_mean", "wall_time", "mean_policy_score")
 
 

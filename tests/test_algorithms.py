@@ -45,8 +45,7 @@ def state(es: EvolutionStrategy):
 
 # --------------------------------------------------------------------------- registry
 def test_registry_and_make_es():
-    assert set(ALGORITHMS) == {"openes", "snes", "cem", "cmaes"}
-    assert ALGORITHMS == {"openes": OpenES, "snes": SNES, "cem": CEM, "cmaes": CMAES}
+    assert ALGORITHMS == {"openes": OpenES, "snes": SNES, "cem": CEM, "cmaes": CMAES}  # the paper's four
     for name, cls in ALGORITHMS.items():
         es = make_es(name, 5, popsize=10)
         assert type(es) is cls and es.name == name and es.dim == 5

@@ -13,6 +13,7 @@ import pytest
 
 from imix_cli.algorithms import CEM, make_es
 from imix_cli.algorithms.base import centered_ranks
+from imix_cli.registry import ES_NAMES
 
 # --------------------------------------------------------------------------- centred ranks
 # rank r in 0..n-1 (worst 0) maps to r / (n - 1) - 0.5; a single member gets 0.
@@ -64,7 +65,7 @@ PAPER_UTILITIES = np.array([THIRD - 0.5, 2 * THIRD - 0.5, 0.5, -0.5])
 ESTOOL_UTILITIES = np.array([THIRD - 0.5, 0.5 - 0.45, 2 * THIRD - 0.5 - 0.1, -0.5 - 0.2])
 
 
-@pytest.mark.parametrize("name", ["openes", "snes", "cem", "cmaes"])
+@pytest.mark.parametrize("name", ES_NAMES)
 @pytest.mark.parametrize("form, expected", [("paper", PAPER_UTILITIES), ("estool", ESTOOL_UTILITIES)])
 def test_weight_decay_utilities_hand_values(name, form, expected):
     es = make_es(name, 2, popsize=4, weight_decay=W, weight_decay_form=form)

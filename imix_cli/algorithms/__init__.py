@@ -9,22 +9,30 @@ cem        :class:`CEM`            N(mu, diag(sigma^2)), refitted to elites
 cmaes      :class:`CMAES`          N(mu, sigma^2 C), full C (pycma)
 =========  ======================  =========================================
 
-``make_es("snes", dim=130, popsize=50)`` builds one by name.
+``make_es("snes", dim=130, popsize=50)`` builds one by name; the names are those of
+:data:`imix_cli.registry.ALGORITHM_SPECS` (where a new ES is registered). Each class takes
+its parameter record, ``SNES(130, SNES.Params(popsize=50))``, or the record's fields as
+keywords (:class:`~imix_cli.algorithms.base.Params`).
 """
 
 from __future__ import annotations
 
-from imix_cli.algorithms.base import EvolutionStrategy
+from imix_cli.algorithms.base import EvolutionStrategy, Params
 from imix_cli.algorithms.cem import CEM
 from imix_cli.algorithms.cmaes import CMAES
 from imix_cli.algorithms.openes import OpenES
 from imix_cli.algorithms.snes import SNES
+from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES
 
-ALGORITHMS = {"openes": OpenES, "snes": SNES, "cem": CEM, "cmaes": CMAES}
+#: ES name -> class, for every evolution strategy of the registry.
+ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES}
 
 
 def make_es(name: str, dim: int, **kwargs) -> EvolutionStrategy:
-    """Build the evolution strategy called ``name`` (a key of :data:`ALGORITHMS`) in dimension ``dim``."""
+    """Build the evolution strategy called ``name`` (a key of :data:`ALGORITHMS`) in dimension ``dim``.
+
+    ``kwargs``: ``mean`` and the fields of the class's ``Params`` (popsize, sigma, lr, ...).
+    """
     try:
         cls = ALGORITHMS[name]
     except KeyError:
@@ -32,4 +40,4 @@ def make_es(name: str, dim: int, **kwargs) -> EvolutionStrategy:
     return cls(dim, **kwargs)
 
 
-__all__ = ["EvolutionStrategy", "OpenES", "SNES", "CEM", "CMAES", "ALGORITHMS", "make_es"]
+__all__ = ["EvolutionStrategy", "Params", "OpenES", "SNES", "CEM", "CMAES", "ALGORITHMS", "make_es"]

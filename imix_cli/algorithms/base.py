@@ -17,6 +17,11 @@ weight decay and centred-rank fitness shaping, as in the paper's section 4.1:
     The paper's text: the penalty -w * ||theta||^2 is added to each raw fitness,
     then the penalised fitness is turned into centred ranks.
 
+Both forms, and the fitness shaping (centred ranks), are pieces registered by name
+(:data:`WEIGHT_DECAY_FORMS`, :data:`FITNESS_SHAPINGS`) and chosen by the ES's :class:`Params`,
+the one record of the hyper-parameters every ES shares (documented field by field, with the
+paper's values as defaults); each ES extends it with its own options.
+
 Tied fitness values are ranked in a random order keyed on the members' parameters
 (:func:`centered_ranks`, :func:`member_keys`), so no ES depends on the order of the
 population it is told, and no tiny term (the estool penalty) decides every tie.
@@ -28,10 +33,11 @@ Non-finite fitness (NaN, +-inf from a user's environment) is ranked last
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from dataclasses import fields as fields_of
 
 import numpy as np
-
-WEIGHT_DECAY_FORMS = ("paper", "estool")
 
 
 def _tie_groups(values: np.ndarray):
@@ -181,61 +187,136 @@ def unprefixed(prefix: str, state: dict) -> dict:
     return {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}
 
 
-class EvolutionStrategy(ABC):
-    """Base class: owns the public ``ask``/``tell``; subclasses fill in ``distribution`` and ``_update``.
+# ------------------------------------------------------------------------ pluggable pieces
+#: Fitness shaping: ``shape(values, tie_break) -> utilities`` (higher is better), by name
+#: (:attr:`Params.fitness_shaping`). Register another one here to select it by name.
+FITNESS_SHAPINGS: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {"centered_ranks": centered_ranks}
 
-    Parameters (shared by every ES; pycma-style, documented where defined)
+
+class WeightDecayForm(ABC):
+    """How the weight-decay penalty enters the utilities (:attr:`Params.weight_decay_form`)."""
+
+    @abstractmethod
+    def apply(self, samples: np.ndarray, fitness: np.ndarray, weight_decay: float, shape: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """The utilities of ``samples`` from their fitness (-inf where non-finite); ``shape`` is the fitness shaping."""
+
+
+class PaperWeightDecay(WeightDecayForm):
+    """The paper's text: -w * ||theta||^2 is added to each raw fitness, then the result is shaped."""
+
+    def apply(self, samples, fitness, weight_decay, shape):
+        return shape(fitness - weight_decay * np.einsum("ij,ij->i", samples, samples))
+
+
+class EstoolWeightDecay(WeightDecayForm):
+    """The authors' estool-derived code: the raw fitness is shaped, then -w * mean(theta^2) is added."""
+
+    def apply(self, samples, fitness, weight_decay, shape):
+        return shape(fitness) - weight_decay * np.mean(samples * samples, axis=1)
+
+
+#: ``weight_decay_form`` name -> its form (the config's choices, in this order). Register
+#: another one here to select it by name.
+WEIGHT_DECAY_FORMS: dict[str, WeightDecayForm] = {"paper": PaperWeightDecay(), "estool": EstoolWeightDecay()}
+
+
+# ------------------------------------------------------------------------------ parameters
+@dataclass(frozen=True)
+class Params:
+    """The hyper-parameters every ES shares; the defaults are the paper's (section 4.1).
+
+    This record is the one place those defaults are written down: ``imix run``'s
+    ``PAPER_DEFAULTS`` (:mod:`imix_cli.config`) are read from it (``conf/config.yaml`` repeats
+    them for Hydra; a test checks they agree). Each ES extends it with its own options
+    (``OpenES.Params``, ``CEM.Params``, ...): build one with ``CEM.Params(popsize=20,
+    style="cemrl")``, or pass the fields to the ES or to ``make_es`` as keywords. Values are
+    checked when the record is made (ValueError naming the field).
+    """
+
+    #: Population size N (paper 4.1); >= 2.
+    popsize: int = 50
+    #: Initial standard deviation; the initial covariance is sigma^2 I (paper 4.1); > 0.
+    sigma: float = 0.25
+    #: Adam learning rate of the gradient-based ES (OpenES, SNES); ignored by CEM and CMA-ES; > 0.
+    lr: float = 0.01
+    #: Weight-decay coefficient w; 0 disables it; >= 0.
+    weight_decay: float = 0.05
+    #: How the penalty enters the utilities, a key of :data:`WEIGHT_DECAY_FORMS`: "estool" (the
+    #: authors' code: the paper's published curves) or "paper" (the paper's text); see the
+    #: module docstring.
+    weight_decay_form: str = "estool"
+    #: Fitness shaping, a key of :data:`FITNESS_SHAPINGS`; "centered_ranks" (:func:`centered_ranks`).
+    fitness_shaping: str = "centered_ranks"
+
+    def __post_init__(self):
+        if self.popsize < 2:
+            raise ValueError(f"popsize must be >= 2, got {self.popsize}")
+        if not self.sigma > 0:
+            raise ValueError(f"sigma must be > 0, got {self.sigma}")
+        if not self.lr > 0:
+            raise ValueError(f"lr must be > 0, got {self.lr}")
+        if self.weight_decay < 0:
+            raise ValueError(f"weight_decay must be >= 0, got {self.weight_decay}")
+        if self.weight_decay_form not in WEIGHT_DECAY_FORMS:
+            raise ValueError(f"weight_decay_form must be one of {tuple(WEIGHT_DECAY_FORMS)}, got {self.weight_decay_form!r}")
+        if self.fitness_shaping not in FITNESS_SHAPINGS:
+            raise ValueError(f"fitness_shaping must be one of {tuple(FITNESS_SHAPINGS)}, got {self.fitness_shaping!r}")
+
+
+class EvolutionStrategy(ABC):
+    """Base class: owns the constructor and the public ``ask``/``tell``; a subclass gives its
+    ``Params``, ``_setup``, ``distribution`` and ``_update``.
+
+    ``ES(dim, params=None, *, mean=None, **fields)``
+
+    Parameters
     ----------
     dim : int
         Number of optimised parameters d.
-    popsize : int, default 50
-        Population size N (paper 4.1).
-    sigma : float, default 0.25
-        Initial standard deviation; the initial covariance is sigma^2 I (paper 4.1).
-    lr : float, default 0.01
-        Adam learning rate of the gradient-based ES (OpenES, SNES); ignored by CEM and CMA-ES.
-    weight_decay : float, default 0.05
-        Weight-decay coefficient w; 0 disables it.
-    weight_decay_form : {"estool", "paper"}, default "estool"
-        How the penalty enters the utilities; see the module docstring.
+    params : ES.Params, optional
+        The hyper-parameters (:class:`Params` and the subclass's own fields); default
+        ``ES.Params()``, the paper's.
     mean : array-like of shape (d,), optional
         Initial mean; zeros by default.
+    **fields
+        Fields of ``ES.Params`` that replace those of ``params``, e.g. ``popsize=20``.
+
+    Every field is also an attribute of the ES (``es.popsize``, ``es.sigma``, ...; ``es.sigma``
+    stays the initial value when the ES adapts its step size).
     """
 
     #: short name used by configs and CSVs ("openes", "snes", "cem", "cmaes")
     name: str = ""
+    #: this ES's parameter record (a subclass of :class:`Params` with its own options)
+    Params: type[Params] = Params
 
-    def __init__(
-        self,
-        dim: int,
-        popsize: int = 50,
-        sigma: float = 0.25,
-        lr: float = 0.01,
-        weight_decay: float = 0.05,
-        weight_decay_form: str = "estool",
-        mean=None,
-    ):
+    def __init__(self, dim: int, params: Params | None = None, *, mean=None, **fields):
         if dim < 1:
             raise ValueError(f"dim must be >= 1, got {dim}")
-        if popsize < 2:
-            raise ValueError(f"popsize must be >= 2, got {popsize}")
-        if not sigma > 0:
-            raise ValueError(f"sigma must be > 0, got {sigma}")
-        if not lr > 0:
-            raise ValueError(f"lr must be > 0, got {lr}")
-        if weight_decay < 0:
-            raise ValueError(f"weight_decay must be >= 0, got {weight_decay}")
-        if weight_decay_form not in WEIGHT_DECAY_FORMS:
-            raise ValueError(f"weight_decay_form must be one of {WEIGHT_DECAY_FORMS}, got {weight_decay_form!r}")
+        if params is None:
+            params = self.Params(**fields)
+        elif not isinstance(params, self.Params):
+            raise TypeError(f"{type(self).__name__} takes a {self.Params.__qualname__}, got {type(params).__name__}")
+        elif fields:
+            params = replace(params, **fields)
+        self.params = params
+        for f in fields_of(params):
+            setattr(self, f.name, getattr(params, f.name))
         self.dim = int(dim)
-        self.popsize = int(popsize)
-        self.sigma = float(sigma)
-        self.lr = float(lr)
-        self.weight_decay = float(weight_decay)
-        self.weight_decay_form = weight_decay_form
+        self.popsize = int(params.popsize)
+        self.sigma = float(params.sigma)
+        self.lr = float(params.lr)
+        self.weight_decay = float(params.weight_decay)
+        self._weight_decay = WEIGHT_DECAY_FORMS[params.weight_decay_form]
+        self._shaping = FITNESS_SHAPINGS[params.fitness_shaping]
         self.initial_mean = np.zeros(self.dim) if mean is None else np.array(mean, dtype=np.float64).reshape(self.dim)
         self.generation = 0
         self.nonfinite_fitness_count = 0
+        self._setup()
+
+    @abstractmethod
+    def _setup(self) -> None:
+        """Build the initial search state from ``self.params`` (the shared attributes are set)."""
 
     # ------------------------------------------------------------------ public API
     @property
@@ -265,15 +346,13 @@ class EvolutionStrategy(ABC):
         self.generation += 1
 
     def utilities(self, samples: np.ndarray, fitness: np.ndarray) -> np.ndarray:
-        """Weight decay + centred-rank shaping; non-finite fitness ranks last. Higher is better."""
+        """Weight decay + fitness shaping (``params.weight_decay_form``, ``params.fitness_shaping``);
+        non-finite fitness ranks last. Higher is better."""
         finite = np.isfinite(fitness)
         self.nonfinite_fitness_count += int(np.count_nonzero(~finite))
         fitness = np.where(finite, fitness, -np.inf)
         keys = member_keys(samples)  # ties: a random order that the population's order cannot change
-        if self.weight_decay_form == "paper":
-            penalised = fitness - self.weight_decay * np.einsum("ij,ij->i", samples, samples)
-            return centered_ranks(penalised, keys)
-        return centered_ranks(fitness, keys) - self.weight_decay * np.mean(samples * samples, axis=1)
+        return self._weight_decay.apply(samples, fitness, self.weight_decay, lambda values: self._shaping(values, keys))
 
     # ------------------------------------------------------------ checkpoints
     # A state dict is flat: numpy arrays and JSON scalars under string keys (nested parts use

@@ -41,82 +41,78 @@ what it does to the reuse rate).
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
-from imix_cli.algorithms.base import EvolutionStrategy, prefixed, rank_weights, unprefixed
+from imix_cli.algorithms.base import EvolutionStrategy, Params, prefixed, rank_weights, unprefixed
 from imix_cli.distributions import DiagonalGaussian
 
 ELITE_WEIGHTS = ("equal", "log")
 STYLES = ("imix", "cemrl")
 
 
+@dataclass(frozen=True)
+class CEMParams(Params):
+    """:class:`~imix_cli.algorithms.base.Params` (``sigma`` sets the initial covariance
+    sigma^2 I; ``lr`` is ignored) and CEM's own options."""
+
+    #: K_e / n, the fraction of told samples kept as elites (paper: half); in (0, 1].
+    elite_fraction: float = 0.5
+    #: "equal": every elite weighs 1/K. "log": w_i proportional to ln((K + 1) / i), as in
+    #: CEM-RL / CMA-ES-style recombination.
+    elite_weights: str = "equal"
+    #: eps_0, the extra variance before decay; None: sigma^2 (the initial variance), or 1e-3
+    #: with style "cemrl"; >= 0.
+    extra_variance_init: float | None = None
+    #: tau, geometric decay factor of the extra variance per generation (CEM-RL); in [0, 1].
+    extra_variance_decay: float = 0.95
+    #: Limit of the extra variance (CEM-RL's damp_limit); > 0.
+    extra_variance_floor: float = 1e-5
+    #: "imix": the textbook update (module docstring). "cemrl": the authors' sepCEM: log
+    #: weights, extra variance 1e-3 decaying to 1e-5 unless given, variance about the old
+    #: mean scaled by 1/K (``algo.style`` of conf/algo/cem.yaml).
+    style: str = field(default="imix", metadata={"choices": STYLES})
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.style not in STYLES:
+            raise ValueError(f"style must be one of {STYLES}, got {self.style!r}")
+        if not 0.0 < self.elite_fraction <= 1.0:
+            raise ValueError(f"elite_fraction must be in (0, 1], got {self.elite_fraction}")
+        if self.elite_weights not in ELITE_WEIGHTS:
+            raise ValueError(f"elite_weights must be one of {ELITE_WEIGHTS}, got {self.elite_weights!r}")
+        if self.extra_variance_init is not None and self.extra_variance_init < 0:
+            raise ValueError(f"extra_variance_init must be >= 0, got {self.extra_variance_init}")
+        if not 0.0 <= self.extra_variance_decay <= 1.0:
+            raise ValueError(f"extra_variance_decay must be in [0, 1], got {self.extra_variance_decay}")
+        if not self.extra_variance_floor > 0:
+            raise ValueError(f"extra_variance_floor must be > 0, got {self.extra_variance_floor}")
+
+
 class CEM(EvolutionStrategy):
     """CEM: diagonal Gaussian refitted to the elites, plus a geometrically decaying extra variance.
 
-    Parameters
-    ----------
-    dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean
-        See :class:`~imix_cli.algorithms.base.EvolutionStrategy`. ``sigma`` sets the
-        initial covariance sigma^2 I; ``lr`` is ignored.
-    elite_fraction : float, default 0.5
-        K_e / n, the fraction of told samples kept as elites (paper: half).
-    elite_weights : {"equal", "log"}, default "equal"
-        "equal": every elite weighs 1/K. "log": w_i proportional to
-        ln((K + 1) / i), as in CEM-RL / CMA-ES-style recombination.
-    extra_variance_init : float, optional
-        eps_0, the extra variance before decay; default sigma^2 (the initial variance).
-    extra_variance_decay : float, default 0.95
-        tau, geometric decay factor per generation (CEM-RL).
-    extra_variance_floor : float, default 1e-5
-        Limit of the extra variance (CEM-RL's damp_limit); must be > 0.
-    style : {"imix", "cemrl"}, default "imix"
-        "imix": the update above. "cemrl": the authors' sepCEM (module docstring): log
-        weights, extra variance 1e-3 decaying to 1e-5 unless given, variance about the old
-        mean scaled by 1/K.
+    ``CEM(dim, params=None, *, mean=None, **fields)``: see
+    :class:`~imix_cli.algorithms.base.EvolutionStrategy` and :class:`CEMParams`.
     """
 
     name = "cem"
+    Params = CEMParams
 
-    def __init__(
-        self,
-        dim: int,
-        popsize: int = 50,
-        sigma: float = 0.25,
-        lr: float = 0.01,
-        weight_decay: float = 0.05,
-        weight_decay_form: str = "estool",
-        mean=None,
-        elite_fraction: float = 0.5,
-        elite_weights: str = "equal",
-        extra_variance_init: float | None = None,
-        extra_variance_decay: float = 0.95,
-        extra_variance_floor: float = 1e-5,
-        style: str = "imix",
-    ):
-        super().__init__(dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean)
-        if style not in STYLES:
-            raise ValueError(f"style must be one of {STYLES}, got {style!r}")
-        self.style = style
-        if style == "cemrl":
-            elite_weights = "log"
+    def _setup(self) -> None:
+        p = self.params
+        extra_variance_init = p.extra_variance_init
+        self.elite_weights = p.elite_weights
+        if p.style == "cemrl":
+            self.elite_weights = "log"
             if extra_variance_init is None:
                 extra_variance_init = 1e-3  # CEM-RL's damp
-        if not 0.0 < elite_fraction <= 1.0:
-            raise ValueError(f"elite_fraction must be in (0, 1], got {elite_fraction}")
-        if elite_weights not in ELITE_WEIGHTS:
-            raise ValueError(f"elite_weights must be one of {ELITE_WEIGHTS}, got {elite_weights!r}")
         if extra_variance_init is None:
             extra_variance_init = self.sigma**2
-        if extra_variance_init < 0:
-            raise ValueError(f"extra_variance_init must be >= 0, got {extra_variance_init}")
-        if not 0.0 <= extra_variance_decay <= 1.0:
-            raise ValueError(f"extra_variance_decay must be in [0, 1], got {extra_variance_decay}")
-        if not extra_variance_floor > 0:
-            raise ValueError(f"extra_variance_floor must be > 0, got {extra_variance_floor}")
-        self.elite_fraction = float(elite_fraction)
-        self.elite_weights = elite_weights
-        self.extra_variance_decay = float(extra_variance_decay)
-        self.extra_variance_floor = float(extra_variance_floor)
+        self.elite_fraction = float(p.elite_fraction)
+        self.extra_variance_decay = float(p.extra_variance_decay)
+        self.extra_variance_floor = float(p.extra_variance_floor)
         #: current extra variance eps_t (eps_0 before the first tell)
         self.extra_variance = float(extra_variance_init)
         self._dist = DiagonalGaussian(self.initial_mean, self.sigma)

@@ -42,10 +42,11 @@ Where we differ from pycma, on purpose:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from imix_cli.algorithms.base import EvolutionStrategy
+from imix_cli.algorithms.base import EvolutionStrategy, Params
 from imix_cli.distributions import FullGaussian
 
 #: Largest dimension CMAES accepts. Each seed keeps four d x d float64 matrices (C, its
@@ -152,18 +153,22 @@ class _Parameters:
         return w
 
 
+@dataclass(frozen=True)
+class CMAESParams(Params):
+    """:class:`~imix_cli.algorithms.base.Params` (``popsize`` is lambda, mu = lambda // 2
+    positive weights; ``sigma`` the initial step size sigma0; ``lr`` is ignored) and CMA-ES's own options."""
+
+    #: The pycma options of :data:`SUPPORTED_OPTIONS`, e.g. ``{"CMA_active": False}``; any
+    #: other key is refused. None: pycma's defaults.
+    cma_options: dict | None = None
+
+
 class CMAES(EvolutionStrategy):
     """CMA-ES: N(mean, sigma^2 C) with full C, pycma's update (see the module docstring).
 
-    Parameters
-    ----------
-    dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean
-        See :class:`~imix_cli.algorithms.base.EvolutionStrategy`. ``popsize`` is lambda
-        (mu = lambda // 2 positive weights), ``sigma`` the initial step size sigma0 and
-        ``mean`` x0; ``lr`` is ignored. ``dim`` must be <= :data:`MAX_DIM`.
-    cma_options : dict, optional
-        The pycma options of :data:`SUPPORTED_OPTIONS`, e.g. ``{"CMA_active": False}``;
-        any other key is refused.
+    ``CMAES(dim, params=None, *, mean=None, **fields)``: see
+    :class:`~imix_cli.algorithms.base.EvolutionStrategy` and :class:`CMAESParams`; ``mean``
+    is x0 and ``dim`` must be <= :data:`MAX_DIM`.
 
     Populations whose size n differs from ``popsize`` (the base class allows it): for
     n >= mu, pycma's handling -- the same mu, mueff, learning rates and positive weights,
@@ -173,19 +178,10 @@ class CMAES(EvolutionStrategy):
     """
 
     name = "cmaes"
+    Params = CMAESParams
 
-    def __init__(
-        self,
-        dim: int,
-        popsize: int = 50,
-        sigma: float = 0.25,
-        lr: float = 0.01,
-        weight_decay: float = 0.05,
-        weight_decay_form: str = "estool",
-        mean=None,
-        cma_options: dict | None = None,
-    ):
-        super().__init__(dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean)
+    def _setup(self) -> None:
+        cma_options = self.params.cma_options
         if self.popsize < 3:
             raise ValueError(f"CMAES needs popsize >= 3, got {self.popsize}")
         check_dimension(self.dim)

@@ -17,43 +17,38 @@ sample of the current distribution (fresh or reused by importance mixing) counts
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from imix_cli.algorithms.base import Adam, EvolutionStrategy, _array_like, prefixed, unprefixed
+from imix_cli.algorithms.base import Adam, EvolutionStrategy, Params, _array_like, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
+
+
+@dataclass(frozen=True)
+class OpenESParams(Params):
+    """:class:`~imix_cli.algorithms.base.Params` (``sigma`` stays fixed for the whole run;
+    ``lr`` is Adam's learning rate, paper: 0.01) and OpenES's own options."""
+
+    #: Adam's first-moment decay (paper section 4.1).
+    beta1: float = 0.99
+    #: Adam's second-moment decay (paper section 4.1).
+    beta2: float = 0.999
 
 
 class OpenES(EvolutionStrategy):
     """OpenES: N(mu, sigma^2 I) with sigma fixed; mu follows Adam on the vanilla gradient.
 
-    Parameters
-    ----------
-    dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean
-        See :class:`~imix_cli.algorithms.base.EvolutionStrategy`. ``sigma`` stays
-        fixed for the whole run; ``lr`` is Adam's learning rate (paper: 0.01).
-    beta1 : float, default 0.99
-        Adam's first-moment decay (paper section 4.1).
-    beta2 : float, default 0.999
-        Adam's second-moment decay (paper section 4.1).
+    ``OpenES(dim, params=None, *, mean=None, **fields)``: see
+    :class:`~imix_cli.algorithms.base.EvolutionStrategy` and :class:`OpenESParams`.
     """
 
     name = "openes"
+    Params = OpenESParams
 
-    def __init__(
-        self,
-        dim: int,
-        popsize: int = 50,
-        sigma: float = 0.25,
-        lr: float = 0.01,
-        weight_decay: float = 0.05,
-        weight_decay_form: str = "estool",
-        mean=None,
-        beta1: float = 0.99,
-        beta2: float = 0.999,
-    ):
-        super().__init__(dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean)
+    def _setup(self) -> None:
         self._mu = self.initial_mean.copy()
-        self.optimizer = Adam(self.dim, lr=self.lr, beta1=beta1, beta2=beta2)
+        self.optimizer = Adam(self.dim, lr=self.lr, beta1=self.params.beta1, beta2=self.params.beta2)
         self._dist = DiagonalGaussian(self._mu, self.sigma)
 
     @property

@@ -32,48 +32,45 @@ Why Adam on log sigma rather than SNES's own eta_sigma = (3 + ln d) / (5 sqrt d)
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from imix_cli.algorithms.base import Adam, EvolutionStrategy, _array_like, prefixed, unprefixed
+from imix_cli.algorithms.base import Adam, EvolutionStrategy, Params, _array_like, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
+
+
+@dataclass(frozen=True)
+class SNESParams(Params):
+    """:class:`~imix_cli.algorithms.base.Params` (``sigma`` is the initial standard deviation of
+    every coordinate; ``lr`` is Adam's learning rate for the mean, paper: 0.01) and SNES's own options."""
+
+    #: Adam's learning rate for log sigma; None: ``lr``.
+    sigma_lr: float | None = None
+    #: Adam's first-moment decay (paper section 4.1), for mu and log sigma.
+    beta1: float = 0.99
+    #: Adam's second-moment decay (paper section 4.1), for mu and log sigma.
+    beta2: float = 0.999
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.sigma_lr is not None and not self.sigma_lr > 0:
+            raise ValueError(f"sigma_lr must be > 0, got {self.sigma_lr}")
 
 
 class SNES(EvolutionStrategy):
     """SNES: N(mu, diag(sigma^2)); natural-gradient Adam steps on mu and on log sigma.
 
-    Parameters
-    ----------
-    dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean
-        See :class:`~imix_cli.algorithms.base.EvolutionStrategy`. ``sigma`` is the
-        initial standard deviation of every coordinate; ``lr`` is Adam's learning rate
-        for the mean (paper: 0.01).
-    sigma_lr : float, optional
-        Adam's learning rate for log sigma; default ``lr``.
-    beta1 : float, default 0.99
-        Adam's first-moment decay (paper section 4.1), for mu and log sigma.
-    beta2 : float, default 0.999
-        Adam's second-moment decay (paper section 4.1), for mu and log sigma.
+    ``SNES(dim, params=None, *, mean=None, **fields)``: see
+    :class:`~imix_cli.algorithms.base.EvolutionStrategy` and :class:`SNESParams`.
     """
 
     name = "snes"
+    Params = SNESParams
 
-    def __init__(
-        self,
-        dim: int,
-        popsize: int = 50,
-        sigma: float = 0.25,
-        lr: float = 0.01,
-        weight_decay: float = 0.05,
-        weight_decay_form: str = "estool",
-        mean=None,
-        sigma_lr: float | None = None,
-        beta1: float = 0.99,
-        beta2: float = 0.999,
-    ):
-        super().__init__(dim, popsize, sigma, lr, weight_decay, weight_decay_form, mean)
-        self.sigma_lr = self.lr if sigma_lr is None else float(sigma_lr)
-        if not self.sigma_lr > 0:
-            raise ValueError(f"sigma_lr must be > 0, got {sigma_lr}")
+    def _setup(self) -> None:
+        beta1, beta2 = self.params.beta1, self.params.beta2
+        self.sigma_lr = self.lr if self.params.sigma_lr is None else float(self.params.sigma_lr)
         self._mu = self.initial_mean.copy()
         self._log_sigma = np.full(self.dim, np.log(self.sigma))
         self.mu_optimizer = Adam(self.dim, lr=self.lr, beta1=beta1, beta2=beta2)

@@ -57,14 +57,14 @@ from __future__ import annotations
 import math
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
-
 import pandas as pd
 
+from imix_cli.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
 from imix_cli.results import CorruptResultError, read_run_csv, run_dir_name, seed_csv_path
 from imix_cli.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 
@@ -83,18 +83,13 @@ __all__ = [
     "HYPERPARAMS",
 ]
 
-#: Default thresholds on the population mean return (``threshold.<env>=`` overrides, ``=none`` removes).
-DEFAULT_THRESHOLDS = {
-    "cartpole": 195.0,
-    "acrobot": -100.0,
-    # paper section 4.3: CartPole's 195 of 200 steps (the Hard variant's sparse sum is the same return)
-    "continuous_cartpole": 195.0,
-    "continuous_cartpole_hard": 195.0,
-}
+#: Default thresholds on the population mean return (``threshold.<env>=`` overrides, ``=none`` removes):
+#: the built-in environments' (:data:`imix_cli.registry.ENV_SPECS`).
+DEFAULT_THRESHOLDS = builtin_thresholds()
 
 #: Algorithms whose rows are episodes (one per finished episode within an env-step budget): their
-#: seeds have different row counts by design, so that is not flagged.
-EPISODE_ROW_ALGOS = {"ddpg"}
+#: seeds have different row counts by design, so that is not flagged. The non-ES algorithms.
+EPISODE_ROW_ALGOS = NON_ES_NAMES
 
 #: Hyper-parameters a grid search varies (read from config.yaml, then the folder's overrides suffix).
 HYPERPARAMS = ("popsize", "sigma", "lr")
@@ -316,11 +311,11 @@ def _flag_uneven(groups: list, warn) -> None:
 
 
 def _algo_rank(algo: str) -> tuple:
-    order = ("openes", "snes", "cem", "cmaes", "ddpg")
+    order = ALGO_NAMES
     return (order.index(algo), algo) if algo in order else (len(order), algo)
 
 
-MIXING_ORDER = ("none", "im", "eim")
+MIXING_ORDER = MIXING_NAMES
 
 
 def _mixing_rank(mixing: str) -> int:

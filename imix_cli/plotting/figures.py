@@ -30,15 +30,18 @@ import io
 import re
 import warnings
 import zlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
 
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
+
+from imix_cli.registry import ALGORITHM_SPECS, MIXING_NAMES, OKABE_ITO, algo_label, env_label, mixing_suffix, mixing_title
+from imix_cli.registry import NON_ES_NAMES as NON_ES
 
 from . import didactic
 from .data import (
@@ -57,40 +60,11 @@ from .data import (
 # --------------------------------------------------------------------------- style
 
 #: Okabe & Ito (2008) colour-blind-safe palette.
-OKABE_ITO = {
-    "black": "#000000",
-    "orange": "#E69F00",
-    "sky_blue": "#56B4E9",
-    "bluish_green": "#009E73",
-    "yellow": "#F0E442",
-    "blue": "#0072B2",
-    "vermillion": "#D55E00",
-    "reddish_purple": "#CC79A7",
-}
-
-#: The colour of each algorithm in every figure.
-ALGO_COLORS = {
-    "openes": OKABE_ITO["blue"],
-    "snes": OKABE_ITO["vermillion"],
-    "cem": OKABE_ITO["bluish_green"],
-    "cmaes": OKABE_ITO["reddish_purple"],
-    "ddpg": OKABE_ITO["black"],
-}
+#: The colour of each algorithm in every figure (:data:`imix_cli.registry.ALGORITHM_SPECS`).
+ALGO_COLORS = {name: spec.color for name, spec in ALGORITHM_SPECS.items()}
 _SPARE_COLORS = (OKABE_ITO["orange"], OKABE_ITO["sky_blue"], "#7F7F7F")
 
-ALGO_NAMES = {"openes": "OpenES", "snes": "SNES", "cem": "CEM", "cmaes": "CMA-ES", "ddpg": "DDPG"}
-ENV_NAMES = {
-    "cartpole": "CartPole",
-    "acrobot": "Acrobot",
-    "continuous_cartpole": "ContinuousCartPole",
-    "continuous_cartpole_hard": "ContinuousCartPoleHard",
-}
-MIXING_NAMES = {"none": "without mixing", "im": "with IM", "eim": "with EIM"}
-MIXING_SHORT = {"none": "", "im": " + IM", "eim": " + EIM"}
 PARAM_NAMES = {"popsize": "population size", "sigma": "initial σ", "lr": "learning rate"}
-
-#: Algorithms that are not evolution strategies (no generations, no mixing): only in the DDPG figure.
-NON_ES = {"ddpg"}
 
 STYLE = {
     "font.size": 9,
@@ -128,20 +102,12 @@ def algo_color(algo: str) -> str:
     return _SPARE_COLORS[zlib.crc32(algo.encode()) % len(_SPARE_COLORS)]
 
 
-def algo_name(algo: str) -> str:
-    return ALGO_NAMES.get(algo, algo)
-
-
-def env_name(env: str) -> str:
-    return ENV_NAMES.get(env, env)
-
-
 def slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.=-]+", "_", text).strip("_") or "x"
 
 
 def group_label(group, with_mixing: bool = False, with_overrides: bool = True) -> str:
-    label = algo_name(group.algo) + (MIXING_SHORT.get(group.mixing, f" + {group.mixing}") if with_mixing else "")
+    label = algo_label(group.algo) + (mixing_suffix(group.mixing) if with_mixing else "")
     if with_overrides and group.overrides:
         label += f" ({group.overrides})"
     return label
@@ -243,7 +209,7 @@ def _seeds_note(groups) -> str:
         n = counts.pop()
         return f"{n} seed{'s' if n != 1 else ''}{flag}"
     most = max(counts)
-    fewer = ", ".join(f"{algo_name(g.algo)} {g.n_seeds}" for g in groups if g.n_seeds < most)
+    fewer = ", ".join(f"{algo_label(g.algo)} {g.n_seeds}" for g in groups if g.n_seeds < most)
     return f"{most} seeds; {fewer}{flag}"
 
 
@@ -265,7 +231,7 @@ def own_settings_label(group, common: dict, with_mixing: bool = False) -> str:
     """Algorithm (+ mixing) and the group's non-default settings that are not common to the figure."""
     from .data import parse_overrides
 
-    label = algo_name(group.algo) + (MIXING_SHORT.get(group.mixing, f" + {group.mixing}") if with_mixing else "")
+    label = algo_label(group.algo) + (mixing_suffix(group.mixing) if with_mixing else "")
     own = {k: v for k, v in parse_overrides(group.overrides).items() if common.get(k) != v}
     if not own and group.overrides and "=" not in group.overrides:
         return f"{label} ({group.overrides})"  # a folder name of another form: keep it distinct
@@ -294,7 +260,7 @@ def _es_main_groups(exp: Experiment) -> list:
 
 
 def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
-    mixings = sorted({g.mixing for g in groups}, key=lambda m: ("none", "im", "eim").index(m) if m in ("none", "im", "eim") else 9)
+    mixings = sorted({g.mixing for g in groups}, key=lambda m: MIXING_NAMES.index(m) if m in MIXING_NAMES else 9)
     n = len(mixings)
     fig = new_figure(max(0.6 + 3.5 * n, 5.0), 3.4 if n > 1 else 3.7)
     # A shared x-axis: with and without mixing on one scale, so the episodes saved show as distance.
@@ -327,7 +293,7 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
                     ax.plot(gens[measured], dots, color=algo_color(group.algo), linestyle="none", marker="o", markersize=2.2, alpha=0.8)
                     handles.setdefault(THETA_LABEL, Line2D([], [], color="0.35", linestyle="none", marker="o", markersize=3))
         _threshold_line(ax, threshold)
-        title = MIXING_NAMES.get(mixing, f"with {mixing}")
+        title = mixing_title(mixing)
         ax.set_title(f"({letter}) {title}  [{_seeds_note(panel)}]", loc="left")
         ax.set_xlabel("episodes evaluated" if by_evaluations else "generation")
         ax.xaxis.set_major_formatter(FuncFormatter(_short_number))
@@ -338,7 +304,7 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
     _add_threshold_entry(legend_handles, legend_labels, threshold)
     fig.legend(legend_handles, legend_labels, loc="outside lower center", ncols=min(len(legend_handles), 5))
     what = "episodes evaluated" if by_evaluations else "generation"
-    title = f"{env_name(env)}: population mean return vs {what}"
+    title = f"{env_label(env)}: population mean return vs {what}"
     note = f"(mean ± {opts.ci_level:.0%} Student-t CI over seeds, clipped to the achievable returns; dotted: fewer seeds"
     note += ")" if by_evaluations else ";\ndots: return of the distribution mean θ on fresh episodes, mean over seeds)"
     if common:
@@ -406,7 +372,10 @@ def ddpg_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
                 label = f"{group_label(group, with_mixing=True, with_overrides=False)} ({es_settings_text(group)})"
             flag = ", <5: CI unreliable" if group.n_seeds < MIN_SEEDS else ""
             handles.append(
-                _draw_band(ax, x, matrix, algo_color(group.algo), f"{label} [{group.n_seeds} seeds{flag}]", opts.ci_level, median=True, clip=achievable_range(env, matrix))
+                _draw_band(
+                    ax, x, matrix, algo_color(group.algo), f"{label} [{group.n_seeds} seeds{flag}]", opts.ci_level,
+                    median=True, clip=achievable_range(env, matrix),
+                )
             )
         _threshold_line(ax, opts.thresholds.get(env))
         ax.set_xscale("log")
@@ -416,10 +385,15 @@ def ddpg_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
         _add_threshold_entry(handles, labels, opts.thresholds.get(env))
         fig.legend(handles, labels, loc="outside lower center", ncols=min(len(handles), 2))
         fig.suptitle(
-            f"{env_name(env)}: DDPG vs evolution strategies\n"
+            f"{env_label(env)}: DDPG vs evolution strategies\n"
             f"(solid: mean ± {opts.ci_level:.0%} CI over seeds; dotted: median)"
         )
         yield f"ddpg_{slug(env)}", fig
+
+
+def _uses_lr(algo: str) -> bool:
+    spec = ALGORITHM_SPECS.get(algo)
+    return spec is not None and spec.uses_lr
 
 
 def es_settings_text(group) -> str:
@@ -428,7 +402,7 @@ def es_settings_text(group) -> str:
     hp = group.hyperparams()
     parts = [f"popsize {hp['popsize']:g}" if hp.get("popsize") is not None else None,
              f"σ {hp['sigma']:g}" if hp.get("sigma") is not None else None,
-             f"lr {hp['lr']:g}" if hp.get("lr") is not None and group.algo in ("openes", "snes") else None]  # fmt: skip
+             f"lr {hp['lr']:g}" if hp.get("lr") is not None and _uses_lr(group.algo) else None]  # fmt: skip
     generations = group.config.get("generations")
     if isinstance(generations, int) and not isinstance(generations, bool):
         parts.append(f"{generations} generations")
@@ -480,7 +454,7 @@ def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
         ax.set_ylabel("fraction of runs with return > τ")
         ax.set_ylim(-0.02, 1.02)
         ax.legend(loc="best", fontsize=7.5)
-        title = f"{env_name(env)}: performance profile of the final return"
+        title = f"{env_label(env)}: performance profile of the final return"
         if common:
             title += f"; {settings_text(common)}"
         fig.suptitle(f"{title}\n(run-score distribution, 95 % stratified-bootstrap band; [seeds]; {_seeds_note(members)})")
@@ -546,7 +520,7 @@ def gridsearch_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
             ax.legend(handles, labels, title=PARAM_NAMES.get(param, param), loc="best")
             others = ", ".join(f"{PARAM_NAMES.get(k, k)} {v:g}" for k, v in fixed if v is not None)
             fig.suptitle(
-                f"{algo_name(algo)}{MIXING_SHORT.get(mixing, '')} on {env_name(env)}: effect of the "
+                f"{algo_label(algo)}{mixing_suffix(mixing, '')} on {env_label(env)}: effect of the "
                 f"{PARAM_NAMES.get(param, param)}\n({others}; mean ± {opts.ci_level:.0%} CI over seeds)"
             )
             yield f"gridsearch_{slug(algo)}_{slug(env)}_{slug(mixing)}_{param}", fig

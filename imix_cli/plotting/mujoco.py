@@ -37,8 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
+from imix_cli.registry import mujoco_thresholds
+
 #: Return thresholds of the to-threshold columns: a clear sign of learning in the study's budget.
-DEFAULT_THRESHOLDS = {"Swimmer-v5": 50.0, "Hopper-v5": 500.0, "HalfCheetah-v5": 500.0, "Walker2d-v5": 500.0, "Ant-v5": 500.0}
+#: Keyed by gymnasium id (MuJoCo runs are named by it), from :data:`imix_cli.registry.ENV_SPECS`.
+DEFAULT_THRESHOLDS = mujoco_thresholds()
 AXES = (("evaluations", "episodes"), ("env_steps", "environment steps"), ("wall_time", "wall time (s)"))
 GRID_POINTS = 200
 
@@ -150,13 +153,17 @@ def _fmt(value, spec: str) -> str:
 
 
 def _markdown(rows: list[dict]) -> str:
-    head = "| env | run | seeds | final return (95 % CI) | reuse | episodes | env steps | wall time | threshold | reached | episodes to threshold | wall time to threshold |"
+    head = (
+        "| env | run | seeds | final return (95 % CI) | reuse | episodes | env steps | wall time | threshold | reached "
+        "| episodes to threshold | wall time to threshold |"
+    )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lines.append(
             f"| {r['env']} | {r['run']} | {r['seeds']} | {r['final_return']:.1f} [{r['ci95_low']:.1f}, {r['ci95_high']:.1f}] | "
             f"{r['reuse_percent']:.1f} % | {r['episodes']:,.0f} | {r['env_steps']:,.0f} | {r['wall_time_s']:.0f} s | "
-            f"{_fmt(r['threshold'], '.0f')} | {r['reached'] or '-'} | {_fmt(r['episodes_to_threshold'], ',.0f')} | {_fmt(r['wall_time_to_threshold_s'], '.0f')} |"
+            f"{_fmt(r['threshold'], '.0f')} | {r['reached'] or '-'} | {_fmt(r['episodes_to_threshold'], ',.0f')} | "
+            f"{_fmt(r['wall_time_to_threshold_s'], '.0f')} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -24,11 +24,16 @@ figures folder. The LaTeX uses ``booktabs`` (``\\usepackage{booktabs}``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
 
 import pandas as pd
+
+from imix_cli.registry import NON_ES_NAMES as NON_ES
+from imix_cli.registry import algo_label as _algo
+from imix_cli.registry import env_label as _env
+from imix_cli.registry import mixing_label
 
 from .data import (
     HYPERPARAMS,
@@ -40,9 +45,6 @@ from .data import (
     sweep_families,
     threshold_stats,
 )
-from .figures import ALGO_NAMES, ENV_NAMES, NON_ES
-
-MIXING_LABELS = {"none": "none", "im": "IM", "eim": "EIM"}
 
 
 @dataclass
@@ -51,14 +53,6 @@ class Table:
     frame: pd.DataFrame  # written as CSV, full precision
     markdown: str
     latex: str
-
-
-def _algo(name):
-    return ALGO_NAMES.get(name, name)
-
-
-def _env(name):
-    return ENV_NAMES.get(name, name)
 
 
 def _fmt(value, digits=1, suffix=""):
@@ -143,11 +137,12 @@ def reuse_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
 
     def row_label(r):
         label = _label(r["_group"])
-        return label + (f" + {MIXING_LABELS.get(r['mixing'], r['mixing'])}" if len(mixings) > 1 else "")
+        return label + (f" + {mixing_label(r['mixing'])}" if len(mixings) > 1 else "")
 
     level = f"{opts.ci_level:.0%}"
     md_rows = [
-        [_env(r["env"]), row_label(r), r["seeds"], _pm(r["total_reuse_pct"], r["total_reuse_ci"], 1, " %"), _fmt(r["from_im_pct"], 1, " %"), _fmt(r["from_eim_pct"], 1, " %")]
+        [_env(r["env"]), row_label(r), r["seeds"], _pm(r["total_reuse_pct"], r["total_reuse_ci"], 1, " %"),
+         _fmt(r["from_im_pct"], 1, " %"), _fmt(r["from_eim_pct"], 1, " %")]  # fmt: skip
         for _, r in frame.iterrows()
     ]
     notes = (
@@ -238,7 +233,7 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
                 _env(r.env),
                 f"{r.threshold:g}",
                 label,
-                MIXING_LABELS.get(r.mixing, r.mixing),
+                mixing_label(r.mixing),
                 f"{r.reached}/{r.seeds}",
                 _pm(r.evaluations_mean, r.evaluations_ci, 0),
                 _fmt(r.evaluations_median, 0),
@@ -261,7 +256,8 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
         align="llllrrrr",
     )
     if (frame["seeds"] < 5).any():
-        notes += " Fewer than 5 seeds in: " + ", ".join(f"{_label(g)} {MIXING_LABELS.get(g.mixing, g.mixing)} ({g.n_seeds})" for g in groups if g.n_seeds < 5) + " (CIs unreliable)."
+        few = ", ".join(f"{_label(g)} {mixing_label(g.mixing)} ({g.n_seeds})" for g in groups if g.n_seeds < 5)
+        notes += f" Fewer than 5 seeds in: {few} (CIs unreliable)."
     yield Table("evaluations_to_threshold", frame.drop(columns="pair_key"), markdown_table(header, rows, notes), latex)
 
 
@@ -328,7 +324,7 @@ def iqm_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
              "episodes_iqm": e_iqm, "episodes_iqm_low": e_lo, "episodes_iqm_high": e_hi}
         )  # fmt: skip
         rows.append(
-            [_env(group.env), _label(group), MIXING_LABELS.get(group.mixing, group.mixing), f"{group.n_seeds}{' ⚠' if group.n_seeds < 5 else ''}",
+            [_env(group.env), _label(group), mixing_label(group.mixing), f"{group.n_seeds}{' ⚠' if group.n_seeds < 5 else ''}",
              _interval(f_iqm, f_lo, f_hi, 1), _pm(f_mean, f_half, 1),
              "–" if threshold is None else f"{reached}/{group.n_seeds}",
              "–" if threshold is None else _interval(e_iqm, e_lo, e_hi, 0)]
@@ -367,7 +363,7 @@ def improvement_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
              "threshold": threshold, "p_fewer_episodes": point, "ci_low": lo, "ci_high": hi}
         )  # fmt: skip
         rows.append(
-            [_env(group.env), _label(group), MIXING_LABELS.get(group.mixing, group.mixing), f"{group.n_seeds} vs {base.n_seeds}{' ⚠' if n < 5 else ''}",
+            [_env(group.env), _label(group), mixing_label(group.mixing), f"{group.n_seeds} vs {base.n_seeds}{' ⚠' if n < 5 else ''}",
              f"{threshold:g}", f"{point:.2f} [{lo:.2f}, {hi:.2f}]"]
         )  # fmt: skip
     if not records:
@@ -420,7 +416,7 @@ def gridsearch_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     for r in frame.itertuples():
         rows.append(
             [
-                f"{_algo(r.algo)} + {MIXING_LABELS.get(r.mixing, r.mixing)}" if r.mixing != "none" else _algo(r.algo),
+                f"{_algo(r.algo)} + {mixing_label(r.mixing)}" if r.mixing != "none" else _algo(r.algo),
                 _env(r.env),
                 r.rank,
                 r.overrides or "–",

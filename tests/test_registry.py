@@ -1,0 +1,138 @@
+"""The registry (imix_cli/registry.py) and the ES parameter records (algorithms/base.py Params).
+
+Hydra reads conf/*.yaml, so the YAML files repeat a few registry values (generation counts,
+gymnasium ids, episode caps, the paper's hyper-parameters); these tests are what keeps the
+two in step. Everything else reads the registry itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+import imix_cli.algorithms.base as base
+from imix_cli.algorithms import ALGORITHMS, CEM, SNES, EvolutionStrategy, OpenES, Params, make_es
+from imix_cli.config import PAPER_DEFAULTS, config_dir
+from imix_cli.evaluation import make_evaluator
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS, ES_NAMES, MIX_VARIANTS, MIXING_SPECS
+
+
+def conf(*parts):
+    return yaml.safe_load((Path(config_dir()).joinpath(*parts)).read_text())
+
+
+# ------------------------------------------------------------------------ conf/ and the registry
+def test_conf_algo_options_are_the_registered_algorithms_with_their_generation_counts():
+    assert sorted(p.stem for p in (Path(config_dir()) / "algo").glob("*.yaml")) == sorted(ALGORITHM_SPECS)
+    for name, spec in ALGORITHM_SPECS.items():
+        shipped = conf("algo", f"{name}.yaml")
+        assert shipped["name"] == name
+        assert shipped["generations"] == spec.generations, name
+
+
+def test_conf_env_options_are_the_registered_envs_plus_gym():
+    assert sorted(p.stem for p in (Path(config_dir()) / "env").glob("*.yaml")) == sorted([*ENV_SPECS, "gym"])
+    for name, spec in ENV_SPECS.items():
+        shipped = conf("env", f"{name}.yaml")
+        assert (shipped["name"], shipped["id"], shipped["max_steps"]) == (name, spec.gym_id, spec.max_steps), name
+
+
+def test_conf_config_yaml_holds_the_paper_defaults_of_params_and_mixing():
+    shipped = conf("config.yaml")
+    assert {k: shipped[k] for k in PAPER_DEFAULTS} == PAPER_DEFAULTS
+    assert {k: PAPER_DEFAULTS[k] for k in ("popsize", "sigma", "lr", "weight_decay", "weight_decay_form")} == {
+        f.name: f.default for f in dataclasses.fields(Params) if f.name != "fitness_shaping"
+    }
+
+
+@pytest.mark.filterwarnings("ignore:.*CartPole-v0 is out of date")
+def test_builtin_envs_match_their_evaluators_and_gymnasium():
+    import imix_cli.envs  # noqa: F401  (registers imix/ ids)
+
+    for name, gym_id in BUILTIN_ENVS.items():
+        spec = ENV_SPECS[name]
+        ev = make_evaluator(name)
+        assert (ev.env_name, ev.max_steps, (ev.obs_dim, ev.out_dim), ev.discrete) == (name, spec.max_steps, spec.policy_dims, not spec.continuous)
+        env = gym.make(gym_id)
+        try:
+            out = env.action_space.n if spec.policy_dims[1] > 1 else env.action_space.shape[0]
+            assert (env.observation_space.shape[0], out) == spec.policy_dims, name
+            assert isinstance(env.action_space, gym.spaces.Box) == spec.continuous, name
+        finally:
+            env.close()
+
+
+def test_mixing_variants_are_those_mix_implements():
+    from imix_cli.mixing import VARIANTS
+
+    assert VARIANTS == MIX_VARIANTS == ("paper", "sun2009", "eim", "eim_paper")
+    assert list(MIXING_SPECS) == ["none", "im", "eim"]
+
+
+# -------------------------------------------------------------------------- ES parameter records
+@pytest.mark.parametrize("name", ES_NAMES)
+def test_every_es_is_built_from_its_params_record(name):
+    cls = ALGORITHMS[name]
+    assert cls is ALGORITHM_SPECS[name].es_class() and cls.name == name
+    assert issubclass(cls.Params, Params) and cls.Params.__dataclass_params__.frozen
+    params = cls.Params(popsize=12, sigma=0.3, weight_decay=0.0)
+    a, b = cls(4, params, mean=np.ones(4)), make_es(name, 4, popsize=12, sigma=0.3, weight_decay=0.0, mean=np.ones(4))
+    assert a.params == b.params == params and (a.popsize, a.sigma, a.weight_decay) == (12, 0.3, 0.0)
+    samples = np.random.default_rng(0).normal(size=(12, 4))
+    fitness = -np.sum(samples**2, axis=1)
+    a.tell(samples, fitness)
+    b.tell(samples, fitness)
+    np.testing.assert_array_equal(a.mean, b.mean)
+    # keywords replace fields of a given record; a record of another ES or an unknown field is refused
+    assert cls(4, params, popsize=20).popsize == 20
+    with pytest.raises(TypeError):
+        cls(4, popsize=10, no_such_option=1)
+    other = next(c for c in ALGORITHMS.values() if c is not cls)
+    if not issubclass(other.Params, cls.Params):
+        with pytest.raises(TypeError):
+            cls(4, other.Params())
+
+
+def test_params_are_checked_where_they_are_made():
+    with pytest.raises(ValueError, match="popsize must be >= 2"):
+        Params(popsize=1)
+    with pytest.raises(ValueError, match="weight_decay_form must be one of"):
+        OpenES.Params(weight_decay_form="l2")
+    with pytest.raises(ValueError, match="style must be one of"):
+        CEM.Params(style="textbook")
+    with pytest.raises(ValueError, match="sigma_lr must be > 0"):
+        SNES(3, sigma_lr=0.0)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        Params().popsize = 3  # type: ignore[misc]
+
+
+def test_fitness_shaping_and_weight_decay_forms_are_pluggable(monkeypatch):
+    """A shaping or a weight-decay form registered by name is selected by name."""
+    monkeypatch.setitem(base.FITNESS_SHAPINGS, "raw", lambda values, tie_break: np.asarray(values, dtype=np.float64))
+
+    class NoDecay(base.WeightDecayForm):
+        def apply(self, samples, fitness, weight_decay, shape):
+            return shape(fitness)
+
+    monkeypatch.setitem(base.WEIGHT_DECAY_FORMS, "none", NoDecay())
+    es: EvolutionStrategy = make_es("openes", 2, popsize=3, fitness_shaping="raw", weight_decay_form="none")
+    np.testing.assert_array_equal(es.utilities(np.ones((3, 2)), np.array([3.0, -1.0, 2.0])), [3.0, -1.0, 2.0])
+
+
+def test_algo_options_come_from_the_es_params():
+    """``algo.style`` of CEM: default, choices and the folder name come from ``CEM.Params``."""
+    from imix_cli.config import ConfigError, validate_overrides
+
+    (default,) = validate_overrides(["algo=cem"])
+    assert default.algo_options == {"style": "imix"} and default.run_name == "cem-cartpole-none"
+    (cemrl,) = validate_overrides(["algo=cem", "algo.style=cemrl", "eim=true"])
+    assert cemrl.algo_options == {"style": "cemrl"} and cemrl.run_name == "cem-cartpole-eim-algo.style=cemrl"
+    with pytest.raises(ConfigError, match=r"algo.style='textbook': valid choices are imix, cemrl"):
+        validate_overrides(["algo=cem", "algo.style=textbook"])
+    (snes,) = validate_overrides(["algo=snes"])
+    assert snes.algo_options == {}
