@@ -16,6 +16,8 @@ d = 10^6, and sums are accumulated in float64 whatever the storage dtype.
 
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import numpy as np
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -122,6 +124,27 @@ def _float_dtype(name) -> np.dtype:
     return dtype
 
 
+@runtime_checkable
+class SearchDistribution(Protocol):
+    """What :func:`imix_cli.mixing.mix` needs of a search distribution (any class with these works).
+
+    DiagonalGaussian and FullGaussian implement it; between two DiagonalGaussians ``mix`` also
+    uses their ``mean``/``std`` (log-ratios without densities, and the compiled step).
+    """
+
+    @property
+    def dim(self) -> int:
+        """Number of coordinates d."""
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` independent draws, shape ``(n, d)``, from ``rng``."""
+
+    def log_prob(self, x: np.ndarray) -> np.ndarray:
+        """Log-density of each row of ``x`` (shape ``(n, d)``), shape ``(n,)``."""
+
+    # Optional: ``dtype`` (the samples' dtype, float64 if absent).
+
+
 class DiagonalGaussian:
     """N(mean, diag(std**2)).
 
@@ -180,7 +203,7 @@ class DiagonalGaussian:
             block += mean
         return eps, self._log_norm - 0.5 * sq_norm
 
-    def log_ratio_to(self, other: "DiagonalGaussian") -> "DiagonalLogRatio":
+    def log_ratio_to(self, other: DiagonalGaussian) -> DiagonalLogRatio:
         """The log-density ratio log(p_self / p_other), with its per-coordinate coefficients computed once."""
         return DiagonalLogRatio(self, other)
 
@@ -210,7 +233,7 @@ class DiagonalGaussian:
         return {"mean": self.mean.copy(), "std": self.std.copy(), "dtype": self.dtype.str}
 
     @classmethod
-    def from_state(cls, state: dict) -> "DiagonalGaussian":
+    def from_state(cls, state: dict) -> DiagonalGaussian:
         """The distribution :meth:`to_state` described (ValueError if it is not a valid one)."""
         return cls(state["mean"], state["std"], dtype=_float_dtype(state["dtype"]))
 
@@ -327,7 +350,7 @@ class FullGaussian:
         return {"mean": self.mean.copy(), "cov": self.cov.copy(), "dtype": self.dtype.str}
 
     @classmethod
-    def from_state(cls, state: dict) -> "FullGaussian":
+    def from_state(cls, state: dict) -> FullGaussian:
         return cls(state["mean"], state["cov"], dtype=_float_dtype(state["dtype"]))
 
     def __repr__(self) -> str:

@@ -458,7 +458,8 @@ def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str 
 
     Parameters
     ----------
-    new_dist : DiagonalGaussian or FullGaussian, or any object with ``sample(n, rng)``, ``log_prob(x)``, ``dim`` (and optionally ``dtype``)
+    new_dist : DiagonalGaussian or FullGaussian, or any :class:`~imix_cli.distributions.SearchDistribution`
+        (``sample(n, rng)``, ``log_prob(x)``, ``dim``, optionally ``dtype``).
         The search distribution of the new generation.
     archive : list of ``(dist, samples[n, d])`` pairs or :class:`Generation` objects
         Earlier generations, newest first; ``dist`` is the distribution that generation is distributed as.
