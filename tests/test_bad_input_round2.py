@@ -19,7 +19,7 @@ import pytest
 from imix_cli.cli import main
 from imix_cli.config import ConfigError, validate_overrides
 from imix_cli.results import read_run_csv
-from imix_cli.runner import run_dir_lock
+from imix_cli.run_folder import run_dir_lock
 
 IMIX = str(Path(sys.executable).parent / "imix")
 SMALL = ["seeds=1", "generations=3", "popsize=8", "workers=1", "progress=false"]
