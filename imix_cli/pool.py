@@ -13,9 +13,9 @@ import multiprocessing
 import os
 import queue as queue_module
 import signal
-import threading
-import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+from imix_cli.processes import start_orphan_watchdog
 
 _progress_queue = None
 
@@ -55,16 +55,7 @@ def _init_worker(progress_queue) -> None:
     _progress_queue = progress_queue
     # Ctrl-C reaches the whole process group: the main process alone decides, and stops us.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_exit_when_orphaned, args=(os.getppid(),), daemon=True).start()
-
-
-def _exit_when_orphaned(parent_pid: int) -> None:
-    """A pool worker whose main process died (kill -9) must not linger, idle on the task queue
-    forever or racing the re-run: it exits within a second (its checkpoints stay valid)."""
-    while True:
-        time.sleep(1.0)
-        if os.getppid() != parent_pid:
-            os._exit(1)
+    start_orphan_watchdog(os.getppid())
 
 
 def _terminate_workers(pool: ProcessPoolExecutor) -> None:
