@@ -29,7 +29,8 @@ import re
 import sys
 from pathlib import Path
 
-from imix_cli.evaluate import UsageError, help_requested, parse_args, run_folders
+from imix_cli.evaluate import run_folders
+from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key_values
 
 HELP = """\
 usage: imix status [key=value ...]
@@ -160,7 +161,7 @@ def main(argv: list | None = None) -> int:
     if help_requested(argv, HELP):
         return 0
     try:
-        s = parse_args(argv, "status", {"results_dir": "results", "experiment": None})
+        s = parse_key_values(argv, "status", {"results_dir": "results", "experiment": None}, convert={"experiment": folder_name})
         root = Path(s["results_dir"])
         if s["experiment"] is None:
             if not root.is_dir():
