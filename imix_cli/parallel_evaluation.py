@@ -45,7 +45,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from imix_cli.evaluation import make_evaluator
-from imix_cli.processes import start_orphan_watchdog
+from imix_cli.processes import default_workers, start_orphan_watchdog
 
 __all__ = ["PoolEvaluator", "RayEvaluator", "build_evaluator", "EVALUATORS"]
 
@@ -132,8 +132,6 @@ class PoolEvaluator(_Remote):
 
     def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None):
         super().__init__(env_key, max_steps, hidden)
-        from imix_cli.config import default_workers
-
         self.workers = int(workers or default_workers())
         # One BLAS thread per worker process (the workers already use every core): set by imix_cli/__init__.py, inherited.
         ctx = multiprocessing.get_context("spawn")

@@ -11,6 +11,14 @@ import threading
 import time
 
 
+def default_workers() -> int:
+    """All cores this process may use (respects CPU affinity, e.g. a Slurm allocation)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def start_orphan_watchdog(parent_pid: int) -> None:
     """A worker whose main process died (kill -9) must not linger, idle on its task queue forever
     or racing a re-run: a daemon thread makes it exit within a second (its checkpoints stay valid)."""
