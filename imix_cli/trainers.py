@@ -26,7 +26,7 @@ class Trainer:
     module: str
     loop: str
     unit: str  # what progress counts: "gen" (seed-generations) or "step" (environment steps)
-    budget_key: str  # the RunSpec field holding a seed's budget in those units
+    budget_key: str  # the RunSpec field (and config.yaml key) holding a seed's budget in those units
     continuable: bool  # a finished run may be continued to a larger budget from its final states
     compares_mixing: bool  # the summary compares sibling runs with other mixing settings
 
@@ -47,5 +47,10 @@ DDPG = Trainer("imix_cli.ddpg_seeds", "run_ddpg_seeds", "step", "total_steps", c
 TRAINERS = {"ddpg": DDPG}
 
 
+def trainer_named(algo) -> Trainer:
+    """The trainer of algorithm ``algo`` (a name, as ``algo=`` takes it; anything else: an ES's)."""
+    return TRAINERS.get(algo, EVOLUTION_STRATEGY) if isinstance(algo, str) else EVOLUTION_STRATEGY
+
+
 def trainer_for(spec) -> Trainer:
-    return TRAINERS.get(spec.algo, EVOLUTION_STRATEGY)
+    return trainer_named(spec.algo)
