@@ -262,7 +262,9 @@ def test_archived_generations_are_saved_field_by_field_whatever_their_fields(tmp
     monkeypatch.setattr(checkpoints, "Generation", Extended)
     spec, states, evaluator = spec_and_states(tmp_path, generations=3)
     st = states[0]
-    st.archive.generations = [Extended(**{f.name: getattr(g, f.name) for f in dataclasses.fields(g)}, weights=np.arange(3.0) + k) for k, g in enumerate(st.archive.generations)]
+    st.archive.generations = [
+        Extended(**{f.name: getattr(g, f.name) for f in dataclasses.fields(g)}, weights=np.arange(3.0) + k) for k, g in enumerate(st.archive.generations)
+    ]
     save_checkpoint(spec.run_dir, st, spec.identity())
     loaded, warnings = load(spec, evaluator)
     assert warnings == [] and [type(g) for g in loaded.archive.generations] == [Extended] * 3

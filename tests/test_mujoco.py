@@ -248,7 +248,7 @@ def test_bootstrap_interval_covers_the_mean_and_shrinks_with_more_seeds():
     assert lo5[0] < m5[0] < hi5[0] and lo80[0] < m80[0] < hi80[0]
     # The bootstrap distribution of a mean has std s/sqrt(n) (s with ddof 0): the 95 % percentile
     # interval is close to +-1.96 of it -- within 10 % at n = 80, 30 % at n = 5 (discrete resampling).
-    for values, (m, lo, hi), tolerance in ((few, (m5, lo5, hi5), 0.3), (many, (m80, lo80, hi80), 0.1)):
+    for values, (_m, lo, hi), tolerance in ((few, (m5, lo5, hi5), 0.3), (many, (m80, lo80, hi80), 0.1)):
         normal = 2 * 1.96 * values.std() / np.sqrt(len(values))
         assert abs((hi - lo)[0] / normal - 1) < tolerance
 

@@ -29,7 +29,8 @@ from imix_cli.runner import run_seeds
 IMIX = str(Path(sys.executable).parent / "imix")
 GENERATIONS = 1200  # long enough (~10 s of work here) that the kills below land before the run ends
 # Long enough (~10 s of work on 2 cores) that the first kills always land before completion.
-ARGS = ["run", "algo=snes", "env=acrobot", "eim=true", "seeds=4", f"generations={GENERATIONS}", "popsize=40", "checkpoint_every=5", "workers=2", "progress=false"]
+ARGS = ["run", "algo=snes", "env=acrobot", "eim=true", "seeds=4", f"generations={GENERATIONS}", "popsize=40", "checkpoint_every=5", "workers=2",
+        "progress=false"]  # fmt: skip
 
 
 def csvs(root: Path) -> dict:
