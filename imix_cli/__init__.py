@@ -5,10 +5,15 @@ Library entry points::
     from imix_cli.mixing import DiagonalGaussian, FullGaussian, mix
     from imix_cli.algorithms import OpenES, SNES, CEM, CMAES, make_es
 
-Importing ``imix_cli`` registers imix's gymnasium environments (``imix/ContinuousCartPole-v0``,
-``imix/ContinuousCartPoleHard-v0``; see :mod:`imix_cli.envs`). That import loads numpy, so the
-one-BLAS-thread default of ``imix_cli.cli`` is set here first (only where the variable is
-unset): imix's matrices are tiny and its seeds already use one process per core.
+Importing ``imix_cli`` loads nothing heavy (no numpy, no gymnasium): every subcommand imports
+what it uses. imix's gymnasium environments (``imix/ContinuousCartPole-v0``,
+``imix/ContinuousCartPoleHard-v0``) are registered by ``import imix_cli.envs`` (or
+``gym.make("imix_cli.envs:imix/ContinuousCartPole-v0")``); imix's own modules that make them do so.
+
+The one place that sets imix's one-BLAS-thread default (only where the variable is unset),
+before any module of the package loads numpy, and inherited by every worker process: imix's
+matrices are tiny, its seeds already run one process per core, and two BLAS threads fighting
+over two cores made CMA-ES's eigendecomposition 10x slower.
 """
 
 import os as _os
@@ -24,14 +29,12 @@ def _stop_before_anything_is_written(signum, frame):
     _os._exit(130)
 
 
-# The `imix` console script: a Ctrl-C during the imports below (numpy, gymnasium) or the
+# The `imix` console script: a Ctrl-C during the imports of a run (numpy, gymnasium, Hydra) or the
 # validation that follows can be swallowed by C code that clears errors (measured: with a cold
 # bytecode cache, SIGINT 0.2 s after start let a whole sweep run). Nothing is written before the
 # run starts, so until then a Ctrl-C ends the process at once; imix_cli.cli hands SIGINT back to
 # Python's handler before anything runs. Library imports are unaffected.
 if _os.path.basename(_sys.argv[0] if _sys.argv else "") == "imix":
     _signal.signal(_signal.SIGINT, _stop_before_anything_is_written)
-
-from imix_cli import envs as _envs  # noqa: E402,F401  (registers the imix/ gymnasium ids)
 
 __version__ = "0.1.0"

@@ -23,7 +23,7 @@ array in name order, its name, dtype, shape and bytes. Any difference between wh
 and what is read -- a bit flip anywhere, a truncation, an array swapped in -- is caught by it
 or by the zip's own structure.
 
-The state tree is a dataclass (the runner's ``SeedState``) encoded field by field, by type,
+The state tree is a dataclass (``imix_cli.lockstep.SeedState``) encoded field by field, by type,
 so new fields need no change here: JSON scalars stay as they are (floats round-trip exactly,
 NaN included); an ndarray becomes ``{"array": name}``; a list ``{"list": [...]}``; a dict
 ``{"dict": {...}}``; a numpy Generator ``{"rng": bit_generator.state}`` (PCG64 only); an ES
@@ -40,12 +40,12 @@ import hashlib
 import io
 import json
 import math
-import sys
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from imix_cli import messages
 from imix_cli.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.mixing import Generation
 from imix_cli.policies import ObsNormalizer
@@ -136,12 +136,8 @@ def load_or_warn(path, template, *, identity: dict, seed: int, warn=None):
     except FileNotFoundError:
         return None
     except CheckpointError as err:
-        (warn or _stderr)(f"{path}: checkpoint ignored: {err}; seed {seed} restarts from scratch")
+        (warn or messages.warn)(f"{path}: checkpoint ignored: {err}; seed {seed} restarts from scratch")
         return None
-
-
-def _stderr(message: str) -> None:
-    print(f"imix: warning: {message}", file=sys.stderr, flush=True)
 
 
 # ----------------------------------------------------------------------------- file level

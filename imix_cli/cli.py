@@ -14,11 +14,6 @@ import signal
 import sys
 from concurrent.futures.process import BrokenProcessPool
 
-# One BLAS thread per process, set before numpy loads: seeds already run one process per core,
-# and two BLAS threads fighting over two cores made CMA-ES's eigendecomposition 10x slower.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
 USAGE = """\
 usage: imix <command> [arguments]
 

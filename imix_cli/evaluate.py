@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from imix_cli.keyvalue import UsageError, at_least, folder_name, help_requested, one_of, parse_key_values
+
 HELP = """\
 usage: imix eval [key=value ...]
 
@@ -48,50 +50,6 @@ EVAL_COLUMNS = (
 
 _POLICY_FILE = re.compile(r"^policy_(\d+)_(mean|best)\.npz$")
 _NOT_RUNS = {"figures"}
-
-
-class UsageError(ValueError):
-    """Bad command line or missing results; one line, exit status 2 (usage) or 1 (nothing to do)."""
-
-    def __init__(self, message: str, status: int = 2):
-        super().__init__(message)
-        self.status = status
-
-
-def help_requested(argv: list, text: str) -> bool:
-    """``-h``, ``--help`` or ``help`` among the arguments of ``imix eval|render|status``: print ``text``."""
-    if any(a in ("-h", "--help", "help") for a in argv):
-        print(text, end="")
-        return True
-    return False
-
-
-def parse_args(argv: list, prog: str, defaults: dict, choices: dict | None = None, ints: dict | None = None) -> dict:
-    """``key=value`` arguments -> settings; every key must be in ``defaults``. Shared by eval/render/status.
-
-    ``choices``: key -> allowed values; ``ints``: key -> minimum.
-    """
-    settings = dict(defaults)
-    for arg in argv:
-        if "=" not in arg:
-            raise UsageError(f"expected key=value, got {arg!r} (see imix {prog} --help)")
-        key, value = (part.strip() for part in arg.split("=", 1))
-        if key not in defaults:
-            raise UsageError(f"unknown key {key!r} (known: {', '.join(defaults)}; see imix {prog} --help)")
-        if choices and key in choices and value not in choices[key]:
-            raise UsageError(f"bad value for {key}: {value!r} (expected {' or '.join(choices[key])})")
-        if ints and key in ints:
-            try:
-                number = int(value)
-            except ValueError:
-                raise UsageError(f"bad value for {key}: {value!r} (expected an integer >= {ints[key]})") from None
-            if number < ints[key]:
-                raise UsageError(f"bad value for {key}: {value!r} (expected an integer >= {ints[key]})")
-            value = number
-        elif key in ("experiment", "run") and (not value or "/" in value or value in (".", "..")):
-            raise UsageError(f"bad value for {key}: {value!r} (expected a folder name)")
-        settings[key] = value
-    return settings
 
 
 def run_folders(results_dir, experiment: str, run: str | None = None) -> list[Path]:
@@ -204,9 +162,9 @@ def main(argv: list | None = None) -> int:
     if help_requested(argv, HELP):
         return 0
     try:
-        s = parse_args(
+        s = parse_key_values(
             argv, "eval", {"results_dir": "results", "experiment": "default", "run": None, "episodes": 100, "which": "mean"},
-            choices={"which": ("mean", "best")}, ints={"episodes": 1},
+            convert={"experiment": folder_name, "run": folder_name, "episodes": at_least(1), "which": one_of("mean", "best")},
         )  # fmt: skip
         folders = run_folders(s["results_dir"], s["experiment"], s["run"])
         from imix_cli.policy_files import PolicyFileError
@@ -215,7 +173,8 @@ def main(argv: list | None = None) -> int:
         for run_dir in folders:
             rows = evaluate_run(run_dir, s["which"], s["episodes"], cache)
             if not rows:
-                print(f"imix eval: {run_dir.name}: no policy_<k>_{s['which']}.npz (unfinished, algo=ddpg, or run before policy files existed); skipped", file=sys.stderr)
+                why = "unfinished, algo=ddpg, or run before policy files existed"
+                print(f"imix eval: {run_dir.name}: no policy_<k>_{s['which']}.npz ({why}); skipped", file=sys.stderr)
                 continue
             results.append((run_dir, rows, write_eval_csv(run_dir, rows)))
     except UsageError as err:
@@ -229,7 +188,7 @@ def main(argv: list | None = None) -> int:
         return 1
     width = max(32, *(len(r[0].name) for r in results))
     print(f"{'run':<{width}} {'seeds':>5} {'return on fresh episodes (mean ± 95% CI over seeds)':>52}")
-    for run_dir, rows, path in results:
+    for run_dir, rows, _path in results:
         estimate = format_estimate([r["mean_return"] for r in rows])
         flag = "  (<5 seeds: CI unreliable)" if len(rows) < 5 else ""
         print(f"{run_dir.name:<{width}} {len(rows):>5} {estimate:>52}{flag}")

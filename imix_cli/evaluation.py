@@ -53,6 +53,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+import imix_cli.envs  # noqa: F401  (registers the imix/ gymnasium ids, in spawned workers too)
 from imix_cli.policies import HIDDEN, BatchPolicy, num_params
 from imix_cli.registry import BUILTIN_ENVS, ENV_SPECS
 

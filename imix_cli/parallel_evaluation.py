@@ -39,14 +39,13 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import threading
-import time
 import weakref
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
 from imix_cli.evaluation import make_evaluator
+from imix_cli.processes import default_workers, start_orphan_watchdog
 
 __all__ = ["PoolEvaluator", "RayEvaluator", "build_evaluator", "EVALUATORS"]
 
@@ -120,15 +119,7 @@ def _init_pool_worker(make_args, parent_pid: int) -> None:
     global _worker_evaluator
     env_key, max_steps, hidden = make_args
     _worker_evaluator = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
-    threading.Thread(target=_exit_when_orphaned, args=(parent_pid,), daemon=True).start()
-
-
-def _exit_when_orphaned(parent_pid: int) -> None:
-    """A worker whose run died (kill -9) exits within a second instead of idling forever."""
-    while True:
-        time.sleep(1.0)
-        if os.getppid() != parent_pid:
-            os._exit(1)
+    start_orphan_watchdog(parent_pid)
 
 
 def _evaluate_chunk(params: np.ndarray, seeds: np.ndarray):
@@ -141,12 +132,8 @@ class PoolEvaluator(_Remote):
 
     def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None):
         super().__init__(env_key, max_steps, hidden)
-        from imix_cli.config import default_workers
-
         self.workers = int(workers or default_workers())
-        # One BLAS thread per worker process: the workers already use every core.
-        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ.setdefault(var, "1")
+        # One BLAS thread per worker process (the workers already use every core): set by imix_cli/__init__.py, inherited.
         ctx = multiprocessing.get_context("spawn")
         self._pool = ProcessPoolExecutor(
             max_workers=self.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(self._make_args, os.getpid())

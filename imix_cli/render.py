@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.evaluate import UsageError, eval_episode_seeds, help_requested, parse_args, run_folders
+from imix_cli.evaluate import eval_episode_seeds, run_folders
+from imix_cli.keyvalue import UsageError, at_least, folder_name, help_requested, one_of, parse_key_values
 
 HELP = """\
 usage: imix render [key=value ...]
@@ -192,11 +193,12 @@ def main(argv: list | None = None) -> int:
     from imix_cli.policy_files import PolicyFileError, policy_path, read_policy
 
     try:
-        s = parse_args(
+        s = parse_key_values(
             argv, "render",
             {"results_dir": "results", "experiment": "default", "run": None, "seed": 0, "which": "mean",
              "out": "policy.gif", "frames": None, "scale": "1", "fps": None},
-            choices={"which": ("mean", "best")}, ints={"seed": 0, "frames": 1, "fps": 1},
+            convert={"experiment": folder_name, "run": folder_name, "seed": at_least(0), "which": one_of("mean", "best"),
+                     "frames": at_least(1), "fps": at_least(1)},
         )  # fmt: skip
         out = Path(s["out"])
         if out.suffix.lower() not in (".gif", ".mp4"):

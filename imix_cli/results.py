@@ -134,10 +134,59 @@ def rows_to_frame(rows) -> pd.DataFrame:
     return frame.loc[:, list(COLUMNS)]
 
 
-def write_run_csv(path, rows) -> None:
-    """Write one seed's rows atomically to ``path`` (``seed_<k>.csv``)."""
+# ----------------------------------------------------------------------------- rows and their summary
+def generation_row(*, algo: str, env: str, mixing: str, seed: int, generation: int, evaluations: int, env_steps: int,
+                   fitness: np.ndarray, reused: int, reused_im: int, reused_eim: int, reevaluated: int, popsize: int,
+                   sigma_mean: float) -> dict:  # fmt: skip
+    """The row of one ES generation. ``fitness``: one return per member, stored or new; non-finite
+    returns (a user's env may produce them) are left out of the mean and best, and counted.
+    ``wall_time`` is 0.0, for the caller, which owns the clock, to fill in; the ``mean_policy_*``
+    columns are added by whoever measures the distribution mean."""
+    finite = np.isfinite(fitness)
+    return {
+        "algo": algo, "env": env, "mixing": mixing, "seed": seed, "generation": generation,
+        "evaluations": evaluations, "env_steps": env_steps,
+        "mean_score": float(np.mean(fitness[finite])) if finite.any() else float("nan"),
+        "best_score": float(np.max(fitness[finite])) if finite.any() else float("nan"),
+        "reused": reused, "reused_im": reused_im, "reused_eim": reused_eim, "reevaluated": reevaluated,
+        "popsize": popsize, "sigma_mean": sigma_mean, "nonfinite": int(np.count_nonzero(~finite)), "wall_time": 0.0,
+    }  # fmt: skip
+
+
+def episode_row(*, algo: str, env: str, mixing: str, seed: int, index: int, env_steps: int, ret: float,
+                sigma_mean: float, wall_time: float) -> dict:  # fmt: skip
+    """The row of one finished training episode of a one-member learner (DDPG): generation = episode
+    index, evaluations = episodes so far, mean_score = best_score = the return (NaN if not finite,
+    then counted in ``nonfinite``), nothing reused, popsize 1."""
+    finite = bool(np.isfinite(ret))
+    score = float(ret) if finite else float("nan")
+    return {
+        "algo": algo, "env": env, "mixing": mixing, "seed": seed, "generation": index, "evaluations": index + 1,
+        "env_steps": env_steps, "mean_score": score, "best_score": score, "reused": 0, "reused_im": 0,
+        "reused_eim": 0, "reevaluated": 0, "mean_policy_score": float("nan"), "mean_policy_episodes": 0,
+        "popsize": 1, "sigma_mean": sigma_mean, "nonfinite": 0 if finite else 1, "wall_time": wall_time,
+    }  # fmt: skip
+
+
+def seed_summary(frame: pd.DataFrame) -> dict:
+    """What a run's summary needs of one seed's rows (a contract-conforming frame, read or just written)."""
+    return {
+        "final": float(frame["mean_score"].iloc[-1]),
+        "evaluations": int(frame["evaluations"].iloc[-1]),
+        "env_steps": int(frame["env_steps"].iloc[-1]),
+        "reused": int(frame["reused"].sum()),
+        "members": int(frame["popsize"].sum()),
+        "nonfinite": int(frame["nonfinite"].sum()),
+        "mixing": str(frame["mixing"].iloc[0]),
+        "diverged": int(frame["diverged"].iloc[-1] == 1),
+    }
+
+
+def write_run_csv(path, rows) -> pd.DataFrame:
+    """Write one seed's rows atomically to ``path`` (``seed_<k>.csv``); return them as a frame."""
     frame = rows if isinstance(rows, pd.DataFrame) else rows_to_frame(rows)
     atomic_write_text(path, frame.to_csv(index=False, float_format="%.10g", lineterminator="\n"))
+    return frame
 
 
 def read_run_csv(path) -> pd.DataFrame:

@@ -29,7 +29,9 @@ import re
 import sys
 from pathlib import Path
 
-from imix_cli.evaluate import UsageError, help_requested, parse_args, run_folders
+from imix_cli.evaluate import run_folders
+from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key_values
+from imix_cli.trainers import trainer_named
 
 HELP = """\
 usage: imix status [key=value ...]
@@ -96,7 +98,7 @@ def run_status(run_dir: Path) -> dict:
         found |= {int(m.group(1)) for p in (run_dir / ".checkpoints").iterdir() if (m := re.match(r"^seed_(\d+)\.", p.name))}
     n_seeds = config.get("seeds") if isinstance(config.get("seeds"), int) else (max(found) + 1 if found else 0)
     algo = config.get("algo") if isinstance(config.get("algo"), dict) else {}
-    target = config.get("total_steps") if algo.get("name") == "ddpg" else config.get("generations")
+    target = config.get(trainer_named(algo.get("name")).budget_key)  # generations, or DDPG's total_steps
     done, running, not_started = [], [], []
     last_gen, best, current = [], -math.inf, []
     for seed in range(max(n_seeds, max(found) + 1 if found else 0)):
@@ -160,7 +162,7 @@ def main(argv: list | None = None) -> int:
     if help_requested(argv, HELP):
         return 0
     try:
-        s = parse_args(argv, "status", {"results_dir": "results", "experiment": None})
+        s = parse_key_values(argv, "status", {"results_dir": "results", "experiment": None}, convert={"experiment": folder_name})
         root = Path(s["results_dir"])
         if s["experiment"] is None:
             if not root.is_dir():

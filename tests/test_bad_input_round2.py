@@ -19,7 +19,7 @@ import pytest
 from imix_cli.cli import main
 from imix_cli.config import ConfigError, validate_overrides
 from imix_cli.results import read_run_csv
-from imix_cli.runner import run_dir_lock
+from imix_cli.run_folder import run_dir_lock
 
 IMIX = str(Path(sys.executable).parent / "imix")
 SMALL = ["seeds=1", "generations=3", "popsize=8", "workers=1", "progress=false"]
@@ -117,7 +117,8 @@ def alive(pid: int) -> bool:
 
 @pytest.mark.slow
 def test_sigint_to_the_main_process_alone_stops_the_workers_and_keeps_checkpoints(tmp_path):
-    args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "workers=2", "progress=false", f"results_dir={tmp_path}"]
+    args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "workers=2", "progress=false",
+            f"results_dir={tmp_path}"]  # fmt: skip
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 60
@@ -144,7 +145,8 @@ def test_sigint_to_the_main_process_alone_stops_the_workers_and_keeps_checkpoint
 def test_ctrl_c_during_validation_prints_one_line(tmp_path):
     """SIGINT about a second after start: validation or Hydra's start-up is still running."""
     sweep = "popsize=" + ",".join(map(str, range(8, 400)))
-    proc = subprocess.Popen([IMIX, "run", "-m", sweep, *SMALL[:2], *SMALL[3:], f"results_dir={tmp_path}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    args = [IMIX, "run", "-m", sweep, *SMALL[:2], *SMALL[3:], f"results_dir={tmp_path}"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(1.5)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)

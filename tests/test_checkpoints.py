@@ -22,7 +22,10 @@ from imix_cli import checkpoints
 from imix_cli.cli import main
 from imix_cli.config import validate_overrides
 from imix_cli.evaluation import make_evaluator
-from imix_cli.runner import advance_lockstep, checkpoint_path, legacy_checkpoint_path, load_checkpoint, new_seed_state, prepare_run_dir, run_seeds, save_checkpoint
+from imix_cli.lockstep import advance_lockstep, new_seed_state
+from imix_cli.resume import checkpoint_path, legacy_checkpoint_path, load_checkpoint, save_checkpoint
+from imix_cli.run_folder import prepare_run_dir
+from imix_cli.runner import run_seeds
 
 COMMON = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=12", "popsize=8", "checkpoint_every=4", "workers=1", "progress=false"]
 
@@ -259,7 +262,9 @@ def test_archived_generations_are_saved_field_by_field_whatever_their_fields(tmp
     monkeypatch.setattr(checkpoints, "Generation", Extended)
     spec, states, evaluator = spec_and_states(tmp_path, generations=3)
     st = states[0]
-    st.archive.generations = [Extended(**{f.name: getattr(g, f.name) for f in dataclasses.fields(g)}, weights=np.arange(3.0) + k) for k, g in enumerate(st.archive.generations)]
+    st.archive.generations = [
+        Extended(**{f.name: getattr(g, f.name) for f in dataclasses.fields(g)}, weights=np.arange(3.0) + k) for k, g in enumerate(st.archive.generations)
+    ]
     save_checkpoint(spec.run_dir, st, spec.identity())
     loaded, warnings = load(spec, evaluator)
     assert warnings == [] and [type(g) for g in loaded.archive.generations] == [Extended] * 3

@@ -11,15 +11,15 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from test_envs import reference_outputs
 
-import imix_cli  # noqa: F401  (registers the ids)
+import imix_cli.envs  # noqa: F401  (registers the ids)
 from imix_cli.cli import main
 from imix_cli.config import BUILTIN_ENVS, ConfigError, config_dir, validate_overrides
 from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
 from imix_cli.evaluation import make_evaluator
 from imix_cli.policies import BatchPolicy
 from imix_cli.results import read_run_csv
-from test_envs import reference_outputs
 
 IDS = [CONTINUOUS_CARTPOLE_ID, CONTINUOUS_CARTPOLE_HARD_ID]
 NAMES = {"continuous_cartpole": CONTINUOUS_CARTPOLE_ID, "continuous_cartpole_hard": CONTINUOUS_CARTPOLE_HARD_ID}

@@ -18,10 +18,10 @@ import pytest
 from imix_cli.cli import main
 from imix_cli.config import CMAES_MAX_DIM, validate_overrides
 from imix_cli.evaluation import MUJOCO_EXTRA_HINT, make_evaluator
+from imix_cli.lockstep import advance_lockstep, new_seed_state
 from imix_cli.policies import BatchPolicy, ObsNormalizer, fold_normalizer, num_params
 from imix_cli.registry import MUJOCO_ENVS
 from imix_cli.results import read_run_csv
-from imix_cli.runner import advance_lockstep, new_seed_state
 
 needs_mujoco = pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason='needs pip install "imix-cli[mujoco]"')
 
@@ -287,7 +287,9 @@ def test_resume_mid_warm_up_equals_not_stopping(tmp_path):
     at generation 2 of 3) and resumed, a run writes the same CSV as one that never stopped."""
     import pandas as pd
 
-    from imix_cli.runner import checkpoint_path, prepare_run_dir, run_seeds
+    from imix_cli.resume import checkpoint_path
+    from imix_cli.run_folder import prepare_run_dir
+    from imix_cli.runner import run_seeds
 
     common = ["env=gym", "env.id=Pendulum-v1", "algo=snes", "eim=true", "seeds=1", "generations=8", "popsize=6", "policy.hidden=[]",
               "policy.obs_norm=true", "policy.obs_norm_warmup=3", "checkpoint_every=2", "workers=1", "progress=false"]  # fmt: skip

@@ -70,7 +70,7 @@ def test_eval_writes_rows_deterministically_on_fresh_episodes(trained, capsys):
 
 
 def test_eval_episode_seeds_are_not_training_episode_seeds():
-    # training: episode seeds are drawn from SeedSequence(k).spawn(2)[1] (runner.new_seed_state)
+    # training: episode seeds are drawn from SeedSequence(k).spawn(2)[1] (lockstep.new_seed_state)
     for seed in range(3):
         training = np.random.default_rng(np.random.SeedSequence(seed).spawn(2)[1]).integers(0, np.iinfo(np.int64).max, size=5000, dtype=np.int64)
         evaluation = eval_episode_seeds(seed, 5000)
@@ -155,7 +155,7 @@ class _DecliningEvaluator:
 
 def test_runner_tracks_the_best_ever_member_not_the_last_generations():
     from imix_cli.config import validate_overrides
-    from imix_cli.runner import advance_lockstep, new_seed_state
+    from imix_cli.lockstep import advance_lockstep, new_seed_state
 
     spec = validate_overrides(["algo=snes", "env=cartpole", "popsize=6", "seeds=1", "generations=4", "workers=1"])[0]
     evaluator = _DecliningEvaluator()

@@ -22,12 +22,15 @@ import pytest
 from imix_cli.cli import main
 from imix_cli.config import validate_overrides
 from imix_cli.results import read_run_csv
-from imix_cli.runner import checkpoint_path, prepare_run_dir, run_seeds
+from imix_cli.resume import checkpoint_path
+from imix_cli.run_folder import prepare_run_dir
+from imix_cli.runner import run_seeds
 
 IMIX = str(Path(sys.executable).parent / "imix")
 GENERATIONS = 1200  # long enough (~10 s of work here) that the kills below land before the run ends
 # Long enough (~10 s of work on 2 cores) that the first kills always land before completion.
-ARGS = ["run", "algo=snes", "env=acrobot", "eim=true", "seeds=4", f"generations={GENERATIONS}", "popsize=40", "checkpoint_every=5", "workers=2", "progress=false"]
+ARGS = ["run", "algo=snes", "env=acrobot", "eim=true", "seeds=4", f"generations={GENERATIONS}", "popsize=40", "checkpoint_every=5", "workers=2",
+        "progress=false"]  # fmt: skip
 
 
 def csvs(root: Path) -> dict:

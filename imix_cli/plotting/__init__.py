@@ -8,10 +8,11 @@ registries: :data:`.figures.FIGURES` and :data:`.tables.TABLES`.
 
 from __future__ import annotations
 
-import math
 import re
 import sys
 from pathlib import Path
+
+from imix_cli.keyvalue import UsageError, finite_number, help_requested, parse_key_values
 
 HELP = """\
 usage: imix plot [key=value ...]
@@ -54,10 +55,6 @@ _FORMATS = ("png", "pdf", "svg")
 _ENV_NAME = re.compile(r"^[A-Za-z0-9_.:/-]+$")
 
 
-class UsageError(ValueError):
-    """A bad command-line key or value (reported in one line, exit status 2)."""
-
-
 def _registry_names() -> list:
     from .figures import FIGURES
     from .tables import TABLES
@@ -69,82 +66,75 @@ def _help_text() -> str:
     return HELP.format(names=", ".join(_registry_names()))
 
 
-def _number(key: str, text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise UsageError(f"bad value for {key}: {text!r} (expected a number)") from None
-    if not math.isfinite(value):
-        raise UsageError(f"bad value for {key}: {text!r} (expected a finite number)")
+# ----------------------------------------------------------------------------- keys (imix_cli.keyvalue)
+def _results_dir(key: str, value: str) -> str:
+    if not value:
+        raise UsageError("bad value for results_dir: empty path")
     return value
+
+
+def _experiment(key: str, value: str) -> str:
+    # A plain name, as `imix run` accepts: an absolute path or ".." would put figures outside results_dir.
+    if not value or ".." in Path(value).parts or Path(value).is_absolute() or "\\" in value:
+        raise UsageError(f"bad value for experiment: {value!r} (expected a folder name)")
+    return value
+
+
+def _ci(key: str, value: str) -> float:
+    level = finite_number(key, value)
+    if not 0.0 < level < 1.0:
+        raise UsageError(f"bad value for ci: {value!r} (expected a level in (0, 1), e.g. 0.68)")
+    return level
+
+
+def _only(key: str, value: str) -> tuple:
+    names = [n.strip() for n in value.split(",") if n.strip()]
+    known = _registry_names()
+    bad = [n for n in names if n not in known]
+    if not names or bad:
+        raise UsageError(f"bad value for only: {value!r} (expected names among {', '.join(known)})")
+    return tuple(names)
+
+
+def _formats(key: str, value: str) -> tuple:
+    fmts = [f.strip().lower().lstrip(".") for f in value.split(",") if f.strip()]
+    if not fmts or any(f not in _FORMATS for f in fmts):
+        raise UsageError(f"bad value for formats: {value!r} (expected some of {', '.join(_FORMATS)})")
+    return tuple(dict.fromkeys(fmts))
+
+
+def _dpi(key: str, value: str) -> int:
+    try:
+        dpi = int(value)
+    except ValueError:
+        raise UsageError(f"bad value for dpi: {value!r} (expected an integer)") from None
+    if not 50 <= dpi <= 600:
+        raise UsageError(f"bad value for dpi: {value!r} (expected 50 to 600)")
+    return dpi
+
+
+_DEFAULTS = {"results_dir": "results", "experiment": "default", "ci": 0.68, "only": None, "formats": ("png", "pdf"), "dpi": 150}
+_CONVERT = {"results_dir": _results_dir, "experiment": _experiment, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi}
+_KNOWN = "results_dir, experiment, threshold.<env>, ci, only, formats, dpi"
 
 
 def parse_args(argv: list) -> dict:
     """``key=value`` arguments -> settings dict; raises :class:`UsageError` naming the key."""
     from .data import DEFAULT_THRESHOLDS
 
-    settings = {
-        "results_dir": "results",
-        "experiment": "default",
-        "thresholds": dict(DEFAULT_THRESHOLDS),
-        "ci_level": 0.68,
-        "only": None,
-        "formats": ("png", "pdf"),
-        "dpi": 150,
-    }
-    for arg in argv:
-        if "=" not in arg:
-            raise UsageError(f"expected key=value, got {arg!r} (see imix plot --help)")
-        key, value = arg.split("=", 1)
-        key = key.strip()
-        value = value.strip()
-        if key == "results_dir":
-            if not value:
-                raise UsageError("bad value for results_dir: empty path")
-            settings["results_dir"] = value
-        elif key == "experiment":
-            # A plain name, as `imix run` accepts: an absolute path or ".." would put figures outside results_dir.
-            if not value or ".." in Path(value).parts or Path(value).is_absolute() or "\\" in value:
-                raise UsageError(f"bad value for experiment: {value!r} (expected a folder name)")
-            settings["experiment"] = value
-        elif key.startswith("threshold."):
-            env = key[len("threshold.") :]
-            if not env or not _ENV_NAME.match(env):
-                raise UsageError(f"bad key {key!r} (expected threshold.<env>, e.g. threshold.cartpole=195)")
-            if value.lower() in ("none", "null", "off", ""):
-                settings["thresholds"].pop(env, None)
-            else:
-                settings["thresholds"][env] = _number(key, value)
-        elif key == "ci":
-            level = _number(key, value)
-            if not 0.0 < level < 1.0:
-                raise UsageError(f"bad value for ci: {value!r} (expected a level in (0, 1), e.g. 0.68)")
-            settings["ci_level"] = level
-        elif key == "only":
-            names = [n.strip() for n in value.split(",") if n.strip()]
-            known = _registry_names()
-            bad = [n for n in names if n not in known]
-            if not names or bad:
-                raise UsageError(f"bad value for only: {value!r} (expected names among {', '.join(known)})")
-            settings["only"] = tuple(names)
-        elif key == "formats":
-            fmts = [f.strip().lower().lstrip(".") for f in value.split(",") if f.strip()]
-            if not fmts or any(f not in _FORMATS for f in fmts):
-                raise UsageError(f"bad value for formats: {value!r} (expected some of {', '.join(_FORMATS)})")
-            settings["formats"] = tuple(dict.fromkeys(fmts))
-        elif key == "dpi":
-            try:
-                dpi = int(value)
-            except ValueError:
-                raise UsageError(f"bad value for dpi: {value!r} (expected an integer)") from None
-            if not 50 <= dpi <= 600:
-                raise UsageError(f"bad value for dpi: {value!r} (expected 50 to 600)")
-            settings["dpi"] = dpi
+    thresholds = dict(DEFAULT_THRESHOLDS)
+
+    def threshold(key: str, value: str) -> None:
+        env = key[len("threshold.") :]
+        if not env or not _ENV_NAME.match(env):
+            raise UsageError(f"bad key {key!r} (expected threshold.<env>, e.g. threshold.cartpole=195)")
+        if value.lower() in ("none", "null", "off", ""):
+            thresholds.pop(env, None)
         else:
-            raise UsageError(
-                f"unknown key {key!r} (known: results_dir, experiment, threshold.<env>, ci, only, formats, dpi; "
-                f"see imix plot --help)"
-            )
+            thresholds[env] = finite_number(key, value)
+
+    settings = parse_key_values(argv, "plot", _DEFAULTS, convert=_CONVERT, prefixed={"threshold.": threshold}, known=_KNOWN)
+    settings["thresholds"], settings["ci_level"] = thresholds, settings.pop("ci")
     return settings
 
 
@@ -155,8 +145,7 @@ def main(argv: list | None = None) -> int:
     failed (reported, the rest still written); 2: bad command line.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    if any(a in ("-h", "--help", "help") for a in argv):
-        print(_help_text(), end="")
+    if help_requested(argv, _help_text):
         return 0
     try:
         settings = parse_args(argv)

@@ -1,0 +1,52 @@
+"""What every benchmark shares: repeated timings, markdown tables, the rollouts' baseline envs."""
+
+from __future__ import annotations
+
+import resource
+import time
+
+import numpy as np
+
+ROLLOUT_ENVS = {"cartpole": "CartPole-v1", "acrobot": "Acrobot-v1"}  # gymnasium ids of the baselines
+EPISODE_CAP = 200
+
+
+def median_rate(fn, args: tuple, min_repeats: int = 1, min_seconds: float = 0.0) -> tuple[float, object]:
+    """Median of ``units / seconds`` over repeats of ``fn(*args) -> (units, result)``; at least
+    ``min_repeats`` repeats and ``min_seconds`` in total."""
+    rates, started, result = [], time.perf_counter(), None
+    while len(rates) < min_repeats or time.perf_counter() - started < min_seconds:
+        t = time.perf_counter()
+        units, result = fn(*args)
+        rates.append(units / max(time.perf_counter() - t, 1e-12))
+    return float(np.median(rates)), result
+
+
+def median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def table(header: list[str], rows: list[list], align: str) -> str:
+    """A markdown table; ``align`` has one of 'l'/'r' per column."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" if a == "l" else "---:" for a in align) + "|"]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def si(x: float) -> str:
+    for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if abs(x) >= scale:
+            return f"{x / scale:.2f}{unit}"
+    return f"{x:.0f}"
+
+
+
+def cpu_seconds() -> float:
+    """User + system CPU seconds of this process and of its finished children (the pool workers)."""
+    me, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + children.ru_utime + children.ru_stime

@@ -1,0 +1,155 @@
+"""``imix bench peers``: evosax + gymnax (JAX, jitted, no mixing) against ``imix run`` on the same task."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+
+import numpy as np
+
+from imix_cli.bench.common import EPISODE_CAP, table
+
+QUICK_PEERS = (3, 100)  # --quick: seeds, generations
+PEER_POPSIZE = 50
+PEER_SIGMA, PEER_LR = 0.25, 0.01  # imix's defaults (conf/config.yaml): initial std, OpenES's Adam rate
+PEER_IDS = {"cartpole": "CartPole-v1", "acrobot": "Acrobot-v1"}  # gymnax ids, capped at EPISODE_CAP
+PEERS_INSTALL = "pip install 'imix-cli[peers]'  (jax, evosax, gymnax)"
+
+
+def peers_available(echo) -> bool:
+    """Whether jax, evosax and gymnax import; if not, say how to install them."""
+    try:
+        import evosax  # noqa: F401
+        import gymnax  # noqa: F401
+        import jax  # noqa: F401
+    except ImportError as err:
+        echo(f"The peers are not installed ({err.name or err}): {PEERS_INSTALL}")
+        return False
+    return True
+
+
+def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
+    """evosax ``algo`` (SNES / Open_ES) on gymnax ``env``: every generation of every seed in one
+    jitted function (lax.scan over generations, vmap over seeds and members, lax.scan over the
+    200 steps of an episode, as gymnax is meant to be used). Returns wall/compile seconds,
+    env steps (steps before each episode's end) and the final population mean return."""
+    import gymnax
+    import jax
+    import jax.numpy as jnp
+    import optax
+    from evosax.algorithms import SNES, Open_ES
+
+    from imix_cli.policies import num_params
+
+    environment, env_params = gymnax.make(PEER_IDS[env])
+    env_params = env_params.replace(max_steps_in_episode=EPISODE_CAP)
+    obs_dim = environment.observation_space(env_params).shape[0]
+    n_act = environment.action_space(env_params).n
+    sizes = [obs_dim, 8, 8, n_act]
+    dim = num_params(obs_dim, n_act)
+
+    def policy(flat, obs):  # imix_cli.policies' layout: W1 (in x 8), b1, W2, b2, W3, b3
+        k, x = 0, obs
+        for layer, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+            W, bias = flat[k : k + a * b].reshape(a, b), flat[k + a * b : k + a * b + b]
+            k += a * b + b
+            x = x @ W + bias
+            x = jnp.tanh(x) if layer < 2 else x
+        return jnp.argmax(x)
+
+    def episode(flat, key):
+        k_reset, k_step = jax.random.split(key)
+        obs, state = environment.reset(k_reset, env_params)
+
+        def step(carry, _):
+            obs, state, ret, alive, n = carry
+            obs, state, reward, done, _ = environment.step(k_step, state, policy(flat, obs), env_params)
+            return (obs, state, ret + reward * alive, alive * (1.0 - done), n + alive.astype(jnp.int32)), None
+
+        init = (obs, state, jnp.float32(0.0), jnp.float32(1.0), jnp.int32(0))
+        (_, _, ret, _, n), _ = jax.lax.scan(step, init, None, length=EPISODE_CAP)
+        return ret, n
+
+    solution = jnp.zeros(dim)
+    if algo == "snes":
+        es = SNES(population_size=PEER_POPSIZE, solution=solution)
+        es_params = es.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
+    else:
+        es = Open_ES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR),
+                     std_schedule=optax.constant_schedule(PEER_SIGMA))  # fmt: skip
+        es_params = es.default_params
+
+    def one_seed(key):
+        key, k_init = jax.random.split(key)
+        state = es.init(k_init, solution, es_params)
+
+        def generation(carry, _):
+            state, key = carry
+            key, k_ask, k_eval, k_tell = jax.random.split(key, 4)
+            population, state = es.ask(k_ask, state, es_params)
+            returns, steps = jax.vmap(episode)(population, jax.random.split(k_eval, PEER_POPSIZE))
+            state, _ = es.tell(k_tell, population, -returns, state, es_params)  # evosax minimises
+            return (state, key), (returns.mean(), steps.sum())
+
+        _, (mean_returns, steps) = jax.lax.scan(generation, (state, key), None, length=generations)
+        return mean_returns[-1], steps.sum()
+
+    keys = jax.random.split(jax.random.key(0), seeds)
+    started = time.perf_counter()
+    compiled = jax.jit(jax.vmap(one_seed)).lower(keys).compile()
+    compile_seconds = time.perf_counter() - started
+    final, steps = jax.block_until_ready(compiled(keys))
+    wall = time.perf_counter() - started
+    return {"run": f"evosax {es.__class__.__name__} + gymnax", "env": env, "eim": False, "seeds": seeds,
+            "generations": generations, "wall": wall, "compile": compile_seconds,
+            "env_steps": int(np.asarray(steps, dtype=np.int64).sum()), "final": float(np.mean(final))}  # fmt: skip
+
+
+def _imix_run(env: str, eim: bool, seeds: int, generations: int) -> dict:
+    """``imix run algo=snes env=<env> eim=<eim>`` in this process (its worker pool, all cores)."""
+    from imix_cli.config import validate_overrides
+    from imix_cli.runner import run
+
+    with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
+        overrides = ["algo=snes", f"env={env}", f"eim={str(eim).lower()}", f"seeds={seeds}", f"generations={generations}",
+                     "progress=false", f"results_dir={tmp}", "experiment=peers"]  # fmt: skip
+        (spec,) = validate_overrides(overrides)
+        started = time.perf_counter()
+        summary = run(spec, echo=lambda *_: None)
+        wall = time.perf_counter() - started
+    return {"run": f"imix run algo=snes eim={str(eim).lower()}", "env": env, "eim": eim, "seeds": seeds,
+            "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
+            "final": summary["final_mean_score"]}  # fmt: skip
+
+
+def peer_rows(envs, seeds: int, generations: int, echo=None) -> list[dict]:
+    """The peers and imix's SNES with and without EIM on each env, one after the other."""
+    rows = []
+    for env in envs:
+        for fn, args in (
+            (_peer_run, ("snes", env)), (_peer_run, ("openes", env)), (_imix_run, (env, True)), (_imix_run, (env, False)),
+        ):  # fmt: skip
+            row = fn(*args, seeds, generations)
+            rows.append(row)
+            if echo:
+                echo(f"  {row['run']}, {env}: {row['wall']:.1f} s, {row['env_steps']:,} env steps, final {row['final']:.1f}")
+    return rows
+
+
+def format_peers(rows: list[dict]) -> str:
+    body = [[r["run"], r["env"], r["seeds"], r["generations"], f"{r['wall']:.1f}",
+             "" if r["compile"] is None else f"{r['compile']:.1f}", f"{r['env_steps']:,}", f"{r['final']:.1f}"]
+            for r in rows]  # fmt: skip
+    header = ["run", "env", "seeds", "generations", "wall (s)", "of which JAX compile (s)", "env steps", "final mean score"]
+    return table(header, body, "llrrrrrr")
+
+
+def format_peer_ratios(rows: list[dict]) -> str:
+    """imix SNES + EIM against each other row of the same env: wall time and env steps ratios."""
+    body = []
+    for env in dict.fromkeys(r["env"] for r in rows):
+        ours = next(r for r in rows if r["env"] == env and r["run"].startswith("imix") and r["eim"])
+        for other in (r for r in rows if r["env"] == env and r is not ours):
+            body.append([env, f"imix SNES + EIM vs {other['run']}", f"{other['wall'] / ours['wall']:.2f}",
+                         f"{other['env_steps'] / max(ours['env_steps'], 1):.1f}"])  # fmt: skip
+    return table(["env", "comparison", "× faster (wall)", "× fewer env steps"], body, "llrr")

@@ -1,0 +1,109 @@
+"""The evolution strategies' trainer: seeds of one run, in lockstep, with checkpoints and resume.
+
+Files (see :mod:`imix_cli.results`): ``seed_<k>.csv`` is written atomically when seed ``k``
+finishes; its state is checkpointed every ``checkpoint_every`` generations (:mod:`imix_cli.resume`),
+with ``seed_<k>.partial.csv`` as a live view. Re-running the same command resumes each seed from
+its checkpoint, saying so on stderr (``seed k resumes at generation G``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from imix_cli.config import resume_identity
+from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, raw_obs_params
+from imix_cli.messages import warn
+from imix_cli.parallel_evaluation import build_evaluator
+from imix_cli.policy_files import write_seed_policies
+from imix_cli.results import partial_csv_path, seed_csv_path, seed_summary, write_run_csv
+from imix_cli.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
+from imix_cli.run_folder import RunError
+
+
+def run_es_seeds(spec, seeds: list[int], progress) -> dict:
+    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep; ``progress(n)`` gets the
+    number of seed-generations just completed. Returns seed -> :func:`imix_cli.results.seed_summary`."""
+    evaluator = build_evaluator(spec)
+    identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
+    run_dir = spec.run_dir
+    states = []
+    for seed in seeds:
+        # A refused checkpoint may have been half loaded into the ES it was given: start from a new one.
+        st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, evaluator.num_params))
+        st = st or new_seed_state(spec, seed, evaluator.num_params)
+        states.append(st)
+        if st.generation:
+            print(f"imix: seed {seed} resumes at generation {st.generation} from {checkpoint_path(run_dir, seed)}", file=sys.stderr, flush=True)
+            progress(st.generation)
+    checkpoint_every = spec.checkpoint_every if states and can_checkpoint(states[0].es) else 0
+    summaries = {}
+    started = time.perf_counter()
+    active = [st for st in states if st.generation < spec.generations]
+    while active:
+        advance_lockstep(active, spec, evaluator)
+        now = time.perf_counter() - started
+        for st in active:
+            st.rows[-1]["wall_time"] = st.elapsed + now
+            if end_if_diverged(st):
+                summaries[st.seed] = seed_summary(write_run_csv(seed_csv_path(run_dir, st.seed), st.rows))
+                remove_checkpoints(run_dir, st.seed)
+            elif st.generation == spec.generations:
+                summaries[st.seed] = _finish_seed(spec, st, evaluator)
+                if checkpoint_every:  # the final state: `generations=` larger continues from it
+                    _checkpoint(run_dir, st, identity, now)
+                remove_checkpoints(run_dir, st.seed, keep_final=bool(checkpoint_every))
+            elif checkpoint_every and st.generation % checkpoint_every == 0:
+                _checkpoint(run_dir, st, identity, now)
+                write_run_csv(partial_csv_path(run_dir, st.seed), st.rows)  # live view (imix status/plot)
+        progress(len(active))
+        active = [st for st in active if st.generation < spec.generations and not st.es.diverged]
+    for st in states:  # seeds resumed from a checkpoint taken after their last generation
+        if not seed_csv_path(run_dir, st.seed).exists():
+            summaries[st.seed] = _finish_seed(spec, st, evaluator)
+            remove_checkpoints(run_dir, st.seed)
+    return summaries
+
+
+def _finish_seed(spec, st: SeedState, evaluator) -> dict:
+    """Write seed ``st``'s policy files and CSV; return its summary."""
+    mean = raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0]
+    write_seed_policies(spec, st.seed, evaluator, mean, st.best_params, st.best_return, st.generation)
+    return seed_summary(write_run_csv(seed_csv_path(spec.run_dir, st.seed), st.rows))
+
+
+def _checkpoint(run_dir: Path, st: SeedState, identity: dict, now: float) -> None:
+    """Save ``st`` with the wall time it has spent so far, ``now`` seconds into this process's share."""
+    elapsed, st.elapsed = st.elapsed, st.elapsed + now
+    try:
+        save_checkpoint(run_dir, st, identity)
+    finally:
+        st.elapsed = elapsed
+
+
+def end_if_diverged(st: SeedState) -> bool:
+    """If seed ``st``'s search just diverged, mark its last row and say so (one line); return whether it did."""
+    if not st.es.diverged:
+        return False
+    st.rows[-1]["diverged"] = 1
+    warn(f"seed {st.seed} diverged at generation {st.generation - 1} ({st.es.diverged}); its CSV ends there")
+    return True
+
+
+def needs_running(spec, seed: int, path: Path, frame) -> bool:
+    """Whether seed ``seed``, whose CSV ``frame`` exists at ``path``, is to be continued to more generations.
+
+    RunError if the CSV holds more generations than asked, or fewer with no final state to continue from."""
+    run_dir = spec.run_dir
+    if len(frame) > spec.generations:
+        raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
+    if len(frame) < spec.generations and frame["diverged"].iloc[-1] != 1:  # continue it from its final state
+        if not checkpoint_path(run_dir, seed).exists():
+            raise RunError(
+                f"{path}: has {len(frame)} of {spec.generations} generations and no final state to continue from "
+                f"({checkpoint_path(run_dir, seed).name} missing: made with checkpoint_every=0 or an older imix); "
+                "move it away or choose another experiment="
+            )
+        return True
+    return False

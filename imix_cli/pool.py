@@ -1,0 +1,91 @@
+"""The process pool of a run: spawn-safe workers, their progress, Ctrl-C, and the orphan watchdog.
+
+``run_pool(task, spec, chunks, bar)`` runs ``task(spec, chunk)`` for every chunk of seeds in its
+own process and returns their results. Workers report progress through :func:`report_progress`
+(a queue drained into ``bar``); they ignore SIGINT (the main process alone decides, and stops
+them), and exit within a second if the main process dies (kill -9), so that none lingers.
+One BLAS thread per process is set once, by ``imix_cli/__init__.py``, and inherited.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import queue as queue_module
+import signal
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+from imix_cli.processes import start_orphan_watchdog
+
+_progress_queue = None
+
+
+def report_progress(n: int) -> None:
+    """A worker's progress (no-op outside a pool worker)."""
+    if _progress_queue is not None:
+        _progress_queue.put(n)
+
+
+def run_pool(task, spec, chunks: list[list[int]], bar) -> list:
+    """``[task(spec, chunk) for chunk in chunks]``, each in a worker process of its own."""
+    ctx = multiprocessing.get_context("spawn")
+    progress_queue = ctx.Queue()
+    pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
+    try:
+        futures = [pool.submit(task, spec, chunk) for chunk in chunks]
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            _drain(progress_queue, bar)
+            for future in done:
+                future.result()  # re-raise a worker's error here
+        _drain(progress_queue, bar)
+        return [future.result() for future in futures]
+    except BaseException:
+        # Ctrl-C / SIGINT to this process alone, or a worker's error: stop the other workers now
+        # rather than let them finish their seeds (what is checkpointed is kept; writes are atomic).
+        _terminate_workers(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _init_worker(progress_queue) -> None:
+    global _progress_queue
+    _progress_queue = progress_queue
+    # Ctrl-C reaches the whole process group: the main process alone decides, and stops us.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    start_orphan_watchdog(os.getppid())
+
+
+def _terminate_workers(pool: ProcessPoolExecutor) -> None:
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=5)
+
+
+def _drain(progress_queue, bar) -> None:
+    while True:
+        try:
+            bar.update(progress_queue.get_nowait())
+        except queue_module.Empty:
+            return
+
+
+class _NoBar:
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
+
+
+def progress_bar(total: int, desc: str, unit: str, enabled: bool = True):
+    """A tqdm bar of ``total`` ``unit``s (``"gen"``, or ``"step"``: SI-scaled), or one that shows nothing."""
+    if not enabled or total == 0:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, unit_scale=unit == "step", mininterval=0.5, dynamic_ncols=True)

@@ -1,0 +1,105 @@
+"""The table printed at the end of ``imix run``: this run and its siblings with other mixing settings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from imix_cli.config import identity_of
+from imix_cli.results import CorruptResultError, read_run_csv, seed_csv_path, seed_summary
+from imix_cli.stats import mean_ci
+from imix_cli.trainers import trainer_for
+
+#: Config keys that only say how (and whether) mixing is done: runs that differ in these alone are
+#: "the same config with and without mixing", compared in the summary.
+MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "mixing")
+
+
+def summarize(spec, run_dir: Path | None = None, known: dict | None = None) -> dict:
+    """Final mean score +- 68 % CI over seeds, evaluations and env steps (total over seeds and per
+    seed), reuse %, non-finite returns -- of ``spec``'s run folder, or of ``run_dir`` (a sibling).
+
+    ``known``: seed -> :func:`imix_cli.results.seed_summary` of the seeds just run, whose CSVs
+    need not be read back; the other seeds' CSVs are read."""
+    run_dir = spec.run_dir if run_dir is None else Path(run_dir)
+    known = {} if known is None or run_dir != spec.run_dir else known
+    if run_dir != spec.run_dir:  # a sibling: whatever seeds it has finished
+        paths = sorted(run_dir.glob("seed_*[0-9].csv"))
+        seeds = [None] * len(paths)
+    else:
+        seeds = list(range(spec.seeds))
+        paths = [seed_csv_path(run_dir, seed) for seed in seeds]
+    per_seed = [known[seed] if seed in known else seed_summary(read_run_csv(path)) for seed, path in zip(seeds, paths)]
+    mean, half_width, _ = mean_ci([s["final"] for s in per_seed], level=0.68)
+    evaluations, env_steps = sum(s["evaluations"] for s in per_seed), sum(s["env_steps"] for s in per_seed)
+    reused, members = sum(s["reused"] for s in per_seed), sum(s["members"] for s in per_seed)
+    n = max(len(paths), 1)
+    return {
+        "run": run_dir.name,
+        "mixing": per_seed[-1]["mixing"] if per_seed else spec.mixing,
+        "seeds": len(paths),
+        "final_mean_score": mean,
+        "ci68": half_width,
+        "evaluations": evaluations,  # total over seeds
+        "evaluations_per_seed": evaluations / n,
+        "env_steps": env_steps,  # total over seeds
+        "env_steps_per_seed": env_steps / n,
+        "reuse_percent": 100.0 * reused / members if members else 0.0,
+        "nonfinite_returns": sum(s["nonfinite"] for s in per_seed),
+        "diverged_seeds": sum(s["diverged"] for s in per_seed),
+    }
+
+
+def counterpart_runs(spec) -> list[Path]:
+    """Sibling run folders of the same experiment holding the same config with other mixing settings
+    (and at least one finished seed), e.g. the ``-none`` run of an ``-eim`` run."""
+    import yaml
+
+    mine = {k: v for k, v in spec.identity().items() if k not in MIXING_KEYS}
+    found = []
+    for other in sorted(spec.run_dir.parent.iterdir()):
+        if other == spec.run_dir or not (other / "config.yaml").is_file() or not any(other.glob("seed_*[0-9].csv")):
+            continue
+        try:
+            config = yaml.safe_load((other / "config.yaml").read_text())
+        except Exception:  # an unreadable sibling is simply not compared
+            continue
+        if isinstance(config, dict) and {k: v for k, v in identity_of(config).items() if k not in MIXING_KEYS} == mine:
+            found.append(other)
+    return found
+
+
+def format_summary(spec, s: dict) -> str:
+    """The summary table: this run, then any sibling with the same config and other mixing, and the reduction."""
+    rows = [s]
+    for other in counterpart_runs(spec) if trainer_for(spec).compares_mixing else []:
+        try:
+            rows.append(summarize(spec, other))
+        except CorruptResultError:
+            continue
+    width = max(32, *(len(r["run"]) for r in rows))
+    header = (
+        f"{'run':<{width}} {'seeds':>5} {'final mean score (68% CI)':>26} {'episodes/seed':>14} "
+        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10} {'diverged':>8}"
+    )
+    lines = [header]
+    for r in rows:
+        score = f"{r['final_mean_score']:.2f}" + (f" ± {r['ci68']:.2f}" if np.isfinite(r["ci68"]) else "")
+        lines.append(
+            f"{r['run']:<{width}} {r['seeds']:>5} {score:>26} {r['evaluations_per_seed']:>14,.0f} "
+            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10} {r['diverged_seeds']:>8}"
+        )
+    without = [r for r in rows if r["mixing"] == "none"]
+    with_mixing = [r for r in rows if r["mixing"] != "none"]
+    for base in without[:1]:
+        for r in with_mixing:
+            if r["evaluations_per_seed"]:
+                lines.append(
+                    f"  {r['run']} vs {base['run']}: {base['evaluations_per_seed'] / r['evaluations_per_seed']:.2f}x fewer "
+                    f"episodes for the same {spec.generations} generations (final mean score {r['final_mean_score']:.2f} vs "
+                    f"{base['final_mean_score']:.2f}; sample efficiency to a threshold: imix plot)"
+                )
+    if "seeds_run" in s:
+        lines.append(f"results: {spec.run_dir}/seed_*.csv  ({s['seeds_run']} seed(s) run now, {s['wall_time']:.1f} s)")
+    return "\n".join(lines)

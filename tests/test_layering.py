@@ -1,0 +1,54 @@
+"""Import layering: ``import imix_cli`` stays light, and no module imports a layer above its own.
+
+Made to fail by putting ``from imix_cli import envs`` back into ``imix_cli/__init__.py`` (gymnasium
+loads) and by importing :mod:`imix_cli.config` from :mod:`imix_cli.parallel_evaluation`."""
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "imix_cli"
+
+#: Lowest first; a module may import its own layer and those before it (names are module prefixes).
+LAYERS = [
+    ["messages", "processes", "keyvalue", "stats", "distributions", "mixing", "mixing_kernels", "results"],
+    ["generation", "algorithms", "divergence", "envs", "policies", "evaluation", "parallel_evaluation", "checkpoints", "policy_files"],
+    ["config"],
+    ["lockstep", "trainers", "resume", "run_folder", "es_seeds", "ddpg_seeds", "pool", "summary", "runner"],
+    ["evaluate", "render", "status", "plotting", "bench", "cli"],
+]
+
+
+def _layer(module: str) -> int | None:
+    top = module.split(".")[1] if module.count(".") else None
+    return next((k for k, names in enumerate(LAYERS) if top in names), None)
+
+
+def _imports(path: Path) -> set[str]:
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("imix_cli."):
+            found.add(node.module)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module == "imix_cli":
+            found.update(f"imix_cli.{a.name}" for a in node.names)
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name.startswith("imix_cli."))
+    return found
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    upward = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = ".".join(("imix_cli", *path.relative_to(PACKAGE).with_suffix("").parts))
+        mine = _layer(module)
+        if mine is None:
+            continue
+        upward += [f"{module} -> {dep}" for dep in sorted(_imports(path)) if (_layer(dep) or 0) > mine]
+    assert upward == []
+
+
+def test_import_imix_cli_loads_neither_numpy_nor_gymnasium():
+    code = "import sys, imix_cli; print(sorted(m for m in ('numpy', 'gymnasium') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
