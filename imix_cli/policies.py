@@ -301,7 +301,7 @@ class ObsNormalizer:
         return {"obs_dim": self.obs_dim, "warmup": self.warmup, "count": self.count, "sum": self.sum.copy(), "sumsq": self.sumsq.copy(), "generations": self.generations}
 
     @classmethod
-    def from_state(cls, state: dict) -> "ObsNormalizer":
+    def from_state(cls, state: dict) -> ObsNormalizer:
         norm = cls(int(state["obs_dim"]), int(state["warmup"]))
         norm.count, norm.generations = int(state["count"]), int(state["generations"])
         norm.sum, norm.sumsq = np.asarray(state["sum"], dtype=np.float64), np.asarray(state["sumsq"], dtype=np.float64)

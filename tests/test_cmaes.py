@@ -232,7 +232,7 @@ def test_tied_group_gets_its_positions_mean_weight():
     assert mu == 10
     u[[i, j]] = 4.5
     means = []
-    for first, second in ((i, j), (j, i)):
+    for first, _second in ((i, j), (j, i)):
         broken = u.copy()
         broken[first] += 1e-9  # a strict order among the two
         trial = CMAES(es.dim, popsize=es.popsize, weight_decay=0.0)
@@ -269,7 +269,9 @@ def test_state_dict_resume_is_bit_identical(options):
             x = es.ask(rng)
             es.tell(x, -f(x))
 
-    build = lambda: CMAES(8, popsize=12, weight_decay=0.01, mean=np.ones(8), cma_options=options)
+    def build():
+        return CMAES(8, popsize=12, weight_decay=0.01, mean=np.ones(8), cma_options=options)
+
     es = build()
     run(es, np.random.default_rng(0), 40)
     if options:

@@ -51,7 +51,7 @@ def test_status_command_prints_one_line_per_run_and_writes_nothing(tmp_path, cap
     before = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
     assert main(["status", f"results_dir={tmp_path}"]) == 0
     out = capsys.readouterr().out
-    line = next(l for l in out.splitlines() if l.strip().startswith("snes-cartpole-eim"))
+    line = next(ln for ln in out.splitlines() if ln.strip().startswith("snes-cartpole-eim"))
     assert line.split() == ["snes-cartpole-eim", "1", "3", "1", "10/10", "195.00", "145.00"]
     assert "running seeds: 1-3" in out
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before

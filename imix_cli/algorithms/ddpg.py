@@ -32,8 +32,8 @@ first reset). On CPU with one torch thread a seed's episodes are reproducible.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import gymnasium as gym
 import numpy as np

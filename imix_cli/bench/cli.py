@@ -17,6 +17,7 @@ from imix_cli.bench.memory import format_memory, memory_row
 from imix_cli.bench.mixing import format_mixing, mixing_rows
 from imix_cli.bench.peers import QUICK_PEERS, format_peer_ratios, format_peers, peer_rows, peers_available
 from imix_cli.bench.rollouts import format_rollouts, rollout_rows
+from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS
 
 SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "grid", "peers")
 DEFAULT_SECTIONS = ("rollouts", "mixing", "memory")
@@ -63,12 +64,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", action="store_true", help="also run the grid section")
     g = p.add_argument_group("rollouts")
     g.add_argument("--sizes", type=_positive_int, nargs="+", default=[2, 50, 1250], metavar="B", help="batch sizes (default: 2 50 1250)")
-    g.add_argument("--envs", nargs="+", choices=sorted(ROLLOUT_ENVS), default=["cartpole", "acrobot"], help="environments (rollouts, grid, breakdown, peers)")
+    g.add_argument("--envs", nargs="+", choices=sorted(ROLLOUT_ENVS), default=list(MAIN_GRID_ENVS), help="environments (rollouts, grid, breakdown, peers)")
     g.add_argument("--repeats", type=_positive_int, default=3, help="timed repeats per measurement (default: 3)")
     g.add_argument("--min-seconds", type=_positive_float, default=1.0, help="minimum time per batched measurement (default: 1)")
     g.add_argument("--naive-members", type=_positive_int, default=20, help="episodes of the naive loop (default: 20)")
     g = p.add_argument_group("mixing")
-    g.add_argument("--dims", type=_positive_int, nargs="+", default=[130, 1_000, 100_000, 1_000_000], metavar="D",
+    g.add_argument("--dims", type=_positive_int, nargs="+", default=[130, 1_000, 10_000, 100_000, 1_000_000], metavar="D",
                    help="dimensions (default: 130 1000 100000 1000000)")
     g = p.add_argument_group("memory, breakdown, grid, peers")
     g.add_argument("--seeds", type=_positive_int, default=None, help="seeds per run (default: 25; breakdown: 13, one worker's share)")
@@ -76,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--workers", type=_positive_int, default=None, help="memory run's worker processes (default: all cores)")
     g.add_argument("--quick", action="store_true",
                    help=f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless --seeds/--generations say otherwise")
-    g.add_argument("--algos", nargs="+", choices=["openes", "snes", "cem", "cmaes"], default=["openes", "snes", "cem", "cmaes"],
+    g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(ES_NAMES),
                    help="grid and breakdown algorithms")
     return p
 
@@ -142,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
             echo(format_breakdown(breakdown_rows(configs, args.seeds or 13, args.generations)))
         elif section == "peers":
             seeds = args.seeds or (QUICK_PEERS[0] if args.quick else 25)
-            generations = args.generations or (QUICK_PEERS[1] if args.quick else 1000)
+            generations = args.generations or (QUICK_PEERS[1] if args.quick else ALGORITHM_SPECS["snes"].generations)
             echo(f"## Peers: evosax + gymnax (JAX, jitted, no mixing) vs imix, {seeds} seeds x {generations} generations, pop 50")
             if not peers_available(echo):
                 echo(f"({section}: skipped)")

@@ -7,8 +7,13 @@ import time
 
 import numpy as np
 
-ROLLOUT_ENVS = {"cartpole": "CartPole-v1", "acrobot": "Acrobot-v1"}  # gymnasium ids of the baselines
-EPISODE_CAP = 200
+from imix_cli.registry import ENV_SPECS, MAIN_GRID_ENVS
+
+# Gymnasium ids of the baselines: the -v1 ids of the registry's envs (same physics as the -v0 the
+# registry names for CartPole, without its deprecation warning), capped at the registry's episode length.
+ROLLOUT_ENVS = {name: ENV_SPECS[name].gym_id.replace("-v0", "-v1") for name in MAIN_GRID_ENVS}
+EPISODE_CAP = ENV_SPECS[MAIN_GRID_ENVS[0]].max_steps
+assert all(ENV_SPECS[name].max_steps == EPISODE_CAP for name in MAIN_GRID_ENVS)
 
 
 def median_rate(fn, args: tuple, min_repeats: int = 1, min_seconds: float = 0.0) -> tuple[float, object]:

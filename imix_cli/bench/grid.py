@@ -5,8 +5,9 @@ from __future__ import annotations
 import tempfile
 
 from imix_cli.bench.common import cpu_seconds, table
+from imix_cli.registry import ES_NAMES, MAIN_GRID_ENVS
 
-PAPER_GRID = ["algo=openes,snes,cem,cmaes", "env=cartpole,acrobot"]  # as `make reproduce` (estool weight decay: the default)
+PAPER_GRID = [f"algo={','.join(ES_NAMES)}", f"env={','.join(MAIN_GRID_ENVS)}"]  # as `make reproduce` (estool weight decay: the default)
 
 
 def grid_rows(seeds: int | None, generations: int | None, algos, envs, extra: list[str], echo=None) -> list[dict]:

@@ -7,11 +7,12 @@ import time
 
 import numpy as np
 
+from imix_cli.algorithms.base import Params
 from imix_cli.bench.common import EPISODE_CAP, table
 
 QUICK_PEERS = (3, 100)  # --quick: seeds, generations
-PEER_POPSIZE = 50
-PEER_SIGMA, PEER_LR = 0.25, 0.01  # imix's defaults (conf/config.yaml): initial std, OpenES's Adam rate
+# imix's defaults (the paper's): population size, initial std, Adam's learning rate
+PEER_POPSIZE, PEER_SIGMA, PEER_LR = Params.popsize, Params.sigma, Params.lr
 PEER_IDS = {"cartpole": "CartPole-v1", "acrobot": "Acrobot-v1"}  # gymnax ids, capped at EPISODE_CAP
 PEERS_INSTALL = "pip install 'imix-cli[peers]'  (jax, evosax, gymnax)"
 

@@ -267,7 +267,7 @@ def importance_mixing_figure(seed: int = 7, n: int = 12) -> Figure:
     entries += _trial_legend(result.trials, BLUE)
     if untried:
         entries.append((Line2D([], [], linestyle="", marker="|", color=GREY, markersize=8), f"old samples never tried (generation full): {len(untried)}"))
-    fig.legend([h for h, _ in entries], [l for _, l in entries], loc="outside right center")
+    fig.legend([h for h, _ in entries], [label for _, label in entries], loc="outside right center")
     kept = result.members()
     reused = sum(1 for t in kept if t.source == "old")
     ax.set_title(
@@ -326,7 +326,7 @@ def extended_importance_mixing_figure(n: int = 10, seed: int | None = None) -> F
         ax.set_title(f"({'ab'[k - 1]}) pass k = {k}: generation {name} vs new\n{len(trials) // 2} steps, {counts} members added", loc="left")
         ax.set_xlabel("z")
         handles = [h for h, _ in _trial_legend(trials, color, old_name=name)]
-        labels = [l for _, l in _trial_legend(trials, color, old_name=name)]
+        labels = [label for _, label in _trial_legend(trials, color, old_name=name)]
         lines, line_labels = ax.get_legend_handles_labels()
         ax.legend(lines + handles, line_labels + labels, loc="upper left", fontsize=7, handletextpad=0.4, borderaxespad=0.2)
     axes[0].set_ylabel("density")
@@ -352,7 +352,7 @@ def extended_importance_mixing_figure(n: int = 10, seed: int | None = None) -> F
     for a in axes:
         a.set_xlim(grid[0], grid[-1])
         a.set_ylim(-0.025 * ymax, ymax * 1.25)
-    fig.suptitle("Extended importance mixing over three generations (seed %d)" % seed)
+    fig.suptitle(f"Extended importance mixing over three generations (seed {seed})")
     return fig
 
 
