@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     if command in ("eval", "render", "status"):
         from importlib import import_module
 
-        return import_module(f"imix_cli.{ {'eval': 'evaluate'}.get(command, command)}").main(rest)
+        return import_module(f"imix_cli.{ {'eval': 'evaluate'}.get(command, command) }").main(rest)
     print(f"imix: unknown command {command!r}; valid commands: {', '.join(COMMANDS)} (see imix --help)", file=sys.stderr)
     return 2
 

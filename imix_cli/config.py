@@ -45,7 +45,6 @@ ES_PARAM_KEYS = ("popsize", "sigma", "lr", "weight_decay", "weight_decay_form")
 PAPER_DEFAULTS = {**{key: getattr(Params, key) for key in ES_PARAM_KEYS}, **MIXING_DEFAULTS}
 
 
-
 def algo_option_fields(algo: str) -> dict:
     """The ``algo.<key>`` options of an ES (conf/algo/<name>.yaml): key -> its field of the ES's Params."""
     spec = ALGORITHM_SPECS[algo]
@@ -53,6 +52,7 @@ def algo_option_fields(algo: str) -> dict:
         return {}
     by_name = {f.name: f for f in dataclasses.fields(spec.es_class().Params)}
     return {key: by_name[key] for key in spec.options}
+
 
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
 #: carries, as ``-key=value,...``, the ones that differ from these.

@@ -183,9 +183,7 @@ class AcrobotEvaluator(_CompiledEvaluator):
         obs0[:, 0:4:2] = np.cos(s32[:, :2])
         obs0[:, 1:4:2] = np.sin(s32[:, :2])
         obs0[:, 4:] = s32[:, 2:]
-        self._kernels.acrobot_episodes(
-            params, s32.astype(np.float64), obs0, self._sizes(), self.max_steps, returns, steps, trace
-        )
+        self._kernels.acrobot_episodes(params, s32.astype(np.float64), obs0, self._sizes(), self.max_steps, returns, steps, trace)
 
 
 class ContinuousCartPoleEvaluator(_CompiledEvaluator):
@@ -250,9 +248,7 @@ class GymEvaluator(BatchEvaluator):
         self.last_obs_stats: tuple[np.ndarray, np.ndarray] | None = None
 
     def policy(self, params):
-        return BatchPolicy(
-            params, self.obs_dim, self.out_dim, discrete=self.discrete, hidden=self.hidden, low=self._low, high=self._high
-        )
+        return BatchPolicy(params, self.obs_dim, self.out_dim, discrete=self.discrete, hidden=self.hidden, low=self._low, high=self._high)
 
     def _env_list(self, n: int) -> list:
         while len(self._envs) < n:
@@ -361,7 +357,5 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN) -
         gym.spec(env_name)
     except (gym.error.UnregisteredEnv, gym.error.DeprecatedEnv, gym.error.RegistrationError) as err:
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise ValueError(
-            f"unknown environment {env_name!r}: not {', '.join(map(repr, BUILTIN_ENVS))} or a registered gymnasium id ({msg})"
-        ) from None
+        raise ValueError(f"unknown environment {env_name!r}: not {', '.join(map(repr, BUILTIN_ENVS))} or a registered gymnasium id ({msg})") from None
     return GymEvaluator(env_name, max_steps, hidden=hidden)

@@ -452,8 +452,16 @@ def _compiled_applies(new_dist, entries, popsize: int, variant: str) -> bool:
     return archived <= _COMPILED_MAX_ELEMENTS
 
 
-def mix(new_dist, archive, popsize: int, rng: np.random.Generator, variant: str = "paper", alpha: float = 0.0, eim_generations: int = 3,
-        compiled: bool | None = None) -> Generation:
+def mix(
+    new_dist,
+    archive,
+    popsize: int,
+    rng: np.random.Generator,
+    variant: str = "paper",
+    alpha: float = 0.0,
+    eim_generations: int = 3,
+    compiled: bool | None = None,
+) -> Generation:
     """Build a generation of ``popsize`` members distributed as ``new_dist``, reusing archived samples.
 
     Parameters

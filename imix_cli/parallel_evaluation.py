@@ -135,9 +135,7 @@ class PoolEvaluator(_Remote):
         self.workers = int(workers or default_workers())
         # One BLAS thread per worker process (the workers already use every core): set by imix_cli/__init__.py, inherited.
         ctx = multiprocessing.get_context("spawn")
-        self._pool = ProcessPoolExecutor(
-            max_workers=self.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(self._make_args, os.getpid())
-        )
+        self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(self._make_args, os.getpid()))
         self._finalizer = weakref.finalize(self, self._pool.shutdown, wait=True, cancel_futures=True)
 
     def evaluate(self, params, seeds) -> tuple[np.ndarray, np.ndarray]:

@@ -76,18 +76,14 @@ def num_params(obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> in
     return sum(a * b + b for a, b in zip(sizes[:-1], sizes[1:]))
 
 
-def unpack(
-    params: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN
-) -> list[tuple[np.ndarray, np.ndarray]]:
+def unpack(params: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> list[tuple[np.ndarray, np.ndarray]]:
     """Split ``params`` (B, d) into per-layer ``(W (B, in, out), b (B, out))`` copies (float64)."""
     params = np.asarray(params, dtype=np.float64)
     if params.ndim != 2:
         raise ValueError(f"params must be 2-D (B, d), got shape {params.shape}")
     d = num_params(obs_dim, out_dim, hidden)
     if params.shape[1] != d:
-        raise ValueError(
-            f"params have {params.shape[1]} columns, the {obs_dim}->{tuple(hidden)}->{out_dim} MLP needs {d}"
-        )
+        raise ValueError(f"params have {params.shape[1]} columns, the {obs_dim}->{tuple(hidden)}->{out_dim} MLP needs {d}")
     sizes = [int(obs_dim), *map(int, hidden), int(out_dim)]
     layers, k, n = [], 0, params.shape[0]
     for a, b in zip(sizes[:-1], sizes[1:]):
@@ -148,8 +144,7 @@ class BatchPolicy:
         params = np.asarray(params, dtype=np.float64)
         if params.ndim != 2 or params.shape[1] != num_params(obs_dim, out_dim, self.hidden):
             raise ValueError(
-                f"params must have shape (B, {num_params(obs_dim, out_dim, self.hidden)}) for the "
-                f"{obs_dim}->{self.hidden}->{out_dim} MLP, got {params.shape}"
+                f"params must have shape (B, {num_params(obs_dim, out_dim, self.hidden)}) for the {obs_dim}->{self.hidden}->{out_dim} MLP, got {params.shape}"
             )
         sizes = [self.obs_dim, *self.hidden, self.out_dim]
         n = params.shape[0]
@@ -222,9 +217,7 @@ class BatchPolicy:
         return np.ascontiguousarray(a.T)
 
 
-def forward(
-    params: np.ndarray, obs: np.ndarray, out_dim: int, hidden: Sequence[int] = HIDDEN
-) -> np.ndarray:
+def forward(params: np.ndarray, obs: np.ndarray, out_dim: int, hidden: Sequence[int] = HIDDEN) -> np.ndarray:
     """Raw outputs (B, out_dim) of B members on their own observations (B, obs_dim)."""
     obs = np.asarray(obs)
     return BatchPolicy(params, obs.shape[1], out_dim, hidden=hidden).outputs(obs)
@@ -256,9 +249,7 @@ def act(
 OBS_VAR_FLOOR = 1e-2
 
 
-def fold_normalizer(
-    params: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequence[int], mean: np.ndarray, std: np.ndarray
-) -> np.ndarray:
+def fold_normalizer(params: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequence[int], mean: np.ndarray, std: np.ndarray) -> np.ndarray:
     """Parameters (B, d) whose policy on raw observations equals ``params``' policy on ``(obs - mean) / std``.
 
     Only the first layer changes (see the module docstring); a new array is returned.
@@ -298,7 +289,14 @@ class ObsNormalizer:
 
     def to_state(self) -> dict:
         """Its statistics as arrays and scalars (checkpoints: data, not pickles)."""
-        return {"obs_dim": self.obs_dim, "warmup": self.warmup, "count": self.count, "sum": self.sum.copy(), "sumsq": self.sumsq.copy(), "generations": self.generations}
+        return {
+            "obs_dim": self.obs_dim,
+            "warmup": self.warmup,
+            "count": self.count,
+            "sum": self.sum.copy(),
+            "sumsq": self.sumsq.copy(),
+            "generations": self.generations,
+        }
 
     @classmethod
     def from_state(cls, state: dict) -> ObsNormalizer:

@@ -264,6 +264,7 @@ MIXING_SPECS: dict[str, MixingSpec] = {
     )
 }
 
+
 def mixing_title(name: str) -> str:
     """A figure panel's title for ``mixing=<name>`` ("with IM")."""
     spec = MIXING_SPECS.get(name)

@@ -58,7 +58,7 @@ MUJOCO_GL=egl or MUJOCO_GL=osmesa.
 
 _MUJOCO_HINT = (
     "MuJoCo renders off-screen through OpenGL: set MUJOCO_GL=egl (needs libEGL, e.g. apt install libegl1) "
-    "or MUJOCO_GL=osmesa (apt install libosmesa6), and pip install \"gymnasium[mujoco]\""
+    'or MUJOCO_GL=osmesa (apt install libosmesa6), and pip install "gymnasium[mujoco]"'
 )
 
 

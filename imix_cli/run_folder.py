@@ -43,10 +43,7 @@ def prepare_run_dir(spec) -> list[int]:
         differing = differing_keys(resume_identity(old), resume_identity(new))
         if differing:
             changes = ", ".join(f"{k}={old.get(k)!r} there, {new.get(k)!r} now" for k in differing)
-            raise RunError(
-                f"{config_file} holds a different config ({changes}); "
-                "choose another experiment= or move that folder away"
-            )
+            raise RunError(f"{config_file} holds a different config ({changes}); choose another experiment= or move that folder away")
         if trainer.continuable and isinstance(old.get("generations"), int) and old["generations"] > spec.generations:
             raise RunError(
                 f"{config_file} holds a different config (generations={old['generations']} there, {spec.generations} now): "

@@ -149,9 +149,7 @@ def format_status(experiment: str, statuses: list) -> str:
         last = "-" if s["last_generation"] is None else f"{s['last_generation']}" + (f"/{s['target']}" if s["target"] else "")
         best = "-" if s["best_score"] is None else f"{s['best_score']:.2f}"
         current = "-" if s["current_score"] is None else f"{s['current_score']:.2f}"
-        lines.append(
-            f"  {s['run']:<{width}} {len(s['done']):>5} {len(s['running']):>8} {len(s['not_started']):>12} {last:>12} {best:>9} {current:>9}"
-        )
+        lines.append(f"  {s['run']:<{width}} {len(s['done']):>5} {len(s['running']):>8} {len(s['not_started']):>12} {last:>12} {best:>9} {current:>9}")
         if s["running"]:
             lines.append(f"  {'':<{width}}   running seeds: {_seed_list(s['running'])}")
     return "\n".join(lines)

@@ -173,6 +173,7 @@ def test_compiled_trajectories_are_bit_identical(name):
     params, seeds = population(seed=1, n_random=4, n_good=4)
     returns, steps, trace = make_evaluator(name).trajectories(params, seeds)
     for i, (p, s) in enumerate(zip(params, seeds)):
+
         def single(obs, p=p):
             return np.array([math.tanh(reference_outputs(p, obs[0], (4, 8, 8, 1))[0])])[None]
 

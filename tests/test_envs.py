@@ -64,9 +64,7 @@ def reference_action(p, obs, sizes):
 
 
 def random_acrobot_states(rng, n):
-    return np.column_stack(
-        [rng.uniform(-np.pi, np.pi, (n, 2)), rng.uniform(-MAX_VEL[0], MAX_VEL[0], n), rng.uniform(-MAX_VEL[1], MAX_VEL[1], n)]
-    )
+    return np.column_stack([rng.uniform(-np.pi, np.pi, (n, 2)), rng.uniform(-MAX_VEL[0], MAX_VEL[0], n), rng.uniform(-MAX_VEL[1], MAX_VEL[1], n)])
 
 
 # ---------------------------------------------------------------------------------- policies
@@ -86,12 +84,18 @@ def test_policy_layout_and_actions(obs_dim, out_dim):
     ref = []
     for p, x in zip(P, X.astype(np.float64)):  # the documented flat layout, sliced by hand
         k = 0
-        W1 = p[k : k + obs_dim * 8].reshape(obs_dim, 8); k += obs_dim * 8  # noqa: E702
-        b1 = p[k : k + 8]; k += 8  # noqa: E702
-        W2 = p[k : k + 64].reshape(8, 8); k += 64  # noqa: E702
-        b2 = p[k : k + 8]; k += 8  # noqa: E702
-        W3 = p[k : k + 8 * out_dim].reshape(8, out_dim); k += 8 * out_dim  # noqa: E702
-        b3 = p[k : k + out_dim]; k += out_dim  # noqa: E702
+        W1 = p[k : k + obs_dim * 8].reshape(obs_dim, 8)
+        k += obs_dim * 8  # noqa: E702
+        b1 = p[k : k + 8]
+        k += 8  # noqa: E702
+        W2 = p[k : k + 64].reshape(8, 8)
+        k += 64  # noqa: E702
+        b2 = p[k : k + 8]
+        k += 8  # noqa: E702
+        W3 = p[k : k + 8 * out_dim].reshape(8, out_dim)
+        k += 8 * out_dim  # noqa: E702
+        b3 = p[k : k + out_dim]
+        k += out_dim  # noqa: E702
         assert k == p.size
         ref.append(np.tanh(np.tanh(x @ W1 + b1) @ W2 + b2) @ W3 + b3)
     ref = np.array(ref)
@@ -101,9 +105,7 @@ def test_policy_layout_and_actions(obs_dim, out_dim):
     np.testing.assert_array_equal(a, np.argmax(ref, axis=1))
     np.testing.assert_allclose(act(P, X, out_dim, discrete=False), np.tanh(ref), atol=1e-12)
     lo, hi = -2.0, 3.0
-    np.testing.assert_allclose(
-        act(P, X, out_dim, discrete=False, low=lo, high=hi), lo + (np.tanh(ref) + 1) * (hi - lo) / 2, atol=1e-12
-    )
+    np.testing.assert_allclose(act(P, X, out_dim, discrete=False, low=lo, high=hi), lo + (np.tanh(ref) + 1) * (hi - lo) / 2, atol=1e-12)
     # each member's output is the same alone as in the batch
     for i in (0, 7, B - 1):
         np.testing.assert_array_equal(forward(P[i : i + 1], X[i : i + 1], out_dim)[0], forward(P, X, out_dim)[i])
@@ -121,9 +123,7 @@ def test_seeded_uniform_matches_numpy():
     for low, high in [(-0.05, 0.05), (-0.1, 0.1)]:
         ref = np.array([np.random.default_rng(int(s)).uniform(low, high, 4) for s in seeds])
         np.testing.assert_array_equal(seeded_uniform(seeds, low, high, 4), ref)
-    np.testing.assert_array_equal(
-        seeded_uniform(np.arange(10), -1, 2, 3), [np.random.default_rng(s).uniform(-1, 2, 3) for s in range(10)]
-    )
+    np.testing.assert_array_equal(seeded_uniform(np.arange(10), -1, 2, 3), [np.random.default_rng(s).uniform(-1, 2, 3) for s in range(10)])
 
 
 # ---------------------------------------------------------------------------------- policy (compiled)
@@ -230,9 +230,7 @@ def test_acrobot_episodes_match_gymnasium():
     P = acrobot_params(rng, 6, 10)
     seeds = rng.integers(0, 2**63, len(P), dtype=np.uint64)
     sizes = (6, 8, 8, 3)
-    steps = _check_episodes_against_gymnasium(
-        "Acrobot-v1", make_evaluator("acrobot"), P, seeds, lambda p, o: reference_action(p, o, sizes), 1e-12
-    )
+    steps = _check_episodes_against_gymnasium("Acrobot-v1", make_evaluator("acrobot"), P, seeds, lambda p, o: reference_action(p, o, sizes), 1e-12)
     assert sum(s < 200 for s in steps) >= 8  # terminations are exercised
 
 
@@ -243,9 +241,7 @@ def test_cartpole_episodes_match_gymnasium_bit_for_bit():
     P = cartpole_params(rng, 12, 12)
     seeds = rng.integers(0, 2**63, len(P), dtype=np.uint64)
     sizes = (4, 8, 8, 2)
-    steps = _check_episodes_against_gymnasium(
-        "CartPole-v1", make_evaluator("cartpole"), P, seeds, lambda p, o: reference_action(p, o, sizes), 0.0
-    )
+    steps = _check_episodes_against_gymnasium("CartPole-v1", make_evaluator("cartpole"), P, seeds, lambda p, o: reference_action(p, o, sizes), 0.0)
     assert min(steps) < 50 and max(steps) == 200
 
 
@@ -259,7 +255,11 @@ def test_compiled_episodes_follow_the_evaluators_hidden_sizes(env, env_id):
     rng = np.random.default_rng(13)
     P = rng.standard_normal((8, ev.num_params))
     steps = _check_episodes_against_gymnasium(
-        env_id, ev, P, rng.integers(0, 2**63, 8, dtype=np.uint64), lambda p, o: reference_action(p, o, sizes),
+        env_id,
+        ev,
+        P,
+        rng.integers(0, 2**63, 8, dtype=np.uint64),
+        lambda p, o: reference_action(p, o, sizes),
         0.0 if env == "cartpole" else 1e-12,
     )
     assert env == "acrobot" or len(set(steps)) > 2  # (random Acrobot policies all hang on for 200 steps)
@@ -296,9 +296,7 @@ def _params_for(name, ev, rng):
     return rng.standard_normal((8, ev.num_params))
 
 
-@pytest.mark.parametrize(
-    "name,max_steps", [("cartpole", None), ("acrobot", None), ("MountainCar-v0", None), ("Pendulum-v1", 60)]
-)
+@pytest.mark.parametrize("name,max_steps", [("cartpole", None), ("acrobot", None), ("MountainCar-v0", None), ("Pendulum-v1", 60)])
 def test_batch_independence_and_determinism(name, max_steps):
     rng = np.random.default_rng(5)
     ev = make_evaluator(name, max_steps)

@@ -51,7 +51,9 @@ def test_ray_launcher_against_a_local_ray_started_here(tmp_path):
     pytest.importorskip("hydra_plugins.hydra_ray_launcher")
     ray = shutil.which("ray", path=str(Path(sys.executable).parent))
     assert ray, "the ray CLI comes with the cluster extra"
-    start = subprocess.run([ray, "start", "--head", "--num-cpus=2", "--disable-usage-stats", "--include-dashboard=false"], capture_output=True, text=True, timeout=180)
+    start = subprocess.run(
+        [ray, "start", "--head", "--num-cpus=2", "--disable-usage-stats", "--include-dashboard=false"], capture_output=True, text=True, timeout=180
+    )
     assert start.returncode == 0, start.stderr[-2000:]
     try:
         proc = subprocess.run([IMIX, "run", "-m", "hydra/launcher=ray_cluster", *SWEEP, f"results_dir={tmp_path}"], capture_output=True, text=True, timeout=300)

@@ -111,7 +111,18 @@ def test_pool_is_refused_under_a_parallel_hydra_launcher():
 @pytest.mark.slow
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason='needs pip install "imix-cli[cluster]"')
 def test_run_with_evaluator_ray_writes_the_same_csvs_as_local(tmp_path, capfd):
-    common = ["env=gym", f"env.id={ENV}", "algo=openes", "eim=true", "seeds=2", "generations=3", "popsize=6", "progress=false", "policy.hidden=[4]", "workers=1"]
+    common = [
+        "env=gym",
+        f"env.id={ENV}",
+        "algo=openes",
+        "eim=true",
+        "seeds=2",
+        "generations=3",
+        "popsize=6",
+        "progress=false",
+        "policy.hidden=[4]",
+        "workers=1",
+    ]
     frames = {}
     for evaluator in ("local", "ray"):
         extra = ["evaluator_workers=2"] if evaluator == "ray" else []

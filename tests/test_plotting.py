@@ -34,10 +34,22 @@ def run_rows(algo, env, mixing, seed, scores, popsize=10, reused=None, reused_ei
         evaluations += popsize - reused[g]
         rows.append(
             dict(
-                algo=algo, env=env, mixing=mixing, seed=seed, generation=g, evaluations=evaluations,
-                env_steps=evaluations * steps_per_episode, mean_score=float(score), best_score=float(score) + 1.0,
-                reused=reused[g], reused_im=reused[g] - reused_eim[g], reused_eim=reused_eim[g], popsize=popsize,
-                sigma_mean=0.25, nonfinite=0, wall_time=0.01 * g,
+                algo=algo,
+                env=env,
+                mixing=mixing,
+                seed=seed,
+                generation=g,
+                evaluations=evaluations,
+                env_steps=evaluations * steps_per_episode,
+                mean_score=float(score),
+                best_score=float(score) + 1.0,
+                reused=reused[g],
+                reused_im=reused[g] - reused_eim[g],
+                reused_eim=reused_eim[g],
+                popsize=popsize,
+                sigma_mean=0.25,
+                nonfinite=0,
+                wall_time=0.01 * g,
             )
         )
     return rows
@@ -46,8 +58,17 @@ def run_rows(algo, env, mixing, seed, scores, popsize=10, reused=None, reused_ei
 def write_group(root, algo, env, mixing, seeds, gens=40, overrides="", config=None, popsize=10):
     run_dir = root / EXPERIMENT / run_dir_name(algo, env, mixing, overrides)
     run_dir.mkdir(parents=True, exist_ok=True)
-    conf = {"im": mixing != "none", "eim": mixing == "eim", "seeds": len(seeds), "generations": gens,
-            "popsize": popsize, "sigma": 0.25, "lr": 0.01, "algo": {"name": algo}, "env": {"name": env}}
+    conf = {
+        "im": mixing != "none",
+        "eim": mixing == "eim",
+        "seeds": len(seeds),
+        "generations": gens,
+        "popsize": popsize,
+        "sigma": 0.25,
+        "lr": 0.01,
+        "algo": {"name": algo},
+        "env": {"name": env},
+    }
     conf.update(config or {})
     (run_dir / "config.yaml").write_text(yaml.safe_dump(conf))
     speed = {"snes": 8.0, "cem": 4.0, "cmaes": 6.0, "ddpg": 3.0}.get(algo, 5.0)
@@ -80,8 +101,11 @@ def test_main_writes_every_figure_and_table(results, capsys):
     assert status == 0, err
     fig_dir = figures_dir(results)
     stems = [
-        "convergence_cartpole", "efficiency_cartpole", "didactic_rejection_sampling",
-        "didactic_importance_mixing", "didactic_extended_importance_mixing",
+        "convergence_cartpole",
+        "efficiency_cartpole",
+        "didactic_rejection_sampling",
+        "didactic_importance_mixing",
+        "didactic_extended_importance_mixing",
     ]
     for stem in stems:
         for ext in ("png", "pdf"):
@@ -191,8 +215,15 @@ def test_corrupt_csv_is_named_and_the_rest_still_plots(results, capsys):
 
 @pytest.mark.parametrize(
     "arg, key",
-    [("foo=1", "foo"), ("threshold.cartpole=abc", "threshold.cartpole"), ("ci=2", "ci"), ("only=nothing", "only"),
-     ("dpi=ten", "dpi"), ("formats=gif", "formats"), ("results_dir", "results_dir")],
+    [
+        ("foo=1", "foo"),
+        ("threshold.cartpole=abc", "threshold.cartpole"),
+        ("ci=2", "ci"),
+        ("only=nothing", "only"),
+        ("dpi=ten", "dpi"),
+        ("formats=gif", "formats"),
+        ("results_dir", "results_dir"),
+    ],
 )
 def test_bad_key_or_value_exits_2_with_one_line(arg, key, capsys):
     assert main([arg]) == 2
@@ -211,14 +242,11 @@ def test_help_and_missing_experiment(tmp_path, capsys):
 
 def test_gridsearch_and_ddpg_figures(tmp_path, capsys):
     for popsize in (5, 10, 20):
-        write_group(tmp_path, "snes", "continuous_cartpole", "eim", range(2), gens=30, popsize=popsize,
-                    overrides=f"popsize={popsize}", config={"sigma": 0.1})
+        write_group(tmp_path, "snes", "continuous_cartpole", "eim", range(2), gens=30, popsize=popsize, overrides=f"popsize={popsize}", config={"sigma": 0.1})
     for sigma in (0.05, 0.5):
-        write_group(tmp_path, "snes", "continuous_cartpole", "eim", range(2), gens=30,
-                    overrides=f"sigma={sigma}", config={"sigma": sigma})
+        write_group(tmp_path, "snes", "continuous_cartpole", "eim", range(2), gens=30, overrides=f"sigma={sigma}", config={"sigma": sigma})
     write_group(tmp_path, "ddpg", "continuous_cartpole", "none", range(2), gens=60, popsize=1)
-    status = main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=gridsearch,ddpg",
-                   "threshold.continuous_cartpole=150"])
+    status = main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=gridsearch,ddpg", "threshold.continuous_cartpole=150"])
     _, err = capsys.readouterr()
     assert status == 0, err
     fig_dir = figures_dir(tmp_path)
@@ -262,7 +290,7 @@ def test_every_run_folder_is_its_own_labelled_curve_and_row(tmp_path):
     write_group(tmp_path, "snes", "cartpole", "none", range(5), overrides="weight_decay_form=estool", config={"weight_decay_form": "estool"})
     write_group(tmp_path, "snes", "cartpole", "eim", range(5))
     exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
-    (_, fig), = list(efficiency_figures(exp, PlotOptions()))
+    ((_, fig),) = list(efficiency_figures(exp, PlotOptions()))
     assert {"SNES", "SNES (weight_decay_form=estool)"} <= set(_legend_texts(fig))
     assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=threshold,iqm"]) == 0
     table = pd.read_csv(figures_dir(tmp_path) / "evaluations_to_threshold.csv")
@@ -312,7 +340,7 @@ def test_efficiency_panels_share_x_and_bands_stay_within_achievable_returns(tmp_
         for seed, top in enumerate((200.0, 200.0, 120.0)):  # two seeds at the cap, one far below: a wide CI
             write_run_csv(run_dir / f"seed_{seed}.csv", run_rows("snes", "cartpole", mixing, seed, np.linspace(50, top, 10)))
     exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
-    (_, fig), = list(efficiency_figures(exp, PlotOptions()))
+    ((_, fig),) = list(efficiency_figures(exp, PlotOptions()))
     a, b = fig.axes[:2]
     assert a.get_shared_x_axes().joined(a, b)
     for ax in (a, b):

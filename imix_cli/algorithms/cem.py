@@ -135,10 +135,7 @@ class CEM(EvolutionStrategy):
         w = rank_weights(utilities, by_rank)  # elites' weights, ties sharing theirs; 0 for the rest
         old_mu = self._dist.mean
         mu = w @ samples
-        self.extra_variance = (
-            self.extra_variance_decay * self.extra_variance
-            + (1.0 - self.extra_variance_decay) * self.extra_variance_floor
-        )
+        self.extra_variance = self.extra_variance_decay * self.extra_variance + (1.0 - self.extra_variance_decay) * self.extra_variance_floor
         if self.style == "cemrl":
             var = (w @ ((samples - old_mu) ** 2)) / k + self.extra_variance
         else:

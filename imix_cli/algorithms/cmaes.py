@@ -201,9 +201,7 @@ class CMAES(EvolutionStrategy):
         # damps = 1 + 2 max(0, a sqrt((mueff - 1) / (d + 1)) - 1) + cs, a = max(1, 3 (1 - 2^(-d/9)))
         self.cs = min((0.5, (p.mueff + 2) ** 1.0 / (d**1.0 + (p.mueff + 3) ** 1.0)))
         damp_in = max((1, 3 * (1 - 0.5 ** (d / 9))))
-        self.damps = 0.5 + min((1, (0 / (0.159 * self.popsize) - 1) ** 2)) ** 1 / 2 + 2 * max(
-            (0, damp_in * ((p.mueff - 1) / (d + 1)) ** 0.5 - 1)
-        ) + self.cs
+        self.damps = 0.5 + min((1, (0 / (0.159 * self.popsize) - 1) ** 2)) ** 1 / 2 + 2 * max((0, damp_in * ((p.mueff - 1) / (d + 1)) ** 0.5 - 1)) + self.cs
         self.chi_d = expected_norm(d)
 
         # state (everything in state_dict): pycma's genotype coordinates, x = T g; T = I

@@ -69,16 +69,22 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--min-seconds", type=_positive_float, default=1.0, help="minimum time per batched measurement (default: 1)")
     g.add_argument("--naive-members", type=_positive_int, default=20, help="episodes of the naive loop (default: 20)")
     g = p.add_argument_group("mixing")
-    g.add_argument("--dims", type=_positive_int, nargs="+", default=[130, 1_000, 10_000, 100_000, 1_000_000], metavar="D",
-                   help="dimensions (default: 130 1000 100000 1000000)")
+    g.add_argument(
+        "--dims",
+        type=_positive_int,
+        nargs="+",
+        default=[130, 1_000, 10_000, 100_000, 1_000_000],
+        metavar="D",
+        help="dimensions (default: 130 1000 100000 1000000)",
+    )
     g = p.add_argument_group("memory, breakdown, grid, peers")
     g.add_argument("--seeds", type=_positive_int, default=None, help="seeds per run (default: 25; breakdown: 13, one worker's share)")
     g.add_argument("--generations", type=_positive_int, default=None, help="generations per run (default: the paper's, per algorithm)")
     g.add_argument("--workers", type=_positive_int, default=None, help="memory run's worker processes (default: all cores)")
-    g.add_argument("--quick", action="store_true",
-                   help=f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless --seeds/--generations say otherwise")
-    g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(ES_NAMES),
-                   help="grid and breakdown algorithms")
+    g.add_argument(
+        "--quick", action="store_true", help=f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless --seeds/--generations say otherwise"
+    )
+    g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(ES_NAMES), help="grid and breakdown algorithms")
     return p
 
 

@@ -50,7 +50,6 @@ def si(x: float) -> str:
     return f"{x:.0f}"
 
 
-
 def cpu_seconds() -> float:
     """User + system CPU seconds of this process and of its finished children (the pool workers)."""
     me, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)

@@ -37,7 +37,6 @@ def grid_rows(seeds: int | None, generations: int | None, algos, envs, extra: li
     return rows
 
 
-
 def format_grid(rows: list[dict]) -> str:
     body = [[r["run"], r["seeds"], r["generations"], f"{r['wall']:.1f}", f"{r['cpu']:.1f}", f"{r['env_steps']:,}",
              f"{r['evaluations']:,}", f"{r['final']:.1f}"] for r in rows]  # fmt: skip

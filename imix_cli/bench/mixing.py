@@ -21,10 +21,7 @@ def mixing_times(dim: int, popsize: int = 50, generations: int = 3, repeats: int
     dtype = np.float32 if dim >= 100_000 else np.float64
     # A move of ~0.05 sigma per coordinate in total Mahalanobis length keeps overlap high.
     step = 0.05 / np.sqrt(dim)
-    dists = [
-        DiagonalGaussian(np.full(dim, step * k), np.full(dim, 0.25 * (1 - 0.001 * k) ** (1 / np.sqrt(dim))), dtype=dtype)
-        for k in range(generations + 1)
-    ]
+    dists = [DiagonalGaussian(np.full(dim, step * k), np.full(dim, 0.25 * (1 - 0.001 * k) ** (1 / np.sqrt(dim))), dtype=dtype) for k in range(generations + 1)]
     archive = []
     for dist in dists[:-1]:
         archive.insert(0, mix(dist, archive, popsize, rng, variant="eim"))

@@ -62,18 +62,14 @@ def cartpole_dynamics(p, state: np.ndarray, force):
     costheta = np.cos(theta)
     sintheta = np.sin(theta)
     temp = (force + p.polemass_length * np.square(theta_dot) * sintheta) / p.total_mass
-    thetaacc = (p.gravity * sintheta - costheta * temp) / (
-        p.length * (4.0 / 3.0 - p.masspole * np.square(costheta) / p.total_mass)
-    )
+    thetaacc = (p.gravity * sintheta - costheta * temp) / (p.length * (4.0 / 3.0 - p.masspole * np.square(costheta) / p.total_mass))
     xacc = temp - p.polemass_length * thetaacc * costheta / p.total_mass
     x = x + p.tau * x_dot
     x_dot = x_dot + p.tau * xacc
     theta = theta + p.tau * theta_dot
     theta_dot = theta_dot + p.tau * thetaacc
     new_state = np.stack((x, x_dot, theta, theta_dot)).astype(np.float64, copy=False)
-    terminated = (
-        (x < -p.x_threshold) | (x > p.x_threshold) | (theta < -p.theta_threshold_radians) | (theta > p.theta_threshold_radians)
-    )
+    terminated = (x < -p.x_threshold) | (x > p.x_threshold) | (theta < -p.theta_threshold_radians) | (theta > p.theta_threshold_radians)
     return new_state, terminated
 
 

@@ -233,9 +233,7 @@ def cartpole_step(s, force):
     costheta = math.cos(theta)
     sintheta = math.sin(theta)
     temp = (force + _PML * (theta_dot * theta_dot) * sintheta) / _TOTAL_MASS
-    thetaacc = (_GRAVITY * sintheta - costheta * temp) / (
-        _LENGTH * (4.0 / 3.0 - _MASSPOLE * (costheta * costheta) / _TOTAL_MASS)
-    )
+    thetaacc = (_GRAVITY * sintheta - costheta * temp) / (_LENGTH * (4.0 / 3.0 - _MASSPOLE * (costheta * costheta) / _TOTAL_MASS))
     xacc = temp - _PML * thetaacc * costheta / _TOTAL_MASS
     x = x + _TAU * x_dot
     x_dot = x_dot + _TAU * xacc
@@ -332,15 +330,8 @@ def acrobot_dsdt(t1, t2, dt1, dt2, a, k):
     d1 = _M1 * (_LC1 * _LC1) + _M2 * (_L1 * _L1 + _LC2 * _LC2 + 2 * _L1 * _LC2 * c2) + _I1 + _I2
     d2 = _M2 * (_LC2 * _LC2 + _L1 * _LC2 * c2) + _I2
     phi2 = _M2 * _LC2 * _G * math.cos(t1 + t2 - _PI / 2.0)
-    phi1 = (
-        -_M2 * _L1 * _LC2 * (dt2 * dt2) * s2
-        - 2 * _M2 * _L1 * _LC2 * dt2 * dt1 * s2
-        + (_M1 * _LC1 + _M2 * _L1) * _G * math.cos(t1 - _PI / 2)
-        + phi2
-    )
-    ddt2 = (a + d2 / d1 * phi1 - _M2 * _L1 * _LC2 * (dt1 * dt1) * s2 - phi2) / (
-        _M2 * (_LC2 * _LC2) + _I2 - (d2 * d2) / d1
-    )
+    phi1 = -_M2 * _L1 * _LC2 * (dt2 * dt2) * s2 - 2 * _M2 * _L1 * _LC2 * dt2 * dt1 * s2 + (_M1 * _LC1 + _M2 * _L1) * _G * math.cos(t1 - _PI / 2) + phi2
+    ddt2 = (a + d2 / d1 * phi1 - _M2 * _L1 * _LC2 * (dt1 * dt1) * s2 - phi2) / (_M2 * (_LC2 * _LC2) + _I2 - (d2 * d2) / d1)
     ddt1 = -(d2 * ddt2 + phi1) / d1
     k[0], k[1], k[2], k[3] = dt1, dt2, ddt1, ddt2
 

@@ -165,8 +165,7 @@ def main(argv: list | None = None) -> int:
     exp_dir = Path(settings["results_dir"]) / settings["experiment"]
     if needs_data and not exp_dir.is_dir():
         print(
-            f"imix plot: no results at {exp_dir} (check results_dir= and experiment=; "
-            f"only=didactic draws the figures that need no data)",
+            f"imix plot: no results at {exp_dir} (check results_dir= and experiment=; only=didactic draws the figures that need no data)",
             file=sys.stderr,
         )
         return 1

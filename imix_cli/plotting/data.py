@@ -338,10 +338,7 @@ def select_main_groups(groups, warn: Callable[[str], None] | None = None) -> lis
     chosen = [g for g in groups if id(g) not in swept or not g.overrides]
     left_out = sorted(g.name for g in groups if id(g) in swept and g.overrides)
     if warn is not None and left_out:
-        warn(
-            f"{len(left_out)} grid-search run(s) left out of the main figures and tables "
-            f"(shown by the gridsearch figures and ranking): {', '.join(left_out)}"
-        )
+        warn(f"{len(left_out)} grid-search run(s) left out of the main figures and tables (shown by the gridsearch figures and ranking): {', '.join(left_out)}")
     return sort_groups(chosen)
 
 

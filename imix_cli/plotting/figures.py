@@ -373,8 +373,14 @@ def ddpg_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
             flag = ", <5: CI unreliable" if group.n_seeds < MIN_SEEDS else ""
             handles.append(
                 _draw_band(
-                    ax, x, matrix, algo_color(group.algo), f"{label} [{group.n_seeds} seeds{flag}]", opts.ci_level,
-                    median=True, clip=achievable_range(env, matrix),
+                    ax,
+                    x,
+                    matrix,
+                    algo_color(group.algo),
+                    f"{label} [{group.n_seeds} seeds{flag}]",
+                    opts.ci_level,
+                    median=True,
+                    clip=achievable_range(env, matrix),
                 )
             )
         _threshold_line(ax, opts.thresholds.get(env))
@@ -384,10 +390,7 @@ def ddpg_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
         labels = [h.get_label() for h in handles]
         _add_threshold_entry(handles, labels, opts.thresholds.get(env))
         fig.legend(handles, labels, loc="outside lower center", ncols=min(len(handles), 2))
-        fig.suptitle(
-            f"{env_label(env)}: DDPG vs evolution strategies\n"
-            f"(solid: mean ± {opts.ci_level:.0%} CI over seeds; dotted: median)"
-        )
+        fig.suptitle(f"{env_label(env)}: DDPG vs evolution strategies\n(solid: mean ± {opts.ci_level:.0%} CI over seeds; dotted: median)")
         yield f"ddpg_{slug(env)}", fig
 
 

@@ -141,8 +141,14 @@ def reuse_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
 
     level = f"{opts.ci_level:.0%}"
     md_rows = [
-        [_env(r["env"]), row_label(r), r["seeds"], _pm(r["total_reuse_pct"], r["total_reuse_ci"], 1, " %"),
-         _fmt(r["from_im_pct"], 1, " %"), _fmt(r["from_eim_pct"], 1, " %")]  # fmt: skip
+        [
+            _env(r["env"]),
+            row_label(r),
+            r["seeds"],
+            _pm(r["total_reuse_pct"], r["total_reuse_ci"], 1, " %"),
+            _fmt(r["from_im_pct"], 1, " %"),
+            _fmt(r["from_eim_pct"], 1, " %"),
+        ]  # fmt: skip
         for _, r in frame.iterrows()
     ]
     notes = (
@@ -190,10 +196,7 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     groups = select_main_groups(exp.groups)
     skipped = sorted({g.env for g in groups if opts.thresholds.get(g.env) is None})
     if skipped:
-        opts.warn(
-            f"no threshold for env(s) {', '.join(skipped)}: left out of evaluations_to_threshold "
-            f"(give one with threshold.<env>=<return>)"
-        )
+        opts.warn(f"no threshold for env(s) {', '.join(skipped)}: left out of evaluations_to_threshold (give one with threshold.<env>=<return>)")
     groups = [g for g in groups if opts.thresholds.get(g.env) is not None]
     if not groups:
         return
