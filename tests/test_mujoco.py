@@ -278,6 +278,9 @@ def test_study_table_counts_episodes_and_wall_time_to_threshold(tmp_path):
     assert table.loc["snes none", "reached"] == "1/2" and table.loc["snes none", "episodes_to_threshold"] == 30
     assert table.loc["snes eim", "episodes_to_threshold"] == 18 and table.loc["snes eim", "wall_time_to_threshold_s"] == 6.0
     assert table.loc["snes eim", "reuse_percent"] == pytest.approx(100 * 18 / 40)
+    # Equal episodes: both runs at the smallest budget of any seed (eim's 22): none after 20 episodes, eim after 22.
+    assert (table["budget_episodes"] == 22).all()
+    assert table.loc["snes none", "return_at_budget"] == (200 + 20) / 2 and table.loc["snes eim", "return_at_budget"] == (700 + 40) / 2
     assert (tmp_path / "mujoco" / "figures" / "mujoco_Hopper-v5.png").exists()
     assert plot_main([f"results_dir={tmp_path}", "experiment=mujoco", "bogus=1"]) == 2
 

@@ -12,6 +12,9 @@ and writes into ``<results_dir>/<experiment>/figures/``:
   episodes run, environment steps run and wall time, one curve per run folder (algorithm x
   mixing), the mean over seeds with a 95 % bootstrap confidence interval of that mean;
 * ``mujoco_table.csv`` / ``.md``: per env and run, the final return (mean and 95 % CI), the
+  distribution mean's last return on fresh episodes (``mean_policy_score``), the return when
+  the run had spent the smallest episode budget of any seed of the env (an equal-episodes
+  comparison), the
   reuse rate, the episodes and env steps spent, the wall time, and the episodes and wall time
   needed to first reach the env's return threshold (mean over the seeds that reached it, and
   how many did).
@@ -129,13 +132,20 @@ def table_rows(runs: dict, thresholds: dict, resamples: int) -> list[dict]:
     for env in sorted(runs):
         threshold = thresholds.get(env)
         short, _ = labels(runs[env])
+        # The smallest budget any seed of the env spent: every run is also compared at it.
+        budget = min(int(f["evaluations"].iloc[-1]) for frames in runs[env].values() for f in frames)
         for name, frames in sorted(runs[env].items()):
             finals = np.array([float(f["mean_score"].iloc[-1]) for f in frames])
+            at_budget = [float(f["mean_score"][f["evaluations"] <= budget].iloc[-1]) for f in frames if (f["evaluations"] <= budget).any()]
+            # The distribution mean's return on fresh episodes (eval_mean_every), last measurement per seed.
+            theta = [float(f["mean_policy_score"].dropna().iloc[-1]) for f in frames if "mean_policy_score" in f and f["mean_policy_score"].notna().any()]
             mean, low, high = bootstrap_ci(finals[:, None], resamples)
             reached = [r for r in (first_reach(f, threshold) for f in frames) if r is not None] if threshold is not None else []
             rows.append({
                 "env": env, "run": short[name], "folder": name, "seeds": len(frames), "generations": int(min(len(f) for f in frames)),
                 "final_return": float(mean[0]), "ci95_low": float(low[0]), "ci95_high": float(high[0]),
+                "mean_policy_return": float(np.mean(theta)) if theta else math.nan,
+                "budget_episodes": budget, "return_at_budget": float(np.mean(at_budget)) if at_budget else math.nan,
                 "reuse_percent": 100.0 * sum(int(f["reused"].sum()) for f in frames) / max(1, sum(int(f["popsize"].sum()) for f in frames)),
                 "episodes": float(np.mean([f["evaluations"].iloc[-1] for f in frames])),
                 "env_steps": float(np.mean([f["env_steps"].iloc[-1] for f in frames])),
@@ -154,13 +164,14 @@ def _fmt(value, spec: str) -> str:
 
 def _markdown(rows: list[dict]) -> str:
     head = (
-        "| env | run | seeds | final return (95 % CI) | reuse | episodes | env steps | wall time | threshold | reached "
-        "| episodes to threshold | wall time to threshold |"
+        "| env | run | seeds | final return (95 % CI) | θ on fresh episodes | return at the smallest budget (episodes) | reuse "
+        "| episodes | env steps | wall time | threshold | reached | episodes to threshold | wall time to threshold |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lines.append(
             f"| {r['env']} | {r['run']} | {r['seeds']} | {r['final_return']:.1f} [{r['ci95_low']:.1f}, {r['ci95_high']:.1f}] | "
+            f"{_fmt(r['mean_policy_return'], '.1f')} | {_fmt(r['return_at_budget'], '.1f')} ({r['budget_episodes']:,}) | "
             f"{r['reuse_percent']:.1f} % | {r['episodes']:,.0f} | {r['env_steps']:,.0f} | {r['wall_time_s']:.0f} s | "
             f"{_fmt(r['threshold'], '.0f')} | {r['reached'] or '-'} | {_fmt(r['episodes_to_threshold'], ',.0f')} | "
             f"{_fmt(r['wall_time_to_threshold_s'], '.0f')} |"
