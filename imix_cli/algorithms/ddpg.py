@@ -2,7 +2,8 @@
 
 This module knows SB3 and torch, not files: :func:`make_ddpg` builds the agent,
 :func:`train_ddpg` runs it for a budget of environment steps and reports every finished
-episode; the runner (:mod:`imix_cli.runner`, section "algo=ddpg") turns those into CSV rows.
+episode; DDPG's trainer (:func:`imix_cli.ddpg_seeds.run_ddpg_seeds`) turns those into CSV
+rows.
 Importing it imports torch and SB3 (``pip install torch==2.13.0 stable-baselines3``); nothing
 else in imix does.
 
