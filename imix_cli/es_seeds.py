@@ -12,7 +12,6 @@ import sys
 import time
 from pathlib import Path
 
-from imix_cli.config import resume_identity
 from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, raw_obs_params
 from imix_cli.messages import warn
 from imix_cli.parallel_evaluation import build_evaluator
@@ -20,6 +19,7 @@ from imix_cli.policy_files import write_seed_policies
 from imix_cli.results import partial_csv_path, seed_csv_path, seed_summary, write_run_csv
 from imix_cli.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
 from imix_cli.run_folder import RunError
+from imix_cli.run_spec import resume_identity
 
 
 def run_es_seeds(spec, seeds: list[int], progress) -> dict:

@@ -84,8 +84,8 @@ def eval_episode_seeds(seed: int, episodes: int) -> np.ndarray:
 
 def evaluator_for(header: dict, cache: dict | None = None):
     """The batched evaluator a policy was trained with (from its header)."""
-    from imix_cli.config import BUILTIN_ENVS
     from imix_cli.evaluation import make_evaluator
+    from imix_cli.registry import BUILTIN_ENVS
 
     if header.get("obs_normalizer") is not None:
         raise UsageError(

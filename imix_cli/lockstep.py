@@ -60,7 +60,7 @@ MEAN_EVAL_STREAM = 0x6D65616E
 
 
 def new_seed_state(spec, seed: int, dim: int) -> SeedState:
-    """Seed ``seed`` of run ``spec`` (a :class:`imix_cli.config.RunSpec`) at generation 0, for ``dim`` parameters."""
+    """Seed ``seed`` of run ``spec`` (a :class:`imix_cli.run_spec.RunSpec`) at generation 0, for ``dim`` parameters."""
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
     es = GuardedES(make_es(
         spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,

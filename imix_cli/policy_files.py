@@ -141,7 +141,7 @@ def read_policy(path) -> PolicyFile:
 def write_seed_policies(spec, seed: int, evaluator, mean, best, best_return: float, generation: int) -> list[Path]:
     """Write ``policy_<seed>_mean.npz`` and ``policy_<seed>_best.npz`` of a finished ES seed.
 
-    ``spec`` is the run's :class:`imix_cli.config.RunSpec`; ``mean`` the final distribution mean,
+    ``spec`` is the run's :class:`imix_cli.run_spec.RunSpec`; ``mean`` the final distribution mean,
     ``best``/``best_return`` the best-ever member and its return (``best`` None: not written).
     """
     from imix_cli import __version__

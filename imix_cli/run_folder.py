@@ -11,8 +11,8 @@ from __future__ import annotations
 import contextlib
 import os
 
-from imix_cli.config import differing_keys, identity_of, resume_identity
 from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, seed_csv_path
+from imix_cli.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.trainers import trainer_for
 
 

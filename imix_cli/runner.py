@@ -28,7 +28,7 @@ __all__ = ["RunError", "run", "run_seeds"]
 
 
 def run(spec, echo=print) -> dict:
-    """Run every unfinished seed of ``spec`` (a :class:`imix_cli.config.RunSpec`); print and return the summary.
+    """Run every unfinished seed of ``spec`` (a :class:`imix_cli.run_spec.RunSpec`); print and return the summary.
 
     The run folder is locked for the whole run (:func:`imix_cli.run_folder.run_dir_lock`): a
     second run on it is refused with RunError before it touches anything.

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.config import identity_of
 from imix_cli.results import CorruptResultError, read_run_csv, seed_csv_path, seed_summary
+from imix_cli.run_spec import identity_of
 from imix_cli.stats import mean_ci
 from imix_cli.trainers import trainer_for
 

@@ -14,7 +14,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "imix_cli"
 LAYERS = [
     ["messages", "processes", "keyvalue", "stats", "distributions", "mixing", "mixing_kernels", "results"],
     ["generation", "algorithms", "divergence", "envs", "policies", "evaluation", "parallel_evaluation", "checkpoints", "policy_files"],
-    ["config"],
+    ["config_checks", "run_spec", "es_config", "ddpg_config", "config"],
     ["lockstep", "trainers", "resume", "run_folder", "es_seeds", "ddpg_seeds", "pool", "summary", "runner"],
     ["evaluate", "render", "status", "plotting", "bench", "cli"],
 ]

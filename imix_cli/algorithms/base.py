@@ -226,7 +226,7 @@ class Params:
     """The hyper-parameters every ES shares; the defaults are the paper's (section 4.1).
 
     This record is the one place those defaults are written down: ``imix run``'s
-    ``PAPER_DEFAULTS`` (:mod:`imix_cli.config`) are read from it (``conf/config.yaml`` repeats
+    ``PAPER_DEFAULTS`` (:mod:`imix_cli.run_spec`) are read from it (``conf/config.yaml`` repeats
     them for Hydra; a test checks they agree). Each ES extends it with its own options
     (``OpenES.Params``, ``CEM.Params``, ...): build one with ``CEM.Params(popsize=20,
     style="cemrl")``, or pass the fields to the ES or to ``make_es`` as keywords. Values are

@@ -1,0 +1,178 @@
+"""The checks every algorithm's config shares: typed keys, seeds, workers, the env, memory.
+
+Each check takes the plain config dict (as Hydra composes it) and returns the validated value
+or raises :class:`ConfigError`, a one-line message that names the offending key; the CLI prints
+it and exits with status 2 before anything is written.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+from imix_cli.processes import default_workers
+from imix_cli.registry import BUILTIN_ENVS
+
+
+class ConfigError(ValueError):
+    """A bad configuration value; ``str(err)`` is a one-line message naming the key."""
+
+
+#: Hydra launchers that run several jobs at once on one machine (or in Ray's workers): there a
+#: per-job process pool must step aside (a spawn pool inside a joblib/loky worker dies), so
+#: `workers` defaults to 1 under them and an explicit workers > 1 is refused.
+PARALLEL_LAUNCHERS = {"JoblibLauncher": "joblib", "RayLauncher": "ray", "RayAWSLauncher": "ray_aws", "LocalLauncher": "submitit_local"}
+
+
+def parallel_launcher_name(launcher_target: str | None) -> str | None:
+    """The short name of a parallel launcher from its ``_target_`` class path, else None."""
+    cls = (launcher_target or "").rsplit(".", 1)[-1]
+    return PARALLEL_LAUNCHERS.get(cls)
+
+
+def first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
+
+
+# ----------------------------------------------------------------------------- typed keys
+def is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def as_int(cfg: dict, key: str, minimum: int, label: str | None = None) -> int:
+    value = cfg.get(key)
+    label = label or key
+    if not is_number(value) or (isinstance(value, float) and not value.is_integer()):
+        raise ConfigError(f"{label}={value!r}: must be an integer >= {minimum}")
+    if value < minimum:
+        raise ConfigError(f"{label}={value!r}: must be >= {minimum}")
+    return int(value)
+
+
+def as_float(cfg: dict, key: str, low: float, low_inclusive: bool, high: float = math.inf, high_inclusive: bool = False) -> float:
+    value = cfg.get(key)
+    rule = f"{'>=' if low_inclusive else '>'} {low}" + ("" if high == math.inf else f" and {'<=' if high_inclusive else '<'} {high}")
+    if not is_number(value) or not math.isfinite(value):
+        raise ConfigError(f"{key}={value!r}: must be a number {rule}")
+    ok_low = value >= low if low_inclusive else value > low
+    ok_high = value <= high if high_inclusive else value < high
+    if not (ok_low and ok_high):
+        raise ConfigError(f"{key}={value!r}: must be {rule}")
+    return float(value)
+
+
+def as_bool(cfg: dict, key: str) -> bool:
+    value = cfg.get(key)
+    if not isinstance(value, bool):
+        raise ConfigError(f"{key}={value!r}: must be true or false")
+    return value
+
+
+def as_choice(value, key: str, choices) -> str:
+    if value not in choices:
+        raise ConfigError(f"{key}={value!r}: valid choices are {', '.join(choices)}")
+    return value
+
+
+def as_name(cfg: dict, key: str) -> str:
+    value = cfg.get(key)
+    if not isinstance(value, str) or not value.strip():
+        raise ConfigError(f"{key}={value!r}: must be a non-empty name")
+    return value
+
+
+#: The largest ``seeds``: one CSV (and one progress line of work) per seed; beyond this a run is
+#: a mistake (``seeds=1e9`` would spend minutes listing files before the first generation).
+MAX_SEEDS = 100_000
+
+
+def seeds_of(cfg: dict) -> int:
+    seeds = as_int(cfg, "seeds", 1)
+    if seeds > MAX_SEEDS:
+        raise ConfigError(f"seeds={seeds}: at most {MAX_SEEDS:,} seeds per run (one CSV per seed); split the work into experiments")
+    return seeds
+
+
+def workers_and_experiment(cfg: dict, launcher: str | None, pool: bool = False) -> tuple[int, str]:
+    workers, parallel = cfg.get("workers"), parallel_launcher_name(launcher)
+    if workers is None:
+        workers = 1 if parallel or pool else default_workers()
+    else:
+        workers = as_int(cfg, "workers", 1)
+        if parallel and workers > 1:
+            raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
+        if pool and workers > 1:
+            raise ConfigError(
+                f"workers={workers}: evaluator=pool already spreads each generation over evaluator_workers processes; use workers=1 (or leave it null)"
+            )
+    experiment = as_name(cfg, "experiment")
+    if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
+        raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
+    return workers, experiment
+
+
+def check_memory(popsize: int, num_params: int, archive_depth: int) -> None:
+    """Refuse a population whose arrays cannot fit in this machine's memory.
+
+    A generation holds popsize x d float64 numbers about (archive depth + 3) times over
+    (samples, the archive, mixing's and the evaluator's temporaries).
+    """
+    needed = 8 * popsize * (num_params + 16) * (archive_depth + 3)
+    try:
+        available = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # not on Linux: no check
+        return
+    if needed > available:
+        raise ConfigError(
+            f"popsize={popsize}: a population of {popsize:,} x {num_params} parameters needs ~{needed / 2**30:,.1f} GiB, "
+            f"more than this machine's {available / 2**30:,.1f} GiB"
+        )
+
+
+# ----------------------------------------------------------------------------------- env
+def env_of(env_cfg: dict):
+    name, env_id = env_cfg.get("name"), env_cfg.get("id")
+    max_steps = env_cfg.get("max_steps")
+    if max_steps is not None:
+        max_steps = as_int(env_cfg, "max_steps", 1, label="env.max_steps")
+    if not isinstance(env_id, str) or not env_id or env_id == "???":
+        raise ConfigError(f"env.id={env_id!r}: give a gymnasium id, e.g. env.id=MountainCar-v0")
+    if name in BUILTIN_ENVS and env_id == BUILTIN_ENVS[name]:
+        return name, env_id, max_steps
+    # A gymnasium id other than a built-in's: the generic (slower) path; the id names the run.
+    import gymnasium as gym
+
+    import imix_cli.envs  # noqa: F401  (registers the imix/ environments)
+
+    try:
+        gym.spec(env_id)
+    except Exception as err:  # gymnasium raises several error types for unknown/deprecated ids
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ConfigError(f"env.id={env_id!r}: not a registered gymnasium environment ({reason})") from None
+    from imix_cli.evaluation import missing_extra_message
+
+    missing = missing_extra_message(env_id)  # names imix's extra, before gymnasium's generic hint
+    if missing:
+        raise ConfigError(missing)
+    _check_env_dependencies(env_id)
+    return env_id, env_id, max_steps
+
+
+def _check_env_dependencies(env_id: str) -> None:
+    """Import the env's module now, so a missing extra (Box2D, MuJoCo, ...) is one line before anything is written.
+
+    gymnasium raises ``DependencyNotInstalled`` with its install hint when the module loads.
+    """
+    import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
+
+    entry_point = gym.spec(env_id).entry_point
+    if not isinstance(entry_point, str):
+        return
+    try:
+        load_env_creator(entry_point)
+    except gym.error.DependencyNotInstalled as err:
+        raise ConfigError(f"env.id={env_id!r}: a dependency is missing: {first_line(err)}") from None
+    except ImportError as err:
+        raise ConfigError(f"env.id={env_id!r}: cannot import its module ({first_line(err)})") from None

@@ -1,0 +1,230 @@
+"""An evolution strategy's config: mixing, the ES's hyper-parameters and ``algo.*`` options, the policy and the evaluator.
+
+Besides each key's own check, a run the machine cannot hold is refused here: CMA-ES above
+:data:`CMAES_MAX_DIM` parameters, a population whose arrays exceed the memory, an env imix
+cannot evaluate.
+"""
+
+from __future__ import annotations
+
+import math
+
+from imix_cli.algorithms.base import WEIGHT_DECAY_FORMS
+from imix_cli.algorithms.cmaes import MAX_DIM as CMAES_CLASS_MAX_DIM
+from imix_cli.config_checks import (
+    ConfigError,
+    as_bool,
+    as_choice,
+    as_float,
+    as_int,
+    as_name,
+    check_memory,
+    env_of,
+    first_line,
+    is_number,
+    parallel_launcher_name,
+    seeds_of,
+    workers_and_experiment,
+)
+from imix_cli.processes import default_workers
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS
+from imix_cli.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields
+
+EVALUATORS = ("local", "pool", "ray")
+#: CMA-ES keeps a d x d covariance and eigendecomposes it (O(d^2) memory, O(d^3) time): above
+#: this many parameters imix refuses it before anything runs (the CMAES class's own limit).
+CMAES_MAX_DIM = CMAES_CLASS_MAX_DIM
+
+
+def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
+    """The RunSpec of an evolution strategy: mixing, the ES's hyper-parameters, its policy and evaluator."""
+    im, eim = as_bool(cfg, "im"), as_bool(cfg, "eim")
+    im_variant = as_choice(cfg.get("im_variant"), "im_variant", IM_VARIANTS)
+    eim_variant = as_choice(cfg.get("eim_variant", PAPER_DEFAULTS["eim_variant"]), "eim_variant", tuple(EIM_VARIANTS))
+    reeval_age = cfg.get("reeval_age")
+    if reeval_age is not None:
+        reeval_age = as_int(cfg, "reeval_age", 1)
+    reeval_prob = as_float(cfg, "reeval_prob", 0.0, True, 1.0, False)
+    algo_options = _algo_options(algo, algo_cfg)
+    im_alpha = as_float(cfg, "im_alpha", 0.0, True, 1.0, False)
+    eim_generations = as_int(cfg, "eim_generations", 1)
+    if eim and im_variant != "paper":
+        raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant=exact|paper")
+    if im_alpha != 0.0 and not (im and not eim and im_variant == "sun2009"):
+        raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
+    mixing = "eim" if eim else ("im" if im else "none")
+    variant = EIM_VARIANTS[eim_variant] if eim else (im_variant if im else None)
+    if mixing == "none" and (reeval_age is not None or reeval_prob):
+        raise ConfigError("reeval_age/reeval_prob: only apply with im=true or eim=true (they re-evaluate reused members)")
+
+    env_name, env_id, max_steps = env_of(env_cfg)
+    policy = _policy_and_evaluator(cfg, algo, env_name, env_id, max_steps, launcher)
+    workers, experiment = workers_and_experiment(cfg, launcher, pool=policy["evaluator"] == "pool")
+    config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
+    popsize, sigma = as_int(cfg, "popsize", 2), as_float(cfg, "sigma", 0.0, False)
+    if algo == "cmaes" and popsize < 3:
+        raise ConfigError(f"popsize={popsize}: algo=cmaes needs popsize >= 3 (its recombination weights need at least 2 parents and one non-parent)")
+    if not math.isfinite(sigma * sigma):
+        raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
+    _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
+    num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"])
+    check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0))
+    seeds = seeds_of(cfg)
+    if policy["stored"] is None:
+        config.pop("policy", None)  # the default policy: config.yaml stays as it was before the key existed
+    else:
+        config["policy"] = policy["stored"]
+    return RunSpec(
+        algo=algo,
+        env_name=env_name,
+        env_id=env_id,
+        env_max_steps=max_steps,
+        mixing=mixing,
+        variant=variant,
+        im_alpha=im_alpha,
+        eim_generations=eim_generations,
+        reeval_age=reeval_age,
+        reeval_prob=reeval_prob,
+        seeds=seeds,
+        generations=as_int(cfg, "generations", 1),
+        popsize=popsize,
+        sigma=sigma,
+        lr=as_float(cfg, "lr", 0.0, False),
+        weight_decay=as_float(cfg, "weight_decay", 0.0, True),
+        weight_decay_form=as_choice(cfg.get("weight_decay_form"), "weight_decay_form", tuple(WEIGHT_DECAY_FORMS)),
+        workers=workers,
+        checkpoint_every=as_int(cfg, "checkpoint_every", 0),
+        eval_mean_every=as_int(cfg, "eval_mean_every", 0) if "eval_mean_every" in cfg else 0,
+        eval_mean_episodes=as_int(cfg, "eval_mean_episodes", 1) if "eval_mean_episodes" in cfg else 5,
+        progress=as_bool(cfg, "progress"),
+        results_dir=as_name(cfg, "results_dir"),
+        experiment=experiment,
+        config={**config, "mixing": mixing},
+        algo_options=algo_options,
+        hidden=policy["hidden"],
+        obs_norm=policy["obs_norm"],
+        obs_norm_warmup=policy["obs_norm_warmup"],
+        evaluator=policy["evaluator"],
+        evaluator_workers=policy["evaluator_workers"],
+        ray_address=policy["ray_address"],
+    )
+
+
+def _algo_options(algo: str, algo_cfg: dict) -> dict:
+    """The validated ``algo.<key>`` options of an ES (:func:`algo_option_fields`), defaults filled in."""
+    options = {}
+    for key, f in algo_option_fields(algo).items():
+        value = algo_cfg.get(key, f.default)
+        if "choices" in f.metadata:
+            as_choice(value, f"algo.{key}", f.metadata["choices"])
+        options[key] = value
+    try:
+        ALGORITHM_SPECS[algo].es_class().Params(**options)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"algo={algo}: {first_line(err)}") from None
+    return options
+
+
+def _policy_size(env_name: str, env_id: str, max_steps: int | None) -> int:
+    """The number of policy parameters d of an env; ConfigError for an env imix cannot evaluate."""
+    try:
+        return _evaluator_shape(env_name if env_name in BUILTIN_ENVS else env_id, max_steps)
+    except ValueError as err:
+        key = "env" if env_name in BUILTIN_ENVS else "env.id"
+        value = env_name if env_name in BUILTIN_ENVS else env_id
+        raise ConfigError(f"{key}={value!r}: {first_line(err).replace(repr(value) + ': ', '').replace(repr(value) + ' ', '')}") from None
+
+
+_EVALUATOR_SHAPES: dict = {}
+
+
+def _evaluator_shape(key: str, max_steps: int | None) -> int:
+    """make_evaluator(key).num_params, cached per process (a sweep asks once per env, not per point)."""
+    if (key, max_steps) not in _EVALUATOR_SHAPES:
+        from imix_cli.evaluation import make_evaluator
+
+        try:
+            _EVALUATOR_SHAPES[key, max_steps] = make_evaluator(key, max_steps).num_params
+        except ValueError as err:
+            _EVALUATOR_SHAPES[key, max_steps] = err
+    shape = _EVALUATOR_SHAPES[key, max_steps]
+    if isinstance(shape, Exception):
+        raise shape
+    return shape
+
+
+EVALUATORS = ("local", "pool", "ray")
+#: CMA-ES keeps a d x d covariance and eigendecomposes it (O(d^2) memory, O(d^3) time): above
+#: this many parameters imix refuses it before anything runs (the CMAES class's own limit).
+CMAES_MAX_DIM = CMAES_CLASS_MAX_DIM
+
+
+def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_steps, launcher: str | None) -> dict:
+    """Validate ``policy.*``, ``evaluator``, ``evaluator_workers``, ``ray_address``; refuse CMA-ES at large d."""
+    policy = cfg.get("policy")
+    policy = {} if policy is None else policy
+    if not isinstance(policy, dict):
+        raise ConfigError(f"policy={policy!r}: must be a mapping with keys hidden, obs_norm, obs_norm_warmup")
+    unknown = sorted(set(policy) - set(POLICY_DEFAULTS))
+    if unknown:
+        raise ConfigError(f"unknown key 'policy.{unknown[0]}'; valid policy keys: {', '.join(POLICY_DEFAULTS)}")
+    hidden = policy.get("hidden", list(POLICY_DEFAULTS["hidden"]))
+    if not isinstance(hidden, (list, tuple)) or not all(is_number(h) and float(h).is_integer() and h >= 1 for h in hidden):
+        raise ConfigError(f"policy.hidden={hidden!r}: must be a list of layer sizes >= 1, e.g. [64,64], or [] for a linear policy")
+    hidden = tuple(int(h) for h in hidden)
+    p = {f"policy.{k}": policy.get(k, v) for k, v in POLICY_DEFAULTS.items()}
+    obs_norm = as_bool(p, "policy.obs_norm")
+    warmup = as_int(p, "policy.obs_norm_warmup", 1)
+    if obs_norm and env_name in BUILTIN_ENVS:
+        raise ConfigError(f"policy.obs_norm=true: only on gymnasium environments (env=gym or a MuJoCo env), not the built-in env={env_name}")
+    evaluator = as_choice(cfg.get("evaluator", "local"), "evaluator", EVALUATORS)
+    n_workers = cfg.get("evaluator_workers")
+    if n_workers is not None:
+        n_workers = as_int(cfg, "evaluator_workers", 1)
+    elif evaluator == "pool":
+        n_workers = default_workers()
+    address = cfg.get("ray_address")
+    if address is not None and (not isinstance(address, str) or not address.strip()):
+        raise ConfigError(f"ray_address={address!r}: must be an address such as auto or ray://host:10001 (or null: a local Ray)")
+    if address is not None and evaluator != "ray":
+        raise ConfigError(f"ray_address={address}: only used with evaluator=ray")
+    if evaluator == "pool" and parallel_launcher_name(launcher):
+        raise ConfigError(f"evaluator=pool: hydra/launcher={parallel_launcher_name(launcher)} already runs jobs in parallel; use evaluator=local")
+    if evaluator == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ConfigError('evaluator=ray: ray is not installed; pip install "imix-cli[cluster]"') from None
+    if algo == "cmaes":
+        dim = _policy_dim(env_name, env_id, max_steps, hidden)
+        if dim > CMAES_MAX_DIM:
+            raise ConfigError(
+                f"algo=cmaes: the {'x'.join(map(str, hidden)) or 'linear'} policy on {env_id} has {dim} parameters, more than "
+                f"CMA-ES's limit of {CMAES_MAX_DIM} (O(d^2) memory, O(d^3) time); use algo=snes or algo=openes (diagonal), or a smaller policy.hidden"
+            )
+    default = hidden == POLICY_DEFAULTS["hidden"] and not obs_norm
+    stored = None if default else {"hidden": list(hidden), "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else None}
+    return {
+        "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else 0, "evaluator": evaluator,
+        "evaluator_workers": n_workers or 1, "ray_address": address, "stored": stored,
+    }  # fmt: skip
+
+
+def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple) -> int:
+    """Number of policy parameters on this env (a gymnasium env is made once to read its spaces)."""
+    from imix_cli.policies import num_params
+
+    if env_name in BUILTIN_ENVS:  # their observation and output sizes are known without making the env
+        return num_params(*ENV_SPECS[env_name].policy_dims, hidden)
+    import gymnasium as gym
+
+    try:
+        probe = gym.make(env_id, **({} if max_steps is None else {"max_episode_steps": max_steps}))
+    except Exception as err:
+        raise ConfigError(f"env.id={env_id!r}: cannot be made ({first_line(err)})") from None
+    try:
+        obs_space, act_space = probe.observation_space, probe.action_space
+    finally:
+        probe.close()
+    out = int(act_space.n) if isinstance(act_space, gym.spaces.Discrete) else math.prod(act_space.shape or (1,))
+    return num_params(math.prod(obs_space.shape or (1,)), out, hidden)
