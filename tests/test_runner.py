@@ -176,6 +176,9 @@ def test_wheel_ships_the_configs(tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     for conf in sorted((repo / "conf").rglob("*.yaml")) + [repo / "conf" / "__init__.py"]:
         assert f"imix_cli/conf/{conf.relative_to(repo / 'conf').as_posix()}" in names, conf
+    # ... and every module of the source tree (a subpackage missing from pyproject's list is not installed)
+    for module in sorted((repo / "imix_cli").rglob("*.py")):
+        assert module.relative_to(repo).as_posix() in names, module
 
 
 @pytest.mark.slow
