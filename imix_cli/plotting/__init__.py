@@ -16,6 +16,7 @@ from imix_cli.keyvalue import UsageError, finite_number, help_requested, parse_k
 
 HELP = """\
 usage: imix plot [key=value ...]
+       imix plot mujoco [key=value ...]   (the MuJoCo study: imix plot mujoco --help)
 
 Draw the paper's figures and tables from the runs of one experiment into
 <results_dir>/<experiment>/figures/ (each figure as PNG and PDF, each table
@@ -145,6 +146,10 @@ def main(argv: list | None = None) -> int:
     failed (reported, the rest still written); 2: bad command line.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["mujoco"]:  # `imix plot mujoco ...`: the MuJoCo study's figures and table
+        from .mujoco import main as mujoco_main
+
+        return mujoco_main(argv[1:])
     if help_requested(argv, _help_text):
         return 0
     try:

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imix_cli.keyvalue import UsageError, at_least, finite_number, help_requested, parse_key_values
 from imix_cli.registry import mujoco_thresholds
 
 #: Return thresholds of the to-threshold columns: a clear sign of learning in the study's budget.
@@ -47,10 +48,6 @@ from imix_cli.registry import mujoco_thresholds
 DEFAULT_THRESHOLDS = mujoco_thresholds()
 AXES = (("evaluations", "episodes"), ("env_steps", "environment steps"), ("wall_time", "wall time (s)"))
 GRID_POINTS = 200
-
-
-class UsageError(ValueError):
-    """A bad command-line key or value (one line, exit status 2)."""
 
 
 def bootstrap_ci(values: np.ndarray, resamples: int = 2000, level: float = 0.95, seed: int = 0):
@@ -201,33 +198,27 @@ def draw_env(env: str, runs_of_env: dict, resamples: int):
 
 
 def parse_args(argv: list) -> dict:
-    settings = {"results_dir": "results", "experiment": "mujoco", "thresholds": dict(DEFAULT_THRESHOLDS), "resamples": 2000}
-    for arg in argv:
-        key, sep, value = arg.partition("=")
-        if not sep:
-            raise UsageError(f"expected key=value, got {arg!r}")
-        if key in ("results_dir", "experiment"):
-            if not value:
-                raise UsageError(f"bad value for {key}: empty")
-            settings[key] = value
-        elif key.startswith("threshold.") and len(key) > len("threshold."):
-            try:
-                settings["thresholds"][key[len("threshold.") :]] = float(value)
-            except ValueError:
-                raise UsageError(f"bad value for {key}: {value!r} (expected a number)") from None
-        elif key == "resamples":
-            if not value.isdigit() or int(value) < 100:
-                raise UsageError(f"bad value for resamples: {value!r} (expected an integer >= 100)")
-            settings["resamples"] = int(value)
-        else:
-            raise UsageError(f"unknown key {key!r} (known: results_dir, experiment, threshold.<env id>, resamples)")
-    return settings
+    """``key=value`` arguments (:mod:`imix_cli.keyvalue`, as every ``imix plot`` key) -> settings."""
+    from imix_cli.plotting import _experiment, _results_dir
+
+    thresholds = dict(DEFAULT_THRESHOLDS)
+
+    def threshold(key: str, value: str) -> None:
+        if len(key) == len("threshold."):
+            raise UsageError(f"unknown key {key!r} (expected threshold.<env id>)")
+        thresholds[key[len("threshold.") :]] = finite_number(key, value)
+
+    settings = parse_key_values(
+        argv, "plot mujoco", {"results_dir": "results", "experiment": "mujoco", "resamples": 2000},
+        convert={"results_dir": _results_dir, "experiment": _experiment, "resamples": at_least(100)},
+        prefixed={"threshold.": threshold}, known="results_dir, experiment, threshold.<env id>, resamples",
+    )  # fmt: skip
+    return {**settings, "thresholds": thresholds}
 
 
 def main(argv: list | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if any(a in ("-h", "--help") for a in argv):
-        print(__doc__.split("\n\n", 2)[1])
+    if help_requested(argv, __doc__.split("\n\n", 2)[1] + "\n"):
         return 0
     try:
         settings = parse_args(argv)
