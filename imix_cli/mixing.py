@@ -506,8 +506,6 @@ def mix(
     if eim_generations < 1:
         raise ValueError(f"eim_generations must be >= 1, got {eim_generations}")
     dim = new_dist.dim
-    dtype = getattr(new_dist, "dtype", np.float64)
-    builder = _Builder(popsize, dim, dtype)
     entries = [_unpack_entry(e) for e in archive]
     for number, (_, samples) in enumerate(entries, start=1):
         if samples.ndim != 2 or samples.shape[1] != dim:
@@ -525,6 +523,7 @@ def mix(
     if compiled:
         raise ValueError(f"the compiled mixing step does not apply to variant {variant!r} with {type(new_dist).__name__} and this archive")
 
+    builder = _Builder(popsize, dim, getattr(new_dist, "dtype", np.float64))
     trials = 0
     if entries and variant == "sun2009":
         old_dist, old_samples = entries[0]
