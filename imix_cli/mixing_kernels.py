@@ -314,6 +314,16 @@ def _mix_eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, coun
 _ENTRY = {"paper": _mix_paper, "sun2009": _mix_sun2009, "eim": _mix_eim}
 
 
+def _stacked(arrays, rows: int) -> np.ndarray:
+    """The arrays (each ``rows`` long or shorter) as one array; shorter ones padded with zeros, never read."""
+    if all(a.shape[0] == rows for a in arrays):
+        return np.stack(arrays)
+    out = np.zeros((len(arrays), rows, *arrays[0].shape[1:]))
+    for k, a in enumerate(arrays):
+        out[k, : a.shape[0]] = a
+    return out
+
+
 def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random.Generator, variant: str, alpha: float):
     """One mixing step, as :func:`imix_cli.mixing.mix` with float64 DiagonalGaussians.
 
@@ -321,19 +331,10 @@ def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random
     samples with n_k <= popsize, and (``"eim"`` only) their log-heights. Returns
     ``(samples, source, index, trials)``.
     """
-    n_entries, dim = len(dists), new_dist.dim
-    rows = max(s.shape[0] for s in samples)
-    if all(s.shape[0] == rows for s in samples):
-        xs = np.stack(samples)
-    else:  # generations of different sizes: padded (the padding is never read)
-        xs = np.zeros((n_entries, rows, dim))
-        for k, s in enumerate(samples):
-            xs[k, : s.shape[0]] = s
-    counts = np.array([s.shape[0] for s in samples], dtype=np.int64)
-    h = np.zeros((n_entries, rows))
-    if heights is not None:
-        for k, hk in enumerate(heights):
-            h[k, : hk.shape[0]] = hk
+    rows = max(x.shape[0] for x in samples)
+    xs = _stacked(samples, rows)
+    h = _stacked(heights, rows) if heights is not None else np.zeros((len(samples), rows))
+    counts = np.array([x.shape[0] for x in samples], dtype=np.int64)
     means = np.stack([dist.mean for dist in dists])
     stds = np.stack([dist.std for dist in dists])
     log_norms = np.array([dist._log_norm for dist in dists])
