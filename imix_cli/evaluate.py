@@ -52,6 +52,11 @@ _POLICY_FILE = re.compile(r"^policy_(\d+)_(mean|best)\.npz$")
 _NOT_RUNS = {"figures"}
 
 
+#: The keys that choose policy files, shared by ``imix eval`` and ``imix render``: defaults and checks.
+POLICY_KEYS = {"results_dir": "results", "experiment": "default", "run": None, "which": "mean"}
+POLICY_KEY_CHECKS = {"experiment": folder_name, "run": folder_name, "which": one_of("mean", "best")}
+
+
 def run_folders(results_dir, experiment: str, run: str | None = None) -> list[Path]:
     """The run folders of an experiment (or just ``run``); UsageError (status 1) if there are none."""
     exp_dir = Path(results_dir) / experiment
@@ -162,10 +167,7 @@ def main(argv: list | None = None) -> int:
     if help_requested(argv, HELP):
         return 0
     try:
-        s = parse_key_values(
-            argv, "eval", {"results_dir": "results", "experiment": "default", "run": None, "episodes": 100, "which": "mean"},
-            convert={"experiment": folder_name, "run": folder_name, "episodes": at_least(1), "which": one_of("mean", "best")},
-        )  # fmt: skip
+        s = parse_key_values(argv, "eval", {**POLICY_KEYS, "episodes": 100}, convert={**POLICY_KEY_CHECKS, "episodes": at_least(1)})
         folders = run_folders(s["results_dir"], s["experiment"], s["run"])
         from imix_cli.policy_files import PolicyFileError
 

@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.evaluate import eval_episode_seeds, run_folders
-from imix_cli.keyvalue import UsageError, at_least, folder_name, help_requested, one_of, parse_key_values
+from imix_cli.evaluate import POLICY_KEY_CHECKS, POLICY_KEYS, eval_episode_seeds, run_folders
+from imix_cli.keyvalue import UsageError, at_least, help_requested, parse_key_values
 
 HELP = """\
 usage: imix render [key=value ...]
@@ -195,10 +195,8 @@ def main(argv: list | None = None) -> int:
     try:
         s = parse_key_values(
             argv, "render",
-            {"results_dir": "results", "experiment": "default", "run": None, "seed": 0, "which": "mean",
-             "out": "policy.gif", "frames": None, "scale": "1", "fps": None},
-            convert={"experiment": folder_name, "run": folder_name, "seed": at_least(0), "which": one_of("mean", "best"),
-                     "frames": at_least(1), "fps": at_least(1)},
+            {**POLICY_KEYS, "seed": 0, "out": "policy.gif", "frames": None, "scale": "1", "fps": None},
+            convert={**POLICY_KEY_CHECKS, "seed": at_least(0), "frames": at_least(1), "fps": at_least(1)},
         )  # fmt: skip
         out = Path(s["out"])
         if out.suffix.lower() not in (".gif", ".mp4"):
