@@ -6,7 +6,6 @@ once per module and shared by the cases that must leave it alone; the cases that
 file in it first work on a copy of their own.
 """
 
-import errno
 import hashlib
 import shutil
 from pathlib import Path
@@ -118,18 +117,8 @@ def test_config_yaml_of_a_different_config_in_the_target_folder(results, capsys)
     assert snapshot(results) == before
 
 
-def test_full_disk_while_writing(results, capsys, monkeypatch):
+def test_full_disk_while_writing(results, capsys, csv_disk_full):
     """ENOSPC while a seed's CSV is written: one line, and no partial file at any final name."""
-    import imix_cli.results as results_module
-
-    real_fsync = results_module.os.fsync
-
-    def fsync_fails_for_csvs(fd):
-        if Path(f"/proc/self/fd/{fd}").resolve().name.startswith(".seed_"):
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return real_fsync(fd)
-
-    monkeypatch.setattr(results_module.os, "fsync", fsync_fails_for_csvs)
     before = snapshot(results)
     assert main(["run", *[a for a in BASE if not a.startswith("seeds")], "seeds=2", f"results_dir={results}"]) == 1
     err = capsys.readouterr().err.strip()

@@ -5,7 +5,6 @@ Each case is one of the issue's reproductions. Values that can never work are re
 its seed cleanly, recorded in the CSV (``diverged``) and in the summary.
 """
 
-import errno
 import os
 import signal
 import subprocess
@@ -197,17 +196,7 @@ def test_glob_on_a_value_key_is_refused_by_name(tmp_path, capsys):
     assert "glob" in one_line_error(capsys)
 
 
-def test_the_disk_full_message_names_the_file(tmp_path, capsys, monkeypatch):
-    import imix_cli.results as results_module
-
-    real_fsync = results_module.os.fsync
-
-    def fsync_fails_for_csvs(fd):
-        if Path(f"/proc/self/fd/{fd}").resolve().name.startswith(".seed_"):
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return real_fsync(fd)
-
-    monkeypatch.setattr(results_module.os, "fsync", fsync_fails_for_csvs)
+def test_the_disk_full_message_names_the_file(tmp_path, capsys, csv_disk_full):
     assert main(["run", "algo=cem", *SMALL, f"results_dir={tmp_path}"]) == 1
     err = one_line_error(capsys)
     assert "seed_0.csv" in err and "No space left on device" in err, err
