@@ -32,6 +32,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+# The bounded integer draw of NumPy's Generator.shuffle (masked rejection on 32- or 64-bit words).
+# numba's own ``Generator.permutation`` uses it too, but through an N-d shuffle that took ~5 s of
+# a cold run's ~7 s compile of the ``eim`` entry point; :func:`_permutation` is its 1-d loop.
+from numba.np.random.random_methods import random_interval
+
 __all__ = ["mix_diagonal"]
 
 # As imix_cli.mixing: rule-2 draws per missing member before the rest is filled plainly.
@@ -39,6 +44,25 @@ _MAX_TRIALS_PER_MEMBER = 200
 # As imix_cli.mixing._SCRATCH_ELEMENTS: Algorithm 2's block size is capped by it, and the block
 # size decides how many fresh draws a step consumes, so it must be the same here.
 _SCRATCH_ELEMENTS = 1 << 20
+
+
+@njit(cache=True)
+def _put(rows, i, row):
+    """``rows[i] = row`` as a loop: numba's general slice assignment compiles for seconds."""
+    for j in range(row.shape[0]):
+        rows[i, j] = row[j]
+
+
+@njit(cache=True)
+def _permutation(rng, n):
+    """``rng.permutation(n)``: the same array, the same draws (NumPy's Fisher-Yates, last index first)."""
+    out = np.arange(n)
+    bit_generator = rng.bit_generator
+    for i in range(n - 1, 0, -1):
+        j = np.intp(random_interval(bit_generator, i))
+        if i != j:
+            out[i], out[j] = out[j], out[i]
+    return out
 
 
 @njit(cache=True)
@@ -128,7 +152,7 @@ def _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsi
     size = 0
     for i in range(n_old):
         if log_u[i] < log_keep + _row_log_ratio(xs[0, i], means[0], q, lin, c):
-            out[size] = xs[0, i]
+            _put(out, size, xs[0, i])
             source[size] = 1
             index[size] = i
             size += 1
@@ -143,7 +167,7 @@ def _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsi
         u = rng.random(n)
         for i in range(n):
             if size < popsize and u[i] < max(alpha, -np.expm1(-max(ratio[i], 0.0))):
-                out[size] = cand[i]
+                _put(out, size, cand[i])
                 size += 1
         trials += n
     return size, n_old
@@ -156,7 +180,7 @@ def _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize
     q, lin, c = _row_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     nq, nl, nc = _noise_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     n_old = counts[0]
-    order = rng.permutation(n_old)
+    order = _permutation(rng, n_old)
     log_u1 = np.log(rng.random(n_old))
     u2 = rng.random(n_old)
     missing = popsize
@@ -185,13 +209,13 @@ def _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize
         for b in range(taken):  # as Builder.add: the block's old members first, then its fresh ones
             if accept_old[b]:
                 row = order[step + b]
-                out[size] = xs[0, row]
+                _put(out, size, xs[0, row])
                 source[size] = 1
                 index[size] = row
                 size += 1
         for b in range(taken):
             if accept_new[b]:
-                out[size] = cand[b]
+                _put(out, size, cand[b])
                 source[size] = 0
                 index[size] = -1
                 size += 1
@@ -200,7 +224,7 @@ def _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize
     if size > popsize:  # both rules accepted on the last step: drop one member at random
         victim = rng.integers(0, size)
         for i in range(victim, size - 1):
-            out[i] = out[i + 1]
+            _put(out, i, out[i + 1])
             source[i] = source[i + 1]
             index[i] = index[i + 1]
         size -= 1
@@ -215,7 +239,7 @@ def _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, 
     size = 0
     for i in range(counts[0]):  # the previous generation: every member below the new graph is kept
         if heights[0, i] < _row_log_ratio(xs[0, i], means[0], q, lin, c):
-            out[size] = xs[0, i]
+            _put(out, size, xs[0, i])
             source[size] = 1
             index[size] = i
             size += 1
@@ -229,7 +253,9 @@ def _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, 
     new_l = np.empty((n_entries, d))
     new_c = np.empty(n_entries)
     for k in range(1, n_entries):
-        new_q[k], new_l[k], new_c[k] = _row_coefficients(mean, std, log_norm, means[k], stds[k], log_norms[k])
+        qk, lk, new_c[k] = _row_coefficients(mean, std, log_norm, means[k], stds[k], log_norms[k])
+        _put(new_q, k, qk)
+        _put(new_l, k, lk)
         open_rows = np.ones(counts[k], np.bool_)
         for j in range(k):
             qj, lj, cj = _row_coefficients(means[j], stds[j], log_norms[j], means[k], stds[k], log_norms[k])
@@ -242,7 +268,7 @@ def _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, 
             if open_rows[i] and heights[k, i] < _row_log_ratio(xs[k, i], means[k], new_q[k], new_l[k], new_c[k]):
                 below[n_below] = i
                 n_below += 1
-        order = rng.permutation(n_below)
+        order = _permutation(rng, n_below)
         for m in range(n_below):
             pools[k, m] = below[order[m]]
         pool_len[k] = n_below
@@ -269,11 +295,11 @@ def _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, 
             if region > 0 and pool_len[region] > 0:  # swapped for an unused old member of that region
                 pool_len[region] -= 1
                 row = pools[region, pool_len[region]]
-                out[size] = xs[region, row]
+                _put(out, size, xs[region, row])
                 source[size] = region + 1
                 index[size] = row
             else:
-                out[size] = cand[i]
+                _put(out, size, cand[i])
                 source[size] = 0
                 index[size] = -1
             size += 1

@@ -325,6 +325,18 @@ def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize):
         archive_compiled = [g_compiled, *archive_compiled][:3]
 
 
+def test_the_compiled_permutation_is_numpys():
+    """mixing_kernels._permutation (its own 1-d loop, for compile time) gives ``Generator.permutation(n)``'s
+    array and leaves the Generator in the same state, for sizes around the 32-bit draws' masks."""
+    from imix_cli.mixing_kernels import _permutation
+
+    for seed in range(40):
+        for n in (0, 1, 2, 3, 7, 8, 9, 50, 150, 1025):
+            r_numpy, r_compiled = np.random.default_rng(seed), np.random.default_rng(seed)
+            assert np.array_equal(r_numpy.permutation(n), _permutation(r_compiled, n)), (seed, n)
+            assert r_numpy.bit_generator.state == r_compiled.bit_generator.state, (seed, n)
+
+
 def test_the_compiled_step_takes_smaller_generations_and_refuses_what_it_does_not_compute():
     rng = np.random.default_rng(3)
     dist = DiagonalGaussian(np.zeros(4), np.ones(4))

@@ -206,6 +206,13 @@ def _buffer_width(params, sizes):
 
 
 @njit(cache=True)
+def _record(trace, i, t, s):
+    """``trace[i, t] = s`` as a loop: numba's general slice assignment compiles for seconds."""
+    for j in range(s.shape[0]):
+        trace[i, t, j] = s[j]
+
+
+@njit(cache=True)
 def _argmax(y, n):
     """Index of the largest of ``y[:n]``: strict comparisons, ties to the lowest, NaN never wins."""
     best, a = y[0], 0
@@ -282,7 +289,7 @@ def cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, retur
     for i in range(params.shape[0]):
         uniform_row(seeds[i], -0.05, 0.05, s)
         if record:
-            trace[i, 0] = s
+            _record(trace, i, 0, s)
         p = params[i]
         ret, t, total = 0.0, 0, 0.0
         while t < max_steps:
@@ -296,7 +303,7 @@ def cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, retur
             terminated = cartpole_step(s, force)
             t += 1
             if record:
-                trace[i, t] = s
+                _record(trace, i, t, s)
             if sparse:
                 total += 1.0
                 ret += total if terminated or t == max_steps else 0.0
@@ -421,11 +428,12 @@ def acrobot_episodes(params, states0, obs0, sizes, max_steps, returns, steps, tr
     s, k, ys = np.empty(4), np.empty((4, 4)), np.empty(4)
     record = trace.shape[0] > 0
     for i in range(params.shape[0]):
-        s[:] = states0[i]
+        for j in range(4):
+            s[j] = states0[i, j]
         for j in range(6):
             x[j] = obs0[i, j]
         if record:
-            trace[i, 0] = s
+            _record(trace, i, 0, s)
         p = params[i]
         ret, t = 0.0, 0
         while t < max_steps:
@@ -433,7 +441,7 @@ def acrobot_episodes(params, states0, obs0, sizes, max_steps, returns, steps, tr
             terminated = acrobot_step(s, _TORQUES[_argmax(out, 3)], k, ys)
             t += 1
             if record:
-                trace[i, t] = s
+                _record(trace, i, t, s)
             ret += 0.0 if terminated else -1.0
             if terminated:
                 break
