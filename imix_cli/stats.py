@@ -18,7 +18,9 @@ def mean_ci(values, level: float = 0.68, axis: int = 0):
     (Student t interval of the mean); NaN where fewer than two finite values.
     ``mean_ci([1, 2, 3, 4])`` -> ``(2.5, 1.18893 * 0.645497, 4)``.
     """
-    from scipy import stats  # here, not at import: every spawned worker imports this module
+    # scipy.special's Student t quantile is what ``scipy.stats.t.ppf`` calls (the same values), and
+    # importing it costs ~0.3 s less than scipy.stats: every run's summary pays that import.
+    from scipy.special import stdtrit
 
     arr = np.asarray(values, dtype=float)
     arr = np.where(np.isfinite(arr), arr, np.nan)
@@ -29,7 +31,7 @@ def mean_ci(values, level: float = 0.68, axis: int = 0):
         dev = np.where(np.isfinite(arr), arr - np.expand_dims(mean, axis), 0.0)
         var = np.sum(dev**2, axis=axis) / np.maximum(n - 1, 1)
         sem = np.sqrt(var) / np.sqrt(np.maximum(n, 1))
-        tq = stats.t.ppf(0.5 + level / 2.0, np.maximum(n - 1, 1))
+        tq = stdtrit(np.maximum(n - 1, 1), 0.5 + level / 2.0)
         half = np.where(n >= 2, tq * sem, np.nan)
     if np.ndim(mean) == 0:
         return float(mean), float(half), int(n)

@@ -20,8 +20,10 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
                CartPole-v1 / Acrobot-v1 (both capped at 200 steps), the same 8-8 tanh MLP, pop 50,
                no mixing, the whole loop jitted with the seeds vmapped (JAX on CPU); next to
                `imix run algo=snes env=<env> eim=true` and `eim=false` (in this process, all
-               cores, a temporary results folder). Wall times (JAX's compile time included and
-               shown), env steps, final scores and ratios. Default 25 seeds x 1000 generations
+               cores, a temporary results folder), and on the first env `imix run ... eim=true`
+               as a user's first run (a new process with an empty numba cache: every kernel is
+               compiled). Wall times (compile included: JAX's shown, imix's first run's extra
+               over the warm run shown), env steps, final scores and ratios. Default 25 seeds x 1000 generations
                (minutes); --quick: 3 x 100. Needs the `peers` extra (pip install 'imix-cli[peers]');
                without it the section says so and the command still exits 0.
 

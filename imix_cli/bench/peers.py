@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import tempfile
 import time
 
@@ -106,15 +109,18 @@ def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
             "env_steps": int(np.asarray(steps, dtype=np.int64).sum()), "final": float(np.mean(final))}  # fmt: skip
 
 
+def _imix_overrides(env: str, eim: bool, seeds: int, generations: int, results_dir: str) -> list[str]:
+    return ["algo=snes", f"env={env}", f"eim={str(eim).lower()}", f"seeds={seeds}", f"generations={generations}",
+            "progress=false", f"results_dir={results_dir}", "experiment=peers"]  # fmt: skip
+
+
 def _imix_run(env: str, eim: bool, seeds: int, generations: int) -> dict:
     """``imix run algo=snes env=<env> eim=<eim>`` in this process (its worker pool, all cores)."""
     from imix_cli.config import validate_overrides
     from imix_cli.runner import run
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
-        overrides = ["algo=snes", f"env={env}", f"eim={str(eim).lower()}", f"seeds={seeds}", f"generations={generations}",
-                     "progress=false", f"results_dir={tmp}", "experiment=peers"]  # fmt: skip
-        (spec,) = validate_overrides(overrides)
+        (spec,) = validate_overrides(_imix_overrides(env, eim, seeds, generations, tmp))
         started = time.perf_counter()
         summary = run(spec, echo=lambda *_: None)
         wall = time.perf_counter() - started
@@ -123,17 +129,47 @@ def _imix_run(env: str, eim: bool, seeds: int, generations: int) -> dict:
             "final": summary["final_mean_score"]}  # fmt: skip
 
 
+def _imix_first_run(env: str, seeds: int, generations: int) -> dict:
+    """``imix run algo=snes env=<env> eim=true`` as a user's first run: a new process (``python -m
+    imix_cli.cli``) with an empty numba cache (``NUMBA_CACHE_DIR``), so every kernel it needs is
+    compiled, in each worker, before it runs. Its ``compile`` is filled in by :func:`peer_rows`:
+    this wall time minus the same run's with the cache warm (process start-up included)."""
+    from imix_cli.config import validate_overrides
+    from imix_cli.summary import summarize
+
+    with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
+        overrides = _imix_overrides(env, True, seeds, generations, os.path.join(tmp, "results"))
+        environ = {**os.environ, "NUMBA_CACHE_DIR": os.path.join(tmp, "numba-cache")}
+        started = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "imix_cli.cli", "run", *overrides], env=environ, capture_output=True, text=True)
+        wall = time.perf_counter() - started
+        if done.returncode != 0:
+            raise RuntimeError(f"imix run (first run) failed: {(done.stderr or done.stdout).strip().splitlines()[-1:]}")
+        (spec,) = validate_overrides(overrides)
+        summary = summarize(spec)
+    return {"run": "imix run algo=snes eim=true, first run (empty numba cache)", "env": env, "eim": True, "first_run": True,
+            "seeds": seeds, "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
+            "final": summary["final_mean_score"]}  # fmt: skip
+
+
 def peer_rows(envs, seeds: int, generations: int, echo=None) -> list[dict]:
-    """The peers and imix's SNES with and without EIM on each env, one after the other."""
+    """The peers and imix's SNES with and without EIM on each env, one after the other; on the
+    first env also imix's SNES + EIM as a first run (numba compiling), whose extra wall time over
+    the warm run is its ``compile``."""
     rows = []
-    for env in envs:
-        for fn, args in (
-            (_peer_run, ("snes", env)), (_peer_run, ("openes", env)), (_imix_run, (env, True)), (_imix_run, (env, False)),
-        ):  # fmt: skip
+    for number, env in enumerate(envs):
+        runs = [(_peer_run, ("snes", env)), (_peer_run, ("openes", env))]
+        runs += [(_imix_first_run, (env,))] if number == 0 else []
+        runs += [(_imix_run, (env, True)), (_imix_run, (env, False))]
+        for fn, args in runs:
             row = fn(*args, seeds, generations)
             rows.append(row)
             if echo:
                 echo(f"  {row['run']}, {env}: {row['wall']:.1f} s, {row['env_steps']:,} env steps, final {row['final']:.1f}")
+        first = [r for r in rows if r.get("first_run") and r["env"] == env]
+        if first:
+            warm = next(r for r in rows if r["env"] == env and r["run"].startswith("imix") and r["eim"] and not r.get("first_run"))
+            first[0]["compile"] = first[0]["wall"] - warm["wall"]
     return rows
 
 
@@ -141,16 +177,25 @@ def format_peers(rows: list[dict]) -> str:
     body = [[r["run"], r["env"], r["seeds"], r["generations"], f"{r['wall']:.1f}",
              "" if r["compile"] is None else f"{r['compile']:.1f}", f"{r['env_steps']:,}", f"{r['final']:.1f}"]
             for r in rows]  # fmt: skip
-    header = ["run", "env", "seeds", "generations", "wall (s)", "of which JAX compile (s)", "env steps", "final mean score"]
+    # compile: JAX's lower().compile() of the whole loop; for imix's first run, its wall time minus the
+    # warm run's (numba compiling into an empty cache, and a new process's start-up)
+    header = ["run", "env", "seeds", "generations", "wall (s)", "of which compile (s)", "env steps", "final mean score"]
     return table(header, body, "llrrrrrr")
 
 
+def _ratio(x: float) -> str:
+    return f"{x:.2f}" if x >= 0.1 else f"{x:.2g}"  # a tiny test run against a first run's compile: not 0.00
+
+
 def format_peer_ratios(rows: list[dict]) -> str:
-    """imix SNES + EIM against each other row of the same env: wall time and env steps ratios."""
+    """imix SNES + EIM (cache warm, and a first run where there is one) against every other row of the
+    same env: wall time and env steps ratios."""
     body = []
     for env in dict.fromkeys(r["env"] for r in rows):
-        ours = next(r for r in rows if r["env"] == env and r["run"].startswith("imix") and r["eim"])
-        for other in (r for r in rows if r["env"] == env and r is not ours):
-            body.append([env, f"imix SNES + EIM vs {other['run']}", f"{other['wall'] / ours['wall']:.2f}",
-                         f"{other['env_steps'] / max(ours['env_steps'], 1):.1f}"])  # fmt: skip
+        mine = [r for r in rows if r["env"] == env and r["run"].startswith("imix") and r["eim"]]
+        for ours in mine:
+            name = "imix SNES + EIM, first run" if ours.get("first_run") else "imix SNES + EIM"
+            for other in (r for r in rows if r["env"] == env and r not in mine):
+                body.append([env, f"{name} vs {other['run']}", _ratio(other["wall"] / ours["wall"]),
+                             f"{other['env_steps'] / max(ours['env_steps'], 1):.1f}"])  # fmt: skip
     return table(["env", "comparison", "× faster (wall)", "× fewer env steps"], body, "llrr")
