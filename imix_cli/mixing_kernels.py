@@ -32,10 +32,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# The bounded integer draw of NumPy's Generator.shuffle (masked rejection on 32- or 64-bit words).
-# numba's own ``Generator.permutation`` uses it too, but through an N-d shuffle that took ~5 s of
-# a cold run's ~7 s compile of the ``eim`` entry point; :func:`_permutation` is its 1-d loop.
-from numba.np.random.random_methods import random_interval
+try:
+    # The bounded integer draw of NumPy's Generator.shuffle (masked rejection on 32- or 64-bit
+    # words). numba's own ``Generator.permutation`` uses it too, but through an N-d shuffle that
+    # took ~5 s of a cold run's ~7 s compile of the ``eim`` entry point; :func:`_permutation` is
+    # its 1-d loop. It is numba's internal API: should a numba release move it, the fallback
+    # below is numba's permutation itself (the same draws, only slower to compile).
+    from numba.np.random.random_methods import random_interval
+except ImportError:  # pragma: no cover - exercised by tests/test_mixing.py with the import removed
+    random_interval = None
 
 __all__ = ["mix_diagonal"]
 
@@ -53,16 +58,25 @@ def _put(rows, i, row):
         rows[i, j] = row[j]
 
 
-@njit(cache=True)
-def _permutation(rng, n):
-    """``rng.permutation(n)``: the same array, the same draws (NumPy's Fisher-Yates, last index first)."""
-    out = np.arange(n)
-    bit_generator = rng.bit_generator
-    for i in range(n - 1, 0, -1):
-        j = np.intp(random_interval(bit_generator, i))
-        if i != j:
-            out[i], out[j] = out[j], out[i]
-    return out
+if random_interval is not None:
+
+    @njit(cache=True)
+    def _permutation(rng, n):
+        """``rng.permutation(n)``: the same array, the same draws (NumPy's Fisher-Yates, last index first)."""
+        out = np.arange(n)
+        bit_generator = rng.bit_generator
+        for i in range(n - 1, 0, -1):
+            j = np.intp(random_interval(bit_generator, i))
+            if i != j:
+                out[i], out[j] = out[j], out[i]
+        return out
+
+else:
+
+    @njit(cache=True)
+    def _permutation(rng, n):
+        """``rng.permutation(n)`` (numba's own: see the import of ``random_interval``)."""
+        return rng.permutation(n)
 
 
 @njit(cache=True)
