@@ -22,10 +22,10 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
                `imix run algo=snes env=<env> eim=true` and `eim=false` (in this process, all
                cores, a temporary results folder), and on the first env `imix run ... eim=true`
                as a user's first run (a new process with an empty numba cache: every kernel is
-               compiled). Wall times (compile included: JAX's shown, imix's first run's extra
-               over the warm run shown), env steps, final scores and ratios. Default 25 seeds x 1000 generations
-               (minutes); --quick: 3 x 100. Needs the `peers` extra (pip install 'imix-cli[peers]');
-               without it the section says so and the command still exits 0.
+               compiled). Wall times (compile included: JAX's shown, and imix's first run's
+               extra over the warm run), env steps, final scores and ratios. Default 25 seeds x
+               1000 generations (minutes); --quick: 3 x 100. Needs the `peers` extra (pip
+               install 'imix-cli[peers]'); without it the section says so and exits 0.
 
 Policies of the rollout benchmark (fixed, so episodes have realistic lengths): CartPole, a
 hand-built balancing controller written as an MLP (action = sign of 2 theta + 0.5 theta_dot
