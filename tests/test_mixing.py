@@ -327,6 +327,22 @@ def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize):
         archive_compiled = [g_compiled, *archive_compiled][:3]
 
 
+def test_the_compiled_step_takes_smaller_generations_and_refuses_what_it_does_not_compute():
+    rng = np.random.default_rng(3)
+    dist = DiagonalGaussian(np.zeros(4), np.ones(4))
+    archive = [Generation(dist.sample(n, rng), np.zeros(n, np.int64), np.full(n, -1, np.int64), dist) for n in (30, 40, 20)]
+    new = DiagonalGaussian(np.full(4, 0.1), np.ones(4))
+    a = mix(new, archive, 50, np.random.default_rng(1), variant="eim", compiled=True)
+    for g in archive:
+        g.log_u = None
+    b = mix(new, archive, 50, np.random.default_rng(1), variant="eim", compiled=False)
+    assert np.array_equal(a.source, b.source) and np.array_equal(a.index, b.index)
+    with pytest.raises(ValueError, match="compiled"):
+        mix(FullGaussian(np.zeros(4), np.eye(4)), [(dist, dist.sample(5, rng))], 5, rng, variant="eim", compiled=True)
+    with pytest.raises(ValueError, match="compiled"):  # a generation larger than popsize
+        mix(new, [(dist, dist.sample(60, rng))], 50, rng, variant="sun2009", compiled=True)
+
+
 def _kernels_without_random_interval(tmp_path):
     """A copy of imix_cli.mixing_kernels whose import of numba's ``random_interval`` fails, as it
     would with a numba release that moved it."""
