@@ -27,7 +27,7 @@ from imix_cli.config_checks import (
     workers_and_experiment,
 )
 from imix_cli.processes import default_workers
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS, eim_rule
 from imix_cli.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields
 
 EVALUATORS = ("local", "pool", "ray")
@@ -45,17 +45,18 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     if reeval_age is not None:
         reeval_age = as_int(cfg, "reeval_age", 1)
     reeval_prob = as_float(cfg, "reeval_prob", 0.0, True, 1.0, False)
+    reeval_count = as_int(cfg, "reeval_count", 0)
     algo_options = _algo_options(algo, algo_cfg)
     im_alpha = as_float(cfg, "im_alpha", 0.0, True, 1.0, False)
     eim_generations = as_int(cfg, "eim_generations", 1)
     if eim and im_variant != "paper":
-        raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant=exact|paper")
+        raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(EIM_VARIANTS)}")
     if im_alpha != 0.0 and not (im and not eim and im_variant == "sun2009"):
         raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
     mixing = "eim" if eim else ("im" if im else "none")
-    variant = EIM_VARIANTS[eim_variant] if eim else (im_variant if im else None)
-    if mixing == "none" and (reeval_age is not None or reeval_prob):
-        raise ConfigError("reeval_age/reeval_prob: only apply with im=true or eim=true (they re-evaluate reused members)")
+    variant = eim_rule(eim_variant, algo) if eim else (im_variant if im else None)
+    if mixing == "none" and (reeval_age is not None or reeval_prob or reeval_count):
+        raise ConfigError("reeval_age/reeval_prob/reeval_count: only apply with im=true or eim=true (they re-evaluate reused members)")
 
     env_name, env_id, max_steps = env_of(env_cfg)
     policy = _policy_and_evaluator(cfg, algo, env_name, env_id, max_steps, launcher)
@@ -85,6 +86,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         eim_generations=eim_generations,
         reeval_age=reeval_age,
         reeval_prob=reeval_prob,
+        reeval_count=reeval_count,
         seeds=seeds,
         generations=as_int(cfg, "generations", 1),
         popsize=popsize,

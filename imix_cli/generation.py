@@ -13,10 +13,26 @@ process in one batch, which only pays off if planning and finishing do no evalua
 Which members are evaluated. Fresh members always. A reused member keeps the return it was
 evaluated with -- that is the point of importance mixing -- unless a remedy for the
 selection bias of stored returns asks to measure it again (README, "Reused returns and
-selection bias"): its return is older than ``reeval_age`` generations, or a coin of
-probability ``reeval_prob`` says so. A re-evaluated member keeps its place and its
-parameters; only its return is new, so the generation is distributed exactly as without the
-remedy.
+selection bias"): its return is older than ``reeval_age`` generations, a coin of
+probability ``reeval_prob`` says so, or it is one of the ``reeval_count`` reused members
+drawn every generation to calibrate the others (below). A re-evaluated member keeps its
+place and its parameters; only its return is new, so the generation is distributed exactly
+as without the remedy.
+
+Calibrating stored returns (``reeval_count``). Why stored returns bias the search: a member
+is reused when it lies where the new distribution is dense, and the distribution moved there
+because of good returns -- so reused members are enriched in *lucky* returns, and a lucky
+return is told again and again. How large the luck is depends on the task: nothing on a
+deterministic task, everything under pure noise. Every re-evaluated reused member gives a
+pair (stored return, fresh return); the pairs of recent generations (exponentially
+forgotten, :data:`PAIR_MEMORY` per generation) give the least-squares line
+fresh ~ alpha + beta * stored, with beta clipped to [0, 1], and every other reused member
+is told alpha + beta * stored: its best prediction of what a fresh episode would return.
+Under pure noise beta -> 0 and the reused members stop outranking the fresh ones; on a
+deterministic task beta -> 1 and alpha -> 0, the stored returns are told as they are. Before
+:data:`PAIR_MIN` pairs have been seen the stored returns are told unchanged. The archive
+keeps the measured returns; only what the ES is told changes. Measured: README, "Reused
+returns and the search".
 """
 
 from __future__ import annotations
@@ -34,7 +50,7 @@ class MixingSettings:
 
     Attributes
     ----------
-    variant : {None, "paper", "sun2009", "eim", "eim_paper"}
+    variant : {None, "paper", "sun2009", "conditional", "eim", "eim_paper"}
         The :func:`~imix_cli.mixing.mix` variant; None draws every generation fresh.
     eim_generations : int
         K, the archived generations ``"eim"``/``"eim_paper"`` reuse from.
@@ -45,6 +61,9 @@ class MixingSettings:
         generations ago (None: never).
     reeval_prob : float
         Re-evaluate each reused member with this probability.
+    reeval_count : int
+        Re-evaluate this many reused members (drawn at random) every generation, and tell the
+        ES the other reused members' stored returns calibrated on them (module docstring).
     """
 
     variant: str | None = None
@@ -52,6 +71,7 @@ class MixingSettings:
     alpha: float = 0.0
     reeval_age: int | None = None
     reeval_prob: float = 0.0
+    reeval_count: int = 0
 
     @property
     def depth(self) -> int:
@@ -68,6 +88,26 @@ class Archive:
     generations: list = field(default_factory=list)  # Generation objects
     returns: list = field(default_factory=list)  # (popsize,) returns of their members
     ages: list = field(default_factory=list)  # (popsize,) generations since each return was measured
+    # (stored, fresh) pairs of re-evaluated reused members, as exponentially forgotten sums:
+    # count, sum stored, sum fresh, sum stored^2, sum stored * fresh (module docstring)
+    pairs: np.ndarray = field(default_factory=lambda: np.zeros(5))
+
+
+#: Weight per generation of the (stored, fresh) pairs of earlier generations: ~20 generations of memory.
+PAIR_MEMORY = 0.95
+#: Pairs (forgotten weight) needed before stored returns are calibrated.
+PAIR_MIN = 5.0
+
+
+def calibration(pairs: np.ndarray) -> tuple[float, float] | None:
+    """``(alpha, beta)`` of fresh ~ alpha + beta * stored from the forgotten sums, beta in [0, 1]; None if too few pairs."""
+    n, s, f, ss, sf = (float(v) for v in pairs)
+    if n < PAIR_MIN:
+        return None
+    mean_s, mean_f = s / n, f / n
+    var_s = ss / n - mean_s * mean_s
+    beta = 1.0 if var_s <= 1e-12 * max(1.0, mean_s * mean_s) else min(1.0, max(0.0, (sf / n - mean_s * mean_f) / var_s))
+    return mean_f - beta * mean_s, beta
 
 
 @dataclass
@@ -80,7 +120,7 @@ class Plan:
 
     @property
     def reevaluated(self) -> int:
-        """Reused members evaluated again (by ``reeval_age`` / ``reeval_prob``)."""
+        """Reused members evaluated again (by ``reeval_age`` / ``reeval_prob`` / ``reeval_count``)."""
         return int(np.count_nonzero(self.generation.source[self.evaluate] > 0))
 
 
@@ -101,6 +141,9 @@ def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.rand
         evaluate[reused] |= age[reused] > settings.reeval_age
     if settings.reeval_prob > 0.0:
         evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
+    if settings.reeval_count > 0:
+        waiting = reused[~evaluate[reused]]
+        evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
     age[evaluate] = 0
     return Plan(g, np.flatnonzero(evaluate), age)
 
@@ -113,8 +156,29 @@ def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan
     for k, stored in enumerate(archive.returns, start=1):  # reused members keep their stored return
         from_k = g.source == k
         fitness[from_k] = stored[g.index[from_k]]
+    reused = g.source > 0
+    again = plan.evaluate[reused[plan.evaluate]]  # reused members evaluated again: (stored, fresh) pairs
+    stored_again = fitness[again]
     fitness[plan.evaluate] = returns  # ... unless evaluated again
-    es.tell(g.samples, fitness)
+    told_fitness = fitness
+    if settings.depth and again.size:
+        fresh_again = fitness[again]
+        ok = np.isfinite(stored_again) & np.isfinite(fresh_again)
+        a, b = stored_again[ok], fresh_again[ok]
+        archive.pairs = PAIR_MEMORY * archive.pairs + np.array([a.size, a.sum(), b.sum(), a @ a, a @ b])
+    elif settings.depth:
+        archive.pairs = PAIR_MEMORY * archive.pairs
+    if settings.reeval_count > 0:
+        line = calibration(archive.pairs)
+        kept = reused.copy()
+        kept[plan.evaluate] = False
+        if line is not None and kept.any():
+            told_fitness = fitness.copy()
+            told_fitness[kept] = line[0] + line[1] * fitness[kept]
+    told = getattr(es, "generation", None)
+    es.tell(g.samples, told_fitness)
+    if told is not None and es.generation > told:  # the weights of this generation's members in the move ("conditional" mixing)
+        g.mean_weights = getattr(es, "mean_weights", None)
     depth = settings.depth
     if depth:
         archive.generations = [g, *archive.generations][:depth]

@@ -71,7 +71,7 @@ def new_seed_state(spec, seed: int, dim: int) -> SeedState:
 
 
 def mixing_settings(spec) -> MixingSettings:
-    return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob)
+    return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob, spec.reeval_count)
 
 
 def advance_lockstep(states: list[SeedState], spec, evaluator, plan=plan_generation) -> None:

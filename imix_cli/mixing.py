@@ -48,6 +48,11 @@ Variants (``mix(..., variant=...)``)
                 generation's exclusive region are swapped for unused old members of
                 that region (below). Exact over chains; reuses more than
                 ``"sun2009"``.
+``"conditional"`` Sun et al.'s rule, slot by slot, with each member of the previous
+                generation taken for what it is *given the update it took part in*
+                (below, "Reuse inside the loop"): exact over the chains an ES makes
+                itself, where the other variants are exact only along a path that does
+                not depend on the members. The default of ``eim=true`` for CMA-ES and CEM.
 ``"eim_paper"`` the paper's Algorithm 3: Algorithm 2's alternation over the K most
                 recent generations in turn, newest first, each tested against the
                 density of its own generation, until full; a point present in several
@@ -86,6 +91,48 @@ built it), so members do not stick longer than under ``"sun2009"``: carried heig
 CEM's population frozen under neutral selection (98 % reuse, sigma growing) in a trial.
 Like ``"sun2009"``, it needs rule-2 draws in proportion to 1/(1 - lambda): after
 200 draws per missing member the rest is filled with plain draws (never hit in practice).
+
+Reuse inside the loop: why ``"conditional"``
+----------------------------------------------
+Every argument above holds along a *fixed* path of distributions. Inside an ES the path is
+made from the members themselves: the generation told at step t moved the mean toward its
+best members, and those members are then reused. Given the new distribution, a member of
+generation t is no longer a draw from p_t: the move it took part in is evidence about where
+it lies. Rule 1, which treats it as a draw from p_t, then keeps the members that pulled the
+mean -- they sit ahead along the move -- and the next generation is not distributed as p_t+1.
+Measured under constant fitness (every return equal, so every move is neutral and every
+deviation is the loop's own; d = 130, N = 50, ``benchmarks/reuse_bias.py constant``): with
+``"eim"`` CMA-ES's members sit ahead along the last mean step and are too concentrated
+(E[z^2] ~ 0.98), which shortens CSA's path and halves its step size.
+
+The law of a member given the move. Write the generation in the coordinates whitened by
+p_t, z_j ~ N(0, I) independent, and the move of the mean it causes as proportional to
+s = sum_j c_j z_j, with weights c_j fixed by the ranks (the ES's :attr:`mean_weights`: the
+positive recombination weights of CMA-ES, CEM's elite weights, the utilities of the
+gradient ES). When the ranks carry no information about where the members lie (constant or
+neutral fitness: the case the loop's own bias is measured in), Gaussian conditioning gives
+
+    z_i | s  ~  N(a_i s, (1 - b_i) I),    a_i = c_i / sum_j c_j^2,    b_i = c_i^2 / sum_j c_j^2
+
+-- a member that carried a large share of the move is pulled along it and known more
+precisely. Call that law q_i. The rule is Sun et al.'s, one slot per old member, with q_i in
+place of p_t: keep member i with probability min(1, p_t+1/q_i); otherwise draw from p_t+1
+until a draw x lands where p_t+1(x) > q_i(x), accepting it with probability 1 - q_i/p_t+1.
+Slot i then holds min(q_i, p_t+1) + (p_t+1 - min(q_i, p_t+1)) = p_t+1: each slot is a draw
+from the new distribution *given everything the ES has seen*, and so is the next generation,
+whose own move is then conditioned on in turn -- the construction needs nothing older than
+the previous generation (hence no multi-generation swaps: an older member's law given
+several moves and rejections has no closed form here).
+
+What it does not cover, and what it costs. It conditions on the mean's move only; CMA-ES's
+covariance and CEM's variance also depend on the members (their outer products), which this
+rule ignores (CMA-ES's rank-mu rate is ~0.001 at d = 130; CEM's variance is the elites' own,
+hence the larger residual there). A member with a large share of the move is reused less,
+so reuse drops: little for CMA-ES and CEM, whose weights are spread over ~N/2 elites, but by
+half for the gradient ES, whose d-dimensional gradient reveals every member: there the
+offset is harmless anyway (utilities sum to zero, so a common offset of the population
+cancels from the gradient), and ``"eim"`` stays their default. Measured in the README
+("Reused returns and the search").
 
 Everything is computed in log space: a Gaussian density underflows at d = 10^4
 while log p is an ordinary number. Rule 1 accepts when log u < log p_new -
@@ -148,6 +195,11 @@ class Generation:
         (-inf, 0] (``"eim"`` only; see "Multi-generation mixing"). None until the generation
         is first mixed from; drawn then and kept, because the older-generation steps of later
         mixes must see the heights that decided which members went on.
+    mean_weights : (popsize,) float array or None
+        The weight of each member in the move of the mean the ES made from this generation
+        (:attr:`EvolutionStrategy.mean_weights <imix_cli.algorithms.base.EvolutionStrategy.mean_weights>`),
+        set once the generation is told (:func:`imix_cli.generation.finish_generation`); what
+        ``"conditional"`` conditions on. None: the members are independent of the path.
     """
 
     samples: np.ndarray
@@ -156,6 +208,7 @@ class Generation:
     dist: object
     trials: int = 0
     log_u: np.ndarray | None = None
+    mean_weights: np.ndarray | None = None
 
     @property
     def fresh(self) -> np.ndarray:
@@ -440,9 +493,68 @@ def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> 
     return draws
 
 
+def _whitened(dist, x: np.ndarray) -> np.ndarray:
+    """``x`` in the coordinates in which ``dist`` is N(0, I)."""
+    if type(dist) is DiagonalGaussian:
+        return (x - dist.mean) / dist.std
+    if type(dist) is FullGaussian:
+        from scipy.linalg import solve_triangular
+
+        return solve_triangular(dist.chol, (x - dist.mean).T, lower=True).T
+    raise ValueError(f'variant "conditional" needs Gaussian search distributions, got {type(dist).__name__}')
+
+
+def _conditional(builder: _Builder, new_dist, entry, rng: np.random.Generator) -> int:
+    """The ``"conditional"`` rule (module docstring, "Reuse inside the loop"): Sun et al.'s step slot by
+    slot, each old member taken as a draw from its law q_i given the move of the mean it took part in.
+    Returns the number of rule-2 candidates drawn."""
+    old_dist, x = _unpack_entry(entry)
+    n, dim = x.shape
+    ratio = _log_ratio(new_dist, old_dist)
+    weights = getattr(entry, "mean_weights", None)
+    informed = weights is not None and np.any(weights != 0)
+    if informed:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != (n,):
+            raise ValueError(f"mean_weights has shape {weights.shape}, expected ({n},)")
+        z = _whitened(old_dist, x)
+        total = float(weights @ weights)
+        pull = weights / total  # a_i
+        known = np.minimum(weights * weights / total, 1.0 - 1e-12)  # b_i < 1: q_i stays a density
+        move = weights @ z  # s
+
+    def log_q_over_old(slots, z_rows):
+        """log q_i(x) - log p_old(x) for slot i = slots[k] at the whitened row z_rows[k]."""
+        if not informed:
+            return np.zeros(len(slots))
+        dev = z_rows - pull[slots, None] * move
+        return (
+            -0.5 * np.einsum("ij,ij->i", dev, dev) / (1.0 - known[slots])
+            + 0.5 * np.einsum("ij,ij->i", z_rows, z_rows)
+            - 0.5 * dim * np.log1p(-known[slots])
+        )
+
+    slots = np.sort(rng.permutation(n)[: builder.popsize]) if n > builder.popsize else np.arange(n)
+    r_old = ratio.of_rows(x, slots)
+    keep = _log_uniform(rng, slots.size) < r_old - log_q_over_old(slots, z[slots] if informed else None)  # rule 1 with q_i
+    builder.add(x[slots[keep]], 1, slots[keep])
+    pending = slots[~keep]
+    draws = 0
+    for _ in range(_SUN2009_MAX_TRIALS_PER_MEMBER):  # rule 2 against each slot's own q_i
+        if pending.size == 0:
+            break
+        candidates, cand_r = ratio.sample(pending.size, rng)
+        lq = log_q_over_old(pending, _whitened(old_dist, candidates) if informed else None)
+        accept = _log_uniform(rng, pending.size) >= lq - cand_r  # u >= q_i / p_new
+        builder.add(candidates[accept])
+        draws += pending.size
+        pending = pending[~accept]
+    return draws  # slots still pending: filled with plain draws by builder.finish
+
+
 def _compiled_applies(new_dist, entries, popsize: int, variant: str) -> bool:
     """Whether :mod:`imix_cli.mixing_kernels` computes this step (see ``mix``'s ``compiled``)."""
-    if variant == "eim_paper" or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
+    if variant in ("eim_paper", "conditional") or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
         return False
     archived = 0
     for dist, samples in entries:
@@ -476,8 +588,9 @@ def mix(
         Size N of the new generation.
     rng : numpy.random.Generator
         Source of all randomness (acceptance tests, fresh draws, orderings).
-    variant : {"paper", "sun2009", "eim", "eim_paper"}
-        See the module docstring. ``"paper"`` and ``"sun2009"`` use ``archive[0]`` only,
+    variant : {"paper", "sun2009", "conditional", "eim", "eim_paper"}
+        See the module docstring. ``"paper"``, ``"sun2009"`` and ``"conditional"`` use ``archive[0]`` only
+        (``"conditional"`` reads its ``mean_weights`` if it is a Generation),
         ``"eim"`` and ``"eim_paper"`` up to ``eim_generations`` entries. ``"eim"`` keeps each
         Generation's heights in it (``log_u``): pass the same Generation objects again; a
         plain ``(dist, samples)`` pair is taken as a fresh independent sample at every call.
@@ -525,7 +638,9 @@ def mix(
 
     builder = _Builder(popsize, dim, getattr(new_dist, "dtype", np.float64))
     trials = 0
-    if entries and variant == "sun2009":
+    if entries and variant == "conditional":
+        trials = _conditional(builder, new_dist, archive[0], rng)
+    elif entries and variant == "sun2009":
         old_dist, old_samples = entries[0]
         trials = _sun2009(builder, new_dist, old_dist, old_samples, alpha, rng)
     elif variant == "eim":

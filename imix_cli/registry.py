@@ -60,6 +60,12 @@ class AlgorithmSpec:
         The ``algo.<key>`` settings of ``conf/algo/<name>.yaml`` that are fields of the ES's
         ``Params`` (defaults, choices and checks come from there); a value other than the
         default names the run folder (``-algo.<key>=<value>``).
+    eim_rule : str
+        The :func:`~imix_cli.mixing.mix` variant ``eim=true`` uses when ``eim_variant=auto`` (the
+        default): ``"conditional"`` for the selection-based ES, whose mean is a weighted mean of
+        the elites, so that a reused elite's pull on the mean would otherwise shift the next
+        generation; ``"eim"`` for the gradient ES, whose zero-sum utilities cancel that shift and
+        whose reuse ``"conditional"`` would halve (README, "Reused returns and the search").
     """
 
     name: str
@@ -69,6 +75,7 @@ class AlgorithmSpec:
     generations: int | None = None
     uses_lr: bool = False
     options: tuple[str, ...] = ()
+    eim_rule: str = "eim"
 
     @property
     def is_es(self) -> bool:
@@ -254,13 +261,15 @@ MIXING_SPECS: dict[str, MixingSpec] = {
     spec.name: spec
     for spec in (
         MixingSpec("none", "without mixing", "", "none"),
-        # im=true, im_variant: paper (Algorithm 2) | sun2009 (Sun et al. 2009)
-        MixingSpec("im", "with IM", " + IM", "IM", {"paper": "paper", "sun2009": "sun2009"}),
-        # eim=true, eim_variant: "exact" is imix's multi-generation rule, unbiased over chains
-        # (mixing.py); "paper" the paper's Algorithm 3, kept for reproduction: its generations
-        # drift from their distribution over chains of generations (README, "Correctness of
-        # importance mixing").
-        MixingSpec("eim", "with EIM", " + EIM", "EIM", {"exact": "eim", "paper": "eim_paper"}),
+        # im=true, im_variant: paper (Algorithm 2) | sun2009 (Sun et al. 2009) | conditional
+        # (Sun et al.'s rule given the ES's own move: mixing.py, "Reuse inside the loop")
+        MixingSpec("im", "with IM", " + IM", "IM", {"paper": "paper", "sun2009": "sun2009", "conditional": "conditional"}),
+        # eim=true, eim_variant: "auto" is the ES's own rule (AlgorithmSpec.eim_rule); "exact" is
+        # imix's multi-generation rule, unbiased over chains along a fixed path (mixing.py);
+        # "conditional" unbiased inside the ES's loop too (mixing.py, "Reuse inside the loop");
+        # "paper" the paper's Algorithm 3, kept for reproduction: its generations drift from
+        # their distribution over chains of generations (README, "Correctness of importance mixing").
+        MixingSpec("eim", "with EIM", " + EIM", "EIM", {"auto": None, "exact": "eim", "conditional": "conditional", "paper": "eim_paper"}),
     )
 }
 
@@ -292,7 +301,12 @@ MIXING_NAMES = tuple(MIXING_SPECS)
 IM_VARIANTS = tuple(MIXING_SPECS["im"].variants)
 EIM_VARIANTS = dict(MIXING_SPECS["eim"].variants)
 #: Every variant :func:`~imix_cli.mixing.mix` implements.
-MIX_VARIANTS = tuple(v for spec in MIXING_SPECS.values() for v in spec.variants.values())
+MIX_VARIANTS = tuple(dict.fromkeys(v for spec in MIXING_SPECS.values() for v in spec.variants.values() if v is not None))
+
+
+def eim_rule(eim_variant: str, algo: str) -> str:
+    """The :func:`~imix_cli.mixing.mix` variant of ``eim=true eim_variant=<eim_variant>`` for ``algo=<algo>``."""
+    return EIM_VARIANTS[eim_variant] or ALGORITHM_SPECS[algo].eim_rule
 
 #: The paper's mixing settings (section 4.1), the defaults of conf/config.yaml.
 MIXING_DEFAULTS = {
@@ -302,4 +316,5 @@ MIXING_DEFAULTS = {
     "eim_generations": 3,
     "reeval_age": None,
     "reeval_prob": 0.0,
+    "reeval_count": 0,
 }

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from imix_cli.algorithms.base import Params
 from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, MIXING_DEFAULTS
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, MIXING_DEFAULTS, eim_rule
 
 #: The top-level keys that set an ES's :class:`~imix_cli.algorithms.base.Params`.
 ES_PARAM_KEYS = ("popsize", "sigma", "lr", "weight_decay", "weight_decay_form")
@@ -42,7 +42,7 @@ DDPG_DEFAULTS = PAPER_SETTINGS
 #: Top-level keys of the evolution strategies only: algo=ddpg ignores them (and leaves them out
 #: of its config.yaml, so they never make two DDPG runs differ). ``total_steps`` is ddpg's only.
 ES_ONLY_KEYS = (
-    "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age", "reeval_prob",
+    "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age", "reeval_prob", "reeval_count",
     "generations", "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "checkpoint_every",
     "policy", "evaluator", "evaluator_workers", "ray_address",
 )  # fmt: skip
@@ -56,7 +56,7 @@ NON_IDENTITY_KEYS = (
 
 TOP_LEVEL_KEYS = (
     "algo", "env", "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age",
-    "reeval_prob", "seeds", "generations",
+    "reeval_prob", "reeval_count", "seeds", "generations",
     "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
     "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
     "eval_mean_every", "eval_mean_episodes",
@@ -82,11 +82,12 @@ class RunSpec:
     # The evolution strategies' keys; an algorithm that is not an ES (DDPG) leaves them at these
     # defaults (the paper's values; no generations, no mixing), which it never reads:
     mixing: str = "none"  # none | im | eim
-    variant: str | None = None  # mix() variant: paper | sun2009 | eim | eim_paper; None without mixing
+    variant: str | None = None  # mix() variant: paper | sun2009 | conditional | eim | eim_paper; None without mixing
     im_alpha: float = PAPER_DEFAULTS["im_alpha"]
     eim_generations: int = PAPER_DEFAULTS["eim_generations"]
     reeval_age: int | None = None  # re-evaluate a reused member whose return is older than this (None: never)
     reeval_prob: float = 0.0  # ... and any reused member with this probability
+    reeval_count: int = 0  # ... and this many reused members per generation, calibrating the other stored returns
     generations: int = 0
     popsize: int = PAPER_DEFAULTS["popsize"]
     sigma: float = PAPER_DEFAULTS["sigma"]
@@ -140,10 +141,13 @@ class RunSpec:
             values["im_alpha"] = self.im_alpha
         if self.mixing == "eim":
             values["eim_generations"] = self.eim_generations
-            values["eim_variant"] = next(k for k, v in EIM_VARIANTS.items() if v == self.variant)
+            # eim_variant=auto and the variant it selects for this ES name the same run
+            auto = eim_rule(PAPER_DEFAULTS["eim_variant"], self.algo)
+            values["eim_variant"] = PAPER_DEFAULTS["eim_variant"] if self.variant == auto else next(k for k, v in EIM_VARIANTS.items() if v == self.variant)
         if self.mixing != "none":
             values["reeval_age"] = self.reeval_age
             values["reeval_prob"] = self.reeval_prob
+            values["reeval_count"] = self.reeval_count
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
         defaults = {k: f.default for k, f in algo_option_fields(self.algo).items()}
         changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != defaults.get(k)})

@@ -70,7 +70,7 @@ def test_builtin_envs_match_their_evaluators_and_gymnasium():
 def test_mixing_variants_are_those_mix_implements():
     from imix_cli.mixing import VARIANTS
 
-    assert VARIANTS == MIX_VARIANTS == ("paper", "sun2009", "eim", "eim_paper")
+    assert VARIANTS == MIX_VARIANTS == ("paper", "sun2009", "conditional", "eim", "eim_paper")
     assert list(MIXING_SPECS) == ["none", "im", "eim"]
 
 

@@ -133,6 +133,7 @@ class CEM(EvolutionStrategy):
         by_rank = np.zeros(n)
         by_rank[:k] = self._weights(k)
         w = rank_weights(utilities, by_rank)  # elites' weights, ties sharing theirs; 0 for the rest
+        self._told_mean_weights = w  # the new mean is sum_i w_i x_i
         old_mu = self._dist.mean
         mu = w @ samples
         self.extra_variance = self.extra_variance_decay * self.extra_variance + (1.0 - self.extra_variance_decay) * self.extra_variance_floor
@@ -141,6 +142,10 @@ class CEM(EvolutionStrategy):
         else:
             var = w @ ((samples - mu) ** 2) + self.extra_variance
         self._dist = DiagonalGaussian(mu, np.sqrt(var))
+
+    def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:
+        """Each member's elite weight: the new mean is sum_i w_i x_i."""
+        return self._told_mean_weights
 
     def _state_dict(self) -> dict:
         return {"extra_variance": float(self.extra_variance), **prefixed("dist", self._dist.to_state())}

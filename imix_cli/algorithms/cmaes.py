@@ -258,6 +258,8 @@ class CMAES(EvolutionStrategy):
         order = np.argsort(-utilities, kind="stable")
         x = x[order]
         w_pos, w_neg = _shared_among_ties(np.asarray(weights, dtype=np.float64), utilities[order])
+        self._told_mean_weights = np.empty(n)
+        self._told_mean_weights[order] = w_pos  # m' - m = sum_i w_i (x_i - m): the mean weights, by member
 
         # [T] (9): m' = sum_i w_i x_{i:lambda} over the positive weights (pycma: cmean = 1)
         mean_old = self.mean_geno
@@ -313,6 +315,10 @@ class CMAES(EvolutionStrategy):
         if not self._alleviate_conditioning():
             self._decompose()
         self._set_distribution()
+
+    def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:
+        """Each member's positive recombination weight (ties sharing theirs): m' - m = sum_i w_i (x_i - m)."""
+        return self._told_mean_weights
 
     def _decompose(self) -> None:
         """C = B D^2 B^T on the symmetrised C, eigenvalues ascending (GaussFullSampler._decompose_C)."""

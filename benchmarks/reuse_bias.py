@@ -1,0 +1,197 @@
+"""Does reuse bend the search? One table: every ES, without mixing and with each rule, from no signal to real tasks.
+
+Importance mixing draws a generation exactly from its distribution along a *fixed* path of
+distributions; inside an ES the path is made from the members, and the search with mixing can
+become a different search. Three things can bend it (README, "Reused returns and the search"):
+tie ranks that follow a member from generation to generation (fixed by per-generation tie
+keys), the members' own pull on the move they are then reused after (the ``conditional``
+rule), and stored noisy returns told again (``reeval_count``). Each section isolates one:
+
+``constant``  every return equal: each move is neutral, so any deviation is the loop's own.
+              E[z^2] of the generation in the coordinates whitened by its distribution
+              (1 without bias), the members' mean offset along the last move of the mean
+              (0 without bias; in units of the distribution's spread), sigma/sigma0 and the
+              mean's displacement ||m - m0|| / (sigma0 sqrt(d)) at the end.
+``neutral``   every episode's return an independent N(0, 1) draw: stored returns carry luck
+              and nothing else.
+``noisy``     a sphere whose evaluations carry noise the size of the population's spread of
+              true values: the true f(mean) at the end (lower is better).
+``tasks``     reads an experiment of ``imix run`` CSVs (CartPole, Acrobot, MuJoCo: see
+              ``make reuse-bias``) and prints, per run: the population's mean return at the
+              end (reused returns included), the mean policy theta on fresh episodes at the end
+              and averaged over the run (per generation, next to the same ES without mixing),
+              episodes per seed, reuse, the lowest seed, the median final sigma.
+
+Usage::
+
+    python benchmarks/reuse_bias.py constant|neutral|noisy [--seeds 5] [--generations 400] [--workers 2]
+    python benchmarks/reuse_bias.py tasks --experiment results/reuse_bias
+
+d = 130 (the CartPole policy's size), N = 50, sigma0 0.25, lr 0.01, no weight decay in the
+synthetic sections. Rows: ``none`` (no mixing), ``exact`` (``eim=true eim_variant=exact``),
+``conditional`` (``eim=true eim_variant=conditional``), ``exact + reeval 2`` (``eim=true
+reeval_count=2``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import itertools
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from imix_cli.algorithms import make_es
+from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.mixing import _whitened
+
+ALGOS = ("openes", "snes", "cem", "cmaes")
+RULES = {
+    "none": MixingSettings(None),
+    "exact": MixingSettings("eim"),
+    "conditional": MixingSettings("conditional"),
+    "exact + reeval 2": MixingSettings("eim", reeval_count=2),
+}
+DIM, POPSIZE, SIGMA0 = 130, 50, 0.25
+WARMUP = 20  # generations before E[z^2] and the offset are averaged
+
+
+def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int) -> dict:
+    """One run of ``algo`` with ``rule`` on a synthetic objective; the statistics of the module docstring."""
+    rng = np.random.default_rng(seed)
+    noise_rng = np.random.default_rng(seed + 10_000)
+    mean0 = np.full(DIM, 0.5) if objective == "noisy" else None
+    es = make_es(algo, DIM, popsize=POPSIZE, sigma=SIGMA0, lr=0.01, weight_decay=0.0, mean=mean0)
+    settings, archive = RULES[rule], Archive()
+    start, sigma0 = es.mean.copy(), es.distribution.sigma_mean
+    z2, offset, previous_mean = [], [], None
+    reused = evaluated = 0
+    for g in range(generations):
+        dist = es.distribution
+        plan = plan_generation(es, archive, settings, rng)
+        x = plan.generation.samples
+        if g >= WARMUP:
+            z = _whitened(dist, x)
+            z2.append(float(np.mean(z * z)))
+            move = -_whitened(dist, previous_mean[None, :])[0]  # m_t - m_t-1, whitened by p_t
+            norm = float(np.linalg.norm(move))
+            if norm > 0:
+                offset.append(float(np.mean(z @ (move / norm))))
+        previous_mean = dist.mean.copy()
+        todo = x[plan.evaluate]
+        if objective == "constant":
+            returns = np.zeros(todo.shape[0])
+        elif objective == "neutral":
+            returns = noise_rng.standard_normal(todo.shape[0])
+        else:  # true f spread across a population ~ sigma^2 sqrt(2d); noise of that size
+            returns = -np.sum(todo * todo, axis=1) + SIGMA0**2 * np.sqrt(2 * DIM) * noise_rng.standard_normal(todo.shape[0])
+        finish_generation(es, archive, settings, plan, returns)
+        reused += plan.generation.reused
+        evaluated += plan.evaluate.size
+    return {
+        "E[z^2]": np.mean(z2),
+        "offset": np.mean(offset),
+        "sigma/sigma0": es.distribution.sigma_mean / sigma0,
+        "displacement": float(np.linalg.norm(es.mean - start) / (sigma0 * np.sqrt(DIM))),
+        "reuse": reused / (generations * POPSIZE),
+        "episodes": evaluated,
+        "true f(mean)": float(np.sum(es.mean**2)),
+    }
+
+
+def _one(job):
+    return job, synthetic(*job)
+
+
+def synthetic_table(objective: str, seeds: int, generations: int, workers: int, algos, rules) -> None:
+    jobs = [(objective, a, r, s, generations) for a, r, s in itertools.product(algos, rules, range(seeds))]
+    results = {}
+    with ProcessPoolExecutor(workers) as pool:
+        for job, out in pool.map(_one, jobs):
+            results.setdefault(job[1:3], []).append(out)
+    columns = {
+        "constant": ("E[z^2]", "offset", "sigma/sigma0", "displacement", "reuse"),
+        "neutral": ("sigma/sigma0", "displacement", "reuse", "episodes"),
+        "noisy": ("true f(mean)", "sigma/sigma0", "reuse", "episodes"),
+    }[objective]
+    print(f"objective={objective}, d={DIM}, N={POPSIZE}, {generations} generations, {seeds} seeds: mean over seeds (± s.e.)")
+    print("| ES | rule | " + " | ".join(columns) + " | vs none: " + ", ".join(c for c in columns if c in ("sigma/sigma0", "displacement")) + " |")
+    print("|---|---|" + "---:|" * len(columns) + "---:|")
+    for algo in algos:
+        base = {c: np.mean([o[c] for o in results.get((algo, "none"), [])] or [np.nan]) for c in columns}
+        for rule in rules:
+            outs = results[(algo, rule)]
+            cells = []
+            for c in columns:
+                v = np.array([o[c] for o in outs], dtype=float)
+                se = v.std(ddof=1) / np.sqrt(v.size) if v.size > 1 else 0.0
+                cells.append(f"{100 * v.mean():.1f} %" if c == "reuse" else (f"{v.mean():,.0f}" if c == "episodes" else f"{v.mean():.4g} ± {se:.2g}"))
+            ratios = [f"{np.mean([o[c] for o in outs]) / base[c]:.2f}×" for c in columns if c in ("sigma/sigma0", "displacement") and base[c]]
+            print(f"| {algo} | {rule} | " + " | ".join(cells) + " | " + ", ".join(ratios) + " |", flush=True)
+
+
+def tasks_table(experiment: str) -> None:
+    import pandas as pd
+
+    rows = []
+    for folder in sorted(glob.glob(os.path.join(experiment, "*"))):
+        csvs = sorted(glob.glob(os.path.join(folder, "seed_*.csv")))
+        if not csvs:
+            continue
+        frames = [pd.read_csv(f) for f in csvs]
+        last = [f.iloc[-1] for f in frames]
+        theta = [f["mean_policy_score"].dropna() for f in frames]
+        rows.append(
+            {
+                "run": os.path.basename(folder),
+                "seeds": len(frames),
+                "population mean": np.mean([r["mean_score"] for r in last]),
+                "population s.e.": np.std([r["mean_score"] for r in last], ddof=1) / np.sqrt(len(last)) if len(last) > 1 else 0.0,
+                "theta fresh": np.mean([t.iloc[-1] for t in theta if len(t)]) if any(len(t) for t in theta) else np.nan,
+                "theta over run": np.mean([t.mean() for t in theta if len(t)]) if any(len(t) for t in theta) else np.nan,
+                "episodes/seed": np.mean([r["evaluations"] for r in last]),
+                "reuse": np.mean([f["reused"].sum() / (f["popsize"].sum()) for f in frames]),
+                "lowest seed": np.min([r["mean_score"] for r in last]),
+                "median sigma": np.median([r["sigma_mean"] for r in last]),
+            }
+        )
+    if not rows:
+        raise SystemExit(f"no seed CSVs under {experiment}/*/")
+    by_name = {r["run"]: r for r in rows}
+    print("| run | seeds | population mean (± s.e.) | theta, fresh episodes, end | theta over the run (vs none) | episodes/seed | reuse | lowest seed | median final sigma |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        algo_env = "-".join(r["run"].split("-")[:2])
+        none = by_name.get(f"{algo_env}-none")
+        versus = f" ({r['theta over run'] - none['theta over run']:+.1f})" if none and none is not r else ""
+        print(
+            f"| {r['run']} | {r['seeds']} | {r['population mean']:.2f} ± {r['population s.e.']:.2f} | {r['theta fresh']:.2f} | "
+            f"{r['theta over run']:.2f}{versus} | {r['episodes/seed']:,.0f} | {100 * r['reuse']:.1f} % | {r['lowest seed']:.1f} | {r['median sigma']:.3g} |"
+        )
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("section", choices=("constant", "neutral", "noisy", "tasks"))
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--generations", type=int, default=400)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--algos", default=",".join(ALGOS))
+    parser.add_argument("--rules", default=",".join(RULES))
+    parser.add_argument("--experiment", default="results/reuse_bias")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    if args.section == "tasks":
+        tasks_table(args.experiment)
+    else:
+        synthetic_table(args.section, args.seeds, args.generations, args.workers, args.algos.split(","), args.rules.split(","))
+    print(f"({time.perf_counter() - started:.0f} s)", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
