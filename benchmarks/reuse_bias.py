@@ -60,12 +60,12 @@ DIM, POPSIZE, SIGMA0 = 130, 50, 0.25
 WARMUP = 20  # generations before E[z^2] and the offset are averaged
 
 
-def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int) -> dict:
+def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int, dim: int = DIM, popsize: int = POPSIZE) -> dict:
     """One run of ``algo`` with ``rule`` on a synthetic objective; the statistics of the module docstring."""
     rng = np.random.default_rng(seed)
     noise_rng = np.random.default_rng(seed + 10_000)
-    mean0 = np.full(DIM, 0.5) if objective == "noisy" else None
-    es = make_es(algo, DIM, popsize=POPSIZE, sigma=SIGMA0, lr=0.01, weight_decay=0.0, mean=mean0)
+    mean0 = np.full(dim, 0.5) if objective == "noisy" else None
+    es = make_es(algo, dim, popsize=popsize, sigma=SIGMA0, lr=0.01, weight_decay=0.0, mean=mean0)
     settings, archive = RULES[rule], Archive()
     start, sigma0 = es.mean.copy(), es.distribution.sigma_mean
     z2, offset, previous_mean = [], [], None
@@ -88,7 +88,7 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int)
         elif objective == "neutral":
             returns = noise_rng.standard_normal(todo.shape[0])
         else:  # true f spread across a population ~ sigma^2 sqrt(2d); noise of that size
-            returns = -np.sum(todo * todo, axis=1) + SIGMA0**2 * np.sqrt(2 * DIM) * noise_rng.standard_normal(todo.shape[0])
+            returns = -np.sum(todo * todo, axis=1) + SIGMA0**2 * np.sqrt(2 * dim) * noise_rng.standard_normal(todo.shape[0])
         finish_generation(es, archive, settings, plan, returns)
         reused += plan.generation.reused
         evaluated += plan.evaluate.size
@@ -96,8 +96,8 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int)
         "E[z^2]": np.mean(z2),
         "offset": np.mean(offset),
         "sigma/sigma0": es.distribution.sigma_mean / sigma0,
-        "displacement": float(np.linalg.norm(es.mean - start) / (sigma0 * np.sqrt(DIM))),
-        "reuse": reused / (generations * POPSIZE),
+        "displacement": float(np.linalg.norm(es.mean - start) / (sigma0 * np.sqrt(dim))),
+        "reuse": reused / (generations * popsize),
         "episodes": evaluated,
         "true f(mean)": float(np.sum(es.mean**2)),
     }

@@ -27,7 +27,7 @@ from imix_cli.config_checks import (
     workers_and_experiment,
 )
 from imix_cli.processes import default_workers
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS, eim_rule
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS
 from imix_cli.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields
 
 EVALUATORS = ("local", "pool", "ray")
@@ -54,7 +54,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     if im_alpha != 0.0 and not (im and not eim and im_variant == "sun2009"):
         raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
     mixing = "eim" if eim else ("im" if im else "none")
-    variant = eim_rule(eim_variant, algo) if eim else (im_variant if im else None)
+    variant = EIM_VARIANTS[eim_variant] if eim else (im_variant if im else None)
     if mixing == "none" and (reeval_age is not None or reeval_prob or reeval_count):
         raise ConfigError("reeval_age/reeval_prob/reeval_count: only apply with im=true or eim=true (they re-evaluate reused members)")
 

@@ -60,12 +60,6 @@ class AlgorithmSpec:
         The ``algo.<key>`` settings of ``conf/algo/<name>.yaml`` that are fields of the ES's
         ``Params`` (defaults, choices and checks come from there); a value other than the
         default names the run folder (``-algo.<key>=<value>``).
-    eim_rule : str
-        The :func:`~imix_cli.mixing.mix` variant ``eim=true`` uses when ``eim_variant=auto`` (the
-        default): ``"conditional"`` for the selection-based ES, whose mean is a weighted mean of
-        the elites, so that a reused elite's pull on the mean would otherwise shift the next
-        generation; ``"eim"`` for the gradient ES, whose zero-sum utilities cancel that shift and
-        whose reuse ``"conditional"`` would halve (README, "Reused returns and the search").
     """
 
     name: str
@@ -75,7 +69,6 @@ class AlgorithmSpec:
     generations: int | None = None
     uses_lr: bool = False
     options: tuple[str, ...] = ()
-    eim_rule: str = "eim"
 
     @property
     def is_es(self) -> bool:
@@ -264,12 +257,13 @@ MIXING_SPECS: dict[str, MixingSpec] = {
         # im=true, im_variant: paper (Algorithm 2) | sun2009 (Sun et al. 2009) | conditional
         # (Sun et al.'s rule given the ES's own move: mixing.py, "Reuse inside the loop")
         MixingSpec("im", "with IM", " + IM", "IM", {"paper": "paper", "sun2009": "sun2009", "conditional": "conditional"}),
-        # eim=true, eim_variant: "auto" is the ES's own rule (AlgorithmSpec.eim_rule); "exact" is
-        # imix's multi-generation rule, unbiased over chains along a fixed path (mixing.py);
-        # "conditional" unbiased inside the ES's loop too (mixing.py, "Reuse inside the loop");
-        # "paper" the paper's Algorithm 3, kept for reproduction: its generations drift from
-        # their distribution over chains of generations (README, "Correctness of importance mixing").
-        MixingSpec("eim", "with EIM", " + EIM", "EIM", {"auto": None, "exact": "eim", "conditional": "conditional", "paper": "eim_paper"}),
+        # eim=true, eim_variant: "exact" is imix's multi-generation rule, unbiased over chains
+        # along a path that does not depend on the members (mixing.py); "conditional" conditions
+        # each member on the ES's move it took part in (mixing.py, "Reuse inside the loop": exact
+        # for the loop under neutral fitness, worse than "exact" for CMA-ES on CartPole); "paper"
+        # the paper's Algorithm 3, kept for reproduction: its generations drift from their
+        # distribution over chains of generations (README, "Correctness of importance mixing").
+        MixingSpec("eim", "with EIM", " + EIM", "EIM", {"exact": "eim", "conditional": "conditional", "paper": "eim_paper"}),
     )
 }
 
@@ -301,12 +295,7 @@ MIXING_NAMES = tuple(MIXING_SPECS)
 IM_VARIANTS = tuple(MIXING_SPECS["im"].variants)
 EIM_VARIANTS = dict(MIXING_SPECS["eim"].variants)
 #: Every variant :func:`~imix_cli.mixing.mix` implements.
-MIX_VARIANTS = tuple(dict.fromkeys(v for spec in MIXING_SPECS.values() for v in spec.variants.values() if v is not None))
-
-
-def eim_rule(eim_variant: str, algo: str) -> str:
-    """The :func:`~imix_cli.mixing.mix` variant of ``eim=true eim_variant=<eim_variant>`` for ``algo=<algo>``."""
-    return EIM_VARIANTS[eim_variant] or ALGORITHM_SPECS[algo].eim_rule
+MIX_VARIANTS = tuple(dict.fromkeys(v for spec in MIXING_SPECS.values() for v in spec.variants.values()))
 
 #: The paper's mixing settings (section 4.1), the defaults of conf/config.yaml.
 MIXING_DEFAULTS = {

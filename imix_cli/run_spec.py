@@ -14,7 +14,7 @@ from pathlib import Path
 
 from imix_cli.algorithms.base import Params
 from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, MIXING_DEFAULTS, eim_rule
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, MIXING_DEFAULTS
 
 #: The top-level keys that set an ES's :class:`~imix_cli.algorithms.base.Params`.
 ES_PARAM_KEYS = ("popsize", "sigma", "lr", "weight_decay", "weight_decay_form")
@@ -141,9 +141,7 @@ class RunSpec:
             values["im_alpha"] = self.im_alpha
         if self.mixing == "eim":
             values["eim_generations"] = self.eim_generations
-            # eim_variant=auto and the variant it selects for this ES name the same run
-            auto = eim_rule(PAPER_DEFAULTS["eim_variant"], self.algo)
-            values["eim_variant"] = PAPER_DEFAULTS["eim_variant"] if self.variant == auto else next(k for k, v in EIM_VARIANTS.items() if v == self.variant)
+            values["eim_variant"] = next(k for k, v in EIM_VARIANTS.items() if v == self.variant)
         if self.mixing != "none":
             values["reeval_age"] = self.reeval_age
             values["reeval_prob"] = self.reeval_prob
