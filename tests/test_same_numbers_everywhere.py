@@ -51,11 +51,22 @@ def _run(args, results_dir: Path, **env) -> dict:
     return _outputs(results_dir)
 
 
-def _assert_same_everywhere(args, tmp_path):
+def _assert_same_everywhere(args, tmp_path, stop_at=None):
+    """Every run of ``args`` (which must say ``workers=1``) gives the same files: under each kernel, without
+    numpy's dispatched SIMD code and, if ``stop_at`` (a generation count) is given, with two workers and
+    stopped at ``stop_at`` generations then continued from the checkpoint to the full count."""
     runs = {ct: _run(args, tmp_path / ct, OPENBLAS_CORETYPE=ct) for ct in CORETYPES}
     features = _numpy_dispatched_features()
     if features:
         runs["no numpy SIMD dispatch"] = _run(args, tmp_path / "nosimd", OPENBLAS_CORETYPE="Prescott", NPY_DISABLE_CPU_FEATURES=features)
+    if stop_at is not None:
+        two_workers = [a if a != "workers=1" else "workers=2" for a in args]
+        assert two_workers != args
+        stopped = _run(
+            [a if not a.startswith("generations=") else f"generations={stop_at}" for a in two_workers], tmp_path / "resumed", OPENBLAS_CORETYPE="Haswell"
+        )
+        assert all(len(frame) == stop_at for frame in stopped.values() if isinstance(frame, pd.DataFrame))
+        runs["two workers, stopped and continued"] = _run(two_workers, tmp_path / "resumed", OPENBLAS_CORETYPE="Haswell")
     reference_name, reference = next(iter(runs.items()))
     for name, csvs in runs.items():
         assert csvs.keys() == reference.keys()
@@ -72,7 +83,7 @@ def _assert_same_everywhere(args, tmp_path):
 
 @pytest.mark.slow
 def test_main_job_is_bit_identical_under_every_blas_kernel(tmp_path):
-    outputs = _assert_same_everywhere(["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=30", "workers=1"], tmp_path)
+    outputs = _assert_same_everywhere(["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=30", "workers=1"], tmp_path, stop_at=12)
     frames = [f for f in outputs.values() if isinstance(f, pd.DataFrame)]
     assert sum(len(f) for f in frames) == 60 and all(np.isfinite(f["mean_score"]).all() for f in frames)
 
@@ -80,7 +91,7 @@ def test_main_job_is_bit_identical_under_every_blas_kernel(tmp_path):
 @pytest.mark.slow
 def test_cmaes_is_bit_identical_under_every_blas_kernel(tmp_path):
     # Acrobot: returns rarely tie, so every rank (and so every bit of the update) matters.
-    _assert_same_everywhere(["algo=cmaes", "env=acrobot", "eim=true", "seeds=2", "generations=15", "popsize=20", "workers=1"], tmp_path)
+    _assert_same_everywhere(["algo=cmaes", "env=acrobot", "eim=true", "seeds=2", "generations=15", "popsize=20", "workers=1"], tmp_path, stop_at=7)
 
 
 @pytest.mark.slow
