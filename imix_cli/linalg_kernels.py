@@ -43,6 +43,7 @@ __all__ = [
     "exp",
     "log",
     "expm1",
+    "tanh",
     "cholesky",
     "lower_times_rows",
     "lower_solve_rows",
@@ -124,6 +125,12 @@ def _log(x):
     for j in range(x.shape[0]):
         out[j] = math.log(x[j]) if x[j] > 0.0 else (-math.inf if x[j] == 0.0 else math.nan)
     return out
+
+
+@njit(cache=True)
+def _tanh_inplace(x):
+    for j in range(x.shape[0]):
+        x[j] = math.tanh(x[j])
 
 
 @njit(cache=True)
@@ -422,6 +429,18 @@ def log(x) -> np.ndarray:
 def expm1(x) -> np.ndarray:
     """``np.expm1`` of a (d,) vector, through libm."""
     return _expm1(_f64(x))
+
+
+def tanh(x, out=None) -> np.ndarray:
+    """``np.tanh(x, out=out)`` through libm, for float64 arrays of any shape (``out`` C-contiguous, or None).
+
+    numpy's float64 tanh has an AVX2 version and a baseline one that differ in the last bit."""
+    if out is None:
+        out = np.array(x, dtype=np.float64, order="C")
+    elif out is not x:
+        np.copyto(out, x)
+    _tanh_inplace(out.reshape(-1))
+    return out
 
 
 def cholesky(a) -> np.ndarray:
