@@ -202,14 +202,17 @@ def _hypot(a, b):
 
 
 @njit(cache=True)
-def _tred2(v, d, e):
-    """Householder tridiagonalisation of the symmetric matrix in ``v`` (JAMA/EISPACK tred2).
+def _tred2(w, d, e):
+    """Householder tridiagonalisation (JAMA/EISPACK tred2) of the symmetric matrix ``w`` (its upper triangle is read).
 
-    On return ``d`` is the diagonal, ``e[1:]`` the subdiagonal and ``v`` the orthogonal transform.
+    JAMA's algorithm on the transpose: JAMA's ``V[r][c]`` is ``w[c, r]`` here, so that its inner
+    loops, which run down V's columns, run along w's rows (contiguous memory: 2.9 s -> 1.3 s at
+    d = 1000); same operations in the same order. On return ``d`` is the diagonal, ``e[1:]`` the
+    subdiagonal and the rows of ``w`` are the orthogonal transform's columns.
     """
-    n = v.shape[0]
+    n = w.shape[0]
     for j in range(n):
-        d[j] = v[n - 1, j]
+        d[j] = w[j, n - 1]
     for i in range(n - 1, 0, -1):
         scale = 0.0
         h = 0.0
@@ -218,9 +221,9 @@ def _tred2(v, d, e):
         if scale == 0.0:
             e[i] = d[i - 1]
             for j in range(i):
-                d[j] = v[i - 1, j]
-                v[i, j] = 0.0
-                v[j, i] = 0.0
+                d[j] = w[j, i - 1]
+                w[j, i] = 0.0
+                w[i, j] = 0.0
         else:
             for k in range(i):
                 d[k] /= scale
@@ -236,11 +239,11 @@ def _tred2(v, d, e):
                 e[j] = 0.0
             for j in range(i):
                 f = d[j]
-                v[j, i] = f
-                g = e[j] + v[j, j] * f
+                w[i, j] = f
+                g = e[j] + w[j, j] * f
                 for k in range(j + 1, i):
-                    g += v[k, j] * d[k]
-                    e[k] += v[k, j] * f
+                    g += w[j, k] * d[k]
+                    e[k] += w[j, k] * f
                 e[j] = g
             f = 0.0
             for j in range(i):
@@ -253,29 +256,29 @@ def _tred2(v, d, e):
                 f = d[j]
                 g = e[j]
                 for k in range(j, i):
-                    v[k, j] -= f * e[k] + g * d[k]
-                d[j] = v[i - 1, j]
-                v[i, j] = 0.0
+                    w[j, k] -= f * e[k] + g * d[k]
+                d[j] = w[j, i - 1]
+                w[j, i] = 0.0
         d[i] = h
     for i in range(n - 1):  # accumulate the transformations
-        v[n - 1, i] = v[i, i]
-        v[i, i] = 1.0
+        w[i, n - 1] = w[i, i]
+        w[i, i] = 1.0
         h = d[i + 1]
         if h != 0.0:
             for k in range(i + 1):
-                d[k] = v[k, i + 1] / h
+                d[k] = w[i + 1, k] / h
             for j in range(i + 1):
                 g = 0.0
                 for k in range(i + 1):
-                    g += v[k, i + 1] * v[k, j]
+                    g += w[i + 1, k] * w[j, k]
                 for k in range(i + 1):
-                    v[k, j] -= g * d[k]
+                    w[j, k] -= g * d[k]
         for k in range(i + 1):
-            v[k, i + 1] = 0.0
+            w[i + 1, k] = 0.0
     for j in range(n):
-        d[j] = v[n - 1, j]
-        v[n - 1, j] = 0.0
-    v[n - 1, n - 1] = 1.0
+        d[j] = w[j, n - 1]
+        w[j, n - 1] = 0.0
+    w[n - 1, n - 1] = 1.0
     e[0] = 0.0
 
 
@@ -370,11 +373,10 @@ def _tql2(vt, d, e):
 def _eigh(a):
     """(eigenvalues ascending, eigenvectors as rows, ok) of the symmetric ``a`` (its lower triangle is read)."""
     n = a.shape[0]
-    v = a.copy()
+    vt = np.ascontiguousarray(a.T)  # tred2 reads the upper triangle of a.T, i.e. a's lower one
     d = np.empty(n)
     e = np.empty(n)
-    _tred2(v, d, e)
-    vt = np.ascontiguousarray(v.T)
+    _tred2(vt, d, e)
     ok = _tql2(vt, d, e)
     return d, vt, ok
 

@@ -37,6 +37,10 @@ Where we differ from pycma, on purpose:
 * Step-size control is CSA at every d (pycma switches to TPA for d >= 300, which needs
   samples injected by its own ``ask``).
 * No termination criteria, no logging, no bounds, no integer variables, no elitism.
+* Linear algebra: products, the eigendecomposition (EISPACK's tred2 + tql2 instead of LAPACK's
+  dsyevd) and the sampler's Cholesky factor are :mod:`imix_cli.linalg_kernels`' compiled loops,
+  whose order of summation does not depend on the BLAS kernel the CPU selects (so neither do a
+  run's bits); they differ from pycma's numpy/LAPACK results by round-off only.
 """
 
 from __future__ import annotations
