@@ -16,6 +16,13 @@ PAPER_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true
 # on other machines add --index-url https://download.pytorch.org/whl/cpu).
 TORCH ?= torch==2.13.0
 
+# The tested stack: `make install` and `make install-all` install the exact versions of
+# constraints.txt (numpy, numba, llvmlite, ... : the ones the tests and the published numbers
+# ran with; regenerate with tools/freeze_constraints.py). `make install CONSTRAINTS=` installs
+# unpinned, as `pip install .` does.
+CONSTRAINTS ?= constraints.txt
+PIN = $(if $(CONSTRAINTS),-c $(CONSTRAINTS))
+
 # Paper section 4.3: the SNES + EIM grid search (Figs 9-11) and SNES + EIM vs DDPG on
 # ContinuousCartPole and its sparse-reward Hard variant (Figs 12-13). DDPG runs at ~420 env
 # steps per CPU-second here, so `make reproduce` uses few DDPG seeds (about an hour in all on
@@ -35,11 +42,11 @@ SEC43 = eim=true progress=false
 install:  ## create .venv and install imix (non-editable): runner, plots, render, tests
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
-	$(PY) -m pip install ".[test,render]"
+	$(PY) -m pip install $(PIN) ".[test,render]"
 
 install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers and MuJoCo
-	$(PY) -m pip install "$(TORCH)"
-	$(PY) -m pip install ".[all]"
+	$(PY) -m pip install $(PIN) "$(TORCH)"
+	$(PY) -m pip install $(PIN) ".[all]"
 
 test:  ## the whole test suite (what CI runs; includes the slow end-to-end tests)
 	$(PY) -m pytest -q

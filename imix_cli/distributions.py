@@ -12,6 +12,9 @@ under- or overflows float64, while its logarithm is an ordinary number.
 processed in blocks so that temporaries stay small and cache-resident even at
 d = 10^6, and sums are accumulated in float64 whatever the storage dtype.
 ``FullGaussian`` (CMA-ES) works through the Cholesky factor of the covariance.
+
+Every dot product and matrix product here is :mod:`imix_cli.linalg_kernels`' (one fixed
+summation order), not BLAS's, whose kernel -- and so whose last bits -- depends on the CPU.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ from __future__ import annotations
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+
+from imix_cli import linalg_kernels as lk
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 # Elements per block in the row-blocked kernels: ~4 MB of float64, small enough
@@ -48,7 +53,7 @@ def _whitened_sq_norms(x: np.ndarray, rows: np.ndarray, mean: np.ndarray, inv_st
             seg = buf[: min(_CHUNK, dim - c)]
             np.subtract(row[c : c + _CHUNK], mean[c : c + _CHUNK], out=seg)
             seg *= inv_std[c : c + _CHUNK]
-            acc += float(np.dot(seg, seg))
+            acc += lk.dot(seg, seg)
         out[k] = acc
     return out
 
@@ -171,7 +176,7 @@ class DiagonalGaussian:
         self._cast = None  # mean and std in the sample dtype, made on first use
         self._inv_std = 1.0 / self.std
         # log of the normalising constant: -d/2 log(2 pi) - sum(log std)
-        self._log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(np.log(self.std)))
+        self._log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(lk.log(self.std)))
 
     @property
     def dim(self) -> int:
@@ -262,14 +267,14 @@ class DiagonalLogRatio:
         self._old_mean = old.mean.astype(dtype, copy=False)
         self._row_quad = (w_new - w_old).astype(dtype, copy=False)
         self._row_lin = (-2.0 * delta * w_new).astype(dtype, copy=False)
-        self._row_const = new._log_norm - old._log_norm - 0.5 * float(np.dot(delta * delta, w_new))
+        self._row_const = new._log_norm - old._log_norm - 0.5 * lk.dot(delta * delta, w_new)
         # Fresh draws x = m_new + s_new * eps, with a = delta/s_old, b = s_new/s_old:
         # 1/2 sum[-(1 - b^2) eps^2 + 2 a b eps] + 1/2 |a|^2 + const.
         a = delta * old._inv_std
         b = new.std * old._inv_std
         self._noise_quad = (-(1.0 - b * b)).astype(dtype, copy=False)
         self._noise_lin = (2.0 * a * b).astype(dtype, copy=False)
-        self._noise_const = new._log_norm - old._log_norm + 0.5 * float(np.dot(a, a))
+        self._noise_const = new._log_norm - old._log_norm + 0.5 * lk.dot(a, a)
 
     def of_rows(self, x: np.ndarray, rows=None) -> np.ndarray:
         """The log-ratio at each row of ``x`` (or of ``x[rows]``, without copying them out first)."""
@@ -299,11 +304,11 @@ class FullGaussian:
             raise ValueError(f"FullGaussian: cov has shape {cov.shape}, expected {(self.dim, self.dim)}")
         self.cov = 0.5 * (cov + cov.T)  # symmetrise round-off
         try:
-            self.chol = np.linalg.cholesky(self.cov)
+            self.chol = lk.cholesky(self.cov)
         except np.linalg.LinAlgError as err:
             raise ValueError("FullGaussian: cov is not positive definite") from err
         self.dtype = np.dtype(dtype)
-        self._log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(np.log(np.diag(self.chol))))
+        self._log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(lk.log(np.diag(self.chol))))
 
     @property
     def dim(self) -> int:
@@ -325,25 +330,23 @@ class FullGaussian:
     def sample_with_log_prob(self, n: int, rng: np.random.Generator, other=None, out=None):
         """Draw ``n`` samples; return ``(samples, log_prob(samples))``, plus ``other.log_prob(samples)`` if given."""
         eps = rng.standard_normal((n, self.dim))
-        x = (self.mean + eps @ self.chol.T).astype(self.dtype, copy=False)
+        x = (self.mean + lk.lower_times_rows(self.chol, eps)).astype(self.dtype, copy=False)
         if out is not None:
             out[...] = x
             x = out
-        log_prob = self._log_norm - 0.5 * np.einsum("ij,ij->i", eps, eps)
+        log_prob = self._log_norm - 0.5 * lk.row_sq_norms(eps)
         if other is None:
             return x, log_prob
         return x, log_prob, other.log_prob(x)
 
     def log_prob(self, x, rows=None) -> np.ndarray:
         """Log-density of each row of ``x`` (or of ``x[rows]``)."""
-        from scipy.linalg import solve_triangular
-
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         if rows is not None:
             x = x[np.asarray(rows)]
-        # Solve L z = (x - mean)^T: z is the whitened sample, |z|^2 the squared Mahalanobis distance.
-        z = solve_triangular(self.chol, (x - self.mean).T, lower=True, check_finite=False)
-        return self._log_norm - 0.5 * np.einsum("ij,ij->j", z, z)
+        # Solve L z = x - mean: z is the whitened sample, |z|^2 the squared Mahalanobis distance.
+        z = lk.lower_solve_rows(self.chol, x - self.mean)
+        return self._log_norm - 0.5 * lk.row_sq_norms(z)
 
     def to_state(self) -> dict:
         """Mean, covariance and sample dtype (the Cholesky factor is recomputed, bit for bit, on load)."""

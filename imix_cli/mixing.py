@@ -159,6 +159,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imix_cli import linalg_kernels as lk
 from imix_cli.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
 from imix_cli.registry import MIX_VARIANTS as VARIANTS  # what im_variant / eim_variant select (MIXING_SPECS)
 
@@ -349,8 +350,7 @@ class _Builder:
 
 
 def _log_uniform(rng: np.random.Generator, n: int) -> np.ndarray:
-    with np.errstate(divide="ignore"):  # log(0) = -inf is a valid, always-accepting draw
-        return np.log(rng.random(n))
+    return lk.log(rng.random(n))  # log(0) = -inf is a valid, always-accepting draw; libm's log, as on every CPU
 
 
 def _alternate_rules(builder: _Builder, new_dist, old_dist, old_samples, entry_number, rng) -> int:
@@ -389,7 +389,7 @@ def _alternate_rules(builder: _Builder, new_dist, old_dist, old_samples, entry_n
         else:
             accept_old = eligible[rows] & (log_u1[step:stop] < log_ratio.of_rows(old_samples, rows))  # rule 1
         candidates, cand_log_ratio = log_ratio.sample(size, rng, out=scratch[:size])
-        accept_new = u2[step:stop] < -np.expm1(-np.maximum(cand_log_ratio, 0.0))  # rule 2: 1 - p_old/p_new
+        accept_new = u2[step:stop] < -lk.expm1(-np.maximum(cand_log_ratio, 0.0))  # rule 2: 1 - p_old/p_new
         filled = np.cumsum(accept_old.astype(np.int64) + accept_new)
         taken = min(size, int(np.searchsorted(filled, missing)) + 1)  # steps until full
         kept_old = rows[:taken][accept_old[:taken]]
@@ -415,7 +415,7 @@ def _sun2009(builder: _Builder, new_dist, old_dist, old_samples, alpha, rng) -> 
     while builder.missing > 0 and trials < max_trials:
         n = builder.missing
         candidates, cand_log_ratio = log_ratio.sample(n, rng)
-        accept_prob = np.maximum(alpha, -np.expm1(-np.maximum(cand_log_ratio, 0.0)))
+        accept_prob = np.maximum(alpha, -lk.expm1(-np.maximum(cand_log_ratio, 0.0)))
         accept_new = np.flatnonzero(rng.random(n) < accept_prob)[: builder.missing]
         builder.add(candidates[accept_new])
         trials += n

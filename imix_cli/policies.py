@@ -65,6 +65,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from imix_cli import linalg_kernels as lk
+
 HIDDEN: tuple[int, ...] = (8, 8)
 
 __all__ = ["HIDDEN", "num_params", "unpack", "BatchPolicy", "forward", "act", "ObsNormalizer", "fold_normalizer"]
@@ -195,7 +197,7 @@ class BatchPolicy:
             np.einsum("ijb,ib->jb", W, x, out=y)
             np.add(y, b, out=y)
             if i < last:
-                np.tanh(y, out=y)
+                lk.tanh(y, out=y)  # libm's: numpy's tanh differs between its AVX2 and baseline versions
             x = y
         return x if n > 1 else x[:, :1]
 
@@ -207,7 +209,7 @@ class BatchPolicy:
         y = self.outputs_t(obs)
         if self.discrete:
             return _argmax_cols(y)
-        a = np.tanh(y)
+        a = lk.tanh(y)
         if self._offset is not None:  # low + (tanh + 1) * (high - low) / 2
             a += 1.0
             a *= self._scale

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from imix_cli import linalg_kernels as lk
 from imix_cli.algorithms.base import EvolutionStrategy, Params, prefixed, rank_weights, unprefixed
 from imix_cli.distributions import DiagonalGaussian
 
@@ -135,12 +136,12 @@ class CEM(EvolutionStrategy):
         w = rank_weights(utilities, by_rank)  # elites' weights, ties sharing theirs; 0 for the rest
         self._told_mean_weights = w  # the new mean is sum_i w_i x_i
         old_mu = self._dist.mean
-        mu = w @ samples
+        mu = lk.vec_mat(w, samples)  # one fixed summation order (not BLAS's): same bits on every CPU
         self.extra_variance = self.extra_variance_decay * self.extra_variance + (1.0 - self.extra_variance_decay) * self.extra_variance_floor
         if self.style == "cemrl":
-            var = (w @ ((samples - old_mu) ** 2)) / k + self.extra_variance
+            var = lk.vec_mat(w, (samples - old_mu) ** 2) / k + self.extra_variance
         else:
-            var = w @ ((samples - mu) ** 2) + self.extra_variance
+            var = lk.vec_mat(w, (samples - mu) ** 2) + self.extra_variance
         self._dist = DiagonalGaussian(mu, np.sqrt(var))
 
     def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:

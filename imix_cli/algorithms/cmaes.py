@@ -37,6 +37,10 @@ Where we differ from pycma, on purpose:
 * Step-size control is CSA at every d (pycma switches to TPA for d >= 300, which needs
   samples injected by its own ``ask``).
 * No termination criteria, no logging, no bounds, no integer variables, no elitism.
+* Linear algebra: products, the eigendecomposition (EISPACK's tred2 + tql2 instead of LAPACK's
+  dsyevd) and the sampler's Cholesky factor are :mod:`imix_cli.linalg_kernels`' compiled loops,
+  whose order of summation does not depend on the BLAS kernel the CPU selects (so neither do a
+  run's bits); they differ from pycma's numpy/LAPACK results by round-off only.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imix_cli import linalg_kernels as lk
 from imix_cli.algorithms.base import EvolutionStrategy, Params
 from imix_cli.distributions import FullGaussian
 
@@ -208,7 +213,7 @@ class CMAES(EvolutionStrategy):
         # until the 1e12 condition alleviation sets it
         self.step_size = self.sigma  # pycma's sigma; self.sigma stays sigma0
         self.mean_geno = self.initial_mean.copy()
-        self.C = np.diag(np.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
+        self.C = np.diag(lk.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
         self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()  # D, ascending; C = B D^2 B^T
         self.eigenvectors = np.eye(d)  # B, columns
         self.scaling = np.ones(d)  # pycma's sigma_vec (coordinate condition alleviation)
@@ -229,8 +234,8 @@ class CMAES(EvolutionStrategy):
         cov = self.C * (self.step_size**2 * np.outer(self.scaling, self.scaling))
         mean = self.mean_geno
         if self.transform is not None:
-            mean = self.transform @ mean
-            cov = self.transform @ cov @ self.transform.T
+            mean = lk.mat_vec(self.transform, mean)
+            cov = lk.mat_mat(lk.mat_mat(self.transform, cov), self.transform.T)
         self._dist = FullGaussian(mean, cov)
 
     # ------------------------------------------------------------------ update
@@ -250,7 +255,7 @@ class CMAES(EvolutionStrategy):
         p, weights = self._parameters(n)
         d, sigma, cs, cc = self.dim, self.step_size, self.cs, p.cc
         B, D, scaling = self.eigenvectors, self.eigenvalues_sqrt, self.scaling
-        x = samples if self.transform is None else samples @ self.transform_inverse.T  # genotypes
+        x = samples if self.transform is None else lk.mat_mat(samples, self.transform_inverse.T)  # genotypes
         self.countiter += 1
 
         # Selection: best first. Tied utilities share their positions' weights, separately
@@ -264,12 +269,12 @@ class CMAES(EvolutionStrategy):
         # [T] (9): m' = sum_i w_i x_{i:lambda} over the positive weights (pycma: cmean = 1)
         mean_old = self.mean_geno
         k = int(np.flatnonzero(w_pos)[-1]) + 1  # without ties: mu
-        self.mean_geno = np.dot(w_pos[:k], x[:k])
+        self.mean_geno = lk.vec_mat(w_pos[:k], x[:k])
         dm = self.mean_geno - mean_old
 
         # [T] (43): p_sigma <- (1 - cs) p_sigma + sqrt(cs (2 - cs) mueff) C^-1/2 (m' - m) / sigma,
         # C^-1/2 = B D^-1 B^T from the decomposition before this update
-        z = B @ ((B.T @ (dm / scaling)) / D)
+        z = lk.mat_vec(B, lk.vec_mat(dm / scaling, B) / D)
         z *= p.mueff**0.5 / sigma / 1.0
         self.p_sigma *= 1 - cs
         self.p_sigma += math.sqrt(cs * (2 - cs)) * z
@@ -291,18 +296,18 @@ class CMAES(EvolutionStrategy):
         coef = cmu * w_pos
         negative = np.flatnonzero(w_neg)
         if negative.size:
-            whitened = (y[negative] @ B) / D  # B^T y / D, row by row
-            norms = np.sqrt(np.einsum("ij,ij->i", whitened, whitened))
+            whitened = lk.mat_mat(y[negative], B) / D  # B^T y / D, row by row
+            norms = np.sqrt(lk.row_sq_norms(whitened))
             coef[negative] += (cmu * w_neg[negative]) * (d / (norms + 1e-9) ** 2)
         vectors = np.vstack(((c1 / (c1a + 1e-23)) ** 0.5 * self.p_c, y))
         self.C *= decay
-        self.C += np.dot(np.concatenate(([c1a], coef)) * vectors.T, vectors)
+        self.C += lk.weighted_gram(np.concatenate(([c1a], coef)), vectors)
 
         # [T] (44): sigma <- sigma exp(cs / damps (||p_sigma|| / E||N(0, I)|| - 1)), change of
         # log sigma clipped to +-1 (pycma's max_delta_log_sigma)
         s = np.sqrt(np.sum(np.square(self.p_sigma))) / self.chi_d - 1
         s *= cs / self.damps
-        self.step_size *= float(np.exp(min(max(s, -1), 1)))
+        self.step_size *= math.exp(min(max(float(s), -1), 1))
         # pycma moves a huge sigma into C (_redistribute_sigma_above = 1e9), same distribution
         if self.step_size > 1e9 * self.sigma:
             alpha = float(self.step_size / np.max(np.diag(self.C)) ** 0.5)
@@ -326,7 +331,7 @@ class CMAES(EvolutionStrategy):
         for _ in range(_MAX_EIGEN_REPAIRS):
             self.C = (self.C + self.C.T) / 2
             try:
-                eigenvalues, eigenvectors = np.linalg.eigh(self.C)
+                eigenvalues, eigenvectors = lk.eigh(self.C)
                 if np.all(eigenvalues > 0):
                     break
             except np.linalg.LinAlgError:
@@ -338,7 +343,7 @@ class CMAES(EvolutionStrategy):
             previous = (previous**2 + shift) ** 0.5
         else:
             raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
-        if np.any(np.diff(eigenvalues) < 0):  # LAPACK returns them ascending; pycma sorts anyway
+        if np.any(np.diff(eigenvalues) < 0):  # lk.eigh returns them ascending; pycma sorts anyway
             idx = np.argsort(eigenvalues)
             eigenvalues, eigenvectors = eigenvalues[idx], eigenvectors[:, idx]
         self.eigenvectors = eigenvectors
@@ -371,17 +376,17 @@ class CMAES(EvolutionStrategy):
         D = self.eigenvalues_sqrt
         if self.transform is None and limit and (D[-1] / D[0]) ** 2 >= limit:
             B = self.eigenvectors
-            tf_inv = np.dot(B / D, B.T)
-            tf = np.dot(B * D, B.T)
+            tf_inv = lk.mat_mat(B / D, B.T)
+            tf = lk.mat_mat(B * D, B.T)
             d = self.dim
-            self.C = np.diag(np.exp((1e-4 / d) * np.arange(d)))  # sampler reset, not decomposed again
+            self.C = np.diag(lk.exp((1e-4 / d) * np.arange(d)))  # sampler reset, not decomposed again
             self.eigenvectors = np.eye(d)
             self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()
-            self.p_c = np.dot(tf_inv, self.p_c)
+            self.p_c = lk.mat_vec(tf_inv, self.p_c)
             self.transform = self.scaling[:, None] * tf
             self.transform_inverse = tf_inv / self.scaling[None, :]
             self.scaling = np.ones(d)
-            self.mean_geno = self.transform_inverse @ self.mean_geno
+            self.mean_geno = lk.mat_vec(self.transform_inverse, self.mean_geno)
             decomposed = True
         return decomposed
 

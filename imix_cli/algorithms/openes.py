@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imix_cli import linalg_kernels as lk
 from imix_cli.algorithms.base import Adam, EvolutionStrategy, Params, _array_like, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
 
@@ -58,7 +59,7 @@ class OpenES(EvolutionStrategy):
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
         n = samples.shape[0]
         eps = (samples - self._mu) / self.sigma
-        grad = (utilities @ eps) / (n * self.sigma)
+        grad = lk.vec_mat(utilities, eps) / (n * self.sigma)  # one fixed summation order (not BLAS's): same bits on every CPU
         self._mu = self._mu + self.optimizer.step(grad)
         self._dist = DiagonalGaussian(self._mu, self.sigma)
 

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imix_cli import linalg_kernels as lk
 from imix_cli.algorithms.base import Adam, EvolutionStrategy, Params, _array_like, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
 
@@ -75,7 +76,7 @@ class SNES(EvolutionStrategy):
         self._log_sigma = np.full(self.dim, np.log(self.sigma))
         self.mu_optimizer = Adam(self.dim, lr=self.lr, beta1=beta1, beta2=beta2)
         self.sigma_optimizer = Adam(self.dim, lr=self.sigma_lr, beta1=beta1, beta2=beta2)
-        self._dist = DiagonalGaussian(self._mu, np.exp(self._log_sigma))
+        self._dist = DiagonalGaussian(self._mu, lk.exp(self._log_sigma))
 
     @property
     def distribution(self) -> DiagonalGaussian:
@@ -84,11 +85,11 @@ class SNES(EvolutionStrategy):
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
         sigma = self._dist.std
         s = (samples - self._mu) / sigma
-        grad_mu = sigma * (utilities @ s)
-        grad_log_sigma = utilities @ (s * s - 1.0) / 2.0
+        grad_mu = sigma * lk.vec_mat(utilities, s)  # sums in one fixed order (not BLAS's): same bits on every CPU
+        grad_log_sigma = lk.vec_mat(utilities, s * s - 1.0) / 2.0
         self._mu = self._mu + self.mu_optimizer.step(grad_mu)
         self._log_sigma = self._log_sigma + self.sigma_optimizer.step(grad_log_sigma)
-        self._dist = DiagonalGaussian(self._mu, np.exp(self._log_sigma))
+        self._dist = DiagonalGaussian(self._mu, lk.exp(self._log_sigma))
 
     def _state_dict(self) -> dict:
         return {
@@ -103,4 +104,4 @@ class SNES(EvolutionStrategy):
         self._log_sigma = _array_like(state["log_sigma"], self._log_sigma, "log_sigma")
         self.mu_optimizer.load_state_dict(unprefixed("mu_optimizer", state))
         self.sigma_optimizer.load_state_dict(unprefixed("sigma_optimizer", state))
-        self._dist = DiagonalGaussian(self._mu, np.exp(self._log_sigma))
+        self._dist = DiagonalGaussian(self._mu, lk.exp(self._log_sigma))

@@ -29,10 +29,10 @@ and ``tests/test_continuous.py`` test it against gymnasium directly):
   that gymnasium squares with numpy's scalar ``x**2`` (libm ``pow``, not always correctly
   rounded) where this uses ``x * x``: next states differ by a few ulps on ~1 step in 400.
 
-Math functions are libm's (``cos``/``sin`` equal numpy's float64 ones); ``tanh`` is libm's,
-which differs from numpy's SIMD ``tanh`` by an ulp on some inputs, so a policy evaluated here
-and by ``imix_cli.policies.BatchPolicy`` can (very rarely, at a near-tie of two outputs) pick
-different actions. No ``fastmath``: IEEE semantics, no reassociation, no FMA contraction.
+Math functions are libm's (``cos``/``sin`` equal numpy's float64 ones; ``tanh`` is libm's, as
+in ``imix_cli.policies.BatchPolicy``, not numpy's SIMD ``tanh``, which differs from it by an ulp
+on some inputs and between CPUs). No ``fastmath``: IEEE semantics, no reassociation, no FMA
+contraction.
 
 Compilation: ``@njit(cache=True)``: the machine code is written to numba's on-disk cache on
 first use (``__pycache__`` next to this file, or the user's cache directory when that is not

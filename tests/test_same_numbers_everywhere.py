@@ -1,0 +1,101 @@
+"""Same seed, same numbers, whatever BLAS kernel or SIMD code path the CPU selects.
+
+numpy hands matrix products, ``np.dot`` and ``np.linalg`` to OpenBLAS, which picks a kernel for
+the CPU at start-up (``OPENBLAS_CORETYPE`` forces one). Kernels sum in different orders, so
+results computed through BLAS differ in the last bits from one CPU to the next, and an ES
+amplifies those bits into different runs (the main job's final mean was 192.46 / 194.24 /
+193.27 under Prescott / Haswell / SkylakeX before imix computed its linear algebra in compiled
+loops with one fixed order: :mod:`imix_cli.linalg_kernels`). Each test here runs a small job
+in fresh processes under each kernel and requires every CSV to be identical (but for
+``wall_time``); a last run also switches off numpy's AVX-512/AVX2 code paths
+(``NPY_DISABLE_CPU_FEATURES``), as on a CPU without them.
+"""
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+IMIX = str(Path(sys.executable).parent / "imix")
+CORETYPES = ("Prescott", "Haswell", "SkylakeX")
+
+
+def _numpy_dispatched_features() -> str:
+    """The CPU features numpy dispatches to on this machine above its baseline (disabled in the last run)."""
+    from numpy._core._multiarray_umath import __cpu_baseline__, __cpu_dispatch__, __cpu_features__
+
+    return " ".join(f for f in __cpu_dispatch__ if __cpu_features__.get(f) and f not in __cpu_baseline__)
+
+
+def _outputs(root: Path) -> dict:
+    """Every seed's CSV (but for ``wall_time``) and saved policies (the mean's and the best member's
+    parameters, full float64: the CSVs' 10 significant digits could hide a last-bit difference)."""
+    found = sorted(p for p in root.rglob("seed_*.csv") if not p.name.endswith(".partial.csv"))
+    assert found, f"no CSV under {root}"
+    outputs = {p.relative_to(root): pd.read_csv(p).drop(columns=["wall_time"]) for p in found}
+    for p in sorted(root.rglob("policy_*.npz")):
+        with np.load(p) as npz:
+            outputs[p.relative_to(root)] = {k: npz[k] for k in npz.files}
+    return outputs
+
+
+def _run(args, results_dir: Path, **env) -> dict:
+    full_env = {**os.environ, **env}
+    proc = subprocess.run([IMIX, "run", *args, f"results_dir={results_dir}", "progress=false"], env=full_env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return _outputs(results_dir)
+
+
+def _assert_same_everywhere(args, tmp_path, stop_at=None):
+    """Every run of ``args`` (which must say ``workers=1``) gives the same files: under each kernel, without
+    numpy's dispatched SIMD code and, if ``stop_at`` (a generation count) is given, with two workers and
+    stopped at ``stop_at`` generations then continued from the checkpoint to the full count."""
+    runs = {ct: _run(args, tmp_path / ct, OPENBLAS_CORETYPE=ct) for ct in CORETYPES}
+    features = _numpy_dispatched_features()
+    if features:
+        runs["no numpy SIMD dispatch"] = _run(args, tmp_path / "nosimd", OPENBLAS_CORETYPE="Prescott", NPY_DISABLE_CPU_FEATURES=features)
+    if stop_at is not None:
+        two_workers = [a if a != "workers=1" else "workers=2" for a in args]
+        assert two_workers != args
+        stopped = _run(
+            [a if not a.startswith("generations=") else f"generations={stop_at}" for a in two_workers], tmp_path / "resumed", OPENBLAS_CORETYPE="Haswell"
+        )
+        assert all(len(frame) == stop_at for frame in stopped.values() if isinstance(frame, pd.DataFrame))
+        runs["two workers, stopped and continued"] = _run(two_workers, tmp_path / "resumed", OPENBLAS_CORETYPE="Haswell")
+    reference_name, reference = next(iter(runs.items()))
+    for name, csvs in runs.items():
+        assert csvs.keys() == reference.keys()
+        for path, found in csvs.items():
+            where = f"{path} under {name} vs {reference_name}"
+            if isinstance(found, pd.DataFrame):
+                pd.testing.assert_frame_equal(found, reference[path], check_exact=True, obj=where)
+            else:
+                assert found.keys() == reference[path].keys(), where
+                for key, array in found.items():
+                    np.testing.assert_array_equal(array, reference[path][key], err_msg=f"{where}: {key}", strict=True)
+    return reference
+
+
+@pytest.mark.slow
+def test_main_job_is_bit_identical_under_every_blas_kernel(tmp_path):
+    outputs = _assert_same_everywhere(["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=30", "workers=1"], tmp_path, stop_at=12)
+    frames = [f for f in outputs.values() if isinstance(f, pd.DataFrame)]
+    assert sum(len(f) for f in frames) == 60 and all(np.isfinite(f["mean_score"]).all() for f in frames)
+
+
+@pytest.mark.slow
+def test_cmaes_is_bit_identical_under_every_blas_kernel(tmp_path):
+    # Acrobot: returns rarely tie, so every rank (and so every bit of the update) matters.
+    _assert_same_everywhere(["algo=cmaes", "env=acrobot", "eim=true", "seeds=2", "generations=15", "popsize=20", "workers=1"], tmp_path, stop_at=7)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason='needs pip install "imix-cli[mujoco]"')
+def test_mujoco_linear_run_is_bit_identical_under_every_blas_kernel(tmp_path):
+    args = ["algo=snes", "env=swimmer", "eim=true", "policy.hidden=[]", "env.max_steps=100", "seeds=1", "generations=8", "popsize=10", "workers=1"]
+    _assert_same_everywhere(args, tmp_path)
