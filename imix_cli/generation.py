@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from imix_cli import linalg_kernels as lk
 from imix_cli.mixing import Generation, mix
 
 
@@ -165,7 +166,7 @@ def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan
         fresh_again = fitness[again]
         ok = np.isfinite(stored_again) & np.isfinite(fresh_again)
         a, b = stored_again[ok], fresh_again[ok]
-        archive.pairs = PAIR_MEMORY * archive.pairs + np.array([a.size, a.sum(), b.sum(), a @ a, a @ b])
+        archive.pairs = PAIR_MEMORY * archive.pairs + np.array([a.size, lk.dot(np.ones(a.size), a), lk.dot(np.ones(b.size), b), lk.dot(a, a), lk.dot(a, b)])
     elif settings.depth:
         archive.pairs = PAIR_MEMORY * archive.pairs
     if settings.reeval_count > 0:

@@ -502,9 +502,7 @@ def _whitened(dist, x: np.ndarray) -> np.ndarray:
     if type(dist) is DiagonalGaussian:
         return (x - dist.mean) / dist.std
     if type(dist) is FullGaussian:
-        from scipy.linalg import solve_triangular
-
-        return solve_triangular(dist.chol, (x - dist.mean).T, lower=True).T
+        return lk.lower_solve_rows(dist.chol, x - dist.mean)
     raise ValueError(f'variant "conditional" needs Gaussian search distributions, got {type(dist).__name__}')
 
 
@@ -522,21 +520,17 @@ def _conditional(builder: _Builder, new_dist, entry, rng: np.random.Generator) -
         if weights.shape != (n,):
             raise ValueError(f"mean_weights has shape {weights.shape}, expected ({n},)")
         z = _whitened(old_dist, x)
-        total = float(weights @ weights)
+        total = lk.dot(weights, weights)
         pull = weights / total  # a_i
         known = np.minimum(weights * weights / total, 1.0 - 1e-12)  # b_i < 1: q_i stays a density
-        move = weights @ z  # s
+        move = lk.vec_mat(weights, z)  # s
 
     def log_q_over_old(slots, z_rows):
         """log q_i(x) - log p_old(x) for slot i = slots[k] at the whitened row z_rows[k]."""
         if not informed:
             return np.zeros(len(slots))
         dev = z_rows - pull[slots, None] * move
-        return (
-            -0.5 * np.einsum("ij,ij->i", dev, dev) / (1.0 - known[slots])
-            + 0.5 * np.einsum("ij,ij->i", z_rows, z_rows)
-            - 0.5 * dim * np.log1p(-known[slots])
-        )
+        return -0.5 * lk.row_sq_norms(dev) / (1.0 - known[slots]) + 0.5 * lk.row_sq_norms(z_rows) - 0.5 * dim * lk.log(1.0 - known[slots])
 
     slots = np.sort(rng.permutation(n)[: builder.popsize]) if n > builder.popsize else np.arange(n)
     r_old = ratio.of_rows(x, slots)
