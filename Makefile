@@ -51,7 +51,7 @@ reproduce: reproduce-main reproduce-grid reproduce-ddpg  ## the whole paper into
 
 reproduce-main:  ## section 4.2: the main grid + Figs 1-3, 5-8, Table 1 into results/paper/figures/
 	$(IMIX) run -m $(PAPER_GRID) experiment=paper progress=false
-	$(IMIX) plot experiment=paper
+	$(IMIX) plot experiment=paper didactic=true
 
 reproduce-grid:  ## section 4.3: popsize/sigma/lr grid search (Figs 9-11 + ranking) into results/paper_grid/
 	$(IMIX) run -m algo=snes env=continuous_cartpole popsize=10,25,50 sigma=0.05,0.1,0.25 lr=0.01,0.1 seeds=$(GRID_SEEDS) experiment=paper_grid $(SEC43)
