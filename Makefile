@@ -7,8 +7,9 @@ IMIX    = $(VENV)/bin/imix
 # The paper's main grid (section 4.2): 4 ES x {CartPole, Acrobot} x {no mixing, EIM} x 25 seeds,
 # each ES at its paper generation count. Finished runs are skipped, so an interrupted
 # `make reproduce` continues where it stopped. The weight decay is the authors' code's form
-# (estool: ranks - 0.05 mean(theta^2)): the paper's published curves come from it, while its
-# text's -0.05|theta|^2 (the config default) keeps population scores far lower (README).
+# (estool: ranks - 0.05 mean(theta^2), the config default weight_decay_form=estool): the paper's
+# published curves come from it, while its text's -0.05|theta|^2 (weight_decay_form=paper) keeps
+# population scores far lower (docs: reproducing the paper).
 PAPER_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true
 
 # torch for the DDPG baseline: the CPU build 2.13.0, installed before the package so that the
@@ -25,7 +26,7 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true progress=false
 
-.PHONY: install install-all test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install install-all docs test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
 # (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
@@ -36,6 +37,7 @@ install:  ## create .venv and install imix (non-editable): runner, plots, render
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install ".[test,render]"
+	@echo "imix is installed in $(VENV). Run it as $(IMIX), or put it on PATH for this shell with:  source $(VENV)/bin/activate"
 
 install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers and MuJoCo
 	$(PY) -m pip install "$(TORCH)"
