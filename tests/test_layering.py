@@ -12,7 +12,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "imix_cli"
 
 #: Lowest first; a module may import its own layer and those before it (names are module prefixes).
 LAYERS = [
-    ["registry", "messages", "processes", "keyvalue", "stats", "distributions", "mixing", "mixing_kernels", "results"],
+    ["registry", "config_keys", "messages", "processes", "keyvalue", "stats", "distributions", "mixing", "mixing_kernels", "results"],
     ["generation", "ask_tell", "tracking", "algorithms", "divergence", "envs", "policies", "evaluation", "parallel_evaluation", "checkpoints", "policy_files"],
     ["config_checks", "run_spec", "es_config", "ddpg_config", "config"],
     ["lockstep", "trainers", "resume", "run_folder", "es_seeds", "ddpg_seeds", "pool", "summary", "runner"],
