@@ -26,20 +26,21 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true progress=false
 
-.PHONY: install install-all docs test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install install-all docs docs-numbers test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
 # (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
 # `make install-all` adds the DDPG baseline (CPU torch + stable-baselines3), the cluster launchers
-# (joblib, submitit, Ray) and MuJoCo: for `make reproduce-ddpg`, hydra/launcher=..., evaluator=ray,
-# `make reproduce-mujoco`; the tests of these extras are skipped without them. CI uses it.
+# (joblib, submitit, Ray), MuJoCo, TensorBoard (logger=tensorboard) and the docs tools (make docs):
+# for `make reproduce-ddpg`, hydra/launcher=..., evaluator=ray, `make reproduce-mujoco`; the tests of
+# these extras are skipped without them. CI uses it.
 install:  ## create .venv and install imix (non-editable): runner, plots, render, tests
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install ".[test,render]"
 	@echo "imix is installed in $(VENV). Run it as $(IMIX), or put it on PATH for this shell with:  source $(VENV)/bin/activate"
 
-install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers and MuJoCo
+install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools
 	$(PY) -m pip install "$(TORCH)"
 	$(PY) -m pip install ".[all]"
 
@@ -71,6 +72,12 @@ reproduce-full:  ## the whole paper with 25 seeds everywhere
 reproduce-quick:  ## the main figures from 3 seeds x 30 generations, in about a minute
 	$(IMIX) run -m $(PAPER_GRID) experiment=quick seeds=3 generations=30 progress=false
 	$(IMIX) plot experiment=quick
+
+docs:  ## the documentation site into site/ (mkdocs-material + mkdocstrings: the docs extra, in install-all)
+	$(PY) -m mkdocs build --strict
+
+docs-numbers:  ## regenerate the printed outputs the docs show (README's main job included: about a minute)
+	$(PY) -m imix_cli.docs_numbers write quick-mixing main-job
 
 bench:  ## speed benchmarks (rollouts, mixing, grid) with baselines measured in the same run
 	$(IMIX) bench

@@ -170,5 +170,8 @@ def _task(cfg) -> None:
         sys.exit(_error("interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)", 130))
 
 
-if __name__ == "__main__":
+if __name__ == "__main__":  # python -m imix_cli.cli: imix's own process, as the `imix` script (imix_cli/__init__.py)
+    from imix_cli.processes import set_one_blas_thread
+
+    set_one_blas_thread()
     sys.exit(main())

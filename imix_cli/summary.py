@@ -83,8 +83,7 @@ def _score(mean: float, half: float) -> str:
 
 #: The footnote of every summary table: which score is free of reused returns.
 SCORES_NOTE = (
-    "population: the last generation's mean return, reused members counted with their stored returns; "
-    "θ: the distribution mean on fresh episodes where last measured (eval_mean_every), free of reused returns"
+    "population: last generation's mean return (reused members with stored returns); θ fresh: distribution mean on fresh episodes (free of reused returns)"
 )
 
 

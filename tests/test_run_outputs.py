@@ -71,7 +71,7 @@ def test_summary_shows_theta_on_fresh_episodes_beside_the_population_and_says_wh
     frames = [read_run_csv(tmp_path / "default" / "cem-cartpole-eim-popsize=8" / f"seed_{k}.csv") for k in (0, 1)]
     theta = np.mean([f["mean_policy_score"].dropna().iloc[-1] for f in frames])
     assert f"{theta:.2f} ±" in lines[1]
-    assert any("θ: the distribution mean on fresh episodes" in line and "free of reused returns" in line for line in lines)
+    assert any("θ fresh: distribution mean on fresh episodes" in line and "free of reused returns" in line for line in lines)
 
 
 def test_a_sweep_ends_with_one_table_of_every_point(tmp_path, capsys):
