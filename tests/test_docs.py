@@ -40,6 +40,7 @@ def test_no_development_log_words_in_readme_or_docs():
     assert found == []
 
 
+@pytest.mark.slow  # two `imix run` processes, ~15-25 s
 def test_the_docs_show_what_the_code_prints():
     from imix_cli.docs_numbers import check
 
