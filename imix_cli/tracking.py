@@ -115,7 +115,13 @@ class MLflowTracker(Tracker):
         self.mlflow, self.spec, self.runs = mlflow, spec, {}
         self.client = mlflow.MlflowClient()
         experiment = self.client.get_experiment_by_name(spec.experiment)
-        self.experiment_id = experiment.experiment_id if experiment else self.client.create_experiment(spec.experiment)
+        if experiment is None:
+            try:
+                self.experiment_id = self.client.create_experiment(spec.experiment)
+            except mlflow.exceptions.MlflowException:  # another worker process of the run created it first
+                self.experiment_id = self.client.get_experiment_by_name(spec.experiment).experiment_id
+        else:
+            self.experiment_id = experiment.experiment_id
 
     def log(self, seed: int, row: dict) -> None:
         from mlflow.entities import Metric

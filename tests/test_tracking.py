@@ -34,13 +34,14 @@ def _assert_same_as_csv(scalars, frame):
         assert got == expected, column
 
 
-def _run(tmp_path, generations, **keys):
-    return imix_cli.run(algo="cem", env="cartpole", eim=True, seeds=2, generations=generations, workers=1, popsize=10,
+def _run(tmp_path, generations, workers=1, **keys):
+    return imix_cli.run(algo="cem", env="cartpole", eim=True, seeds=2, generations=generations, workers=workers, popsize=10,
                         eval_mean_every=2, checkpoint_every=2, results_dir=str(tmp_path), experiment="tb", echo=None, **keys)  # fmt: skip
 
 
-def test_tensorboard_event_files_hold_the_csvs_numbers(tmp_path):
-    frame = _run(tmp_path, 4, logger="tensorboard")
+@pytest.mark.parametrize("workers", [1, 2])  # 2: each seed's events written by its worker process
+def test_tensorboard_event_files_hold_the_csvs_numbers(tmp_path, workers):
+    frame = _run(tmp_path, 4, workers=workers, logger="tensorboard")
     run_dir = tmp_path / "tb" / frame["run"].iloc[0]
     for seed in (0, 1):
         scalars = _scalars(tensorboard_dir(run_dir, seed))
