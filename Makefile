@@ -7,8 +7,9 @@ IMIX    = $(VENV)/bin/imix
 # The paper's main grid (section 4.2): 4 ES x {CartPole, Acrobot} x {no mixing, EIM} x 25 seeds,
 # each ES at its paper generation count. Finished runs are skipped, so an interrupted
 # `make reproduce` continues where it stopped. The weight decay is the authors' code's form
-# (estool: ranks - 0.05 mean(theta^2)): the paper's published curves come from it, while its
-# text's -0.05|theta|^2 (the config default) keeps population scores far lower (README).
+# (estool: ranks - 0.05 mean(theta^2), the config default weight_decay_form=estool): the paper's
+# published curves come from it, while its text's -0.05|theta|^2 (weight_decay_form=paper) keeps
+# population scores far lower (docs: reproducing the paper).
 PAPER_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true
 
 # torch for the DDPG baseline: the CPU build 2.13.0, installed before the package so that the
@@ -32,19 +33,21 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true progress=false
 
-.PHONY: install install-all test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install install-all docs docs-numbers test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
 # (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
 # `make install-all` adds the DDPG baseline (CPU torch + stable-baselines3), the cluster launchers
-# (joblib, submitit, Ray) and MuJoCo: for `make reproduce-ddpg`, hydra/launcher=..., evaluator=ray,
-# `make reproduce-mujoco`; the tests of these extras are skipped without them. CI uses it.
+# (joblib, submitit, Ray), MuJoCo, TensorBoard (logger=tensorboard) and the docs tools (make docs):
+# for `make reproduce-ddpg`, hydra/launcher=..., evaluator=ray, `make reproduce-mujoco`; the tests of
+# these extras are skipped without them. CI uses it.
 install:  ## create .venv and install imix (non-editable): runner, plots, render, tests
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install $(PIN) ".[test,render]"
+	@echo "imix is installed in $(VENV). Run it as $(IMIX), or put it on PATH for this shell with:  source $(VENV)/bin/activate"
 
-install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers and MuJoCo
+install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools
 	$(PY) -m pip install $(PIN) "$(TORCH)"
 	$(PY) -m pip install $(PIN) ".[all]"
 
@@ -58,7 +61,7 @@ reproduce: reproduce-main reproduce-grid reproduce-ddpg  ## the whole paper into
 
 reproduce-main:  ## section 4.2: the main grid + Figs 1-3, 5-8, Table 1 into results/paper/figures/
 	$(IMIX) run -m $(PAPER_GRID) experiment=paper progress=false
-	$(IMIX) plot experiment=paper
+	$(IMIX) plot experiment=paper didactic=true
 
 reproduce-grid:  ## section 4.3: popsize/sigma/lr grid search (Figs 9-11 + ranking) into results/paper_grid/
 	$(IMIX) run -m algo=snes env=continuous_cartpole popsize=10,25,50 sigma=0.05,0.1,0.25 lr=0.01,0.1 seeds=$(GRID_SEEDS) experiment=paper_grid $(SEC43)
@@ -76,6 +79,12 @@ reproduce-full:  ## the whole paper with 25 seeds everywhere
 reproduce-quick:  ## the main figures from 3 seeds x 30 generations, in about a minute
 	$(IMIX) run -m $(PAPER_GRID) experiment=quick seeds=3 generations=30 progress=false
 	$(IMIX) plot experiment=quick
+
+docs:  ## the documentation site into site/ (mkdocs-material + mkdocstrings: the docs extra, in install-all)
+	$(PY) -m mkdocs build --strict
+
+docs-numbers:  ## regenerate the printed outputs the docs show (README's main job included: about a minute)
+	$(PY) -m imix_cli.docs_numbers write quick-mixing main-job
 
 bench:  ## speed benchmarks (rollouts, mixing, grid) with baselines measured in the same run
 	$(IMIX) bench

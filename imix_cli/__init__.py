@@ -1,27 +1,25 @@
 """imix: evolution strategies with importance mixing (Pourchot, Perrin & Sigaud, 2018).
 
-Library entry points::
+The public API (:data:`__all__`), loaded on first use::
 
-    from imix_cli.mixing import DiagonalGaussian, FullGaussian, mix
-    from imix_cli.algorithms import OpenES, SNES, CEM, CMAES, make_es
+    import imix_cli
+    es = imix_cli.MixingES(imix_cli.make_es("cem", dim=10, popsize=20), "eim", rng=0)  # ask/tell with mixing
+    df = imix_cli.run(algo="snes", env="cartpole", eim=True, seeds=3, generations=50)    # imix run -> DataFrame
 
-Importing ``imix_cli`` loads nothing heavy (no numpy, no gymnasium): every subcommand imports
-what it uses. imix's gymnasium environments (``imix/ContinuousCartPole-v0``,
+Importing ``imix_cli`` loads nothing heavy (no numpy, no gymnasium) and changes nothing in the
+importing process: each name of :data:`__all__` imports its module when first read, and every
+subcommand imports what it uses. imix's gymnasium environments (``imix/ContinuousCartPole-v0``,
 ``imix/ContinuousCartPoleHard-v0``) are registered by ``import imix_cli.envs`` (or
 ``gym.make("imix_cli.envs:imix/ContinuousCartPole-v0")``); imix's own modules that make them do so.
 
-The one place that sets imix's one-BLAS-thread default (only where the variable is unset),
-before any module of the package loads numpy, and inherited by every worker process: imix's
-matrices are tiny, its seeds already run one process per core, and two BLAS threads fighting
-over two cores made CMA-ES's eigendecomposition 10x slower.
+One BLAS thread per process is imix's default only in its own processes -- the ``imix`` command
+and the worker processes it spawns (:func:`imix_cli.processes.one_blas_thread`) -- never in a
+user's Python that imports the library.
 """
 
 import os as _os
 import signal as _signal
 import sys as _sys
-
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    _os.environ.setdefault(_var, "1")
 
 
 def _stop_before_anything_is_written(signum, frame):
@@ -33,8 +31,50 @@ def _stop_before_anything_is_written(signum, frame):
 # validation that follows can be swallowed by C code that clears errors (measured: with a cold
 # bytecode cache, SIGINT 0.2 s after start let a whole sweep run). Nothing is written before the
 # run starts, so until then a Ctrl-C ends the process at once; imix_cli.cli hands SIGINT back to
-# Python's handler before anything runs. Library imports are unaffected.
+# Python's handler before anything runs. The same process gets imix's one-BLAS-thread default here,
+# before any module loads numpy (imix_cli.processes says why). Library imports are unaffected.
 if _os.path.basename(_sys.argv[0] if _sys.argv else "") == "imix":
     _signal.signal(_signal.SIGINT, _stop_before_anything_is_written)
+    from imix_cli.processes import set_one_blas_thread as _set_one_blas_thread
+
+    _set_one_blas_thread()
 
 __version__ = "0.1.0"
+
+#: name -> module of the public API; ``imix_cli.<name>`` imports the module when first read.
+_API = {
+    "MixingES": "imix_cli.ask_tell",
+    "run": "imix_cli.experiment",
+    "Experiment": "imix_cli.experiment",
+    "make_es": "imix_cli.algorithms",
+    "OpenES": "imix_cli.algorithms",
+    "SNES": "imix_cli.algorithms",
+    "CEM": "imix_cli.algorithms",
+    "CMAES": "imix_cli.algorithms",
+    "mix": "imix_cli.mixing",
+    "Generation": "imix_cli.mixing",
+    "DiagonalGaussian": "imix_cli.mixing",
+    "FullGaussian": "imix_cli.mixing",
+    "make_evaluator": "imix_cli.evaluation",
+    "policy_action": "imix_cli.policies",
+    "policy_output": "imix_cli.policies",
+    "ConfigError": "imix_cli.config_checks",
+    "RunError": "imix_cli.run_folder",
+}
+
+__all__ = [*_API, "__version__"]
+
+
+def __getattr__(name: str):
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'imix_cli' has no attribute {name!r}")
+    from importlib import import_module
+
+    value = getattr(import_module(module), name)
+    globals()[name] = value  # later reads skip this function
+    return value
+
+
+def __dir__():
+    return sorted([*globals(), *_API])

@@ -38,6 +38,7 @@ commands:
             imix status experiment=try
 
 Results go to results/<experiment>/<algo>-<env>-<mixing>[-<overrides>]/seed_<k>.csv.
+`imix --version` prints the version.
 """
 
 COMMANDS = ("run", "plot", "bench", "eval", "render", "status")
@@ -52,6 +53,11 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help", "help"):
         print(USAGE, end="")
+        return 0
+    if argv[0] in ("--version", "-V", "version"):
+        from imix_cli import __version__
+
+        print(f"imix {__version__}")
         return 0
     command, rest = argv[0], argv[1:]
     if command != "run":  # imix_cli's early Ctrl-C handler (see imix_cli/__init__.py) is for `imix run` only
@@ -103,11 +109,12 @@ def run_command(args: list[str]) -> int:
             value = dashed.split("=", 1)[1] if "=" in dashed else (args[args.index(dashed) + 1] if args.index(dashed) + 1 < len(args) else "...")
             return _error(f"unknown option {dashed!r}; keys are given as key=value, e.g. {key}={value} (see imix run --help)", 2)
         overrides = [a for a in args if not a.startswith("-")]
+        specs = []
         # Nothing is written before validation ends: a Ctrl-C then stops at once with one line, even
         # if it lands in a library that would swallow a KeyboardInterrupt (an import, a plugin scan).
         signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)
         try:
-            validate_overrides(overrides)
+            specs = validate_overrides(overrides)
         except ConfigError as err:
             return _error(str(err), 2)
         finally:
@@ -119,6 +126,12 @@ def run_command(args: list[str]) -> int:
         return exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
     except Exception as err:  # Hydra's own argument errors (e.g. --cfg together with -m)
         return _error(str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__, 2)
+    if not info_only and ("-m" in args or "--multirun" in args):  # a sweep: every point in one table at the end
+        from imix_cli.summary import format_sweep_table
+
+        table = format_sweep_table(specs)
+        if table:
+            print(table)
     return 0
 
 
@@ -157,5 +170,8 @@ def _task(cfg) -> None:
         sys.exit(_error("interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)", 130))
 
 
-if __name__ == "__main__":
+if __name__ == "__main__":  # python -m imix_cli.cli: imix's own process, as the `imix` script (imix_cli/__init__.py)
+    from imix_cli.processes import set_one_blas_thread
+
+    set_one_blas_thread()
     sys.exit(main())

@@ -140,6 +140,8 @@ def env_of(env_cfg: dict):
         raise ConfigError(f"env.id={env_id!r}: give a gymnasium id, e.g. env.id=MountainCar-v0")
     if name in BUILTIN_ENVS and env_id == BUILTIN_ENVS[name]:
         return name, env_id, max_steps
+    if name in BUILTIN_ENVS and max_steps is not None:
+        _warn_kept_cap(name, env_id, max_steps)
     # A gymnasium id other than a built-in's: the generic (slower) path; the id names the run.
     import gymnasium as gym
 
@@ -157,6 +159,26 @@ def env_of(env_cfg: dict):
         raise ConfigError(missing)
     _check_env_dependencies(env_id)
     return env_id, env_id, max_steps
+
+
+_WARNED: set = set()
+
+
+def _warn_kept_cap(name: str, env_id: str, max_steps: int) -> None:
+    """``env=cartpole env.id=CartPole-v1``: the built-in config's episode cap stays (an explicit env.max_steps
+    looks the same), which is not the id's own; say so once per process, and how to get the id's own cap."""
+    import gymnasium as gym
+
+    try:
+        own = gym.spec(env_id).max_episode_steps
+    except Exception:  # an unknown id is refused just after this, with its own message
+        return
+    if own is not None and own != max_steps and (name, env_id) not in _WARNED:
+        _WARNED.add((name, env_id))
+        from imix_cli.messages import warn
+
+        warn(f"env={name} env.id={env_id}: episodes end at env.max_steps={max_steps} (env={name}'s cap), not at {env_id}'s own {own}; "
+             f"for that, use env=gym env.id={env_id} (or env.max_steps={own})")  # fmt: skip
 
 
 def _check_env_dependencies(env_id: str) -> None:

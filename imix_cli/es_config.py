@@ -109,7 +109,19 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         evaluator=policy["evaluator"],
         evaluator_workers=policy["evaluator_workers"],
         ray_address=policy["ray_address"],
+        logger=_logger(cfg),
     )
+
+
+def _logger(cfg: dict) -> str:
+    """``logger``: a tracker whose package is installed (imix_cli.tracking)."""
+    from imix_cli.tracking import LOGGERS, missing_logger_package
+
+    logger = as_choice(cfg.get("logger", "none"), "logger", tuple(LOGGERS))
+    missing = missing_logger_package(logger)
+    if missing:
+        raise ConfigError(missing)
+    return logger
 
 
 def _algo_options(algo: str, algo_cfg: dict) -> dict:

@@ -20,6 +20,7 @@ from imix_cli.results import partial_csv_path, seed_csv_path, seed_summary, writ
 from imix_cli.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
 from imix_cli.run_folder import RunError
 from imix_cli.run_spec import resume_identity
+from imix_cli.tracking import make_tracker
 
 
 def run_es_seeds(spec, seeds: list[int], progress) -> dict:
@@ -41,12 +42,31 @@ def run_es_seeds(spec, seeds: list[int], progress) -> dict:
     summaries = {}
     started = time.perf_counter()
     active = [st for st in states if st.generation < spec.generations]
+    tracker = make_tracker(spec)  # logger=: a copy of each row, as it is made
+    try:
+        _run_active(spec, states, active, evaluator, identity, checkpoint_every, started, summaries, progress, tracker)
+    finally:
+        if tracker is not None:
+            tracker.close()
+    for st in states:  # seeds resumed from a checkpoint taken after their last generation
+        if not seed_csv_path(run_dir, st.seed).exists():
+            summaries[st.seed] = _finish_seed(spec, st, evaluator)
+            remove_checkpoints(run_dir, st.seed)
+    return summaries
+
+
+def _run_active(spec, states, active, evaluator, identity, checkpoint_every, started, summaries, progress, tracker) -> None:
+    """The lockstep loop of :func:`run_es_seeds`: generations of the ``active`` seeds until each is done."""
+    run_dir = spec.run_dir
     while active:
         advance_lockstep(active, spec, evaluator)
         now = time.perf_counter() - started
         for st in active:
             st.rows[-1]["wall_time"] = st.elapsed + now
-            if end_if_diverged(st):
+            diverged = end_if_diverged(st)
+            if tracker is not None:
+                tracker.log(st.seed, st.rows[-1])
+            if diverged:
                 summaries[st.seed] = seed_summary(write_run_csv(seed_csv_path(run_dir, st.seed), st.rows))
                 remove_checkpoints(run_dir, st.seed)
             elif st.generation == spec.generations:
@@ -59,11 +79,6 @@ def run_es_seeds(spec, seeds: list[int], progress) -> dict:
                 write_run_csv(partial_csv_path(run_dir, st.seed), st.rows)  # live view (imix status/plot)
         progress(len(active))
         active = [st for st in active if st.generation < spec.generations and not st.es.diverged]
-    for st in states:  # seeds resumed from a checkpoint taken after their last generation
-        if not seed_csv_path(run_dir, st.seed).exists():
-            summaries[st.seed] = _finish_seed(spec, st, evaluator)
-            remove_checkpoints(run_dir, st.seed)
-    return summaries
 
 
 def _finish_seed(spec, st: SeedState, evaluator) -> dict:

@@ -45,7 +45,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from imix_cli.evaluation import make_evaluator
-from imix_cli.processes import default_workers, start_orphan_watchdog
+from imix_cli.processes import default_workers, one_blas_thread, start_orphan_watchdog
 
 __all__ = ["PoolEvaluator", "RayEvaluator", "build_evaluator", "EVALUATORS"]
 
@@ -133,14 +133,16 @@ class PoolEvaluator(_Remote):
     def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None):
         super().__init__(env_key, max_steps, hidden)
         self.workers = int(workers or default_workers())
-        # One BLAS thread per worker process (the workers already use every core): set by imix_cli/__init__.py, inherited.
+        # One BLAS thread per worker process (the workers already use every core): one_blas_thread() around the
+        # submits, which start them.
         ctx = multiprocessing.get_context("spawn")
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(self._make_args, os.getpid()))
         self._finalizer = weakref.finalize(self, self._pool.shutdown, wait=True, cancel_futures=True)
 
     def evaluate(self, params, seeds) -> tuple[np.ndarray, np.ndarray]:
         params, seeds = self._check(params, seeds)
-        futures = [self._pool.submit(_evaluate_chunk, params[c], seeds[c]) for c in self._chunks(len(seeds))]
+        with one_blas_thread():
+            futures = [self._pool.submit(_evaluate_chunk, params[c], seeds[c]) for c in self._chunks(len(seeds))]
         return self._gather([f.result() for f in futures], len(seeds))
 
     def close(self) -> None:

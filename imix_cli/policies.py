@@ -69,7 +69,7 @@ from imix_cli import linalg_kernels as lk
 
 HIDDEN: tuple[int, ...] = (8, 8)
 
-__all__ = ["HIDDEN", "num_params", "unpack", "BatchPolicy", "forward", "act", "ObsNormalizer", "fold_normalizer"]
+__all__ = ["HIDDEN", "num_params", "unpack", "BatchPolicy", "forward", "act", "policy_output", "policy_action", "ObsNormalizer", "fold_normalizer"]
 
 
 def num_params(obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> int:
@@ -340,3 +340,29 @@ class ObsNormalizer:
     def fold(self, params: np.ndarray, out_dim: int, hidden: Sequence[int]) -> np.ndarray:
         """``params`` with the current statistics folded in (:func:`fold_normalizer`)."""
         return fold_normalizer(params, self.obs_dim, out_dim, hidden, self.mean, self.std)
+
+
+# ------------------------------------------------------------------ one policy
+def policy_output(params: np.ndarray, obs: np.ndarray, out_dim: int, hidden: Sequence[int] = HIDDEN) -> np.ndarray:
+    """Raw outputs of ONE policy: ``params`` (d,) on one observation (obs_dim,) -> (out_dim,), or on
+    several (T, obs_dim) -> (T, out_dim). :func:`forward` is the batched form (one member per row)."""
+    params, obs = np.asarray(params, dtype=np.float64), np.asarray(obs, dtype=np.float64)
+    if params.ndim != 1:
+        raise ValueError(f"params must be one policy's (d,) vector, got shape {params.shape}; forward() takes (B, d)")
+    rows = np.atleast_2d(obs)
+    y = forward(np.broadcast_to(params, (rows.shape[0], params.shape[0])), rows, out_dim, hidden)
+    return y[0] if obs.ndim == 1 else y
+
+
+def policy_action(params: np.ndarray, obs: np.ndarray, out_dim: int, discrete: bool = True, hidden: Sequence[int] = HIDDEN, low=None, high=None):
+    """The action of ONE policy ``params`` (d,) on one observation (obs_dim,): an int (discrete: the
+    argmax of the outputs) or an (out_dim,) array (continuous, as :func:`act`); with (T, obs_dim)
+    observations, one action per row. Saved policies: ``np.load("policy_0_mean.npz")["params"]``."""
+    params, obs = np.asarray(params, dtype=np.float64), np.asarray(obs, dtype=np.float64)
+    if params.ndim != 1:
+        raise ValueError(f"params must be one policy's (d,) vector, got shape {params.shape}; act() takes (B, d)")
+    rows = np.atleast_2d(obs)
+    a = act(np.broadcast_to(params, (rows.shape[0], params.shape[0])), rows, out_dim, discrete, hidden, low, high)
+    if obs.ndim == 1:
+        return int(a[0]) if discrete else a[0]
+    return a

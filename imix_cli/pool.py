@@ -4,7 +4,7 @@
 own process and returns their results. Workers report progress through :func:`report_progress`
 (a queue drained into ``bar``); they ignore SIGINT (the main process alone decides, and stops
 them), and exit within a second if the main process dies (kill -9), so that none lingers.
-One BLAS thread per process is set once, by ``imix_cli/__init__.py``, and inherited.
+Workers are spawned with one BLAS thread each (:func:`imix_cli.processes.one_blas_thread`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import queue as queue_module
 import signal
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from imix_cli.processes import start_orphan_watchdog
+from imix_cli.processes import one_blas_thread, start_orphan_watchdog
 
 _progress_queue = None
 
@@ -32,7 +32,8 @@ def run_pool(task, spec, chunks: list[list[int]], bar) -> list:
     progress_queue = ctx.Queue()
     pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
     try:
-        futures = [pool.submit(task, spec, chunk) for chunk in chunks]
+        with one_blas_thread():  # the workers start at these submits
+            futures = [pool.submit(task, spec, chunk) for chunk in chunks]
         pending = set(futures)
         while pending:
             done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)

@@ -47,7 +47,8 @@ keys:
   run=NAME           run folder (needed when the experiment has several runs)
   seed=K             seed whose policy is shown (default: 0)
   which=mean|best    final distribution mean or best-ever member (default: mean)
-  out=FILE           output, .gif or .mp4 (default: policy.gif)
+  out=FILE           output, .gif or .mp4, overwritten if it exists (default:
+                     <run>-seed<K>-<which>.gif here, never overwritten)
   frames=N           at most N frames (default: the whole episode: reset + every step)
   scale=F            resize frames by F in (0, 1] (default: 1; 0.5 halves a GIF's size)
   fps=N              frames per second (default: the env's render_fps, else 30)
@@ -195,10 +196,10 @@ def main(argv: list | None = None) -> int:
     try:
         s = parse_key_values(
             argv, "render",
-            {**POLICY_KEYS, "seed": 0, "out": "policy.gif", "frames": None, "scale": "1", "fps": None},
+            {**POLICY_KEYS, "seed": 0, "out": None, "frames": None, "scale": "1", "fps": None},
             convert={**POLICY_KEY_CHECKS, "seed": at_least(0), "frames": at_least(1), "fps": at_least(1)},
         )  # fmt: skip
-        out = Path(s["out"])
+        out = Path(s["out"] or "policy.gif")
         if out.suffix.lower() not in (".gif", ".mp4"):
             raise UsageError(f"bad value for out: {s['out']!r} (expected a .gif or .mp4 file name)")
         try:
@@ -210,6 +211,10 @@ def main(argv: list | None = None) -> int:
         if not out.parent.is_dir():
             raise UsageError(f"bad value for out: folder {out.parent} does not exist")
         run_dir = _pick_run(run_folders(s["results_dir"], s["experiment"], s["run"]), s["run"])
+        if s["out"] is None:  # a name of its own, and an earlier render is never replaced without out= saying so
+            out = Path(f"{run_dir.name}-seed{s['seed']}-{s['which']}.gif")
+            if out.exists():
+                raise UsageError(f"{out} exists; give out={out} to overwrite it, or another out= name", 1)
         policy = read_policy(policy_path(run_dir, s["seed"], s["which"]))
         frames = policy_frames(policy, s["frames"])
         import gymnasium as gym

@@ -169,9 +169,14 @@ def episode_row(*, algo: str, env: str, mixing: str, seed: int, index: int, env_
 
 
 def seed_summary(frame: pd.DataFrame) -> dict:
-    """What a run's summary needs of one seed's rows (a contract-conforming frame, read or just written)."""
+    """What a run's summary needs of one seed's rows (a contract-conforming frame, read or just written).
+
+    ``theta``: the distribution mean's return on fresh episodes where it was last measured (NaN if never)."""
+    measured = frame["mean_policy_score"].to_numpy(dtype=float)
+    measured = measured[np.isfinite(measured)]
     return {
         "final": float(frame["mean_score"].iloc[-1]),
+        "theta": float(measured[-1]) if measured.size else float("nan"),
         "evaluations": int(frame["evaluations"].iloc[-1]),
         "env_steps": int(frame["env_steps"].iloc[-1]),
         "reused": int(frame["reused"].sum()),

@@ -44,7 +44,7 @@ DDPG_DEFAULTS = PAPER_SETTINGS
 ES_ONLY_KEYS = (
     "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age", "reeval_prob", "reeval_count",
     "generations", "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "checkpoint_every",
-    "policy", "evaluator", "evaluator_workers", "ray_address",
+    "policy", "evaluator", "evaluator_workers", "ray_address", "logger",
 )  # fmt: skip
 
 #: Keys that do not change a run's results (everything else in config.yaml must match to resume).
@@ -52,6 +52,7 @@ NON_IDENTITY_KEYS = (
     "seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every",
     "evaluator", "evaluator_workers", "ray_address",  # where episodes run never changes their results
     "eval_mean_every", "eval_mean_episodes",  # measuring the distribution mean uses its own random stream
+    "logger",  # a tracker only copies the CSV's rows
 )  # fmt: skip
 
 TOP_LEVEL_KEYS = (
@@ -59,7 +60,7 @@ TOP_LEVEL_KEYS = (
     "reeval_prob", "reeval_count", "seeds", "generations",
     "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
     "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
-    "eval_mean_every", "eval_mean_episodes",
+    "eval_mean_every", "eval_mean_episodes", "logger",
 )  # fmt: skip
 
 #: ``policy.*`` defaults (conf/config.yaml): the paper's 8x8 tanh MLP without normalisation.
@@ -112,6 +113,7 @@ class RunSpec:
     # are counted apart (CSV column mean_policy_episodes), never in evaluations or env_steps.
     eval_mean_every: int = 0
     eval_mean_episodes: int = 5
+    logger: str = "none"  # none | tensorboard | mlflow | wandb: a copy of the CSV's rows (imix_cli.tracking)
 
     @property
     def evaluator_key(self) -> str:

@@ -32,6 +32,9 @@ def summarize(spec, run_dir: Path | None = None, known: dict | None = None) -> d
         paths = [seed_csv_path(run_dir, seed) for seed in seeds]
     per_seed = [known[seed] if seed in known else seed_summary(read_run_csv(path)) for seed, path in zip(seeds, paths)]
     mean, half_width, _ = mean_ci([s["final"] for s in per_seed], level=0.68)
+    thetas = [s.get("theta", float("nan")) for s in per_seed]
+    thetas = [t for t in thetas if np.isfinite(t)]
+    theta, theta_half, _ = mean_ci(thetas, level=0.68) if thetas else (float("nan"), float("nan"), 0)
     evaluations, env_steps = sum(s["evaluations"] for s in per_seed), sum(s["env_steps"] for s in per_seed)
     reused, members = sum(s["reused"] for s in per_seed), sum(s["members"] for s in per_seed)
     n = max(len(paths), 1)
@@ -41,6 +44,8 @@ def summarize(spec, run_dir: Path | None = None, known: dict | None = None) -> d
         "seeds": len(paths),
         "final_mean_score": mean,
         "ci68": half_width,
+        "theta_mean_score": theta,  # the distribution mean on fresh episodes (no reused returns), mean over seeds
+        "theta_ci68": theta_half,
         "evaluations": evaluations,  # total over seeds
         "evaluations_per_seed": evaluations / n,
         "env_steps": env_steps,  # total over seeds
@@ -70,6 +75,35 @@ def counterpart_runs(spec) -> list[Path]:
     return found
 
 
+def _score(mean: float, half: float) -> str:
+    if not np.isfinite(mean):
+        return "-"
+    return f"{mean:.2f}" + (f" ± {half:.2f}" if np.isfinite(half) else "")
+
+
+#: The footnote of every summary table: which score is free of reused returns.
+SCORES_NOTE = (
+    "population: last generation's mean return (reused members with stored returns); θ fresh: distribution mean on fresh episodes (free of reused returns)"
+)
+
+
+def format_table(rows: list[dict]) -> list[str]:
+    """The table's header and one line per summary of :func:`summarize`."""
+    width = max(32, *(len(r["run"]) for r in rows))
+    header = (
+        f"{'run':<{width}} {'seeds':>5} {'population (68% CI)':>22} {'θ fresh (68% CI)':>20} {'episodes/seed':>14} "
+        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10} {'diverged':>8}"
+    )
+    lines = [header]
+    for r in rows:
+        theta = _score(r.get("theta_mean_score", float("nan")), r.get("theta_ci68", float("nan")))
+        lines.append(
+            f"{r['run']:<{width}} {r['seeds']:>5} {_score(r['final_mean_score'], r['ci68']):>22} {theta:>20} {r['evaluations_per_seed']:>14,.0f} "
+            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10} {r['diverged_seeds']:>8}"
+        )
+    return lines
+
+
 def format_summary(spec, s: dict) -> str:
     """The summary table: this run, then any sibling with the same config and other mixing, and the reduction."""
     rows = [s]
@@ -78,18 +112,7 @@ def format_summary(spec, s: dict) -> str:
             rows.append(summarize(spec, other))
         except CorruptResultError:
             continue
-    width = max(32, *(len(r["run"]) for r in rows))
-    header = (
-        f"{'run':<{width}} {'seeds':>5} {'final mean score (68% CI)':>26} {'episodes/seed':>14} "
-        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10} {'diverged':>8}"
-    )
-    lines = [header]
-    for r in rows:
-        score = f"{r['final_mean_score']:.2f}" + (f" ± {r['ci68']:.2f}" if np.isfinite(r["ci68"]) else "")
-        lines.append(
-            f"{r['run']:<{width}} {r['seeds']:>5} {score:>26} {r['evaluations_per_seed']:>14,.0f} "
-            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10} {r['diverged_seeds']:>8}"
-        )
+    lines = format_table(rows)
     without = [r for r in rows if r["mixing"] == "none"]
     with_mixing = [r for r in rows if r["mixing"] != "none"]
     for base in without[:1]:
@@ -100,6 +123,27 @@ def format_summary(spec, s: dict) -> str:
                     f"episodes for the same {spec.generations} generations (final mean score {r['final_mean_score']:.2f} vs "
                     f"{base['final_mean_score']:.2f}; sample efficiency to a threshold: imix plot)"
                 )
+    lines.append(SCORES_NOTE)
     if "seeds_run" in s:
         lines.append(f"results: {spec.run_dir}/seed_*.csv  ({s['seeds_run']} seed(s) run now, {s['wall_time']:.1f} s)")
+    return "\n".join(lines)
+
+
+def format_sweep_table(specs) -> str | None:
+    """One table of every point of a sweep (``imix run -m``), printed after the last one; None for a single run.
+
+    A point whose seeds are not all finished (a failed job of a launcher) is named, not tabled."""
+    if len(specs) < 2:
+        return None
+    rows, missing = [], []
+    for spec in specs:
+        try:
+            rows.append(summarize(spec))
+        except (OSError, CorruptResultError):
+            missing.append(spec.run_name)
+    if not rows:
+        return None
+    lines = [f"sweep: {len(rows)} run(s) of {specs[0].results_dir}/{specs[0].experiment}", *format_table(rows), SCORES_NOTE]
+    if missing:
+        lines.append(f"not finished: {', '.join(missing)}")
     return "\n".join(lines)

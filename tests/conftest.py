@@ -1,9 +1,18 @@
-"""Fixtures shared by several test files."""
+"""Fixtures shared by several test files.
+
+The test process is one of imix's own: it gets imix's one-BLAS-thread default before anything loads
+numpy (``import imix_cli`` no longer sets it; tiny CMA-ES matrices on two BLAS threads of a loaded
+2-core machine ran ~5x slower). The test of the library's promise runs in a subprocess of its own.
+"""
 
 import errno
 from pathlib import Path
 
 import pytest
+
+from imix_cli.processes import set_one_blas_thread
+
+set_one_blas_thread()
 
 
 @pytest.fixture

@@ -12,11 +12,11 @@ PACKAGE = Path(__file__).resolve().parents[1] / "imix_cli"
 
 #: Lowest first; a module may import its own layer and those before it (names are module prefixes).
 LAYERS = [
-    ["registry", "messages", "processes", "keyvalue", "stats", "linalg_kernels", "distributions", "mixing", "mixing_kernels", "results"],
-    ["generation", "algorithms", "divergence", "envs", "policies", "evaluation", "parallel_evaluation", "checkpoints", "policy_files"],
+    ["registry", "config_keys", "messages", "processes", "keyvalue", "stats", "linalg_kernels", "distributions", "mixing", "mixing_kernels", "results"],
+    ["generation", "ask_tell", "tracking", "algorithms", "divergence", "envs", "policies", "evaluation", "parallel_evaluation", "checkpoints", "policy_files"],
     ["config_checks", "run_spec", "es_config", "ddpg_config", "config"],
     ["lockstep", "trainers", "resume", "run_folder", "es_seeds", "ddpg_seeds", "pool", "summary", "runner"],
-    ["evaluate", "render", "status", "plotting", "bench", "cli"],
+    ["evaluate", "render", "status", "plotting", "bench", "experiment", "cli"],
 ]
 
 
@@ -52,3 +52,23 @@ def test_import_imix_cli_loads_neither_numpy_nor_gymnasium():
     code = "import sys, imix_cli; print(sorted(m for m in ('numpy', 'gymnasium') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_import_imix_cli_leaves_the_users_blas_threads_alone_and_imix_workers_get_one():
+    """The one-BLAS-thread default belongs to imix's own processes: the importing process keeps its
+    environment (also after reading the public API), a worker spawned by imix gets 1."""
+    import os
+
+    code = (
+        "import os, multiprocessing as mp, imix_cli; imix_cli.MixingES; imix_cli.run\n"
+        "from imix_cli.processes import one_blas_thread\n"
+        "print(sorted(v for v in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS') if v in os.environ))\n"
+        "if __name__ == '__main__':\n"
+        "    ctx = mp.get_context('spawn')\n"
+        "    with one_blas_thread(), ctx.Pool(1) as pool:\n"
+        "        print(pool.apply(os.getenv, ('OPENBLAS_NUM_THREADS',)))\n"
+        "    print(sorted(v for v in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS') if v in os.environ))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout.split("\n")
+    assert out[:3] == ["[]", "1", "[]"]

@@ -1,4 +1,4 @@
-"""examples/library_demo.py, run as written (the README shows its text and output)."""
+"""examples/library_demo.py, run as written (docs/library.md quotes its result)."""
 
 import os
 import re

@@ -103,9 +103,6 @@ def test_main_writes_every_figure_and_table(results, capsys):
     stems = [
         "convergence_cartpole",
         "efficiency_cartpole",
-        "didactic_rejection_sampling",
-        "didactic_importance_mixing",
-        "didactic_extended_importance_mixing",
     ]
     for stem in stems:
         for ext in ("png", "pdf"):
@@ -328,25 +325,68 @@ def test_running_seeds_are_read_from_partial_csvs_and_curves_reach_the_longest(t
     assert len(exp.groups[0].seeds[0]) == 40 and exp.groups[0].partial == {2}
 
 
-def test_efficiency_panels_share_x_and_bands_stay_within_achievable_returns(tmp_path):
+def test_efficiency_overlays_mixing_on_one_axis_log_x_when_it_helps_and_bands_stay_within_achievable_returns(tmp_path):
     from matplotlib.collections import PolyCollection
 
     from imix_cli.plotting.data import PlotOptions
     from imix_cli.plotting.figures import efficiency_figures
 
-    for mixing in ("none", "eim"):
-        run_dir = tmp_path / EXPERIMENT / run_dir_name("snes", "cartpole", mixing)
-        run_dir.mkdir(parents=True)
-        for seed, top in enumerate((200.0, 200.0, 120.0)):  # two seeds at the cap, one far below: a wide CI
-            write_run_csv(run_dir / f"seed_{seed}.csv", run_rows("snes", "cartpole", mixing, seed, np.linspace(50, top, 10)))
-    exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
-    ((_, fig),) = list(efficiency_figures(exp, PlotOptions()))
-    a, b = fig.axes[:2]
-    assert a.get_shared_x_axes().joined(a, b)
-    for ax in (a, b):
+    def experiment(eim_reuse):
+        root = tmp_path / f"reuse{eim_reuse}"
+        for mixing in ("none", "eim"):
+            run_dir = root / EXPERIMENT / run_dir_name("snes", "cartpole", mixing)
+            run_dir.mkdir(parents=True)
+            reused = [0] + [eim_reuse if mixing == "eim" else 0] * 9
+            for seed, top in enumerate((200.0, 200.0, 120.0)):  # two seeds at the cap, one far below: a wide CI
+                write_run_csv(run_dir / f"seed_{seed}.csv", run_rows("snes", "cartpole", mixing, seed, np.linspace(50, top, 10), reused=reused))
+        ((_, fig),) = list(efficiency_figures(load_experiment(root, EXPERIMENT, warn=lambda m: None), PlotOptions()))
+        return fig
+
+    similar, far_apart = experiment(2), experiment(9)  # EIM evaluates 8 or 1 of 10 members per generation
+    for fig in (similar, far_apart):
+        (ax,) = fig.axes  # no mixing and mixing on one axis
+        assert len([line for line in ax.get_lines() if line.get_label() in ("SNES", "SNES + EIM")]) == 2
         bands = [c for c in ax.collections if isinstance(c, PolyCollection)]
-        assert bands and max(path.vertices[:, 1].max() for c in bands for path in c.get_paths()) <= 200.0
-    assert "3 seeds, <5: weak CI" in " ".join(ax.get_title(loc="left") for ax in (a, b))
+        assert len(bands) == 2 and max(path.vertices[:, 1].max() for c in bands for path in c.get_paths()) <= 200.0
+        assert "3 seeds, <5: weak CI" in fig.get_suptitle()
+    assert similar.axes[0].get_xscale() == "linear" and far_apart.axes[0].get_xscale() == "log"
+
+
+def test_main_figures_say_which_grid_search_runs_they_leave_out(tmp_path):
+    from imix_cli.plotting.data import PlotOptions
+    from imix_cli.plotting.figures import convergence_figures, efficiency_figures
+
+    write_group(tmp_path, "snes", "cartpole", "eim", range(2))
+    for popsize in (10, 20):
+        write_group(tmp_path, "snes", "cartpole", "eim", range(2), overrides=f"popsize={popsize}", popsize=popsize)
+    exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
+    for draw in (convergence_figures, efficiency_figures):
+        ((_, fig),) = list(draw(exp, PlotOptions()))
+        assert "not shown: 2 grid-search run(s)" in fig.get_suptitle()
+
+
+def test_profile_axis_fits_the_final_returns_and_its_threshold_is_in_the_legend(tmp_path):
+    from imix_cli.plotting.data import PlotOptions
+    from imix_cli.plotting.figures import profile_figures
+
+    write_group(tmp_path, "snes", "cartpole", "none", range(5))  # final returns near 200 (170-200 with noise)
+    exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
+    ((_, fig),) = list(profile_figures(exp, PlotOptions(thresholds={"cartpole": 195.0})))
+    (ax,) = fig.axes
+    finals = [f["mean_score"].iloc[-1] for f in exp.groups[0].frames()]
+    lo, hi = ax.get_xlim()
+    assert lo < min(finals) and hi > max(finals, default=0) and hi - lo < 0.5 * 200  # not the 0-200 of achievable returns
+    assert "threshold 195" in [t.get_text() for t in ax.get_legend().get_texts()]
+
+
+def test_didactic_figures_only_when_asked(tmp_path, capsys):
+    write_group(tmp_path, "snes", "cartpole", "none", range(2))
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=convergence,efficiency,reuse"]) == 0
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "formats=png"]) == 0
+    assert not list(figures_dir(tmp_path).glob("didactic_*"))
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "formats=png", "didactic=true"]) == 0
+    assert len(list(figures_dir(tmp_path).glob("didactic_*.png"))) == 3
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "didactic=maybe"]) == 2
 
 
 def test_iqm_and_improvement_tables_hand_values(tmp_path):

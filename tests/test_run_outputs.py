@@ -3,6 +3,8 @@ partial CSV that lets `imix plot` / `imix status` follow a running seed."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from imix_cli.cli import main
 from imix_cli.config import validate_overrides
 from imix_cli.results import partial_csv_path, read_run_csv
@@ -60,3 +62,28 @@ def test_argparse_style_option_suggests_key_value(tmp_path, capsys):
     assert main(["run", "--seeds=3", f"results_dir={tmp_path}"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all("seeds=3" in line for line in err)
+
+
+def test_summary_shows_theta_on_fresh_episodes_beside_the_population_and_says_which_has_no_reused_returns(tmp_path, capsys):
+    assert main(["run", *TINY, "seeds=2", "eim=true", "eval_mean_every=2", f"results_dir={tmp_path}"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "population" in lines[0] and "θ fresh" in lines[0]
+    frames = [read_run_csv(tmp_path / "default" / "cem-cartpole-eim-popsize=8" / f"seed_{k}.csv") for k in (0, 1)]
+    theta = np.mean([f["mean_policy_score"].dropna().iloc[-1] for f in frames])
+    assert f"{theta:.2f} ±" in lines[1]
+    assert any("θ fresh: distribution mean on fresh episodes" in line and "free of reused returns" in line for line in lines)
+
+
+def test_a_sweep_ends_with_one_table_of_every_point(tmp_path, capsys):
+    assert main(["run", "-m", *TINY, "seeds=1", "eim=false,true", "popsize=8,9", f"results_dir={tmp_path}"]) == 0
+    out = capsys.readouterr().out
+    table = out[out.index("sweep: 4 run(s)") :].splitlines()
+    runs = sorted(line.split()[0] for line in table[2:6])
+    assert runs == sorted(f"cem-cartpole-{m}-popsize={p}" for m in ("none", "eim") for p in (8, 9))
+
+
+def test_version(capsys):
+    from imix_cli import __version__
+
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"imix {__version__}"

@@ -36,6 +36,9 @@ keys:
                           {names}
   formats=FMT[,FMT...]    figure formats among png, pdf, svg (default: png,pdf)
   dpi=N                   resolution of PNG figures, 50-600 (default: 150)
+  didactic=true|false     also draw the paper's three didactic figures (Figs 1-3,
+                          no data needed; default: false). only=didactic draws
+                          just those.
 
 Figures show the mean over seeds with a shaded confidence interval of the mean
 (Student t), clipped to the env's achievable returns. Against episodes
@@ -114,9 +117,17 @@ def _dpi(key: str, value: str) -> int:
     return dpi
 
 
-_DEFAULTS = {"results_dir": "results", "experiment": "default", "ci": 0.68, "only": None, "formats": ("png", "pdf"), "dpi": 150}
-_CONVERT = {"results_dir": _results_dir, "experiment": _experiment, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi}
-_KNOWN = "results_dir, experiment, threshold.<env>, ci, only, formats, dpi"
+def _flag(key: str, value: str) -> bool:
+    if value.lower() in ("true", "yes", "1"):
+        return True
+    if value.lower() in ("false", "no", "0"):
+        return False
+    raise UsageError(f"bad value for {key}: {value!r} (expected true or false)")
+
+
+_DEFAULTS = {"results_dir": "results", "experiment": "default", "ci": 0.68, "only": None, "formats": ("png", "pdf"), "dpi": 150, "didactic": False}
+_CONVERT = {"results_dir": _results_dir, "experiment": _experiment, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi, "didactic": _flag}
+_KNOWN = "results_dir, experiment, threshold.<env>, ci, only, formats, dpi, didactic"
 
 
 def parse_args(argv: list) -> dict:
@@ -163,7 +174,8 @@ def main(argv: list | None = None) -> int:
     from .tables import TABLES, write_table
 
     only = settings["only"]
-    figures = [f for f in FIGURES if only is None or f.name in only]
+    asked = {"didactic"} if settings["didactic"] else set()
+    figures = [f for f in FIGURES if (f.name in only if only is not None else not f.on_request or f.name in asked)]
     tables = [t for t in TABLES if only is None or t.name in only]
     needs_data = any(f.needs_data for f in figures) or bool(tables)
 

@@ -11,7 +11,8 @@ Data figures (mean over seeds, shaded 68 % Student-t CI of the mean; see
 
 * ``convergence_<env>``   paper Figs 5-6: population mean return vs generation,
   one line per algorithm, one panel per mixing (without | with IM | with EIM);
-* ``efficiency_<env>``    paper Figs 7-8: the same vs episodes evaluated;
+* ``efficiency_<env>``    paper Figs 7-8: the same vs episodes evaluated, no mixing and mixing
+  overlaid on one axis (log x when their episode counts differ by 4x or more);
 * ``ddpg_<env>``          paper Figs 12-13: DDPG against the ES runs of the same
   env vs environment steps, log x-axis, mean (solid, shaded CI) and median (dotted);
 * ``gridsearch_<algo>_<env>_<mixing>_<param>``  paper Figs 9-11: one line per
@@ -309,7 +310,7 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
     note += ")" if by_evaluations else ";\ndots: return of the distribution mean θ on fresh episodes, mean over seeds)"
     if common:
         title += f"; {settings_text(common)}"
-    fig.suptitle(f"{title}\n{note}")
+    fig.suptitle(f"{title}\n{note}{_left_out_note(exp, env)}")
     return fig
 
 
@@ -325,10 +326,63 @@ def convergence_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
 
 
 def efficiency_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
-    """Paper Figs 7-8: population mean return vs cumulative episodes evaluated (step-aligned over seeds)."""
+    """Paper Figs 7-8, on one axis: population mean return vs cumulative episodes evaluated, no mixing
+    (dashed) and mixing (solid) of each algorithm overlaid, so the episodes mixing saves show as the
+    horizontal distance between two lines of one colour. Log x when the runs' episode counts differ by
+    :data:`LOG_X_RATIO` or more (mixing's curves would otherwise sit in the leftmost few per cent)."""
     groups = _es_main_groups(exp)
     for env in sorted({g.env for g in groups}):
-        yield f"efficiency_{slug(env)}", _mixing_panels(exp, opts, env, [g for g in groups if g.env == env], True)
+        yield f"efficiency_{slug(env)}", _efficiency_overlay(exp, opts, env, [g for g in groups if g.env == env])
+
+
+#: Episode counts of the runs differing by this factor or more: the efficiency figure's x axis is logarithmic.
+LOG_X_RATIO = 4.0
+
+#: Line style of each mixing setting in the overlaid efficiency figure.
+MIXING_LINESTYLES = {"none": (0, (4, 2)), "im": "-.", "eim": "-"}
+
+
+def _efficiency_overlay(exp, opts, env, groups) -> Figure:
+    finals = [max(f["evaluations"].iloc[-1] for f in g.frames()) for g in groups]
+    firsts = [min(f["evaluations"].iloc[0] for f in g.frames()) for g in groups]
+    log = min(finals) > 0 and min(firsts) > 0 and max(finals) / min(finals) >= LOG_X_RATIO
+    fig = new_figure(6.6, 4.2)
+    ax = fig.subplots()
+    common = common_settings(groups)
+    threshold = opts.thresholds.get(env)
+    handles = []
+    for group in groups:
+        x, matrix = align_on_grid(group, "evaluations", "mean_score", log=log)
+        label = own_settings_label(group, common, with_mixing=True)
+        style_ = MIXING_LINESTYLES.get(group.mixing, ":")
+        handles.append(_draw_band(ax, x, matrix, algo_color(group.algo), label, opts.ci_level, linestyle=style_, clip=achievable_range(env, matrix)))
+    _threshold_line(ax, threshold)
+    labels = [h.get_label() for h in handles]
+    _add_threshold_entry(handles, labels, threshold)
+    if log:
+        ax.set_xscale("log")
+        ax.set_xlabel("episodes evaluated (log scale)")
+    else:
+        ax.set_xlabel("episodes evaluated")
+        ax.set_xlim(left=0)
+    ax.xaxis.set_major_formatter(FuncFormatter(_short_number))
+    ax.set_ylabel("population mean return")
+    fig.legend(handles, labels, loc="outside lower center", ncols=min(len(handles), 3))
+    title = f"{env_label(env)}: population mean return vs episodes evaluated"
+    if common:
+        title += f"; {settings_text(common)}"
+    note = f"(dashed: no mixing, solid: mixing; mean ± {opts.ci_level:.0%} Student-t CI over seeds;\n{_seeds_note(groups)}; dotted: fewer seeds)"
+    fig.suptitle(f"{title}\n{note}{_left_out_note(exp, env)}")
+    return fig
+
+
+def _left_out_note(exp, env) -> str:
+    """What the main figures of ``env`` leave out (grid-search points), said in the figure itself."""
+    shown = {id(g) for g in select_main_groups(exp.groups)}
+    left_out = [g for g in exp.groups if g.env == env and g.algo not in NON_ES and id(g) not in shown]
+    if not left_out:
+        return ""
+    return f"\nnot shown: {len(left_out)} grid-search run(s) with settings of their own (gridsearch figures)"
 
 
 # --------------------------------------------------------------------------- paper Figs 12-13
@@ -435,7 +489,7 @@ def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
         values = values[np.isfinite(values)]
         if values.size == 0:
             continue
-        lo, hi = achievable_range(env, values)
+        lo, hi = profile_range(values, opts.thresholds.get(env))
         taus = np.linspace(lo, hi, 201)
         fig = new_figure(6.4, 3.9)
         ax = fig.subplots()
@@ -450,9 +504,10 @@ def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
             label = f"{own_settings_label(group, common, with_mixing=True)} [{group.n_seeds}]"
             ax.step(taus, point, where="post", color=color, linestyle=style_, label=label)
             ax.fill_between(taus, low, high, step="post", color=color, alpha=BAND_ALPHA, linewidth=0)
-        _threshold_vline = opts.thresholds.get(env)
-        if _threshold_vline is not None:
-            ax.axvline(_threshold_vline, zorder=1, **_THRESHOLD_STYLE)
+        threshold = opts.thresholds.get(env)
+        if threshold is not None:
+            ax.axvline(threshold, zorder=1, label=f"threshold {threshold:g}", **_THRESHOLD_STYLE)
+        ax.set_xlim(lo, hi)
         ax.set_xlabel("final population mean return τ")
         ax.set_ylabel("fraction of runs with return > τ")
         ax.set_ylim(-0.02, 1.02)
@@ -462,6 +517,15 @@ def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
             title += f"; {settings_text(common)}"
         fig.suptitle(f"{title}\n(run-score distribution, 95 % stratified-bootstrap band; [seeds]; {_seeds_note(members)})")
         yield f"profile_{slug(env)}", fig
+
+
+def profile_range(values, threshold=None) -> tuple:
+    """The τ axis of a performance profile: the final returns' range (and the threshold), padded by 5 %.
+    Not the env's achievable range: CartPole's runs end in 170-200 of 0-200, where the curves differ."""
+    points = np.append(values, [] if threshold is None else [threshold])
+    lo, hi = float(np.min(points)), float(np.max(points))
+    pad = 0.05 * (hi - lo) if hi > lo else max(1.0, 0.05 * abs(hi))
+    return lo - pad, hi + pad
 
 
 # --------------------------------------------------------------------------- paper Figs 9-11
@@ -540,11 +604,12 @@ class FigureSpec:
     paper: str  # which figures of the paper it reproduces
     draw: Callable[[Experiment, PlotOptions], Iterator]
     needs_data: bool = True
+    on_request: bool = False  # drawn only when asked (only=<name> or <name>=true): not rewritten into every experiment
 
 
 #: Every figure `imix plot` draws, in order. Add new figures here.
 FIGURES = [
-    FigureSpec("didactic", "Figs 1-3", didactic.didactic_figures, needs_data=False),
+    FigureSpec("didactic", "Figs 1-3", didactic.didactic_figures, needs_data=False, on_request=True),
     FigureSpec("convergence", "Figs 5-6", convergence_figures),
     FigureSpec("efficiency", "Figs 7-8", efficiency_figures),
     FigureSpec("gridsearch", "Figs 9-11", gridsearch_figures),

@@ -1,0 +1,109 @@
+"""Importance mixing around any evolution strategy, as one more ask/tell object.
+
+Why a wrapper: with importance mixing, part of every generation is taken from earlier
+generations whose returns are already known, so a user's loop would have to keep the archive,
+the heights and ages of its members, and put the stored and the new returns back together in
+the generation's order before telling the ES. :class:`MixingES` does that bookkeeping with the
+very functions the runner uses for every seed (:func:`imix_cli.generation.plan_generation` and
+:func:`imix_cli.generation.finish_generation`), and shows the user only what costs an episode:
+``ask()`` returns the members to evaluate, ``tell()`` takes their returns. A plain ask/tell loop
+becomes a mixing one by wrapping the ES::
+
+    es = MixingES(make_es("cem", dim=10, popsize=20), "eim", rng=0)   # the one new line
+    for generation in range(100):
+        x = es.ask()                 # only the members that need an evaluation
+        es.tell(x, fitness(x))       # their returns (es.tell(fitness(x)) works too)
+
+The generations, updates and reuse are exactly the runner's for the same ES, random stream and
+returns (tests/test_ask_tell.py checks it against ``imix run``'s CSV on CartPole for all four ES).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from imix_cli.generation import Archive, MixingSettings, Plan, finish_generation, plan_generation
+
+__all__ = ["MixingES"]
+
+
+class MixingES:
+    """An evolution strategy with importance mixing: ``ask()`` returns only the members to evaluate.
+
+    Parameters
+    ----------
+    es
+        Any ES of :mod:`imix_cli.algorithms` (or an object with ``ask(rng)``, ``tell(samples,
+        fitness)``, ``distribution`` and ``popsize``).
+    variant : {"eim", "sun2009", "paper", "eim_paper", None}
+        The :func:`~imix_cli.mixing.mix` variant (``"eim"``: ``imix run eim=true``; ``"paper"``:
+        ``im=true``); None draws every generation fresh, i.e. the plain ES.
+    rng : numpy Generator, int or None
+        The stream that draws and mixes the generations (an int seeds a new Generator).
+    eim_generations, alpha, reeval_age, reeval_prob
+        As the config keys of the same names (:class:`~imix_cli.generation.MixingSettings`).
+    """
+
+    def __init__(self, es, variant: str | None = "eim", *, rng=None, eim_generations: int = 3, alpha: float = 0.0,
+                 reeval_age: int | None = None, reeval_prob: float = 0.0):  # fmt: skip
+        self.es = es
+        self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob)
+        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.archive = Archive()
+        self.plan: Plan | None = None  # the generation asked and not yet told
+        self._last = None  # the last generation asked
+        #: episodes asked for so far (fresh members and re-evaluated ones)
+        self.evaluations = 0
+        #: members taken from earlier generations so far, and members in all generations told
+        self.reused = 0
+        self.members = 0
+
+    @property
+    def distribution(self):
+        """The current search distribution (its ``mean`` is the policy one deploys)."""
+        return self.es.distribution
+
+    @property
+    def popsize(self) -> int:
+        return self.es.popsize
+
+    def ask(self, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The members of the next generation that need an evaluation, one row each (fresh ones, and
+        reused ones that ``reeval_age``/``reeval_prob`` measure again). ``rng``: this call's stream
+        instead of the one given at construction."""
+        if self.plan is not None:
+            raise RuntimeError("ask() twice without tell(): tell the returns of the members asked first")
+        self.plan = plan_generation(self.es, self.archive, self.settings, self.rng if rng is None else rng)
+        self._last = self.plan.generation
+        return self.plan.generation.samples[self.plan.evaluate]
+
+    def tell(self, samples_or_returns, returns=None) -> np.ndarray:
+        """Tell the returns of the members :meth:`ask` returned, as ``tell(returns)`` or, like a plain ES,
+        ``tell(samples, returns)`` (the samples must be the ones asked). The ES is told the whole
+        generation, reused members with their stored returns; returns the fitness of every member."""
+        if self.plan is None:
+            raise RuntimeError("tell() before ask(): ask for the members to evaluate first")
+        asked = self.plan.generation.samples[self.plan.evaluate]
+        if returns is None:
+            returns = samples_or_returns
+        elif not np.array_equal(np.asarray(samples_or_returns), asked):
+            raise ValueError("tell(samples, returns): samples are not the members ask() returned (in that order)")
+        returns = np.asarray(returns, dtype=np.float64).reshape(-1)
+        if returns.shape[0] != asked.shape[0]:
+            raise ValueError(f"tell(): {returns.shape[0]} returns for the {asked.shape[0]} members ask() returned")
+        plan, self.plan = self.plan, None
+        fitness = finish_generation(self.es, self.archive, self.settings, plan, returns)
+        self.evaluations += plan.evaluate.size
+        self.reused += plan.generation.reused
+        self.members += plan.generation.samples.shape[0]
+        return fitness
+
+    @property
+    def generation(self):
+        """The last generation asked (:class:`~imix_cli.mixing.Generation`: samples, source, index), or None."""
+        return self._last
+
+    @property
+    def reuse(self) -> float:
+        """Fraction of the members told so far that were reused (not evaluated)."""
+        return self.reused / self.members if self.members else 0.0

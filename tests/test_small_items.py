@@ -1,0 +1,31 @@
+"""Small promises of the command line: the kept episode cap is said, install says how to reach imix,
+the help's examples are ones that learn."""
+
+import subprocess
+from pathlib import Path
+
+from imix_cli.config import validate_overrides
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_a_builtin_env_with_another_id_says_once_that_it_keeps_its_own_cap(capsys, tmp_path):
+    (spec,) = validate_overrides(["env=cartpole", "env.id=CartPole-v1", f"results_dir={tmp_path}"])
+    assert spec.env_max_steps == 200  # kept (an explicit env.max_steps=200 looks the same), and said:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "env.max_steps=200" in err[0] and "CartPole-v1's own 500" in err[0] and "env=gym env.id=CartPole-v1" in err[0]
+    validate_overrides(["env=cartpole", "env.id=CartPole-v1", f"results_dir={tmp_path}"])
+    assert capsys.readouterr().err == ""  # once per process
+    (spec,) = validate_overrides(["env=gym", "env.id=CartPole-v1", f"results_dir={tmp_path}"])
+    assert spec.env_max_steps is None and capsys.readouterr().err == ""  # the id's own cap, nothing to say
+
+
+def test_make_install_says_how_to_put_imix_on_path():
+    out = subprocess.run(["make", "-n", "install"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    assert "source .venv/bin/activate" in out
+
+
+def test_run_help_examples_avoid_the_mountaincar_run_that_learns_nothing():
+    text = (ROOT / "conf" / "config.yaml").read_text()
+    examples = text[text.index("Examples:") : text.index("Groups")]
+    assert "imix run env=gym env.id=" in examples and "MountainCar" not in examples
