@@ -25,7 +25,7 @@ rule), and stored noisy returns told again (``reeval_count``). Each section isol
 Usage::
 
     python benchmarks/reuse_bias.py constant|neutral|noisy [--seeds 5] [--generations 400] [--workers 2]
-    python benchmarks/reuse_bias.py tasks --experiment results/reuse_bias
+    python benchmarks/reuse_bias.py tasks [--experiment results/paper --experiment results/reuse_rules]
 
 d = 130 (the CartPole policy's size), N = 50, sigma0 0.25, lr 0.01, no weight decay in the
 synthetic sections. Rows: ``none`` (no mixing), ``exact`` (``eim=true eim_variant=exact``),
@@ -134,11 +134,11 @@ def synthetic_table(objective: str, seeds: int, generations: int, workers: int, 
             print(f"| {algo} | {rule} | " + " | ".join(cells) + " | " + ", ".join(ratios) + " |", flush=True)
 
 
-def tasks_table(experiment: str) -> None:
+def tasks_table(experiments: list[str]) -> None:
     import pandas as pd
 
     rows = []
-    for folder in sorted(glob.glob(os.path.join(experiment, "*"))):
+    for folder in sorted(f for e in experiments for f in glob.glob(os.path.join(e, "*"))):
         csvs = sorted(glob.glob(os.path.join(folder, "seed_*.csv")))
         if not csvs:
             continue
@@ -160,9 +160,12 @@ def tasks_table(experiment: str) -> None:
             }
         )
     if not rows:
-        raise SystemExit(f"no seed CSVs under {experiment}/*/")
+        raise SystemExit(f"no seed CSVs under {', '.join(experiments)}/*/")
     by_name = {r["run"]: r for r in rows}
-    print("| run | seeds | population mean (± s.e.) | theta, fresh episodes, end | theta over the run (vs none) | episodes/seed | reuse | lowest seed | median final sigma |")
+    print(
+        "| run | seeds | population mean (± s.e.) | theta, fresh episodes, end | theta over the run (vs none) "
+        "| episodes/seed | reuse | lowest seed | median final sigma |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         algo_env = "-".join(r["run"].split("-")[:2])
@@ -182,11 +185,11 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--algos", default=",".join(ALGOS))
     parser.add_argument("--rules", default=",".join(RULES))
-    parser.add_argument("--experiment", default="results/reuse_bias")
+    parser.add_argument("--experiment", action="append", help="an experiment folder of seed CSVs (repeatable)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
     if args.section == "tasks":
-        tasks_table(args.experiment)
+        tasks_table(args.experiment or ["results/paper", "results/reuse_rules"])
     else:
         synthetic_table(args.section, args.seeds, args.generations, args.workers, args.algos.split(","), args.rules.split(","))
     print(f"({time.perf_counter() - started:.0f} s)", file=sys.stderr)
