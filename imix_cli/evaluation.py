@@ -62,7 +62,10 @@ from imix_cli.envs.mujoco_direct import DIRECT_ENV_IDS  # imports no mujoco
 from imix_cli.policies import HIDDEN, BatchPolicy, num_params
 from imix_cli.registry import BUILTIN_ENVS, ENV_SPECS
 
-__all__ = ["BatchEvaluator", "make_evaluator", "MujocoDirectEvaluator", "mujoco_backend", "missing_extra_message", "MUJOCO_EXTRA_HINT", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS"]
+__all__ = [
+    "BatchEvaluator", "make_evaluator", "MujocoDirectEvaluator", "mujoco_backend", "missing_extra_message", "MUJOCO_EXTRA_HINT",
+    "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS",
+]  # fmt: skip
 
 CARTPOLE_MAX_STEPS = ENV_SPECS["cartpole"].max_steps  # CartPole-v0 (reward threshold 195)
 ACROBOT_MAX_STEPS = ENV_SPECS["acrobot"].max_steps  # the paper's cap (Acrobot-v1 itself allows 500)
@@ -300,7 +303,6 @@ class GymEvaluator(BatchEvaluator):
                 policy.select(rows)
         self.last_obs_stats = (sums, sumsqs)
         return ret, length
-
 
 
 class MujocoDirectEvaluator(BatchEvaluator):
