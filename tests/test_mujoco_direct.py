@@ -148,3 +148,17 @@ def test_an_imix_run_on_hopper_is_the_same_on_both_backends(tmp_path, monkeypatc
     gymnasium, direct = frames["gymnasium"], frames["direct"]
     assert len(direct) == 4 and direct["reused"].iloc[1:].sum() > 0  # mixing reused members after the warm-up
     assert direct.equals(gymnasium), f"\n{direct}\n{gymnasium}"
+
+
+@pytest.mark.slow
+def test_bench_mujoco_prints_its_table(capsys):
+    """`imix bench mujoco` on a tiny size: one row per env, every cost positive (no timing is asserted)."""
+    from imix_cli.bench import main
+
+    assert main(["mujoco", "--mujoco-envs", "hopper", "--popsize", "3", "--repeats", "1", "--generations", "1"]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("|") and not line.startswith("|---")]
+    header, *rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines]
+    assert header == ["env", "mean episode (loop / run)", "gymnasium loop (µs/step)", "physics (µs/step)", "imix evaluator (µs/step)",
+                      "imix run (µs/step)", "evaluator / loop", "run / loop", "physics / loop (floor)"]  # fmt: skip
+    assert len(rows) == 1 and rows[0][0] == "Hopper-v5" and len(rows[0]) == len(header)
+    assert all(float(cell) > 0 for cell in rows[0][2:])
