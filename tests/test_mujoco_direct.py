@@ -159,6 +159,7 @@ def test_bench_mujoco_prints_its_table(capsys):
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("|") and not line.startswith("|---")]
     header, *rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines]
     assert header == ["env", "mean episode (loop / run)", "gymnasium loop (µs/step)", "physics (µs/step)", "imix evaluator (µs/step)",
-                      "imix run (µs/step)", "evaluator / loop", "run / loop", "physics / loop (floor)"]  # fmt: skip
+                      "imix run (µs/step)", "imix on gymnasium's env (µs/step)", "evaluator / loop", "run / loop", "on gymnasium's env / loop",
+                      "physics / loop (floor)"]  # fmt: skip
     assert len(rows) == 1 and rows[0][0] == "Hopper-v5" and len(rows[0]) == len(header)
     assert all(float(cell) > 0 for cell in rows[0][2:])

@@ -167,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
             echo(format_peer_ratios(rows))
         elif section == "mujoco":
             echo("## MuJoCo: imix's cost per env step against a plain gymnasium loop (linear policy, no mixing, pool evaluator, 1 worker)")
-            gens = args.generations or 5
+            gens = max(args.generations or 5, 2)
             rows = mujoco_rows(args.mujoco_envs, args.popsize, args.repeats, gens, echo=echo)
             echo(format_mujoco(rows))
             echo(f"(ratios: medians over {args.repeats} pairs; imix run: {gens} generations of popsize {args.popsize})")

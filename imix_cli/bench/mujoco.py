@@ -11,11 +11,14 @@ state; the ratio is the median of the repeats' ratios), for a linear policy with
   that reproduces gymnasium's episodes bit for bit runs the same physics: this is the floor;
 * ``imix evaluator``: the same parameters and episode seeds through imix's pool evaluator with
   one worker (:class:`imix_cli.parallel_evaluation.PoolEvaluator`, the direct MuJoCo path;
-  the episodes are the loop's, bit for bit: the step counts are checked equal);
+  the episodes are the loop's, bit for bit: the step counts are checked equal), and the same
+  pool evaluator on gymnasium's env (``IMIX_MUJOCO_BACKEND=gymnasium``: imix before the direct path);
 * ``imix run``: ``imix run algo=snes env=<env> policy.hidden=[] evaluator=pool
   evaluator_workers=1 seeds=1`` (no mixing, no mean-policy episodes, no checkpoints) in this
-  process: wall time over the run's env steps, ES update and files included. Its policies are
-  the ES's own (mean episode length shown), so its ratio compares similar, not identical, episodes.
+  process: the wall time of its generations after the first (the first one also starts the
+  worker process) over their env steps, from the CSV; the ES update and the IPC are included.
+  Its policies are the ES's own (mean episode length shown), so its ratio compares similar,
+  not identical, episodes.
 
 The parameters: ``popsize`` linear policies N(0, sigma^2) (numpy seed 0, sigma the paper's 0.25,
 what the ES samples first), episode seeds 0..popsize-1.
@@ -68,7 +71,8 @@ def _gym_loop(env_id: str, params: np.ndarray, seeds: np.ndarray, obs_dim: int, 
 
 
 def _imix_run(env: str, generations: int, popsize: int) -> tuple[float, int]:
-    """``imix run`` (linear policy, no mixing, pool evaluator with one worker) in a temporary folder: (seconds, env steps)."""
+    """``imix run`` (linear policy, no mixing, pool evaluator with one worker) in a temporary folder: (seconds, env steps)
+    of its generations after the first, from the CSV's clock (the first one also starts the worker process)."""
     import tempfile
     from pathlib import Path
 
@@ -79,12 +83,31 @@ def _imix_run(env: str, generations: int, popsize: int) -> tuple[float, int]:
         args = ["run", "algo=snes", f"env={env}", "policy.hidden=[]", "evaluator=pool", "evaluator_workers=1", "seeds=1",
                 f"generations={generations}", f"popsize={popsize}", "eval_mean_every=0", "checkpoint_every=0", "progress=false",
                 f"results_dir={tmp}"]  # fmt: skip
-        started = time.perf_counter()
         if main(args) != 0:
             raise RuntimeError(f"imix {' '.join(args)} failed")
-        seconds = time.perf_counter() - started
         (csv,) = Path(tmp).rglob("seed_0.csv")
-        return seconds, int(read_run_csv(csv)["env_steps"].iloc[-1])
+        frame = read_run_csv(csv)
+        return float(frame["wall_time"].iloc[-1] - frame["wall_time"].iloc[0]), int(frame["env_steps"].iloc[-1] - frame["env_steps"].iloc[0])
+
+
+def _gymnasium_backend_pool(env_id: str):
+    """A pool evaluator (one worker) running gymnasium's env (``IMIX_MUJOCO_BACKEND=gymnasium`` while its worker starts), warmed up."""
+    import os
+
+    from imix_cli.evaluation import MUJOCO_BACKEND_VARIABLE
+    from imix_cli.parallel_evaluation import PoolEvaluator
+
+    saved = os.environ.get(MUJOCO_BACKEND_VARIABLE)
+    os.environ[MUJOCO_BACKEND_VARIABLE] = "gymnasium"
+    try:
+        pool = PoolEvaluator(env_id, None, hidden=(), workers=1)
+        pool.evaluate(np.zeros((1, pool.num_params)), np.zeros(1, dtype=np.int64))  # the worker starts now, under the variable
+    finally:
+        if saved is None:
+            del os.environ[MUJOCO_BACKEND_VARIABLE]
+        else:
+            os.environ[MUJOCO_BACKEND_VARIABLE] = saved
+    return pool
 
 
 def mujoco_rows(envs=MUJOCO_BENCH_ENVS, popsize: int = 50, repeats: int = 3, run_generations: int = 5, echo=None) -> list[dict]:
@@ -93,13 +116,16 @@ def mujoco_rows(envs=MUJOCO_BENCH_ENVS, popsize: int = 50, repeats: int = 3, run
     from imix_cli.registry import ENV_SPECS
 
     rows = []
+    run_generations = max(int(run_generations), 2)
     for env in envs:
         env_id = ENV_SPECS[env].gym_id
         pool = PoolEvaluator(env_id, None, hidden=(), workers=1)
+        before = _gymnasium_backend_pool(env_id)
         try:
             params, seeds = _linear_policies(pool, popsize), np.arange(popsize)
             pool.evaluate(params[:1], seeds[:1])  # the worker starts and loads the model: not timed
             gym_costs, physics_costs, eval_costs, run_costs, eval_ratios, run_ratios, physics_ratios = ([] for _ in range(7))
+            before_costs, before_ratios = [], []
             run_episode = 0.0
             for _ in range(repeats):
                 g_seconds, g_physics, g_steps = _gym_loop(env_id, params, seeds, pool.obs_dim, pool.out_dim)
@@ -108,7 +134,13 @@ def mujoco_rows(envs=MUJOCO_BENCH_ENVS, popsize: int = 50, repeats: int = 3, run
                 e_seconds = time.perf_counter() - started
                 if int(steps.sum()) != g_steps:
                     raise RuntimeError(f"{env_id}: imix's episodes took {int(steps.sum())} steps, gymnasium's {g_steps}: not the same episodes")
+                started = time.perf_counter()
+                _, before_steps = before.evaluate(params, seeds)
+                b_seconds = time.perf_counter() - started
+                assert int(before_steps.sum()) == g_steps
+                before_costs.append(b_seconds / g_steps)
                 gym_costs.append(g_seconds / g_steps)
+                before_ratios.append(before_costs[-1] / gym_costs[-1])
                 physics_costs.append(g_physics / g_steps)
                 eval_costs.append(e_seconds / g_steps)
                 eval_ratios.append(eval_costs[-1] / gym_costs[-1])
@@ -116,19 +148,21 @@ def mujoco_rows(envs=MUJOCO_BENCH_ENVS, popsize: int = 50, repeats: int = 3, run
                 r_seconds, r_steps = _imix_run(env, run_generations, popsize)
                 run_costs.append(r_seconds / r_steps)
                 run_ratios.append(run_costs[-1] / gym_costs[-1])
-                run_episode = r_steps / (run_generations * popsize)
+                run_episode = r_steps / ((run_generations - 1) * popsize)
             row = {
                 "env": env_id, "episode": g_steps / popsize, "run_episode": run_episode,
                 "gym": float(np.median(gym_costs)), "physics": float(np.median(physics_costs)),
                 "evaluator": float(np.median(eval_costs)), "run": float(np.median(run_costs)),
                 "evaluator_ratio": float(np.median(eval_ratios)), "run_ratio": float(np.median(run_ratios)),
                 "physics_ratio": float(np.median(physics_ratios)), "repeats": repeats,
+                "before": float(np.median(before_costs)), "before_ratio": float(np.median(before_ratios)),
             }  # fmt: skip
             rows.append(row)
             if echo:
                 echo(f"  {env_id}: imix {row['evaluator_ratio']:.2f}x the gymnasium loop's cost per step (physics {row['physics_ratio']:.2f}x)")
         finally:
             pool.close()
+            before.close()
     return rows
 
 
@@ -137,10 +171,11 @@ def format_mujoco(rows: list[dict]) -> str:
         return f"{seconds * 1e6:.1f}"
 
     header = ["env", "mean episode (loop / run)", "gymnasium loop (µs/step)", "physics (µs/step)", "imix evaluator (µs/step)",
-              "imix run (µs/step)", "evaluator / loop", "run / loop", "physics / loop (floor)"]  # fmt: skip
+              "imix run (µs/step)", "imix on gymnasium's env (µs/step)", "evaluator / loop", "run / loop", "on gymnasium's env / loop",
+              "physics / loop (floor)"]  # fmt: skip
     body = [
         [r["env"], f"{r['episode']:.0f} / {r['run_episode']:.0f}", us(r["gym"]), us(r["physics"]), us(r["evaluator"]), us(r["run"]),
-         f"{r['evaluator_ratio']:.2f}", f"{r['run_ratio']:.2f}", f"{r['physics_ratio']:.2f}"]
+         us(r["before"]), f"{r['evaluator_ratio']:.2f}", f"{r['run_ratio']:.2f}", f"{r['before_ratio']:.2f}", f"{r['physics_ratio']:.2f}"]
         for r in rows
     ]  # fmt: skip
-    return table(header, body, "lrrrrrrrr")
+    return table(header, body, "lrrrrrrrrrr")
