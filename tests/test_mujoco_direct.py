@@ -2,11 +2,7 @@
 
 Everything is compared bit for bit (``np.array_equal``, ``==``): the direct path runs the same
 engine on the same model with the same inputs, and computes every quantity as gymnasium does,
-so there is no rounding difference to allow for. Mutations that made these tests fail (each
-undone): the ctrl cost left out, frame_skip + 1, the episode seed + 1, HalfCheetah's normal qvel
-noise drawn uniform, Hopper's qvel not clipped in the observation, Walker2d's healthy angle
-range widened, Ant without mj_rnePostConstraint (contact forces of the previous step), the
-evaluator's cap one step longer.
+so there is no rounding difference to allow for.
 """
 
 import importlib.util
@@ -39,15 +35,21 @@ def test_the_direct_ids_are_the_evaluations_own():
     assert DIRECT_ENV_IDS == DIRECT_IDS and set(DIRECT_IDS) == set(MUJOCO_ENVS.values())
 
 
-@pytest.mark.parametrize("env_id", DIRECT_IDS)
-def test_direct_steps_equal_gymnasium_step_by_step(env_id):
+#: (env id, compiled step): both paths of the four envs the compiled step covers, Ant's Python path.
+STEP_PATHS = [(env_id, compiled) for env_id in DIRECT_IDS for compiled in ((True, False) if env_id != "Ant-v5" else (False,))]
+
+
+@pytest.mark.parametrize(("env_id", "compiled"), STEP_PATHS)
+def test_direct_steps_equal_gymnasium_step_by_step(env_id, compiled):
     """Random float32 actions, several seeds, members ending at different times: reset
     observations (the seeded noise), then every step's observation, reward and termination
-    equal gymnasium's, bit for bit; gymnasium truncates exactly at its 1000-step limit."""
+    equal gymnasium's, bit for bit; gymnasium truncates exactly at its 1000-step limit. For the
+    compiled step (imix_cli/envs/mujoco_kernels.py) and the Python one."""
     from imix_cli.envs.mujoco_direct import DirectEpisodes
 
     seeds = [0, 5, 123, 2**40 + 7]
-    direct = DirectEpisodes(env_id)
+    direct = DirectEpisodes(env_id, compiled=compiled)
+    assert direct.compiled == compiled
     envs = [_gym_env(env_id) for _ in seeds]
     obs = direct.reset(seeds)
     expected = np.array([env.reset(seed=s)[0] for env, s in zip(envs, seeds)])
@@ -77,6 +79,46 @@ def test_direct_steps_equal_gymnasium_step_by_step(env_id):
         assert terminations == len(seeds) and len(set(lengths.tolist())) > 1  # the health checks ended them, at different steps
 
 
+#: (env id, qpos changes, qvel changes, terminated): states from which one step ends the episode by one check alone, or does not.
+HEALTH_CASES = [
+    ("Hopper-v5", {}, {5: 150.0}, True),  # |qvel| > 100 after the step, height and angle in range: the state range alone
+    ("Hopper-v5", {}, {5: 120.0}, False),
+    ("Hopper-v5", {1: 0.6}, {}, True),  # too low
+    ("Hopper-v5", {2: 0.3}, {}, True),  # leaning too far
+    ("Walker2d-v5", {1: 2.5}, {}, True),  # too high: the upper bound of the height range
+    ("Walker2d-v5", {2: -1.2}, {}, True),  # the angle range
+    ("Walker2d-v5", {2: 0.9}, {}, False),
+    ("Ant-v5", {2: 1.2}, {}, True),  # torso above the range
+]
+
+
+@pytest.mark.parametrize(("env_id", "qpos_changes", "qvel_changes", "terminates"), HEALTH_CASES)
+def test_health_checks_at_chosen_states(env_id, qpos_changes, qvel_changes, terminates):
+    """Each health check, and its bounds, decides as gymnasium's: one zero-action step from a
+    state set by hand (as ``set_state``) gives the same observation, reward and termination on
+    every path."""
+    from imix_cli.envs.mujoco_direct import DirectEpisodes
+
+    env = _gym_env(env_id)
+    env.reset(seed=1)
+    sim = env.unwrapped
+    qpos, qvel = sim.data.qpos.copy(), sim.data.qvel.copy()
+    for index, value in qpos_changes.items():
+        qpos[index] = value
+    for index, value in qvel_changes.items():
+        qvel[index] = value
+    sim.set_state(qpos, qvel)
+    action = np.zeros((1, sim.model.nu), dtype=np.float32)
+    expected_obs, expected_reward, expected_terminated, _, _ = env.step(action[0])
+    assert expected_terminated == terminates  # the case is what its comment says
+    for compiled in (True, False) if env_id != "Ant-v5" else (False,):
+        direct = DirectEpisodes(env_id, compiled=compiled)
+        direct.reset([1])
+        direct.set_state(0, qpos, qvel)
+        obs, reward, terminated = direct.step(np.array([0]), action)
+        assert np.array_equal(obs[0], expected_obs) and reward[0] == expected_reward and bool(terminated[0]) == expected_terminated
+
+
 @pytest.mark.parametrize(
     ("env_id", "hidden", "max_steps"),
     [("Hopper-v5", (), None), ("Walker2d-v5", (8, 8), None), ("HalfCheetah-v5", (), 120), ("Swimmer-v5", (4,), 80), ("Ant-v5", (), 15)],
@@ -88,6 +130,7 @@ def test_direct_evaluator_equals_the_gymnasium_evaluator(env_id, hidden, max_ste
 
     direct, gym_ev = make_evaluator(env_id, max_steps, hidden), make_evaluator(env_id, max_steps, hidden, backend="gymnasium")
     assert type(direct) is MujocoDirectEvaluator and type(gym_ev) is GymEvaluator
+    assert direct._episodes.compiled == (env_id != "Ant-v5")  # the evaluator takes the compiled step where there is one
     assert (direct.obs_dim, direct.out_dim, direct.num_params, direct.max_steps) == (gym_ev.obs_dim, gym_ev.out_dim, gym_ev.num_params, gym_ev.max_steps)
     params = 0.5 * np.random.default_rng(2).standard_normal((6, direct.num_params))
     seeds = np.array([3, 0, 17, 40, 8, 99])

@@ -101,7 +101,7 @@ class DirectEpisodes:
     observations (float64), rewards (float64) and terminations (bool).
     """
 
-    def __init__(self, env_id: str):
+    def __init__(self, env_id: str, compiled: bool | None = None):
         import mujoco
 
         if env_id not in DIRECT_TASKS:
@@ -123,6 +123,27 @@ class DirectEpisodes:
         self._datas: list = [probe]
         self._views: list = [self._views_of(probe)]
         self._qpos = self._qvel = self._cfrc = self._xy = None
+        self._kernel = self._compiled_step() if compiled is not False else None
+        if compiled and self._kernel is None:
+            raise ValueError(f"{env_id}: no compiled step (Ant's contact forces and 8 actions, or libmujoco not found)")
+        self.compiled = self._kernel is not None
+
+    def _compiled_step(self):
+        """The compiled step (:mod:`imix_cli.envs.mujoco_kernels`) and its fixed arguments, or None where it does not apply."""
+        task = self.task
+        if self._contacts or self.nu >= 8:
+            return None
+        from imix_cli.envs import mujoco_kernels
+
+        functions = mujoco_kernels.mujoco_function_addresses(self._mj)
+        if functions is None:
+            return None
+        health = 0 if task.healthy_reward is None else (1 if task.healthy_state_range is not None else 2)
+        ranges = [np.array(r if r is not None else (-np.inf, np.inf), dtype=np.float64)
+                  for r in (task.healthy_z_range, task.healthy_angle_range, task.healthy_state_range)]  # fmt: skip
+        settings = (float(self.dt), float(task.forward_reward_weight), np.float32(task.ctrl_cost_weight), task.skipped_qpos,
+                    float(task.qvel_clip or 0.0), health, float(task.healthy_reward or 0.0), *ranges)  # fmt: skip
+        return mujoco_kernels.advance, functions, settings
 
     def _views_of(self, data):
         """(ctrl, qpos, qvel, cfrc_ext, torso xpos): numpy views of one MjData's buffers, taken once."""
@@ -139,6 +160,11 @@ class DirectEpisodes:
         mj, task, model = self._mj, self.task, self.model
         n = len(seeds)
         self._grow(n)
+        if self._kernel is not None:  # the buffers' addresses, for the compiled step
+            datas = self._datas[:n]
+            self._addresses = tuple(
+                np.array(a, dtype=np.int64) for a in zip(*[(d._address, d.qpos.ctypes.data, d.qvel.ctypes.data, d.ctrl.ctypes.data) for d in datas])
+            )
         self._qpos, self._qvel = np.empty((n, self.nq)), np.empty((n, self.nv))
         self._cfrc = np.empty((n, self.model.nbody, 6)) if self._contacts else None
         self._xy = np.empty((n, 2))
@@ -157,6 +183,16 @@ class DirectEpisodes:
             mj.mj_forward(model, data)
             self._read(i, i)
         return self._observations(np.arange(n))
+
+    def set_state(self, member: int, qpos, qvel) -> np.ndarray:
+        """Put member ``member`` (of the last reset) in state (qpos, qvel), as ``MujocoEnv.set_state``
+        (then ``mj_forward``): its observation (obs_dim,). For tests of the health checks at chosen states."""
+        data = self._datas[member]
+        data.qpos[:] = np.asarray(qpos, dtype=np.float64)
+        data.qvel[:] = np.asarray(qvel, dtype=np.float64)
+        self._mj.mj_forward(self.model, data)
+        self._read(member, member)
+        return self._observations(np.array([member]))[0]
 
     def _read(self, i: int, member: int) -> None:
         _, qpos, qvel, cfrc, xpos = self._views[member]
@@ -181,6 +217,12 @@ class DirectEpisodes:
         """Step members ``rows`` with float32 ``actions`` (len(rows), act_dim): (obs, rewards, terminated)."""
         mj, task, model, frame_skip = self._mj, self.task, self.model, self.task.frame_skip
         rows = np.asarray(rows)
+        if self._kernel is not None:
+            kernel, (mj_step, mj_rne), settings = self._kernel
+            obs, rewards, terminated = np.empty((len(rows), self.obs_dim)), np.empty(len(rows)), np.empty(len(rows), dtype=np.bool_)
+            rows, actions = rows.astype(np.int64), np.ascontiguousarray(actions, dtype=np.float32)
+            kernel(mj_step, mj_rne, model._address, *self._addresses, self.nq, self.nv, frame_skip, rows, actions, *settings, obs, rewards, terminated)
+            return obs, rewards, terminated
         if self._contacts:  # Ant: the torso body's position, before and after
             before = self._xy[rows, 0].copy()
         else:
