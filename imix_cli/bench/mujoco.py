@@ -6,9 +6,11 @@ state; the ratio is the median of the repeats' ratios), for a linear policy with
 * ``gymnasium loop``: ``gym.make(id)``, then one episode after the other: ``reset(seed=s)``,
   ``tanh(obs @ W + b)`` in numpy, ``env.step(action)`` until the episode ends -- the plainest
   way to run these policies in the same venv;
-* ``physics``: the part of that loop spent in ``mj_step(nstep=frame_skip)`` and
-  ``mj_rnePostConstraint`` (gymnasium's ``_step_mujoco_simulation``, timed in place). Any path
-  that reproduces gymnasium's episodes bit for bit runs the same physics: this is the floor;
+* ``physics``: the part of that loop spent in gymnasium's ``_step_mujoco_simulation`` (timed in
+  place): the ctrl copy, ``mj_step(nstep=frame_skip)`` and ``mj_rnePostConstraint``, binding
+  calls included. Any path that reproduces gymnasium's episodes bit for bit runs the same
+  physics: this is the floor, up to the binding calls (imix's compiled step calls MuJoCo's C
+  functions directly, so it can land a little below it);
 * ``imix evaluator``: the same parameters and episode seeds through imix's pool evaluator with
   one worker (:class:`imix_cli.parallel_evaluation.PoolEvaluator`, the direct MuJoCo path;
   the episodes are the loop's, bit for bit: the step counts are checked equal), and the same
@@ -73,6 +75,8 @@ def _gym_loop(env_id: str, params: np.ndarray, seeds: np.ndarray, obs_dim: int, 
 def _imix_run(env: str, generations: int, popsize: int) -> tuple[float, int]:
     """``imix run`` (linear policy, no mixing, pool evaluator with one worker) in a temporary folder: (seconds, env steps)
     of its generations after the first, from the CSV's clock (the first one also starts the worker process)."""
+    import contextlib
+    import io
     import tempfile
     from pathlib import Path
 
@@ -83,8 +87,10 @@ def _imix_run(env: str, generations: int, popsize: int) -> tuple[float, int]:
         args = ["run", "algo=snes", f"env={env}", "policy.hidden=[]", "evaluator=pool", "evaluator_workers=1", "seeds=1",
                 f"generations={generations}", f"popsize={popsize}", "eval_mean_every=0", "checkpoint_every=0", "progress=false",
                 f"results_dir={tmp}"]  # fmt: skip
-        if main(args) != 0:
-            raise RuntimeError(f"imix {' '.join(args)} failed")
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as messages:  # the run's summary: not this table's
+            code = main(args)
+        if code != 0:
+            raise RuntimeError(f"imix {' '.join(args)} failed: {messages.getvalue().strip()}")
         (csv,) = Path(tmp).rglob("seed_0.csv")
         frame = read_run_csv(csv)
         return float(frame["wall_time"].iloc[-1] - frame["wall_time"].iloc[0]), int(frame["env_steps"].iloc[-1] - frame["env_steps"].iloc[0])

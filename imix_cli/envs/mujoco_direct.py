@@ -33,6 +33,13 @@ terminations are bit-identical to ``gymnasium.make(id)`` given the same actions
 
 The episode cap (gymnasium's ``TimeLimit``, truncation) is the caller's: the evaluator stops
 after ``max_steps``. Any other id, or other keyword arguments, is gymnasium's business.
+
+Two implementations of :meth:`DirectEpisodes.step`, with the same results: for Swimmer, Hopper,
+HalfCheetah and Walker2d the whole step of the batch is one numba call
+(:mod:`imix_cli.envs.mujoco_kernels`, MuJoCo's C functions reached by address); Ant (contact
+forces, 8 actions) and a MuJoCo build whose library cannot be found take the Python one: one
+``mj_step`` binding call per member, then numpy over the batch. ``DirectEpisodes(id,
+compiled=False)`` forces the Python one (the reference the tests hold the compiled one to).
 """
 
 from __future__ import annotations
