@@ -129,7 +129,9 @@ def mujoco_rows(envs=MUJOCO_BENCH_ENVS, popsize: int = 50, repeats: int = 3, run
         before = _gymnasium_backend_pool(env_id)
         try:
             params, seeds = _linear_policies(pool, popsize), np.arange(popsize)
-            pool.evaluate(params[:1], seeds[:1])  # the worker starts and loads the model: not timed
+            # not timed: the workers load the model (and the compiled step), make their envs or MjData for the whole batch
+            pool.evaluate(params, seeds)
+            before.evaluate(params, seeds)
             gym_costs, physics_costs, eval_costs, run_costs, eval_ratios, run_ratios, physics_ratios = ([] for _ in range(7))
             before_costs, before_ratios = [], []
             run_episode = 0.0
