@@ -206,3 +206,18 @@ def test_bench_mujoco_prints_its_table(capsys):
                       "physics / loop (floor)"]  # fmt: skip
     assert len(rows) == 1 and rows[0][0] == "Hopper-v5" and len(rows[0]) == len(header)
     assert all(float(cell) > 0 for cell in rows[0][2:])
+
+
+def test_the_compiled_step_refuses_rows_and_actions_it_would_read_past():
+    """The kernel reads MjData buffers by address: an index past the reset batch or actions of
+    the wrong shape are refused in Python rather than read from other memory."""
+    from imix_cli.envs.mujoco_direct import DirectEpisodes
+
+    direct = DirectEpisodes("Hopper-v5", compiled=True)
+    direct.reset([0, 1])
+    with pytest.raises(ValueError, match="rows among the 2 reset members"):
+        direct.step(np.array([2]), np.zeros((1, 3), dtype=np.float32))
+    with pytest.raises(ValueError, match=r"actions \(1, 3\)"):
+        direct.step(np.array([1]), np.zeros((1, 2), dtype=np.float32))
+    obs, _, _ = direct.step(np.array([1]), np.zeros((1, 3), dtype=np.float32))
+    assert obs.shape == (1, 11)

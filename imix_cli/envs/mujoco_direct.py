@@ -228,6 +228,9 @@ class DirectEpisodes:
             kernel, (mj_step, mj_rne), settings = self._kernel
             obs, rewards, terminated = np.empty((len(rows), self.obs_dim)), np.empty(len(rows)), np.empty(len(rows), dtype=np.bool_)
             rows, actions = rows.astype(np.int64), np.ascontiguousarray(actions, dtype=np.float32)
+            # the kernel reads raw addresses: a wrong index or shape would read other memory, not raise
+            if actions.shape != (len(rows), self.nu) or (rows.size and (rows.min() < 0 or rows.max() >= len(self._addresses[0]))):
+                raise ValueError(f"{self.env_id}: step needs rows among the {len(self._addresses[0])} reset members and actions ({len(rows)}, {self.nu})")
             kernel(mj_step, mj_rne, model._address, *self._addresses, self.nq, self.nv, frame_skip, rows, actions, *settings, obs, rewards, terminated)
             return obs, rewards, terminated
         if self._contacts:  # Ant: the torso body's position, before and after
