@@ -221,3 +221,15 @@ def test_the_compiled_step_refuses_rows_and_actions_it_would_read_past():
         direct.step(np.array([1]), np.zeros((1, 2), dtype=np.float32))
     obs, _, _ = direct.step(np.array([1]), np.zeros((1, 3), dtype=np.float32))
     assert obs.shape == (1, 11)
+
+
+def test_bench_mujoco_without_the_extra_says_how_to_install_and_exits_0(capsys, monkeypatch):
+    import importlib.util
+
+    from imix_cli.bench import main
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *args: None if name == "mujoco" else find_spec(name, *args))
+    assert main(["mujoco"]) == 0
+    out = capsys.readouterr().out
+    assert 'mujoco: skipped, the mujoco package is not installed: pip install "imix-cli[mujoco]"' in out and "|---" not in out

@@ -165,6 +165,13 @@ def main(argv: list[str] | None = None) -> int:
             echo(format_peer_ratios(rows))
         elif section == "mujoco":
             echo("## MuJoCo: imix's cost per env step against a plain gymnasium loop (linear policy, no mixing, pool evaluator, 1 worker)")
+            import importlib.util
+
+            if importlib.util.find_spec("mujoco") is None:
+                from imix_cli.evaluation import MUJOCO_EXTRA_HINT
+
+                echo(f"(mujoco: skipped, the mujoco package is not installed: {MUJOCO_EXTRA_HINT})")
+                continue
             gens = max(args.generations or 5, 2)
             rows = mujoco_rows(args.mujoco_envs, args.popsize, args.repeats, gens, echo=echo)
             echo(format_mujoco(rows))
