@@ -33,7 +33,10 @@ Environments (``env_name``):
   episode ends (finished members are not stepped on). Slower, but any env with a Box
   observation space and a Discrete or Box action space. The env's own time limit applies
   unless ``max_steps`` is given (then it replaces it); an env without a time limit needs
-  ``max_steps``. MuJoCo ids need the ``mujoco`` extra (:func:`missing_extra_message`).
+  ``max_steps``. MuJoCo ids need the ``mujoco`` extra (:func:`missing_extra_message`);
+* ``"Swimmer-v5"``, ``"Hopper-v5"``, ``"HalfCheetah-v5"``, ``"Walker2d-v5"``, ``"Ant-v5"``: the
+  same episodes, bit for bit, without gymnasium (:class:`MujocoDirectEvaluator`, on the
+  ``mujoco`` bindings directly), unless ``backend="gymnasium"`` or ``IMIX_MUJOCO_BACKEND=gymnasium``.
 
 Policies (:mod:`imix_cli.policies`): MLP obs -> 8 -> 8 -> out with tanh hidden units by
 default; ``make_evaluator(..., hidden=(64, 64))`` or ``hidden=()`` (linear) for others.
@@ -47,6 +50,7 @@ finished members are masked (their later data is ignored).
 
 from __future__ import annotations
 
+import os
 import warnings
 
 import gymnasium as gym
@@ -54,10 +58,14 @@ import numpy as np
 from gymnasium import spaces
 
 import imix_cli.envs  # noqa: F401  (registers the imix/ gymnasium ids, in spawned workers too)
+from imix_cli.envs.mujoco_direct import DIRECT_ENV_IDS  # imports no mujoco
 from imix_cli.policies import HIDDEN, BatchPolicy, num_params
 from imix_cli.registry import BUILTIN_ENVS, ENV_SPECS
 
-__all__ = ["BatchEvaluator", "make_evaluator", "missing_extra_message", "MUJOCO_EXTRA_HINT", "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS"]
+__all__ = [
+    "BatchEvaluator", "make_evaluator", "MujocoDirectEvaluator", "mujoco_backend", "missing_extra_message", "MUJOCO_EXTRA_HINT",
+    "CARTPOLE_MAX_STEPS", "ACROBOT_MAX_STEPS",
+]  # fmt: skip
 
 CARTPOLE_MAX_STEPS = ENV_SPECS["cartpole"].max_steps  # CartPole-v0 (reward threshold 195)
 ACROBOT_MAX_STEPS = ENV_SPECS["acrobot"].max_steps  # the paper's cap (Acrobot-v1 itself allows 500)
@@ -297,6 +305,72 @@ class GymEvaluator(BatchEvaluator):
         return ret, length
 
 
+class MujocoDirectEvaluator(BatchEvaluator):
+    """Gymnasium's v5 Swimmer, Hopper, HalfCheetah, Walker2d and Ant without gymnasium (``backend="direct"``).
+
+    The same episodes as :class:`GymEvaluator` on the same id -- bit for bit: returns, lengths
+    and :attr:`last_obs_stats` (tests/test_mujoco_direct.py) -- computed by
+    :class:`imix_cli.envs.mujoco_direct.DirectEpisodes`: one ``MjData`` per member, one
+    ``mj_step(nstep=frame_skip)`` call per member and env step, and the observations, rewards
+    and health checks of all live members in a few numpy operations per step instead of a
+    wrapped ``env.step`` per member. The loop below is :meth:`GymEvaluator._run`'s, with the
+    per-member ``env.step`` calls replaced by one batched step.
+    """
+
+    def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN):
+        from imix_cli.envs.mujoco_direct import DirectEpisodes
+
+        message = missing_extra_message(env_id)  # also routes MuJoCo's warnings (HalfCheetah's model)
+        if message:
+            raise ValueError(message)
+        self.env_name = env_id
+        self.hidden = tuple(int(h) for h in hidden)
+        self.max_steps = int(gym.spec(env_id).max_episode_steps if max_steps is None else max_steps)
+        if self.max_steps < 1:
+            raise ValueError(f"{env_id}: max_steps must be >= 1, got {max_steps}")
+        self._episodes = DirectEpisodes(env_id)
+        self.obs_dim, self.out_dim, self.discrete = self._episodes.obs_dim, self._episodes.act_dim, False
+        self._low = self._episodes.low.astype(np.float64)
+        self._high = self._episodes.high.astype(np.float64)
+        self.last_obs_stats: tuple[np.ndarray, np.ndarray] | None = None
+
+    def policy(self, params):
+        return BatchPolicy(params, self.obs_dim, self.out_dim, discrete=False, hidden=self.hidden, low=self._low, high=self._high)
+
+    def close(self) -> None:
+        pass
+
+    def _run(self, policy, seeds):
+        n = len(seeds)
+        episodes = self._episodes
+        obs = episodes.reset(seeds)
+        ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
+        sums, sumsqs = np.zeros((n, self.obs_dim)), np.zeros((n, self.obs_dim))
+        idx = np.arange(n)  # member held by each policy slot
+        alive = np.ones(n, dtype=bool)
+        for _ in range(self.max_steps):
+            actions = policy(obs)
+            live = np.flatnonzero(alive)
+            members = idx[live]
+            sums[members] += obs[live]
+            sumsqs[members] += obs[live] * obs[live]
+            # float32: what gymnasium's Box action space hands the env
+            new_obs, reward, terminated = episodes.step(members, actions[live].astype(np.float32))
+            ret[members] += reward
+            length[members] += 1
+            alive[live[terminated]] = False
+            obs[live] = new_obs
+            n_alive = np.count_nonzero(alive)
+            if n_alive == 0:
+                break
+            if n_alive <= alive.size // 2:  # drop finished members from the policy batch
+                rows = np.flatnonzero(alive)
+                idx, obs, alive = idx[rows], obs[rows], alive[rows]
+                policy.select(rows)
+        self.last_obs_stats = (sums, sumsqs)
+        return ret, length
+
+
 #: Gymnasium's MuJoCo environments need the ``mujoco`` package: imix's ``mujoco`` extra.
 MUJOCO_EXTRA_HINT = 'pip install "imix-cli[mujoco]"'
 
@@ -338,15 +412,34 @@ def _route_mujoco_warnings(mujoco) -> None:
         mujoco.set_mju_user_warning(_mujoco_warning)
 
 
-def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN) -> BatchEvaluator:
+#: Environment variable choosing how the v5 MuJoCo ids are run: ``direct`` (default) or ``gymnasium``.
+MUJOCO_BACKEND_VARIABLE = "IMIX_MUJOCO_BACKEND"
+MUJOCO_BACKENDS = ("direct", "gymnasium")
+
+
+def mujoco_backend(backend: str | None = None) -> str:
+    """``backend``, else ``$IMIX_MUJOCO_BACKEND``, else ``"direct"``; ``ValueError`` (one line) for another value."""
+    value = backend if backend is not None else os.environ.get(MUJOCO_BACKEND_VARIABLE) or "direct"
+    if value not in MUJOCO_BACKENDS:
+        source = "backend" if backend is not None else MUJOCO_BACKEND_VARIABLE
+        raise ValueError(f"{source}={value!r}: the MuJoCo backend is one of {', '.join(MUJOCO_BACKENDS)}")
+    return value
+
+
+def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, backend: str | None = None) -> BatchEvaluator:
     """Evaluator for a built-in (``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
     ``"continuous_cartpole_hard"``: :data:`imix_cli.registry.BUILTIN_ENVS`) or a gymnasium id
     (see the module docstring).
 
     ``hidden``: the policy's hidden layer sizes (``()``: linear), default the paper's (8, 8).
-    Raises ``ValueError`` for an unknown environment id, or a MuJoCo id without mujoco installed.
+    ``backend`` (default ``$IMIX_MUJOCO_BACKEND``, else ``"direct"``): how ``Swimmer-v5``,
+    ``Hopper-v5``, ``HalfCheetah-v5``, ``Walker2d-v5`` and ``Ant-v5`` run -- ``"direct"``:
+    :class:`MujocoDirectEvaluator` (the same episodes, bit for bit, without gymnasium's per-step
+    overhead), ``"gymnasium"``: :class:`GymEvaluator`. Every other id runs on gymnasium.
+    Raises ``ValueError`` for an unknown environment id or backend, or a MuJoCo id without mujoco installed.
     """
     hidden = tuple(int(h) for h in hidden)
+    backend = mujoco_backend(backend)
     key = str(env_name).lower()
     if key in BUILTIN_ENVS:
         builtin = ENV_SPECS[key].evaluator(max_steps)
@@ -358,4 +451,6 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN) -
     except (gym.error.UnregisteredEnv, gym.error.DeprecatedEnv, gym.error.RegistrationError) as err:
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ValueError(f"unknown environment {env_name!r}: not {', '.join(map(repr, BUILTIN_ENVS))} or a registered gymnasium id ({msg})") from None
+    if backend == "direct" and env_name in DIRECT_ENV_IDS:
+        return MujocoDirectEvaluator(env_name, max_steps, hidden=hidden)
     return GymEvaluator(env_name, max_steps, hidden=hidden)

@@ -16,7 +16,7 @@ parallelise. One layer at a time: ``evaluator=pool`` runs the seeds in one proce
     :class:`PoolEvaluator`: a persistent pool of ``evaluator_workers`` spawned processes
     (default: all cores), each holding its own evaluator (its own env instances). A call's
     members are cut into chunks (up to :attr:`PoolEvaluator.chunks_per_worker` per worker,
-    so that short and long episodes balance) and gathered back in order.
+    so that short and long episodes balance; one chunk when there is one worker) and gathered back in order.
 ``ray``
     :class:`RayEvaluator`: the same over Ray actors, one CPU each, on the cluster that
     ``ray.init(address=ray_address)`` joins (``ray_address`` null: a local Ray started for
@@ -94,7 +94,10 @@ class _Remote:
     def _chunks(self, n: int) -> list[np.ndarray]:
         if n == 0:
             return []
-        return np.array_split(np.arange(n), min(n, self.workers * self.chunks_per_worker))
+        # One worker has nothing to balance: one chunk spares the per-call overhead of the others
+        # (a batched evaluator's per-step work is shared by every member of its call).
+        per_worker = self.chunks_per_worker if self.workers > 1 else 1
+        return np.array_split(np.arange(n), min(n, self.workers * per_worker))
 
     def _gather(self, results, n: int):
         returns = np.concatenate([r[0] for r in results]) if results else np.zeros(0)

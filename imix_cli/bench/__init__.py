@@ -26,6 +26,11 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
                extra over the warm run), env steps, final scores and ratios. Default 25 seeds x
                1000 generations (minutes); --quick: 3 x 100. Needs the `peers` extra (pip
                install 'imix-cli[peers]'); without it the section says so and exits 0.
+    mujoco     imix's cost per env step on HalfCheetah-v5 and Hopper-v5 (linear policy, no mixing,
+               pool evaluator with one worker: the evaluator on fixed policies, and a short
+               `imix run`) against a plain gymnasium loop over the same policies and seeds, and
+               the share of that loop spent in MuJoCo's mj_step (the floor of any path that
+               reproduces gymnasium's episodes). Pairwise ratios. Needs the `mujoco` extra.
 
 Policies of the rollout benchmark (fixed, so episodes have realistic lengths): CartPole, a
 hand-built balancing controller written as an MLP (action = sign of 2 theta + 0.5 theta_dot

@@ -15,11 +15,12 @@ from imix_cli.bench.common import ROLLOUT_ENVS
 from imix_cli.bench.grid import PAPER_GRID, format_grid, grid_rows
 from imix_cli.bench.memory import format_memory, memory_row
 from imix_cli.bench.mixing import format_mixing, mixing_rows
+from imix_cli.bench.mujoco import MUJOCO_BENCH_ENVS, format_mujoco, mujoco_rows
 from imix_cli.bench.peers import QUICK_PEERS, format_peer_ratios, format_peers, peer_rows, peers_available
 from imix_cli.bench.rollouts import format_rollouts, rollout_rows
-from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS
+from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS, MUJOCO_ENVS
 
-SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "grid", "peers")
+SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "grid", "peers", "mujoco")
 DEFAULT_SECTIONS = ("rollouts", "mixing", "memory")
 
 
@@ -85,6 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--quick", action="store_true", help=f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless --seeds/--generations say otherwise"
     )
     g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(ES_NAMES), help="grid and breakdown algorithms")
+    g = p.add_argument_group("mujoco")
+    g.add_argument("--mujoco-envs", nargs="+", choices=sorted(MUJOCO_ENVS), default=list(MUJOCO_BENCH_ENVS), help="environments (default: halfcheetah hopper)")
+    g.add_argument("--popsize", type=_positive_int, default=50, help="mujoco: policies per measurement and the run's popsize (default: 50)")
     return p
 
 
@@ -159,6 +163,19 @@ def main(argv: list[str] | None = None) -> int:
             echo()
             echo("## Ratios: imix SNES + EIM against each other run on the same env")
             echo(format_peer_ratios(rows))
+        elif section == "mujoco":
+            echo("## MuJoCo: imix's cost per env step against a plain gymnasium loop (linear policy, no mixing, pool evaluator, 1 worker)")
+            import importlib.util
+
+            if importlib.util.find_spec("mujoco") is None:
+                from imix_cli.evaluation import MUJOCO_EXTRA_HINT
+
+                echo(f"(mujoco: skipped, the mujoco package is not installed: {MUJOCO_EXTRA_HINT})")
+                continue
+            gens = max(args.generations or 5, 2)
+            rows = mujoco_rows(args.mujoco_envs, args.popsize, args.repeats, gens, echo=echo)
+            echo(format_mujoco(rows))
+            echo(f"(ratios: medians over {args.repeats} pairs; imix run: {gens} generations of popsize {args.popsize})")
         elif section == "grid":
             echo("## The paper's main grid (as `make reproduce`), without mixing and with EIM")
             extra = [o for o in PAPER_GRID if not o.startswith(("algo=", "env="))]
