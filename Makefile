@@ -107,3 +107,22 @@ MUJOCO_GRID = algo=snes,openes env=swimmer,hopper,halfcheetah eim=false,true 'po
 reproduce-mujoco:  ## MuJoCo study (SNES/OpenES x EIM x Swimmer/Hopper/HalfCheetah) + figures into results/mujoco/figures/
 	$(IMIX) run -m $(MUJOCO_GRID) seeds=$(MUJOCO_SEEDS) generations=$(MUJOCO_GENERATIONS) popsize=$(MUJOCO_POPSIZE) experiment=$(MUJOCO_EXPERIMENT) progress=false
 	$(PY) -m imix_cli.plotting.mujoco experiment=$(MUJOCO_EXPERIMENT)
+
+# Does reuse bend the search? (docs/research/bias.md) One table: every ES without mixing and with
+# each rule (exact, conditional, exact + reeval_count=2), from constant fitness and pure noise to
+# CartPole, Acrobot (25 seeds, the paper grid's runs) and SNES on Hopper and HalfCheetah (the
+# MuJoCo study's settings). About 1 h on a quiet 2-core machine; finished runs are skipped.
+REUSE_RULES_GRID = algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=true
+REUSE_MUJOCO = algo=snes env=hopper,halfcheetah 'policy.hidden=[]' policy.obs_norm=true policy.obs_norm_warmup=3 sigma=0.1 lr=0.02 evaluator=pool seeds=$(MUJOCO_SEEDS) generations=$(MUJOCO_GENERATIONS) popsize=$(MUJOCO_POPSIZE) progress=false
+
+.PHONY: reuse-bias
+reuse-bias:  ## the reuse-bias table (docs/research/bias.md) into results/reuse_bias/
+	$(IMIX) run -m $(PAPER_GRID) experiment=paper progress=false
+	$(IMIX) run -m $(REUSE_RULES_GRID) eim_variant=conditional experiment=reuse_rules progress=false
+	$(IMIX) run -m $(REUSE_RULES_GRID) reeval_count=2 experiment=reuse_rules progress=false
+	$(IMIX) run -m $(REUSE_MUJOCO) eim=false,true experiment=mujoco
+	$(IMIX) run -m $(REUSE_MUJOCO) eim=true reeval_count=2 experiment=mujoco_rules
+	mkdir -p results/reuse_bias
+	for s in constant neutral noisy; do $(PY) benchmarks/reuse_bias.py $$s --seeds 3 --generations 300 > results/reuse_bias/$$s.md; done
+	$(PY) benchmarks/reuse_bias.py tasks --experiment results/paper --experiment results/reuse_rules > results/reuse_bias/tasks.md
+	$(PY) benchmarks/reuse_bias.py tasks --experiment results/mujoco --experiment results/mujoco_rules > results/reuse_bias/mujoco.md
