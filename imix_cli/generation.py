@@ -162,16 +162,14 @@ def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan
     stored_again = fitness[again]
     fitness[plan.evaluate] = returns  # ... unless evaluated again
     told_fitness = fitness
-    if settings.depth and again.size:
-        fresh_again = fitness[again]
-        ok = np.isfinite(stored_again) & np.isfinite(fresh_again)
-        a, b = stored_again[ok], fresh_again[ok]
-        archive.pairs = PAIR_MEMORY * archive.pairs + np.array([a.size, lk.dot(np.ones(a.size), a), lk.dot(np.ones(b.size), b), lk.dot(a, a), lk.dot(a, b)])
-    elif settings.depth:
-        archive.pairs = PAIR_MEMORY * archive.pairs
+    if settings.depth:  # the (stored, fresh) pairs, older ones forgotten
+        ok = np.isfinite(stored_again) & np.isfinite(fitness[again])
+        a, b = stored_again[ok], fitness[again][ok]
+        new = np.array([a.size, lk.dot(np.ones(a.size), a), lk.dot(np.ones(b.size), b), lk.dot(a, a), lk.dot(a, b)]) if a.size else 0.0
+        archive.pairs = PAIR_MEMORY * archive.pairs + new
     if settings.reeval_count > 0:
         line = calibration(archive.pairs)
-        kept = reused.copy()
+        kept = reused & np.isfinite(fitness)  # a non-finite stored return stays what it is (ranked last)
         kept[plan.evaluate] = False
         if line is not None and kept.any():
             told_fitness = fitness.copy()
