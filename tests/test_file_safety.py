@@ -1,0 +1,176 @@
+"""Files in a results folder, and policy files, are data: they never import a module, never make imix
+write outside the run folder, never use unbounded memory, and are validated field by field.
+
+Each test names the way a file could lie (a module in an env id, a symlink, a zip bomb, a checkpoint
+forged with a recomputed checksum, a policy header out of range, a copied or reordered CSV) and
+checks that imix refuses it in one line -- never a traceback, never a changed number.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imix_cli.cli import main
+from imix_cli.policy_files import policy_path, read_policy, write_policy
+
+RUN = "cem-cartpole-none-popsize=6"
+TINY = ["algo=cem", "env=cartpole", "seeds=1", "generations=2", "popsize=6", "progress=false", "workers=1"]
+
+#: A gymnasium env of the user's own, in a module of its own; it notes every import of the module in
+#: the file named by IMIX_TEST_IMPORT_LOG, so a test sees whether imix imported it.
+USER_ENV_MODULE = '''
+import os
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+
+if os.environ.get("IMIX_TEST_IMPORT_LOG"):
+    with open(os.environ["IMIX_TEST_IMPORT_LOG"], "a") as log:
+        log.write(__name__ + "\\n")
+
+
+class Reach1D(gym.Env):
+    """Walk left or right to reach x = 1: a tiny discrete-action env."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, render_mode=None):
+        self.render_mode = render_mode
+        self.observation_space = spaces.Box(-10.0, 10.0, (1,), dtype=np.float32)
+        self.action_space = spaces.Discrete(2)
+
+    def reset(self, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = float(self.np_random.uniform(-1, 1))
+        return np.array([self.x], dtype=np.float32), {}
+
+    def step(self, action):
+        self.x += 0.1 if action == 1 else -0.1
+        return np.array([self.x], dtype=np.float32), -abs(self.x - 1.0), abs(self.x - 1.0) < 0.05, False, {}
+
+    def render(self):
+        frame = np.zeros((8, 16, 3), dtype=np.uint8)
+        frame[:, int(np.clip((self.x + 2) * 4, 0, 15))] = 255
+        return frame
+
+
+gym.register("Reach1D-v0", entry_point=Reach1D, max_episode_steps=30)
+'''
+
+#: A module that must never be imported: it leaves a file behind if it is.
+EVIL_MODULE = """
+from pathlib import Path
+Path(__file__).with_name("IMPORTED").write_text("code ran")
+"""
+
+
+def one_error_line(err: str, prefix: str = "imix") -> str:
+    """The single line a refusal prints (no traceback)."""
+    lines = [line for line in err.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(prefix) and "Traceback" not in err, err
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("results")
+    assert main(["run", *TINY, f"results_dir={root}", "experiment=e"]) == 0
+    return root, root / "e" / RUN
+
+
+@pytest.fixture
+def copied(trained, tmp_path):
+    """A fresh copy of the trained experiment, to be damaged by one test."""
+    import shutil
+
+    root, _ = trained
+    shutil.copytree(root / "e", tmp_path / "e")
+    return tmp_path, tmp_path / "e" / RUN
+
+
+def rewrite_policy(path, **changes):
+    """Rewrite a policy file with header fields changed (or params, with ``params=``): a well-formed forgery."""
+    policy = read_policy(path)
+    params = changes.pop("params", policy.params)
+    write_policy(path, params, {**policy.header, **changes})
+
+
+# ------------------------------------------------------------------ 1. no module named in a file is imported
+@pytest.mark.parametrize("command", ["eval", "render"])
+def test_a_module_named_in_a_policy_file_is_never_imported(copied, tmp_path, monkeypatch, capsys, command):
+    root, run_dir = copied
+    (tmp_path / "evil_module.py").write_text(EVIL_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    rewrite_policy(policy_path(run_dir, 0, "mean"), env_id="evil_module:CartPole-v0", env_name="evil_module:CartPole-v0")
+    capsys.readouterr()
+    extra = [f"out={tmp_path / 'p.gif'}"] if command == "render" else []
+    assert main([command, f"results_dir={root}", "experiment=e", *extra]) == 1
+    line = one_error_line(capsys.readouterr().err)
+    assert "evil_module" in line and "import" in line
+    assert not (tmp_path / "IMPORTED").exists() and "evil_module" not in sys.modules
+
+
+def test_this_in_a_policy_header_does_not_print_the_zen_of_python(copied, capfd):
+    root, run_dir = copied
+    rewrite_policy(policy_path(run_dir, 0, "mean"), env_id="this:CartPole-v0")
+    already = "this" in sys.modules
+    assert main(["render", f"results_dir={root}", "experiment=e", f"out={root / 'p.gif'}"]) == 1
+    out, err = capfd.readouterr()
+    assert "Beautiful is better" not in out + err and ("this" in sys.modules) == already
+    assert "import" in one_error_line(err)
+
+
+def test_a_module_named_on_the_command_line_must_be_the_files(copied, tmp_path, monkeypatch, capsys):
+    """import=X lets a file name module X, and only X."""
+    root, run_dir = copied
+    (tmp_path / "evil_module.py").write_text(EVIL_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    rewrite_policy(policy_path(run_dir, 0, "mean"), env_id="evil_module:CartPole-v0", env_name="evil_module:CartPole-v0")
+    assert main(["eval", f"results_dir={root}", "experiment=e", "import=json"]) == 1
+    assert "evil_module" in one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "IMPORTED").exists()
+
+
+def _imix(args, env, cwd):
+    return subprocess.run([sys.executable, "-m", "imix_cli.cli", *args], env=env, cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.slow
+def test_a_user_env_by_module_id_runs_evaluates_and_renders_but_only_imports_what_the_user_names(tmp_path):
+    """``env.id=myenvs:Reach1D-v0`` typed by the user: run imports myenvs; eval/render import it only
+    when the user names it again (``import=myenvs``), never because a file in the run folder says so."""
+    (tmp_path / "myenvs.py").write_text(USER_ENV_MODULE)
+    log = tmp_path / "imports.log"
+    repo = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(repo), str(tmp_path)]), "IMIX_TEST_IMPORT_LOG": str(log)}
+    results = f"results_dir={tmp_path / 'R'}"
+    ran = _imix(["run", "algo=cem", "env=gym", "env.id=myenvs:Reach1D-v0", "seeds=2", "generations=3", "popsize=6", "progress=false", results], env, tmp_path)
+    assert ran.returncode == 0, ran.stderr
+    (run_dir,) = (tmp_path / "R" / "default").iterdir()
+    assert run_dir.name == "cem-Reach1D-v0-none-popsize=6" and "myenvs" in log.read_text()
+    assert "myenvs:Reach1D-v0" in (run_dir / "config.yaml").read_text()  # what eval/render need to know
+    assert read_policy(policy_path(run_dir, 0, "mean")).header["env_id"] == "myenvs:Reach1D-v0"
+
+    log.unlink()
+    for command in (["eval"], ["render", f"out={tmp_path / 'r.gif'}"]):
+        refused = _imix([*command, results], env, tmp_path)
+        assert refused.returncode == 1
+        line = one_error_line(refused.stderr)
+        assert "import=myenvs" in line  # says how to allow it
+        assert not log.exists()  # the module was not imported
+    evaluated = _imix(["eval", results, "import=myenvs", "episodes=3"], env, tmp_path)
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert (run_dir / "eval.csv").exists() and log.read_text().count("myenvs") == 1
+    rendered = _imix(["render", results, "import=myenvs", f"out={tmp_path / 'r.gif'}"], env, tmp_path)
+    assert rendered.returncode == 0, rendered.stderr
+    assert (tmp_path / "r.gif").stat().st_size > 0
