@@ -54,8 +54,6 @@ _POLICY_FILE = re.compile(r"^policy_(\d+)_(mean|best)\.npz$")
 _NOT_RUNS = {"figures"}
 
 
-
-
 def _modules(key: str, value: str) -> tuple:
     from imix_cli.env_ids import EnvIdError, user_modules
 

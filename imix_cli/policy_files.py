@@ -174,7 +174,8 @@ def validate_header(header, where: str = "policy file") -> dict:
     else:
         for field in ("action_low", "action_high"):
             value = header[field]
-            if value is not None and (not isinstance(value, list) or len(value) != header["out_dim"] or not all(_is_number(v) and math.isfinite(v) for v in value)):
+            finite = isinstance(value, list) and all(_is_number(v) and math.isfinite(v) for v in value)
+            if value is not None and (not finite or len(value) != header["out_dim"]):
                 raise bad(field, f"is not null or {header['out_dim']} finite numbers")
         if (header["action_low"] is None) != (header["action_high"] is None) or (
             header["action_low"] is not None and not all(lo < hi for lo, hi in zip(header["action_low"], header["action_high"], strict=True))

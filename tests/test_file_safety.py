@@ -9,12 +9,13 @@ checks that imix refuses it in one line -- never a traceback, never a changed nu
 from __future__ import annotations
 
 import io
-import json
 import os
+import struct
 import subprocess
 import sys
 import textwrap
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -174,3 +175,117 @@ def test_a_user_env_by_module_id_runs_evaluates_and_renders_but_only_imports_wha
     rendered = _imix(["render", results, "import=myenvs", f"out={tmp_path / 'r.gif'}"], env, tmp_path)
     assert rendered.returncode == 0, rendered.stderr
     assert (tmp_path / "r.gif").stat().st_size > 0
+
+
+# ------------------------------------------------------------------ 3. zip bombs: sizes checked before inflating
+def npy_header(shape, descr="<f8") -> bytes:
+    buffer = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buffer, {"descr": descr, "fortran_order": False, "shape": shape})
+    return buffer.getvalue()
+
+
+def bomb_zip(path, members: dict) -> None:
+    """Write a zip whose members (name -> (prefix bytes, number of zero bytes after it)) are deflated.
+
+    A run of zeros deflates ~1000:1, so a 1 MB file can declare a gigabyte. Built by hand (each
+    1 MiB block of zeros compresses to the same bytes after a full flush), so the test takes no
+    more than a second to make it.
+    """
+    chunk = bytes(1 << 20)
+    local, central, offset = [], [], 0
+    for name, (prefix, zeros) in members.items():
+        c = zlib.compressobj(9, zlib.DEFLATED, -15)
+        parts = [c.compress(prefix) + c.flush(zlib.Z_FULL_FLUSH)]
+        crc = zlib.crc32(prefix)
+        if zeros >= len(chunk):
+            block = c.compress(chunk) + c.flush(zlib.Z_FULL_FLUSH)
+            parts.append(block * (zeros // len(chunk)))
+            for _ in range(zeros // len(chunk)):
+                crc = zlib.crc32(chunk, crc)
+        rest = bytes(zeros % len(chunk))
+        parts.append(c.compress(rest) + c.flush(zlib.Z_FINISH))
+        crc = zlib.crc32(rest, crc)
+        data, size, raw = b"".join(parts), len(prefix) + zeros, name.encode()
+        head = struct.pack("<IHHHHHIIIHH", 0x04034B50, 20, 0, 8, 0, 0x21, crc, len(data), size, len(raw), 0) + raw
+        central.append(struct.pack("<IHHHHHHIIIHHHHHII", 0x02014B50, 20, 20, 0, 8, 0, 0x21, crc, len(data), size, len(raw), 0, 0, 0, 0, 0, offset) + raw)
+        local.append(head + data)
+        offset += len(head) + len(data)
+    directory = b"".join(central)
+    end = struct.pack("<IHHHHIIH", 0x06054B50, 0, 0, len(central), len(central), len(directory), offset, 0)
+    Path(path).write_bytes(b"".join(local) + directory + end)
+
+
+def members_of(path) -> dict:
+    """A real .npz's members as bomb_zip() takes them (their bytes, no zeros)."""
+    with zipfile.ZipFile(path) as z:
+        return {name: (z.read(name), 0) for name in z.namelist()}
+
+
+GIB = 1 << 30
+
+PEAK_RSS = """
+import resource, sys
+sys.path[:0] = {paths!r}
+{code}
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)
+"""
+
+
+def peak_rss_mib(code: str, tmp_path) -> tuple[int, str]:
+    """Run ``code`` in a fresh interpreter; its peak RSS in MiB and its stdout before that number."""
+    repo = str(Path(__file__).resolve().parent.parent)
+    script = PEAK_RSS.format(paths=[repo], code=textwrap.dedent(code))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    *out, peak = proc.stdout.strip().splitlines()
+    return int(peak), "\n".join(out)
+
+
+def test_a_policy_zip_bomb_is_refused_before_inflating(copied, tmp_path):
+    _, run_dir = copied
+    path = policy_path(run_dir, 0, "mean")
+    members = members_of(path)
+    members["params.npy"] = (npy_header((GIB // 8,)), GIB)  # 1 GiB of declared zeros
+    bomb_zip(path, members)
+    assert path.stat().st_size < 2 << 20
+    peak, out = peak_rss_mib(
+        f"""
+        from imix_cli.policy_files import PolicyFileError, read_policy
+        try:
+            read_policy({str(path)!r})
+        except PolicyFileError as err:
+            print("refused:", err)
+        """,
+        tmp_path,
+    )
+    assert peak < 400, f"peak RSS {peak} MiB reading a 1 GiB policy bomb"
+    assert out.startswith("refused:") and "bytes" in out
+
+
+def test_a_checkpoint_zip_bomb_is_refused_before_inflating(tmp_path):
+    root = tmp_path / "R"
+    args = ["run", "algo=cem", "env=cartpole", "seeds=1", "generations=4", "popsize=6", "checkpoint_every=2", "eim=true", "progress=false", "workers=1"]
+    assert main([*args, f"results_dir={root}"]) == 0
+    (run_dir,) = (root / "default").iterdir()
+    path = run_dir / ".checkpoints" / "seed_0.npz"
+    members = members_of(path)
+    name = next(n for n in members if n.endswith("/samples.npy"))
+    members[name] = (npy_header((GIB // 8 // 130, 130)), GIB // 8 // 130 * 130 * 8)
+    bomb_zip(path, members)
+    assert path.stat().st_size < 2 << 20
+    peak, out = peak_rss_mib(
+        f"""
+        from imix_cli.config import validate_overrides
+        from imix_cli.evaluation import make_evaluator
+        from imix_cli.lockstep import new_seed_state
+        from imix_cli.resume import load_checkpoint
+        (spec,) = validate_overrides({[*args[1:], "generations=6", f"results_dir={root}"]!r})
+        fresh = new_seed_state(spec, 0, make_evaluator("cartpole").num_params)
+        from imix_cli.run_spec import resume_identity
+        st = load_checkpoint(spec.run_dir, 0, resume_identity(spec.identity()), fresh, warn=lambda m: print("refused:", m), spec=spec)
+        assert st is None
+        """,
+        tmp_path,
+    )
+    assert peak < 400, f"peak RSS {peak} MiB reading a 1 GiB checkpoint bomb"
+    assert out.startswith("refused:") and "bytes" in out
