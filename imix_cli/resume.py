@@ -165,7 +165,8 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None) -> Non
             _fail(f"row {i}: wall_time={row['wall_time']!r}")
         if not math.isnan(row["best_score"]):
             best_seen = max(best_seen, row["best_score"])
-    if (st.evaluations, st.env_steps, st.mean_policy_episodes) != (evaluations, env_steps, mean_episodes):
+    counters = (st.evaluations, st.env_steps, st.mean_policy_episodes)
+    if not all(_int(c) for c in counters) or counters != (evaluations, env_steps, mean_episodes):
         _fail("its counters do not match its rows")
     if not (_number(st.elapsed) and math.isfinite(st.elapsed) and st.elapsed >= 0):
         _fail(f"elapsed={st.elapsed!r}")

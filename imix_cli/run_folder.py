@@ -32,6 +32,7 @@ def prepare_run_dir(spec) -> list[int]:
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
     make_run_dir(spec)
+    refuse_symlinks(run_dir)
     if config_file.exists():
         try:
             existing = yaml.safe_load(config_file.read_text())
@@ -68,9 +69,34 @@ def prepare_run_dir(spec) -> list[int]:
     # Temporaries of writes cut short by a kill are never at a final name; clear them away. (run()
     # holds the folder's lock, so no other live run is writing them; an orphaned worker of a
     # killed run exits within a second and only loses a write that is redone on resume.)
-    for stale in [*run_dir.glob(".*.tmp"), *run_dir.glob(".checkpoints/.*.tmp")]:
-        stale.unlink(missing_ok=True)
+    # Only plain files inside the run folder: a symlinked checkpoint area was refused above, and a
+    # symlink named like a temporary is only unlinked itself (never its target).
+    for folder in (run_dir, run_dir / CHECKPOINT_AREA):
+        if folder.is_dir() and not folder.is_symlink():
+            for stale in folder.glob(".*.tmp"):
+                if stale.parent == folder and (stale.is_symlink() or stale.is_file()):
+                    stale.unlink(missing_ok=True)
     return todo
+
+
+#: Where a run's checkpoints live (imix_cli.resume.checkpoint_path).
+CHECKPOINT_AREA = ".checkpoints"
+
+
+def refuse_symlinks(run_dir) -> None:
+    """RunError if the run's checkpoint area, or anything in it, is a symlink.
+
+    Why: imix writes checkpoints there, reads them back and deletes its temporaries there; a
+    symlink (a results folder from elsewhere, a prank) would make it write, read or delete
+    outside the run folder. It is refused, never followed.
+    """
+    area = run_dir / CHECKPOINT_AREA
+    if area.is_symlink():
+        raise RunError(f"{area} is a symlink; imix never writes or deletes through one: replace it with a folder (or remove it)")
+    if area.is_dir():
+        linked = next((p for p in sorted(area.iterdir()) if p.is_symlink()), None)
+        if linked is not None:
+            raise RunError(f"{linked} is a symlink in {CHECKPOINT_AREA}; imix never reads, writes or deletes through one: remove it")
 
 
 def make_run_dir(spec) -> None:

@@ -9,6 +9,7 @@ checks that imix refuses it in one line -- never a traceback, never a changed nu
 from __future__ import annotations
 
 import io
+import json
 import os
 import struct
 import subprocess
@@ -289,3 +290,109 @@ def test_a_checkpoint_zip_bomb_is_refused_before_inflating(tmp_path):
     )
     assert peak < 400, f"peak RSS {peak} MiB reading a 1 GiB checkpoint bomb"
     assert out.startswith("refused:") and "bytes" in out
+
+
+# ------------------------------------------------------------------ 4. checkpoints forged with a recomputed checksum
+FORGE_RUN = ["run", "algo=cem", "env=cartpole", "seeds=1", "popsize=6", "checkpoint_every=2", "eim=true", "progress=false", "workers=1"]
+
+
+def forge_checkpoint(path, change) -> None:
+    """Rewrite a checkpoint with ``change(header, arrays)`` applied and its checksum recomputed: a forgery
+    that passes every integrity check, only the values are wrong."""
+    from imix_cli import checkpoints
+
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {name: npz[name] for name in npz.files}
+    header = json.loads(arrays.pop("header").tobytes())
+    header.pop("checksum")
+    change(header, arrays)
+    header["checksum"] = checkpoints._checksum(header, arrays)
+    buffer = io.BytesIO()
+    np.savez(buffer, header=np.frombuffer(checkpoints._canonical(header).encode(), dtype=np.uint8), **arrays)
+    Path(path).write_bytes(buffer.getvalue())
+
+
+def _rows(header):
+    return [row["dict"] for row in header["state"]["state"]["rows"]["list"]]
+
+
+def _state(header):
+    return header["state"]["state"]
+
+
+def _set_array(arrays, name, value):
+    arrays[name] = value
+
+
+FORGERIES = {
+    "a row's mean_score": lambda h, a: _rows(h)[1].update(mean_score=1234.5, best_score=1234.5),
+    "best_params of the wrong size": lambda h, a: _set_array(a, "best_params", np.zeros(7)),
+    "NaN weights and train_return 1e300": lambda h, a: (_set_array(a, "best_params", np.full(130, np.nan)), _state(h).update(best_return=1e300)),
+    "a wrong archive shape": lambda h, a: _set_array(a, "archive/generations/0/samples", np.zeros((3, 130))),
+    "a string counter": lambda h, a: _state(h).update(evaluations=str(_state(h)["evaluations"])),
+    "a string counter in a row": lambda h, a: _rows(h)[0].update(evaluations="6"),
+    "episodes that decrease": lambda h, a: _rows(h)[1].update(evaluations=1),
+    "a row dropped": lambda h, a: h["state"]["state"]["rows"]["list"].pop(),
+    "an ES generation count": lambda h, a: h["state"]["state"]["es"]["es"]["dict"].update(generation=99),
+    "a NaN distribution mean": lambda h, a: _set_array(a, "es/dist.mean", np.full(130, np.nan)),
+    "archive sources out of range": lambda h, a: _set_array(a, "archive/generations/0/source", np.full(6, 9)),
+    "a negative elapsed time": lambda h, a: _state(h).update(elapsed=-5.0),
+    "a float counter": lambda h, a: _state(h).update(env_steps=float(_state(h)["env_steps"])),
+}
+
+
+@pytest.fixture(scope="module")
+def reference_csv(tmp_path_factory):
+    """The CSV of the forged runs' config, run at once: what a refused checkpoint must still give."""
+    root = tmp_path_factory.mktemp("reference")
+    assert main([*FORGE_RUN, "generations=6", f"results_dir={root}"]) == 0
+    (run_dir,) = (root / "default").iterdir()
+    return (run_dir / "seed_0.csv").read_text()
+
+
+@pytest.mark.parametrize("forgery", list(FORGERIES))
+def test_a_forged_checkpoint_is_refused_and_the_seed_restarts(tmp_path, capfd, reference_csv, forgery):
+    """A finished run keeps its final state to be continued; forged (checksum recomputed), it is refused
+    with one warning and the seed restarts, giving exactly the CSV of an honest run -- no traceback."""
+    assert main([*FORGE_RUN, "generations=4", f"results_dir={tmp_path}"]) == 0
+    (run_dir,) = (tmp_path / "default").iterdir()
+    forge_checkpoint(run_dir / ".checkpoints" / "seed_0.npz", FORGERIES[forgery])
+    capfd.readouterr()
+    assert main([*FORGE_RUN, "generations=6", f"results_dir={tmp_path}"]) == 0
+    err = capfd.readouterr().err
+    warnings = [line for line in err.splitlines() if "checkpoint ignored" in line]
+    assert len(warnings) == 1 and "restarts from scratch" in warnings[0] and "Traceback" not in err, err
+    assert _same_numbers(run_dir / "seed_0.csv", reference_csv)
+
+
+def _same_numbers(path, reference: str) -> bool:
+    """Equal CSVs but for wall_time (the one column that depends on the clock)."""
+    import pandas as pd
+
+    got, want = pd.read_csv(path), pd.read_csv(io.StringIO(reference))
+    return got.drop(columns="wall_time").equals(want.drop(columns="wall_time"))
+
+
+# ------------------------------------------------------------------ 2. symlinks in the checkpoint area are refused
+@pytest.mark.parametrize("link", [".checkpoints", ".checkpoints/seed_0.npz"])
+def test_a_symlink_in_the_checkpoint_area_is_refused_not_followed(tmp_path, capsys, link):
+    """A ``.checkpoints`` symlink would send checkpoints elsewhere and delete ``.*.tmp`` files there; a
+    symlinked checkpoint would be read from elsewhere. Both: one line, exit 1, the target untouched."""
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (victim / ".precious.tmp").write_text("keep me")
+    (victim / "seed_0.npz").write_text("not a checkpoint")
+    run_dir = tmp_path / "R" / "default" / "cem-cartpole-none-popsize=6"
+    (run_dir / ".checkpoints").mkdir(parents=True)
+    if link == ".checkpoints":
+        (run_dir / ".checkpoints").rmdir()
+        (run_dir / ".checkpoints").symlink_to(victim, target_is_directory=True)
+    else:
+        (run_dir / link).symlink_to(victim / "seed_0.npz")
+    before = sorted((p.name, p.read_text()) for p in victim.iterdir())
+    capsys.readouterr()
+    assert main(["run", *TINY[:3], "generations=4", "popsize=6", "checkpoint_every=1", "progress=false", "workers=1", f"results_dir={tmp_path / 'R'}"]) == 1
+    line = one_error_line(capsys.readouterr().err)
+    assert "symlink" in line and ".checkpoints" in line
+    assert sorted((p.name, p.read_text()) for p in victim.iterdir()) == before
+    assert not (run_dir / "seed_0.csv").exists()
