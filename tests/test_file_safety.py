@@ -396,3 +396,51 @@ def test_a_symlink_in_the_checkpoint_area_is_refused_not_followed(tmp_path, caps
     assert "symlink" in line and ".checkpoints" in line
     assert sorted((p.name, p.read_text()) for p in victim.iterdir()) == before
     assert not (run_dir / "seed_0.csv").exists()
+
+
+# ------------------------------------------------------------------ 10. seed CSVs: one validation for run, plot and status
+@pytest.fixture(scope="module")
+def two_seeds(tmp_path_factory):
+    root = tmp_path_factory.mktemp("two")
+    assert main(["run", *TINY[:2], "seeds=2", "generations=3", "popsize=6", "progress=false", "workers=1", f"results_dir={root}", "experiment=e"]) == 0
+    return root
+
+
+def _copy_experiment(root, tmp_path):
+    import shutil
+
+    shutil.copytree(root / "e", tmp_path / "e")
+    return tmp_path / "e" / RUN
+
+
+@pytest.mark.parametrize("edit_seed_column", [False, True])
+def test_plot_does_not_count_a_copied_seed_csv_twice(two_seeds, tmp_path, edit_seed_column):
+    from imix_cli.plotting.data import load_experiment
+
+    run_dir = _copy_experiment(two_seeds, tmp_path)
+    text = (run_dir / "seed_1.csv").read_text()
+    if edit_seed_column:  # the copy made to look like seed 0: its rows are still seed 1's
+        import pandas as pd
+
+        frame = pd.read_csv(io.StringIO(text))
+        frame["seed"] = 0
+        text = frame.to_csv(index=False, float_format="%.10g", lineterminator="\n")
+    (run_dir / "seed_0.csv").write_text(text)
+    warnings = []
+    (group,) = load_experiment(tmp_path, "e", warn=warnings.append).groups
+    assert group.n_seeds == 1, "a copied CSV counted as a second seed"
+    copies = [w for w in warnings if "copy" in w]  # (the other warning: fewer seeds than config.yaml asks for)
+    assert len(copies) == 1 and "seed_0" in copies[0], warnings
+
+
+def test_run_refuses_a_seed_csv_whose_evaluations_decrease_as_plot_does(two_seeds, tmp_path, capsys):
+    import pandas as pd
+
+    run_dir = _copy_experiment(two_seeds, tmp_path)
+    frame = pd.read_csv(run_dir / "seed_0.csv")
+    frame.loc[2, "evaluations"] = 1
+    frame.to_csv(run_dir / "seed_0.csv", index=False)
+    capsys.readouterr()
+    assert main(["run", *TINY[:2], "seeds=2", "generations=3", "popsize=6", "progress=false", "workers=1", f"results_dir={tmp_path}", "experiment=e"]) == 1
+    line = one_error_line(capsys.readouterr().err)
+    assert "seed_0.csv" in line and "evaluations" in line

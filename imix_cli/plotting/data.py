@@ -217,7 +217,7 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
     if not csvs:
         warn(f"{run_dir}: no seed_<k>.csv files; skipped")
         return None
-    seeds = {}
+    seeds, fingerprints = {}, {}
     identity = None
     for seed, path in sorted(csvs):
         try:
@@ -248,6 +248,13 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
         elif ident != identity:
             warn(f"skipped {path}: it is a {'-'.join(ident)} run, the rest of {run_dir.name} is {'-'.join(identity)}")
             continue
+        # A seed's rows are its own: identical scores, episodes and wall times are a copy of another seed's CSV.
+        fingerprint = tuple(frame[c].to_numpy(dtype=float).tobytes() for c in ("evaluations", "env_steps", "mean_score", "best_score", "wall_time"))
+        twin = next((other for other, fp in fingerprints.items() if fp == fingerprint), None)
+        if twin is not None:
+            warn(f"skipped {path}: the same rows as seed_{twin}'s CSV (a copy?); counted once")
+            continue
+        fingerprints[seed] = fingerprint
         frame = frame.copy()
         for column in ("mean_score", "best_score"):
             values = frame[column].to_numpy(dtype=float)
