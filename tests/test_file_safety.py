@@ -444,3 +444,154 @@ def test_run_refuses_a_seed_csv_whose_evaluations_decrease_as_plot_does(two_seed
     assert main(["run", *TINY[:2], "seeds=2", "generations=3", "popsize=6", "progress=false", "workers=1", f"results_dir={tmp_path}", "experiment=e"]) == 1
     line = one_error_line(capsys.readouterr().err)
     assert "seed_0.csv" in line and "evaluations" in line
+
+
+# ------------------------------------------------------------------ 10. eval: bad policy files are one line
+BAD_HEADERS = {
+    "obs_dim a string": {"obs_dim": "4"},
+    "obs_dim negative": {"obs_dim": -4},
+    "obs_dim a float": {"obs_dim": 4.0},
+    "hidden a string": {"hidden": "8,8"},
+    "hidden huge": {"hidden": [10**9]},
+    "hidden negative": {"hidden": [-8, 8]},
+    "discrete a string": {"discrete": "yes"},
+    "max_steps 1e12": {"max_steps": 10**12},
+    "max_steps a float": {"max_steps": 1e12},
+    "max_steps above the run's cap": {"max_steps": 250},
+    "max_steps zero": {"max_steps": 0},
+    "seed negative": {"seed": -1},
+    "seed a string": {"seed": "0"},
+    "env_id a number": {"env_id": 5},
+    "env_name null": {"env_name": None},
+    "env_id unknown": {"env_name": "Nope-v9", "env_id": "Nope-v9"},
+    "env_id of another env": {"env_id": "Acrobot-v1"},
+    "action bounds on a discrete env": {"action_low": [0.0], "action_high": [1.0]},
+    "which unknown": {"which": "worst"},
+    "format unknown": {"format": "imix-policy/9"},
+    "out_dim not the env's": {"out_dim": 3},
+    "train_return a string": {"train_return": "inf"},
+    "generation negative": {"generation": -1},
+    "obs_normalizer a string": {"obs_normalizer": "x"},
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_HEADERS))
+def test_eval_refuses_a_bad_policy_header_in_one_line(copied, capsys, case):
+    root, run_dir = copied
+    path = policy_path(run_dir, 0, "mean")
+    policy = read_policy(path)
+    header = {**policy.header, **BAD_HEADERS[case]}
+    params = policy.params
+    if case == "out_dim not the env's":  # the right number of weights for that header: only the env disagrees
+        params = np.zeros(4 * 8 + 8 + 8 * 8 + 8 + 8 * 3 + 3)
+    write_policy(path, params, header)
+    capsys.readouterr()
+    assert main(["eval", f"results_dir={root}", "experiment=e", "episodes=2"]) == 1
+    one_error_line(capsys.readouterr().err, "imix eval:")
+
+
+def _raw_policy(path, header_text: str, params) -> None:
+    buffer = io.BytesIO()
+    np.savez(buffer, params=params, header=np.array(header_text))
+    Path(path).write_bytes(buffer.getvalue())
+
+
+@pytest.mark.parametrize(
+    "case", ["not JSON", "a JSON list", "deeply nested", "params of strings", "params 2-D", "params int", "header bytes", "no params", "extra member"]
+)
+def test_eval_refuses_a_malformed_policy_file_in_one_line(copied, capsys, case):
+    root, run_dir = copied
+    path = policy_path(run_dir, 0, "mean")
+    policy = read_policy(path)
+    text = json.dumps(policy.header)
+    if case == "not JSON":
+        _raw_policy(path, text[:-3], policy.params)
+    elif case == "a JSON list":
+        _raw_policy(path, json.dumps([policy.header]), policy.params)
+    elif case == "deeply nested":
+        _raw_policy(path, "[" * 100_000 + "]" * 100_000, policy.params)
+    elif case == "params of strings":
+        _raw_policy(path, text, np.array(["1.0"] * 130))
+    elif case == "params 2-D":
+        _raw_policy(path, text, policy.params.reshape(10, 13))
+    elif case == "params int":
+        _raw_policy(path, text, np.zeros(130, dtype=np.int64))
+    elif case == "header bytes":
+        buffer = io.BytesIO()
+        np.savez(buffer, params=policy.params, header=np.frombuffer(text.encode(), dtype=np.uint8))
+        path.write_bytes(buffer.getvalue())
+    elif case == "no params":
+        buffer = io.BytesIO()
+        np.savez(buffer, header=np.array(text))
+        path.write_bytes(buffer.getvalue())
+    else:
+        buffer = io.BytesIO()
+        np.savez(buffer, params=policy.params, header=np.array(text), extra=np.zeros(3))
+        path.write_bytes(buffer.getvalue())
+    capsys.readouterr()
+    assert main(["eval", f"results_dir={root}", "experiment=e", "episodes=2"]) == 1
+    one_error_line(capsys.readouterr().err, "imix eval:")
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_eval_refuses_non_finite_weights_instead_of_scoring_them(copied, capsys, value):
+    root, run_dir = copied
+    path = policy_path(run_dir, 0, "mean")
+    policy = read_policy(path)
+    params = policy.params.copy()
+    params[5] = value
+    write_policy(path, params, policy.header)
+    capsys.readouterr()
+    assert main(["eval", f"results_dir={root}", "experiment=e", "episodes=2"]) == 1
+    assert "NaN or infinite" in one_error_line(capsys.readouterr().err, "imix eval:")
+    assert not (run_dir / "eval.csv").exists()
+
+
+def test_eval_bounds_episodes_and_runs_them_in_batches(copied, capsys, monkeypatch):
+    """``episodes=1000000000`` is one line (it would take days), and any episodes= runs in batches whose
+    memory does not grow with it -- with the same statistics as one batch."""
+    from imix_cli import evaluate
+
+    root, run_dir = copied
+    assert main(["eval", f"results_dir={root}", "experiment=e", "episodes=1000000000"]) == 2
+    assert "episodes" in one_error_line(capsys.readouterr().err, "imix eval:")
+
+    policy = read_policy(policy_path(run_dir, 0, "mean"))
+    whole = evaluate.evaluate_policy(policy, 1000)
+    sizes = []
+    real = evaluate.evaluator_for
+
+    def recording(*args, **kwargs):
+        evaluator = real(*args, **kwargs)
+
+        class Recorder:
+            def __getattr__(self, name):
+                return getattr(evaluator, name)
+
+            def evaluate(self, params, seeds):
+                sizes.append(len(params))
+                return evaluator.evaluate(params, seeds)
+
+        return Recorder()
+
+    monkeypatch.setattr(evaluate, "evaluator_for", recording)
+    monkeypatch.setattr(evaluate, "_MAX_BATCH", 64)
+    batched = evaluate.evaluate_policy(policy, 1000)
+    assert max(sizes) == 64 and sum(sizes) == 1000
+    assert batched["mean"] == pytest.approx(whole["mean"], rel=1e-12) and batched["std"] == pytest.approx(whole["std"], rel=1e-9)
+    assert (batched["min"], batched["max"], batched["mean_steps"]) == (whole["min"], whole["max"], whole["mean_steps"])
+
+
+def test_eval_of_a_read_only_results_folder_prints_the_numbers_and_one_line(copied, capsys, monkeypatch):
+    import imix_cli.results as results_module
+
+    root, run_dir = copied
+
+    def read_only(path, text):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(results_module, "atomic_write_text", read_only)  # as in a read-only folder (root ignores chmod)
+    assert main(["eval", f"results_dir={root}", "experiment=e", "episodes=2"]) == 1
+    out, err = capsys.readouterr()
+    assert RUN in out and "95% CI" in out
+    assert "eval.csv" in one_error_line(err, "imix eval:")
