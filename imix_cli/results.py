@@ -250,10 +250,10 @@ def read_run_csv(path) -> pd.DataFrame:
     popsize = frame["popsize"].to_numpy()
     reused = frame["reused"].to_numpy()
     if (
-        np.any(popsize < 1) or np.any(reused > popsize) or np.any(frame["nonfinite"].to_numpy() > popsize)
+        np.any(popsize != popsize[0]) or np.any(popsize < 1) or np.any(reused > popsize) or np.any(frame["nonfinite"].to_numpy() > popsize)
         or np.any(frame["reevaluated"].to_numpy() > reused) or np.any(frame["diverged"].to_numpy() > 1)
     ):  # fmt: skip
-        raise CorruptResultError(f"{path}: member counts (popsize, reused, reevaluated, nonfinite, diverged) out of range")
+        raise CorruptResultError(f"{path}: member counts (popsize, reused, reevaluated, nonfinite, diverged) out of range or popsize changes")
     for column in ("sigma_mean", "wall_time"):
         values = frame[column].to_numpy(dtype=np.float64)
         if not np.all(np.isfinite(values)) or np.any(values < 0):

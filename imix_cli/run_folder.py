@@ -10,10 +10,15 @@ from __future__ import annotations
 
 import contextlib
 import os
+import reprlib
 
 from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, seed_csv_path
 from imix_cli.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.trainers import trainer_for
+
+
+#: The largest config.yaml read back (a real one is a few kB).
+MAX_CONFIG_BYTES = 1 << 20
 
 
 class RunError(RuntimeError):
@@ -35,15 +40,18 @@ def prepare_run_dir(spec) -> list[int]:
     refuse_symlinks(run_dir)
     if config_file.exists():
         try:
+            if config_file.stat().st_size > MAX_CONFIG_BYTES:  # a config is a few kB: bound what a reader allocates
+                raise ValueError(f"{config_file.stat().st_size:,} bytes")
             existing = yaml.safe_load(config_file.read_text())
         except Exception as err:
             raise RunError(f"{config_file}: unreadable ({type(err).__name__}); move it away or choose another experiment=") from None
-        if not isinstance(existing, dict):
+        if not isinstance(existing, dict) or not all(isinstance(k, str) for k in existing):
             raise RunError(f"{config_file}: not a config mapping; move it away or choose another experiment=")
         old, new = identity_of(existing), spec.identity()
         differing = differing_keys(resume_identity(old), resume_identity(new))
         if differing:
-            changes = ", ".join(f"{k}={old.get(k)!r} there, {new.get(k)!r} now" for k in differing)
+            # reprlib: a value read from the file is shown shortened (a YAML alias bomb must not expand here)
+            changes = ", ".join(f"{k}={reprlib.repr(old.get(k))} there, {new.get(k)!r} now" for k in differing[:8])
             raise RunError(f"{config_file} holds a different config ({changes}); choose another experiment= or move that folder away")
         if trainer.continuable and isinstance(old.get("generations"), int) and old["generations"] > spec.generations:
             raise RunError(
