@@ -16,7 +16,6 @@ from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_
 from imix_cli.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.trainers import trainer_for
 
-
 #: The largest config.yaml read back (a real one is a few kB).
 MAX_CONFIG_BYTES = 1 << 20
 
