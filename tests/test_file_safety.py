@@ -595,3 +595,15 @@ def test_eval_of_a_read_only_results_folder_prints_the_numbers_and_one_line(copi
     out, err = capsys.readouterr()
     assert RUN in out and "95% CI" in out
     assert "eval.csv" in one_error_line(err, "imix eval:")
+
+
+def test_a_seed_csv_holding_another_seeds_rows_is_refused_by_the_reader(two_seeds, tmp_path):
+    """The reader run, plot and status share refuses a copy under another seed's name (its seed column
+    says whose rows they are), so ``imix run`` does not take seed 1's rows as seed 0's result either."""
+    from imix_cli.results import CorruptResultError, read_run_csv
+
+    run_dir = _copy_experiment(two_seeds, tmp_path)
+    (run_dir / "seed_0.csv").write_text((run_dir / "seed_1.csv").read_text())
+    with pytest.raises(CorruptResultError, match=r"seed_0\.csv: its rows are of seed \[1\].*a copy"):
+        read_run_csv(run_dir / "seed_0.csv")
+    read_run_csv(run_dir / "seed_1.csv")  # the original is fine

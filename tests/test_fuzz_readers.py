@@ -41,13 +41,17 @@ from imix_cli.cli import main
 from imix_cli.config import validate_overrides
 from imix_cli.evaluation import make_evaluator
 from imix_cli.lockstep import new_seed_state
-from imix_cli.policy_files import PolicyFileError, num_params_of, read_policy, validate_header
+from imix_cli.policy_files import PolicyFileError, num_params_of, read_policy
 from imix_cli.results import COLUMNS, CorruptResultError, read_run_csv
 from imix_cli.resume import checkpoint_byte_limit, validate_seed_state
 from imix_cli.run_folder import RunError, prepare_run_dir
 from imix_cli.run_spec import resume_identity
 
 MUTATIONS = 1000
+INT_COLUMNS = (
+    "seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite",
+    "mean_policy_episodes", "diverged",
+)  # fmt: skip
 ARGS = ["algo=cem", "env=cartpole", "seeds=1", "generations=4", "popsize=6", "checkpoint_every=2", "eim=true", "progress=false", "workers=1"]
 
 
@@ -230,10 +234,62 @@ def test_fuzz_checkpoint_reader(run):
     want = encoded(read(path))
 
     def accepted_ok(st):
-        return "identical" if encoded(st) == want else "changed"
+        if encoded(st) == want:
+            return "identical"
+        return "valid" if plausible_cartpole_state(st, dim) else "changed"
 
-    tally = fuzz(original, path, read, accepted_ok, (CheckpointError,), random.Random(20261124), lambda d, r: forge_npz(d, r, "header.npy", True))
-    assert tally["refused"] > 0.9 * MUTATIONS
+    def forge(data, rng):
+        forged, what = forge_npz(data, rng, "header.npy", True)
+        if rng.random() < 0.5:  # the forger also recomputes the checksum: only validation can refuse it now
+            forged, what = recompute_checksum(forged), what + " (checksum recomputed)"
+        return forged, what
+
+    tally = fuzz(original, path, read, accepted_ok, (CheckpointError,), random.Random(20261124), forge)
+    assert tally["refused"] > 0.8 * MUTATIONS
+
+
+def recompute_checksum(data: bytes) -> bytes:
+    """The checkpoint ``data`` with its checksum made to match its (forged) content, if its header still parses."""
+    from imix_cli.checkpoints import _checksum
+
+    members = npz_members(data)
+    arrays = {name[:-4]: np.load(io.BytesIO(raw), allow_pickle=False) for name, raw in members.items()}
+    try:
+        header = json.loads(arrays.pop("header").tobytes())
+        header.pop("checksum")
+        header["checksum"] = _checksum(header, arrays)
+    except Exception:  # the forged header is not JSON any more: nothing to recompute
+        return data
+    members["header.npy"] = npy_bytes(np.frombuffer(_canonical(header).encode(), dtype=np.uint8))
+    return rebuild_npz(members)
+
+
+def plausible_cartpole_state(st, dim: int) -> bool:
+    """An independent check (not imix's validator) that an accepted state is one this CartPole run
+    (popsize 6, EIM over 3 generations, 200-step episodes) could hold."""
+
+    def score(v):
+        return isinstance(v, float) and (np.isnan(v) or 0.0 <= v <= 200.0)
+
+    evaluations = 0
+    for i, row in enumerate(st.rows):
+        counts = [row[c] for c in ("evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite")]
+        if not all(type(c) is int and c >= 0 for c in counts) or row["generation"] != i or row["popsize"] != 6:
+            return False
+        if row["evaluations"] - evaluations != 6 - row["reused"] + row["reevaluated"] or not (score(row["mean_score"]) and score(row["best_score"])):
+            return False
+        evaluations = row["evaluations"]
+    best = st.best_params
+    if not (isinstance(best, np.ndarray) and best.shape == (dim,) and np.all(np.isfinite(best)) and 0.0 <= st.best_return <= 200.0):
+        return False
+    if type(st.evaluations) is not int or st.evaluations != evaluations or not np.all(np.isfinite(st.es.distribution.mean)):
+        return False
+    for g, returns in zip(st.archive.generations, st.archive.returns, strict=True):
+        if g.samples.shape != (6, dim) or not np.all(np.isfinite(g.samples)) or np.any(returns < 0) or np.any(returns > 200):
+            return False
+        if np.any(g.source < 0) or np.any(g.source > 3) or np.any(g.index >= 6):
+            return False
+    return len(st.archive.generations) <= 3
 
 
 # ------------------------------------------------------------------------------- policy files
@@ -247,9 +303,17 @@ def test_fuzz_policy_reader(run):
     def accepted_ok(policy):
         if np.array_equal(policy.params, want.params) and json.dumps(policy.header) == json.dumps(want.header):
             return "identical"
-        # a forgery without a checksum to catch it: acceptable only if it is a valid policy
-        validate_header(policy.header)
-        ok = policy.params.dtype == np.float64 and policy.params.shape == (num_params_of(policy.header),) and np.all(np.isfinite(policy.params))
+        # a forgery without a checksum to catch it: acceptable only if it is a valid policy (checked here
+        # independently of imix's validate_header)
+        h = policy.header
+        ints = all(type(h[k]) is int for k in ("obs_dim", "out_dim", "max_steps", "seed", "generation", "action_start"))
+        ok = (
+            ints and h["obs_dim"] >= 1 and h["out_dim"] >= 1 and 1 <= h["max_steps"] <= 10**7 and h["seed"] >= 0 and h["generation"] >= 0
+            and isinstance(h["hidden"], list) and all(type(x) is int and 1 <= x <= 65536 for x in h["hidden"])
+            and type(h["discrete"]) is bool and h["which"] in ("mean", "best") and isinstance(h["env_id"], str) and isinstance(h["env_name"], str)
+            and (h["train_return"] is None or (type(h["train_return"]) in (int, float) and np.isfinite(h["train_return"])))
+            and policy.params.dtype == np.float64 and policy.params.shape == (num_params_of(h),) and np.all(np.isfinite(policy.params))
+        )  # fmt: skip
         return "valid" if ok else "changed"
 
     fuzz(original, path, read_policy, accepted_ok, (PolicyFileError,), random.Random(7), lambda d, r: forge_npz(d, r, "header.npy", False))
@@ -272,13 +336,25 @@ def test_fuzz_seed_csv_reader(run):
         assert np.array_equal(frame["generation"].to_numpy(), np.arange(len(frame)))
         assert (frame["seed"] == 0).all() and frame["algo"].nunique() == frame["env"].nunique() == frame["mixing"].nunique() == 1
         for column in ("evaluations", "env_steps", "mean_policy_episodes"):
+            assert np.all(np.diff(frame[column].to_numpy(dtype=float)) >= 0)
+        for column in INT_COLUMNS:
             values = frame[column].to_numpy(dtype=float)
-            assert np.all(values >= 0) and np.all(np.diff(values) >= 0) and np.all(values == np.round(values))
+            assert np.all(values >= 0) and np.all(values == np.round(values)), column
         assert np.all(frame["reused"] <= frame["popsize"]) and frame["popsize"].nunique() == 1
         assert np.all(np.isfinite(frame["sigma_mean"].to_numpy(dtype=float))) and np.all(np.isfinite(frame["wall_time"].to_numpy(dtype=float)))
         return "valid"
 
-    tally = fuzz(original, path, read_run_csv, accepted_ok, (CorruptResultError,), random.Random(11))
+    def forge(data, rng):
+        """A cell of the CSV replaced by another token: what a hand edit or another tool could leave."""
+        lines = data.decode().split("\n")
+        row = rng.randrange(1, len(lines) - 1)
+        cells = lines[row].split(",")
+        col = rng.randrange(len(cells))
+        cells[col] = rng.choice(["-1", "1.5", "nan", "inf", "x", "", "1e400", "0", "999999", "-0.0", "1e18", "True"])
+        lines[row] = ",".join(cells)
+        return "\n".join(lines).encode(), f"row {row} column {col} -> {cells[col]!r}"
+
+    tally = fuzz(original, path, read_run_csv, accepted_ok, (CorruptResultError,), random.Random(11), forge)
     assert tally["refused"] > 0.3 * MUTATIONS
 
 
@@ -314,6 +390,8 @@ def test_fuzz_config_yaml_reader(run, tmp_path):
         k = rng.randrange(len(lines))
         value = rng.choice(["&a [*a]", "*nope", "!!python/object:os.system ls", "[" * 50, "1e400", "-1", "null", "{a: 1}", "'x' * 3", "&x [a] \n b: *x"])
         key = lines[k].split(":", 1)[0]
+        if rng.random() < 0.2:  # a key that is not a string
+            key = rng.choice(["1", "null", "true", "3.5", "? [a, b]\n"])
         lines[k] = f"{key}: {value}"
         return "\n".join(lines).encode(), f"line {k} -> {value}"
 
