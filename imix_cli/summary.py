@@ -62,6 +62,8 @@ def counterpart_runs(spec) -> list[Path]:
         if other == spec.run_dir or not (other / "config.yaml").is_file() or not any(other.glob("seed_*[0-9].csv")):
             continue
         try:
+            if (other / "config.yaml").stat().st_size > 1 << 20:  # a config is a few kB: bounded memory
+                continue
             config = yaml.safe_load((other / "config.yaml").read_text())
         except Exception:  # an unreadable sibling is simply not compared
             continue

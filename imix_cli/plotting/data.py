@@ -197,6 +197,8 @@ def _read_config(path: Path, warn) -> dict:
     try:
         import yaml
 
+        if path.stat().st_size > 1 << 20:  # a config is a few kB: a huge file is not read (bounded memory)
+            raise ValueError("larger than 1 MiB")
         data = yaml.safe_load(path.read_text())
     except Exception as err:  # noqa: BLE001 - any parse error: keep going without the config
         warn(f"{path}: unreadable config.yaml ({type(err).__name__}); hyper-parameters taken from the folder name")
