@@ -224,11 +224,13 @@ def members_of(path) -> dict:
 
 GIB = 1 << 30
 
+# VmHWM, not getrusage's ru_maxrss: Linux carries ru_maxrss over exec from the forking process (here,
+# pytest, which may be large), while VmHWM is the peak of this process's own address space.
 PEAK_RSS = """
-import resource, sys
+import re, sys
 sys.path[:0] = {paths!r}
 {code}
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)
+print(int(re.search(r"VmHWM:\\s+(\\d+) kB", open("/proc/self/status").read()).group(1)) // 1024)
 """
 
 
