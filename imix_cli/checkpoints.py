@@ -47,7 +47,7 @@ from imix_cli import messages
 from imix_cli.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.mixing import Generation
 from imix_cli.policies import ObsNormalizer
-from imix_cli.results import atomic_write_bytes
+from imix_cli.results import atomic_write_bytes, regular_file_size
 
 FORMAT = "imix-checkpoint"
 FORMAT_VERSION = 1
@@ -107,9 +107,12 @@ def read_checkpoint(path, template, *, identity: dict, seed: int, max_bytes: int
     if not path.exists():
         raise FileNotFoundError(path)
     try:
+        regular_file_size(path)
         header, arrays = _read_npz(path, max_bytes)
     except CheckpointError:
         raise
+    except OSError as err:
+        raise CheckpointError(f"unreadable ({err.strerror or err})") from None
     except Exception as err:  # np.load/zipfile raise many types for a damaged file
         raise CheckpointError(f"unreadable ({type(err).__name__}: {_first_line(err)})") from None
     if header.get("format") != FORMAT:

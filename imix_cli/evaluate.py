@@ -253,6 +253,10 @@ def write_eval_csv(run_dir: Path, rows: list) -> Path:
     frame = pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
     if path.exists():
         try:
+            from imix_cli.results import regular_file_size
+
+            if regular_file_size(path) > 64 << 20:  # an eval.csv is a few rows a seed; /dev/zero or a huge file is replaced, not read
+                raise ValueError("not an eval.csv")
             old = pd.read_csv(path)
             old = old[old["which"] != rows[0]["which"]] if "which" in old.columns else old.iloc[0:0]
             frame = pd.concat([old.reindex(columns=list(EVAL_COLUMNS)), frame], ignore_index=True)

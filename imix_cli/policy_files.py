@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.results import atomic_write_bytes
+from imix_cli.results import atomic_write_bytes, regular_file_size
 
 FORMAT = "imix-policy/1"
 WHICH = ("mean", "best")
@@ -215,6 +215,7 @@ def read_policy(path) -> PolicyFile:
     path = Path(path)
     header_bytes = 4 * MAX_HEADER_CHARS + 1024  # a '<U' scalar: 4 bytes a character
     try:
+        regular_file_size(path)
         header_array = read_npz(path, header_bytes + 8 * MAX_PARAMS + 1024, _policy_member_check(path), names=("params", "header"), only="header")
         header = validate_header(json.loads(str(header_array["header"][()])), str(path))
         expected = num_params_of(header)
@@ -228,6 +229,8 @@ def read_policy(path) -> PolicyFile:
         raise PolicyFileError(f"{path}: no such policy file") from None
     except IsADirectoryError:
         raise PolicyFileError(f"{path}: is a folder, not a policy file") from None
+    except OSError as err:
+        raise PolicyFileError(f"{path}: {err.strerror or err}") from None
     except PolicyFileError:
         raise
     except NpzLimitError as err:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 import tempfile
 from pathlib import Path
 
@@ -198,6 +199,32 @@ _SEED_NAME = re.compile(r"^seed_(\d+)(?:\.partial)?\.csv$")
 _CUMULATIVE = ("evaluations", "env_steps", "mean_policy_episodes")
 
 
+def regular_file_size(path) -> int:
+    """The size of ``path`` if it is a regular file (after symlinks); OSError otherwise.
+
+    Why: a results folder may hold anything under a result's name -- a symlink to ``/dev/zero``
+    (endless: a reader would fill the memory), a FIFO (a reader would block forever). Every reader
+    of imix's files asks this first and never opens anything but a regular file.
+    """
+    info = os.stat(path)
+    if not stat.S_ISREG(info.st_mode):
+        raise OSError(f"not a regular file ({_kind(info.st_mode)})")
+    return info.st_size
+
+
+def _kind(mode: int) -> str:
+    for test, name in (
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return name
+    return "special"
+
+
 def read_run_csv(path) -> pd.DataFrame:
     """Read and validate one seed's CSV; raise :class:`CorruptResultError` naming the file if it is not valid.
 
@@ -209,7 +236,9 @@ def read_run_csv(path) -> pd.DataFrame:
     """
     path = Path(path)
     try:
-        size = path.stat().st_size
+        size = regular_file_size(path)
+    except FileNotFoundError:
+        raise
     except OSError as err:
         raise CorruptResultError(f"{path}: unreadable ({err.strerror or err})") from None
     if size > MAX_CSV_BYTES:

@@ -12,7 +12,7 @@ import contextlib
 import os
 import reprlib
 
-from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, seed_csv_path
+from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, regular_file_size, seed_csv_path
 from imix_cli.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.trainers import trainer_for
 
@@ -39,9 +39,11 @@ def prepare_run_dir(spec) -> list[int]:
     refuse_symlinks(run_dir)
     if config_file.exists():
         try:
-            if config_file.stat().st_size > MAX_CONFIG_BYTES:  # a config is a few kB: bound what a reader allocates
+            if regular_file_size(config_file) > MAX_CONFIG_BYTES:  # a config is a few kB: bound what a reader allocates
                 raise ValueError(f"{config_file.stat().st_size:,} bytes")
             existing = yaml.safe_load(config_file.read_text())
+        except OSError as err:
+            raise RunError(f"{config_file}: unreadable ({err.strerror or err}); move it away or choose another experiment=") from None
         except Exception as err:
             raise RunError(f"{config_file}: unreadable ({type(err).__name__}); move it away or choose another experiment=") from None
         if not isinstance(existing, dict) or not all(isinstance(k, str) for k in existing):

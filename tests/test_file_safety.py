@@ -609,3 +609,59 @@ def test_a_seed_csv_holding_another_seeds_rows_is_refused_by_the_reader(two_seed
     with pytest.raises(CorruptResultError, match=r"seed_0\.csv: its rows are of seed \[1\].*a copy"):
         read_run_csv(run_dir / "seed_0.csv")
     read_run_csv(run_dir / "seed_1.csv")  # the original is fine
+
+
+# ------------------------------------------------------------------ not a file: /dev/zero, a FIFO
+READ_SPECIAL = """
+import sys
+sys.path[:0] = {paths!r}
+from imix_cli.checkpoints import CheckpointError, read_checkpoint
+from imix_cli.policy_files import PolicyFileError, read_policy
+from imix_cli.results import CorruptResultError, read_run_csv
+from imix_cli.run_folder import RunError, prepare_run_dir
+name, target = {name!r}, {target!r}
+try:
+    if name == "seed_0.csv":
+        read_run_csv(target)
+    elif name == "policy_0_mean.npz":
+        read_policy(target)
+    elif name == "config.yaml":
+        from imix_cli.config import validate_overrides
+
+        (spec,) = validate_overrides({overrides!r})
+        prepare_run_dir(spec)
+    else:
+        read_checkpoint(target, None, identity={{}}, seed=0)
+except (CheckpointError, PolicyFileError, CorruptResultError, RunError) as err:
+    print("refused:", err)
+"""
+
+
+def _limited():
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))  # a reader that reads forever fails here, not the machine
+
+
+@pytest.mark.parametrize("special", ["/dev/zero", "fifo"])
+@pytest.mark.parametrize("name", ["seed_0.csv", "policy_0_mean.npz", "config.yaml", ".checkpoints/seed_0.npz"])
+def test_a_file_that_is_a_device_or_a_fifo_is_refused_without_reading_it(copied, tmp_path, special, name):
+    """``/dev/zero`` never ends and a FIFO blocks: a reader that opened either would take all the memory
+    or hang. Every reader requires a regular file (one line), and never starts reading anything else.
+    (Run in a subprocess with a 3 GiB address-space limit and a 60 s timeout: the readers before this
+    check read /dev/zero until the machine ran out of memory.)"""
+    root, run_dir = copied
+    target = run_dir / name
+    target.parent.mkdir(exist_ok=True)
+    target.unlink(missing_ok=True)
+    if special == "fifo":
+        os.mkfifo(target)
+    else:
+        target.symlink_to(special)
+    repo = str(Path(__file__).resolve().parent.parent)
+    script = READ_SPECIAL.format(paths=[repo], name=name, target=str(target), overrides=[*TINY, f"results_dir={root}", "experiment=e"])
+    try:
+        proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, preexec_fn=_limited)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"reading a {special} as {name} hangs")
+    assert proc.returncode == 0 and proc.stdout.startswith("refused:") and "not a regular file" in proc.stdout, proc.stdout + proc.stderr[-500:]
