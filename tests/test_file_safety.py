@@ -665,3 +665,19 @@ def test_a_file_that_is_a_device_or_a_fifo_is_refused_without_reading_it(copied,
     except subprocess.TimeoutExpired:
         pytest.fail(f"reading a {special} as {name} hangs")
     assert proc.returncode == 0 and proc.stdout.startswith("refused:") and "not a regular file" in proc.stdout, proc.stdout + proc.stderr[-500:]
+
+
+@pytest.mark.parametrize("change", [{"max_steps": 10**12}, {"env_id": "this:CartPole-v0"}, {"params": "nan"}])
+def test_render_refuses_what_eval_refuses(copied, tmp_path, capsys, change):
+    root, run_dir = copied
+    path = policy_path(run_dir, 0, "mean")
+    policy = read_policy(path)
+    params = policy.params.copy()
+    if change.get("params") == "nan":
+        params[0] = np.nan
+        change = {}
+    write_policy(path, params, {**policy.header, **change})
+    capsys.readouterr()
+    assert main(["render", f"results_dir={root}", "experiment=e", f"out={tmp_path / 'p.gif'}"]) == 1
+    one_error_line(capsys.readouterr().err, "imix render:")
+    assert not (tmp_path / "p.gif").exists()
