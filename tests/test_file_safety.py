@@ -265,6 +265,7 @@ def test_a_policy_zip_bomb_is_refused_before_inflating(copied, tmp_path):
     assert out.startswith("refused:") and "bytes" in out
 
 
+@pytest.mark.slow
 def test_a_checkpoint_zip_bomb_is_refused_before_inflating(tmp_path):
     root = tmp_path / "R"
     args = ["run", "algo=cem", "env=cartpole", "seeds=1", "generations=4", "popsize=6", "checkpoint_every=2", "eim=true", "progress=false", "workers=1"]
