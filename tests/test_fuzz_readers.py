@@ -372,13 +372,19 @@ def test_fuzz_config_yaml_reader(run, tmp_path):
     want = resume_identity(spec.identity())
 
     def read(target):
+        text = target.read_bytes()  # what prepare_run_dir reads (it may rewrite the file when the run goes on)
         prepare_run_dir(spec)
-        return yaml.safe_load(target.read_text())
+        return yaml.safe_load(text)
 
     def accepted_ok(config):
         from imix_cli.run_spec import identity_of
 
-        assert resume_identity(identity_of(config)) == want
+        # imix compares identities key by key with None for a missing key (run_spec.differing_keys), so a
+        # key whose value is null is the same as no key: compare what imix compares
+        def meaningful(identity):
+            return {k: v for k, v in resume_identity(identity).items() if v is not None}
+
+        assert meaningful(identity_of(config)) == meaningful(want)
         return "identical" if target_unchanged(config) else "valid"
 
     def target_unchanged(config):
