@@ -39,8 +39,6 @@ import dataclasses
 import hashlib
 import io
 import json
-import math
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -49,13 +47,17 @@ from imix_cli import messages
 from imix_cli.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.mixing import Generation
 from imix_cli.policies import ObsNormalizer
-from imix_cli.results import atomic_write_bytes
+from imix_cli.results import atomic_write_bytes, regular_file_size
 
 FORMAT = "imix-checkpoint"
 FORMAT_VERSION = 1
 _HEADER = "header"
 #: Value classes saved through their ``to_state()`` and rebuilt by ``cls.from_state(state)``.
 _DISTRIBUTIONS = {cls.__name__: cls for cls in (DiagonalGaussian, FullGaussian, ObsNormalizer)}
+
+
+#: The most a checkpoint may hold when the caller gives no bound derived from its run's config.
+DEFAULT_MAX_BYTES = 256 << 20
 
 
 class CheckpointError(ValueError):
@@ -89,12 +91,15 @@ def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int)
     atomic_write_bytes(path, buffer.getvalue())
 
 
-def read_checkpoint(path, template, *, identity: dict, seed: int):
+def read_checkpoint(path, template, *, identity: dict, seed: int, max_bytes: int = DEFAULT_MAX_BYTES):
     """The state saved at ``path``, built on ``template`` (a fresh state of the same run and seed).
 
     Returns a new object of ``template``'s dataclass type, whose ES is ``template``'s ES with the
     saved state loaded. Raises FileNotFoundError if there is no file, :class:`CheckpointError`
-    if it is damaged, of another format/version/seed/config, or does not fit ``template``.
+    if it is damaged, of another format/version/seed/config, does not fit ``template``, or
+    declares more than ``max_bytes`` of arrays (checked before inflating them: a zip bomb costs
+    nothing). A checksum only proves the file is what *some* writer wrote: what the state's values
+    may be is checked by the caller (:func:`imix_cli.resume.validate_seed_state`).
     """
     from imix_cli import __version__
 
@@ -102,9 +107,12 @@ def read_checkpoint(path, template, *, identity: dict, seed: int):
     if not path.exists():
         raise FileNotFoundError(path)
     try:
-        header, arrays = _read_npz(path)
+        regular_file_size(path)
+        header, arrays = _read_npz(path, max_bytes)
     except CheckpointError:
         raise
+    except OSError as err:
+        raise CheckpointError(f"unreadable ({err.strerror or err})") from None
     except Exception as err:  # np.load/zipfile raise many types for a damaged file
         raise CheckpointError(f"unreadable ({type(err).__name__}: {_first_line(err)})") from None
     if header.get("format") != FORMAT:
@@ -126,13 +134,15 @@ def read_checkpoint(path, template, *, identity: dict, seed: int):
         raise CheckpointError(f"does not fit this run's state ({type(err).__name__}: {_first_line(err)})") from None
     if type(state) is not type(template):
         raise CheckpointError("does not hold a seed's state")
+    if header.get("generation") != getattr(state, "generation", header.get("generation")):
+        raise CheckpointError(f"header says generation {header.get('generation')!r}, its rows {state.generation}")
     return state
 
 
-def load_or_warn(path, template, *, identity: dict, seed: int, warn=None):
+def load_or_warn(path, template, *, identity: dict, seed: int, warn=None, max_bytes: int = DEFAULT_MAX_BYTES):
     """:func:`read_checkpoint`, or None: no file, or -- after one warning line -- a checkpoint refused."""
     try:
-        return read_checkpoint(path, template, identity=identity, seed=seed)
+        return read_checkpoint(path, template, identity=identity, seed=seed, max_bytes=max_bytes)
     except FileNotFoundError:
         return None
     except CheckpointError as err:
@@ -141,47 +151,28 @@ def load_or_warn(path, template, *, identity: dict, seed: int, warn=None):
 
 
 # ----------------------------------------------------------------------------- file level
-def _read_npz(path: Path) -> tuple[dict, dict]:
-    arrays = {}
-    with np.load(path, allow_pickle=False) as npz:  # a pickle (or anything not npy/npz) is refused here
-        if not isinstance(npz, np.lib.npyio.NpzFile):
-            raise CheckpointError("not an .npz archive")
-        names = list(npz.files)
-        if _HEADER not in names:
-            raise CheckpointError("no header")
-        for name in names:
-            _check_declared_size(npz.zip, name)
-            arrays[name] = npz[name]
+def _read_npz(path: Path, max_bytes: int) -> tuple[dict, dict]:
+    """The header (a dict) and the arrays of a checkpoint, memory bounded (:func:`imix_cli.safe_npz.read_npz`)."""
+    from imix_cli.safe_npz import NpzLimitError, read_npz
+
+    def check(name, shape, dtype):
+        if name == _HEADER and (dtype != np.uint8 or len(shape) != 1):
+            raise CheckpointError("malformed header")
+
+    try:
+        arrays = read_npz(path, max_bytes, check)
+    except NpzLimitError as err:
+        raise CheckpointError(str(err)) from None
+    if _HEADER not in arrays:
+        raise CheckpointError("no header")
     raw = arrays.pop(_HEADER)
-    if raw.dtype != np.uint8 or raw.ndim != 1:
-        raise CheckpointError("malformed header")
     try:
         header = json.loads(raw.tobytes().decode("utf-8"))
-    except (UnicodeDecodeError, ValueError):
+    except (UnicodeDecodeError, ValueError, RecursionError):
         raise CheckpointError("malformed header (not JSON)") from None
     if not isinstance(header, dict):
         raise CheckpointError("malformed header (not a JSON object)")
     return header, arrays
-
-
-def _check_declared_size(archive: zipfile.ZipFile, name: str) -> None:
-    """Refuse a member whose .npy header declares more data than the member holds.
-
-    numpy allocates the declared shape before reading: a flipped bit in a shape must not
-    become a request for terabytes.
-    """
-    info = archive.getinfo(f"{name}.npy")
-    with archive.open(info) as fh:
-        version = np.lib.format.read_magic(fh)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
-        else:
-            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
-        header_bytes = fh.tell()
-    if dtype.hasobject:
-        raise CheckpointError(f"array {name!r} holds Python objects")
-    if math.prod(shape) * dtype.itemsize != info.file_size - header_bytes:
-        raise CheckpointError(f"array {name!r}: its shape does not match its size")
 
 
 def _checksum(header: dict, arrays: dict) -> str:

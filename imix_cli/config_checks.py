@@ -146,19 +146,27 @@ def env_of(env_cfg: dict):
     import gymnasium as gym
 
     import imix_cli.envs  # noqa: F401  (registers the imix/ environments)
+    from imix_cli.env_ids import EnvIdError, import_user_env
 
+    try:  # the user's own env as module:Id (gymnasium's convention): the user typed it, so its module is imported
+        plain = import_user_env(env_id)
+    except EnvIdError as err:
+        raise ConfigError(str(err)) from None
     try:
-        gym.spec(env_id)
+        gym.spec(plain)
     except Exception as err:  # gymnasium raises several error types for unknown/deprecated ids
         reason = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise ConfigError(f"env.id={env_id!r}: not a registered gymnasium environment ({reason})") from None
+        hint = "; your own env? give it as module:Id, e.g. env.id=myenvs:Reach1D-v0" if ":" not in env_id else ""
+        raise ConfigError(f"env.id={env_id!r}: not a registered gymnasium environment ({reason}){hint}") from None
     from imix_cli.evaluation import missing_extra_message
 
-    missing = missing_extra_message(env_id)  # names imix's extra, before gymnasium's generic hint
+    missing = missing_extra_message(plain)  # names imix's extra, before gymnasium's generic hint
     if missing:
         raise ConfigError(missing)
-    _check_env_dependencies(env_id)
-    return env_id, env_id, max_steps
+    _check_env_dependencies(plain)
+    # The plain id names the run (folder, CSV); the full id is recorded, so that eval and render of
+    # the run can tell which module the user must name to evaluate it.
+    return plain, env_id, max_steps
 
 
 _WARNED: set = set()

@@ -7,6 +7,7 @@ and left out of its config.yaml; the RunSpec's ES fields keep their defaults.
 from __future__ import annotations
 
 from imix_cli.config_checks import ConfigError, as_bool, as_float, as_int, as_name, env_of, first_line, is_number, seeds_of, workers_and_experiment
+from imix_cli.env_ids import plain_env_id
 from imix_cli.registry import BUILTIN_ENVS, CONTINUOUS_BUILTIN_ENVS, ENV_SPECS
 from imix_cli.run_spec import ES_ONLY_KEYS, RunSpec
 
@@ -66,7 +67,7 @@ def _continuous_env_cap(env_name: str, env_id: str, max_steps: int | None) -> in
         probe.close()
     if not box:
         raise ConfigError(f"env.id={env_id!r}: algo=ddpg needs continuous (Box) actions, the env has {type(probe.action_space).__name__} actions")
-    cap = max_steps or gym.spec(env_id).max_episode_steps
+    cap = max_steps or gym.spec(plain_env_id(env_id)).max_episode_steps
     if cap is None:
         raise ConfigError(f"env.id={env_id!r} has no time limit: give env.max_steps for algo=ddpg")
     return int(cap)

@@ -32,7 +32,7 @@ def run_es_seeds(spec, seeds: list[int], progress) -> dict:
     states = []
     for seed in seeds:
         # A refused checkpoint may have been half loaded into the ES it was given: start from a new one.
-        st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, evaluator.num_params))
+        st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, evaluator.num_params), spec=spec, max_steps=int(evaluator.max_steps))
         st = st or new_seed_state(spec, seed, evaluator.num_params)
         states.append(st)
         if st.generation:

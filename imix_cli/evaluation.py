@@ -446,6 +446,11 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, b
         if hidden != HIDDEN:
             builtin.hidden = hidden  # the compiled kernels read the layer sizes from it
         return builtin
+    from imix_cli.env_ids import import_user_env
+
+    # ``module:Id``: an id the user typed for this run (imix eval/render resolve ids read from
+    # files before they come here), so its module is imported -- in every worker process too.
+    env_name = import_user_env(str(env_name))
     try:
         gym.spec(env_name)
     except (gym.error.UnregisteredEnv, gym.error.DeprecatedEnv, gym.error.RegistrationError) as err:

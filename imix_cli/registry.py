@@ -154,6 +154,9 @@ class EnvSpec:
         labelled by the gymnasium id.
     policy_dims : (int, int) or None
         A built-in's observation size and policy output size (known without making the env).
+    step_reward : (float, float) or None
+        A built-in's smallest and largest reward of one step: its returns lie within
+        ``max_steps`` times these (what a checkpoint read back is checked against); None: not known.
     """
 
     name: str
@@ -164,6 +167,7 @@ class EnvSpec:
     continuous: bool = False
     evaluator: Callable | None = field(default=None, compare=False)
     policy_dims: tuple[int, int] | None = None
+    step_reward: tuple[float, float] | None = None
 
     @property
     def builtin(self) -> bool:
@@ -179,15 +183,15 @@ ENV_SPECS: dict[str, EnvSpec] = {
     for spec in (
         # CartPole-v0 semantics: CartPole-v1 dynamics (compiled), 200 steps, threshold 195
         EnvSpec("cartpole", "CartPole-v0", "CartPole", 200, _CARTPOLE_THRESHOLD,
-                evaluator=_evaluator("imix_cli.evaluation:CartPoleEvaluator"), policy_dims=(4, 2)),
+                evaluator=_evaluator("imix_cli.evaluation:CartPoleEvaluator"), policy_dims=(4, 2), step_reward=(0.0, 1.0)),
         # Acrobot-v1 dynamics capped at 200 steps as in the paper (Acrobot-v1 itself allows 500)
         EnvSpec("acrobot", "Acrobot-v1", "Acrobot", 200, -100.0,
-                evaluator=_evaluator("imix_cli.evaluation:AcrobotEvaluator"), policy_dims=(6, 3)),
+                evaluator=_evaluator("imix_cli.evaluation:AcrobotEvaluator"), policy_dims=(6, 3), step_reward=(-1.0, 0.0)),
         EnvSpec("continuous_cartpole", "imix/ContinuousCartPole-v0", "ContinuousCartPole", 200, _CARTPOLE_THRESHOLD,
-                continuous=True, evaluator=_evaluator("imix_cli.evaluation:ContinuousCartPoleEvaluator", False), policy_dims=(4, 1)),
+                continuous=True, evaluator=_evaluator("imix_cli.evaluation:ContinuousCartPoleEvaluator", False), policy_dims=(4, 1), step_reward=(0.0, 1.0)),
         # the sparse (Hard) variant: its episode's sum is the same return as the dense one's
         EnvSpec("continuous_cartpole_hard", "imix/ContinuousCartPoleHard-v0", "ContinuousCartPoleHard", 200, _CARTPOLE_THRESHOLD,
-                continuous=True, evaluator=_evaluator("imix_cli.evaluation:ContinuousCartPoleEvaluator", True), policy_dims=(4, 1)),
+                continuous=True, evaluator=_evaluator("imix_cli.evaluation:ContinuousCartPoleEvaluator", True), policy_dims=(4, 1), step_reward=(0.0, 1.0)),
         # MuJoCo v5 (the mujoco extra), thresholds: a clear sign of learning within the study's budget
         EnvSpec("swimmer", "Swimmer-v5", "Swimmer", _MUJOCO_STEPS, 50.0, continuous=True),
         EnvSpec("hopper", "Hopper-v5", "Hopper", _MUJOCO_STEPS, 500.0, continuous=True),

@@ -52,6 +52,8 @@ keys:
   frames=N           at most N frames (default: the whole episode: reset + every step)
   scale=F            resize frames by F in (0, 1] (default: 1; 0.5 halves a GIF's size)
   fps=N              frames per second (default: the env's render_fps, else 30)
+  import=MODULE[,..] modules to import for a run of your own env (env.id=MODULE:Id): a policy
+                     file never makes imix import a module you did not name here
 
 Needs pygame for classic control (pip install "gymnasium[classic-control]") and, for MuJoCo,
 MUJOCO_GL=egl or MUJOCO_GL=osmesa.
@@ -75,14 +77,17 @@ def _is_mujoco(env_id: str) -> bool:
     return "mujoco" in str(entry).lower()
 
 
-def make_render_env(header: dict):
-    """``gym.make`` of the policy's env with ``render_mode="rgb_array"``; UsageError (1) naming what to install."""
+def make_render_env(header: dict, env_id: str):
+    """``gym.make`` of the policy's env ``env_id`` (a registered id, resolved from the header by
+    :func:`imix_cli.evaluate.policy_env`: never a ``module:`` one) with ``render_mode="rgb_array"``;
+    UsageError (1) naming what to install."""
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # pygame draws to a surface, no display
     import gymnasium as gym
 
     import imix_cli.envs  # noqa: F401  (registers imix/ ids)
 
-    env_id = header["env_id"]
+    if ":" in env_id:
+        raise UsageError(f"cannot render {env_id}: resolve the id first (a module: prefix is never imported here)", 1)
     try:
         with warnings.catch_warnings():  # CartPole-v0 "out of date": imix reproduces v0 on purpose
             warnings.simplefilter("ignore", DeprecationWarning)
@@ -95,12 +100,26 @@ def make_render_env(header: dict):
     return env
 
 
-def policy_frames(policy, frames: int | None = None) -> list:
-    """RGB frames (H, W, 3) uint8 of the policy's first evaluation episode: after reset, then after each step."""
+def render_env_id(policy, allowed_modules=(), run_dir=None, where: str = "policy file") -> str:
+    """The registered gymnasium id to render the policy in, its header checked as ``imix eval`` checks it."""
+    from imix_cli.env_ids import plain_env_id
+    from imix_cli.evaluate import evaluator_for
+    from imix_cli.registry import BUILTIN_ENVS
+
+    evaluator_for(policy.header, None, allowed_modules, run_dir, where)  # the same checks as eval: env, cap, shapes
+    name = policy.header["env_name"]
+    return BUILTIN_ENVS[name] if name in BUILTIN_ENVS else plain_env_id(policy.header["env_id"])
+
+
+def policy_frames(policy, frames: int | None = None, env_id: str | None = None) -> list:
+    """RGB frames (H, W, 3) uint8 of the policy's first evaluation episode: after reset, then after each step.
+
+    ``env_id``: the registered id to render in (default: the header's, resolved with no module allowed)."""
     h = policy.header
     if h.get("obs_normalizer") is not None:
         raise UsageError(f"policy of run {h.get('run')!r} seed {h.get('seed')} normalises observations; this imix render cannot apply a normaliser yet", 1)
-    env = make_render_env(h)
+    env_id = env_id or render_env_id(policy)
+    env = make_render_env(h, env_id)
     act = policy.batch_policy(1)
     out = []
     try:
@@ -110,9 +129,9 @@ def policy_frames(policy, frames: int | None = None) -> list:
             out.append(np.asarray(env.render()))
         except Exception as err:  # noqa: BLE001
             if isinstance(err, ImportError) or "DependencyNotInstalled" in type(err).__name__:
-                raise UsageError(f"cannot render {h['env_id']}: {_one_line(err)}", 1) from None
-            hint = _MUJOCO_HINT if _is_mujoco(h["env_id"]) else _one_line(err)
-            raise UsageError(f"cannot render {h['env_id']}: {hint}", 1) from None
+                raise UsageError(f"cannot render {env_id}: {_one_line(err)}", 1) from None
+            hint = _MUJOCO_HINT if _is_mujoco(env_id) else _one_line(err)
+            raise UsageError(f"cannot render {env_id}: {hint}", 1) from None
         limit = frames if frames is not None else int(h["max_steps"]) + 1
         space = env.action_space
         while len(out) < limit:
@@ -215,11 +234,13 @@ def main(argv: list | None = None) -> int:
             out = Path(f"{run_dir.name}-seed{s['seed']}-{s['which']}.gif")
             if out.exists():
                 raise UsageError(f"{out} exists; give out={out} to overwrite it, or another out= name", 1)
-        policy = read_policy(policy_path(run_dir, s["seed"], s["which"]))
-        frames = policy_frames(policy, s["frames"])
+        path = policy_path(run_dir, s["seed"], s["which"])
+        policy = read_policy(path)
+        env_id = render_env_id(policy, s["import"], run_dir, str(path))
+        frames = policy_frames(policy, s["frames"], env_id)
         import gymnasium as gym
 
-        fps = s["fps"] or gym.spec(policy.header["env_id"]).kwargs.get("render_fps") or _env_fps(policy.header["env_id"])
+        fps = s["fps"] or gym.spec(env_id).kwargs.get("render_fps") or _env_fps(env_id)
         (write_mp4 if out.suffix.lower() == ".mp4" else write_gif)(out, frames, float(fps), scale)
     except UsageError as err:
         print(f"imix render: {err}", file=sys.stderr)

@@ -14,6 +14,8 @@ so a reader (or a resumed run) never sees a half-written CSV.
 from __future__ import annotations
 
 import os
+import re
+import stat
 import tempfile
 from pathlib import Path
 
@@ -194,13 +196,62 @@ def write_run_csv(path, rows) -> pd.DataFrame:
     return frame
 
 
+#: The largest seed CSV read back (a row is ~300 bytes: ~1 million generations or episodes). pandas
+#: holds a CSV in memory, so this bounds what a results folder can make a reader allocate.
+MAX_CSV_BYTES = 256 << 20
+_SEED_NAME = re.compile(r"^seed_(\d+)(?:\.partial)?\.csv$")
+#: Columns that count from the start of the seed: they never decrease from one row to the next.
+_CUMULATIVE = ("evaluations", "env_steps", "mean_policy_episodes")
+
+
+def regular_file_size(path) -> int:
+    """The size of ``path`` if it is a regular file (after symlinks); OSError otherwise.
+
+    Why: a results folder may hold anything under a result's name -- a symlink to ``/dev/zero``
+    (endless: a reader would fill the memory), a FIFO (a reader would block forever). Every reader
+    of imix's files asks this first and never opens anything but a regular file.
+    """
+    info = os.stat(path)
+    if not stat.S_ISREG(info.st_mode):
+        raise OSError(f"not a regular file ({_kind(info.st_mode)})")
+    return info.st_size
+
+
+def _kind(mode: int) -> str:
+    for test, name in (
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return name
+    return "special"
+
+
 def read_run_csv(path) -> pd.DataFrame:
-    """Read and validate one seed's CSV; raise :class:`CorruptResultError` naming the file if it is not valid."""
+    """Read and validate one seed's CSV; raise :class:`CorruptResultError` naming the file if it is not valid.
+
+    The one reader of seed CSVs (run, plot, status, summaries), so that all of them accept the
+    same files: every column of :data:`COLUMNS`, integer counts >= 0 in the integer columns,
+    generations 0, 1, 2, ..., one algo/env/mixing, the seed of the file's name on every row,
+    cumulative columns that never decrease, member counts within the population, finite
+    ``sigma_mean`` and ``wall_time``. A file above :data:`MAX_CSV_BYTES` is refused unread.
+    """
     path = Path(path)
+    try:
+        size = regular_file_size(path)
+    except FileNotFoundError:
+        raise
+    except OSError as err:
+        raise CorruptResultError(f"{path}: unreadable ({err.strerror or err})") from None
+    if size > MAX_CSV_BYTES:
+        raise CorruptResultError(f"{path}: {size:,} bytes, more than a seed CSV can hold ({MAX_CSV_BYTES:,})")
     try:
         frame = pd.read_csv(path)
     except Exception as err:  # pandas raises many types for malformed files
-        raise CorruptResultError(f"{path}: unreadable CSV ({type(err).__name__}: {err})") from err
+        raise CorruptResultError(f"{path}: unreadable CSV ({type(err).__name__}: {_first_line(err)})") from None
     for column, value in _OPTIONAL_COLUMNS.items():
         if column not in frame.columns:
             frame[column] = value
@@ -210,11 +261,44 @@ def read_run_csv(path) -> pd.DataFrame:
     if frame.empty:
         raise CorruptResultError(f"{path}: no rows")
     for column in _INT_COLUMNS + _FLOAT_COLUMNS:
-        if not pd.api.types.is_numeric_dtype(frame[column]):
+        if not pd.api.types.is_numeric_dtype(frame[column]) or pd.api.types.is_bool_dtype(frame[column]):
             raise CorruptResultError(f"{path}: column {column!r} is not numeric")
     if frame[list(_INT_COLUMNS)].isna().any().any():
         raise CorruptResultError(f"{path}: missing values in integer columns")
+    ints = frame[list(_INT_COLUMNS)].to_numpy(dtype=np.float64)
+    if not np.all(np.isfinite(ints)) or np.any(ints < 0) or np.any(ints != np.round(ints)) or np.any(ints > 2.0**53):
+        bad = next(c for c in _INT_COLUMNS if not _counts(frame[c].to_numpy(dtype=np.float64)))
+        raise CorruptResultError(f"{path}: column {bad!r} holds values that are not counts (integers >= 0)")
     gens = frame["generation"].to_numpy()
     if not np.array_equal(gens, np.arange(len(frame))):
         raise CorruptResultError(f"{path}: generations are not 0, 1, 2, ...")
+    for column in ("algo", "env", "mixing"):
+        if frame[column].isna().any() or frame[column].astype(str).nunique() != 1:
+            raise CorruptResultError(f"{path}: column {column!r} is not one value on every row")
+    match = _SEED_NAME.match(path.name)
+    if match and np.any(frame["seed"].to_numpy() != int(match.group(1))):
+        raise CorruptResultError(f"{path}: its rows are of seed {sorted(set(frame['seed'].tolist()))[:3]}, its name says seed {match.group(1)} (a copy?)")
+    decreasing = [c for c in _CUMULATIVE if np.any(np.diff(frame[c].to_numpy()) < 0)]
+    if decreasing:
+        raise CorruptResultError(f"{path}: cumulative column(s) {', '.join(decreasing)} decrease")
+    popsize = frame["popsize"].to_numpy()
+    reused = frame["reused"].to_numpy()
+    if (
+        np.any(popsize != popsize[0]) or np.any(popsize < 1) or np.any(reused > popsize) or np.any(frame["nonfinite"].to_numpy() > popsize)
+        or np.any(frame["reevaluated"].to_numpy() > reused) or np.any(frame["diverged"].to_numpy() > 1)
+    ):  # fmt: skip
+        raise CorruptResultError(f"{path}: member counts (popsize, reused, reevaluated, nonfinite, diverged) out of range or popsize changes")
+    for column in ("sigma_mean", "wall_time"):
+        values = frame[column].to_numpy(dtype=np.float64)
+        if not np.all(np.isfinite(values)) or np.any(values < 0):
+            raise CorruptResultError(f"{path}: column {column!r} holds negative or non-finite values")
     return frame.loc[:, list(COLUMNS)]
+
+
+def _counts(values: np.ndarray) -> bool:
+    return bool(np.all(np.isfinite(values)) and np.all(values >= 0) and np.all(values == np.round(values)) and np.all(values <= 2.0**53))
+
+
+def _first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0][:200] if text else type(err).__name__

@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+import reprlib
 
-from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, seed_csv_path
+from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, regular_file_size, seed_csv_path
 from imix_cli.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.trainers import trainer_for
+
+#: The largest config.yaml read back (a real one is a few kB).
+MAX_CONFIG_BYTES = 1 << 20
 
 
 class RunError(RuntimeError):
@@ -32,17 +36,23 @@ def prepare_run_dir(spec) -> list[int]:
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
     make_run_dir(spec)
+    refuse_symlinks(run_dir)
     if config_file.exists():
         try:
+            if regular_file_size(config_file) > MAX_CONFIG_BYTES:  # a config is a few kB: bound what a reader allocates
+                raise ValueError(f"{config_file.stat().st_size:,} bytes")
             existing = yaml.safe_load(config_file.read_text())
+        except OSError as err:
+            raise RunError(f"{config_file}: unreadable ({err.strerror or err}); move it away or choose another experiment=") from None
         except Exception as err:
             raise RunError(f"{config_file}: unreadable ({type(err).__name__}); move it away or choose another experiment=") from None
-        if not isinstance(existing, dict):
+        if not isinstance(existing, dict) or not all(isinstance(k, str) for k in existing):
             raise RunError(f"{config_file}: not a config mapping; move it away or choose another experiment=")
         old, new = identity_of(existing), spec.identity()
         differing = differing_keys(resume_identity(old), resume_identity(new))
         if differing:
-            changes = ", ".join(f"{k}={old.get(k)!r} there, {new.get(k)!r} now" for k in differing)
+            # reprlib: a value read from the file is shown shortened (a YAML alias bomb must not expand here)
+            changes = ", ".join(f"{k}={reprlib.repr(old.get(k))} there, {new.get(k)!r} now" for k in differing[:8])
             raise RunError(f"{config_file} holds a different config ({changes}); choose another experiment= or move that folder away")
         if trainer.continuable and isinstance(old.get("generations"), int) and old["generations"] > spec.generations:
             raise RunError(
@@ -68,9 +78,34 @@ def prepare_run_dir(spec) -> list[int]:
     # Temporaries of writes cut short by a kill are never at a final name; clear them away. (run()
     # holds the folder's lock, so no other live run is writing them; an orphaned worker of a
     # killed run exits within a second and only loses a write that is redone on resume.)
-    for stale in [*run_dir.glob(".*.tmp"), *run_dir.glob(".checkpoints/.*.tmp")]:
-        stale.unlink(missing_ok=True)
+    # Only plain files inside the run folder: a symlinked checkpoint area was refused above, and a
+    # symlink named like a temporary is only unlinked itself (never its target).
+    for folder in (run_dir, run_dir / CHECKPOINT_AREA):
+        if folder.is_dir() and not folder.is_symlink():
+            for stale in folder.glob(".*.tmp"):
+                if stale.parent == folder and (stale.is_symlink() or stale.is_file()):
+                    stale.unlink(missing_ok=True)
     return todo
+
+
+#: Where a run's checkpoints live (imix_cli.resume.checkpoint_path).
+CHECKPOINT_AREA = ".checkpoints"
+
+
+def refuse_symlinks(run_dir) -> None:
+    """RunError if the run's checkpoint area, or anything in it, is a symlink.
+
+    Why: imix writes checkpoints there, reads them back and deletes its temporaries there; a
+    symlink (a results folder from elsewhere, a prank) would make it write, read or delete
+    outside the run folder. It is refused, never followed.
+    """
+    area = run_dir / CHECKPOINT_AREA
+    if area.is_symlink():
+        raise RunError(f"{area} is a symlink; imix never writes or deletes through one: replace it with a folder (or remove it)")
+    if area.is_dir():
+        linked = next((p for p in sorted(area.iterdir()) if p.is_symlink()), None)
+        if linked is not None:
+            raise RunError(f"{linked} is a symlink in {CHECKPOINT_AREA}; imix never reads, writes or deletes through one: remove it")
 
 
 def make_run_dir(spec) -> None:

@@ -203,7 +203,9 @@ def _format(value) -> str:
 def _registered_cap(env_id: str) -> int | None:
     import gymnasium as gym
 
+    from imix_cli.env_ids import plain_env_id
+
     try:
-        return gym.spec(env_id).max_episode_steps
+        return gym.spec(plain_env_id(env_id)).max_episode_steps
     except Exception:  # an id gymnasium cannot resolve has no cap of its own
         return None

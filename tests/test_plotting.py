@@ -49,7 +49,7 @@ def run_rows(algo, env, mixing, seed, scores, popsize=10, reused=None, reused_ei
                 popsize=popsize,
                 sigma_mean=0.25,
                 nonfinite=0,
-                wall_time=0.01 * g,
+                wall_time=0.01 * g + 1e-4 * seed,  # seeds differ somewhere, as real ones do (identical rows read as a copy)
             )
         )
     return rows
@@ -76,7 +76,7 @@ def write_group(root, algo, env, mixing, seeds, gens=40, overrides="", config=No
         rng = np.random.default_rng(seed + 100 * len(algo))
         scores = 200 - 180 * np.exp(-np.arange(gens) / speed) + rng.normal(0, 3, gens)
         reused = [0] + [int(rng.integers(popsize // 2, popsize)) if mixing != "none" else 0 for _ in range(gens - 1)]
-        reused_eim = [int(r >= popsize - 2) for r in reused]
+        reused_eim = [min(int(r >= popsize - 2), r) for r in reused]  # never more than reused (popsize=1: none)
         write_run_csv(run_dir / f"seed_{seed}.csv", run_rows(algo, env, mixing, seed, scores, popsize, reused, reused_eim))
     return run_dir
 

@@ -65,7 +65,7 @@ import numpy as np
 import pandas as pd
 
 from imix_cli.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
-from imix_cli.results import CorruptResultError, read_run_csv, run_dir_name, seed_csv_path
+from imix_cli.results import CorruptResultError, read_run_csv, regular_file_size, run_dir_name, seed_csv_path
 from imix_cli.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 
 __all__ = [
@@ -197,6 +197,8 @@ def _read_config(path: Path, warn) -> dict:
     try:
         import yaml
 
+        if regular_file_size(path) > 1 << 20:  # a config is a few kB: a huge file (or /dev/zero) is not read
+            raise ValueError("larger than 1 MiB")
         data = yaml.safe_load(path.read_text())
     except Exception as err:  # noqa: BLE001 - any parse error: keep going without the config
         warn(f"{path}: unreadable config.yaml ({type(err).__name__}); hyper-parameters taken from the folder name")
@@ -217,7 +219,7 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
     if not csvs:
         warn(f"{run_dir}: no seed_<k>.csv files; skipped")
         return None
-    seeds = {}
+    seeds, fingerprints = {}, {}
     identity = None
     for seed, path in sorted(csvs):
         try:
@@ -248,6 +250,13 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
         elif ident != identity:
             warn(f"skipped {path}: it is a {'-'.join(ident)} run, the rest of {run_dir.name} is {'-'.join(identity)}")
             continue
+        # A seed's rows are its own: identical scores, episodes and wall times are a copy of another seed's CSV.
+        fingerprint = tuple(frame[c].to_numpy(dtype=float).tobytes() for c in ("evaluations", "env_steps", "mean_score", "best_score", "wall_time"))
+        twin = next((other for other, fp in fingerprints.items() if fp == fingerprint), None)
+        if twin is not None:
+            warn(f"skipped {path}: the same rows as seed_{twin}'s CSV (a copy?); counted once")
+            continue
+        fingerprints[seed] = fingerprint
         frame = frame.copy()
         for column in ("mean_score", "best_score"):
             values = frame[column].to_numpy(dtype=float)
