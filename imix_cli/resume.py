@@ -234,6 +234,12 @@ def _validate_archive(st, spec, dim: int, score_ok) -> None:
         log_u = getattr(g, "log_u", None)
         if log_u is not None and (not isinstance(log_u, np.ndarray) or log_u.shape != (popsize,) or np.any(log_u > 0)):
             _fail(f"archive generation {k}: log_u out of range")
+        weights = getattr(g, "mean_weights", None)
+        if weights is not None and (not isinstance(weights, np.ndarray) or weights.shape != (popsize,) or not np.all(np.isfinite(weights))):
+            _fail(f"archive generation {k}: mean_weights are not {popsize} finite numbers")
+    pairs = getattr(archive, "pairs", None)
+    if not isinstance(pairs, np.ndarray) or pairs.shape != (5,) or not np.all(np.isfinite(pairs)) or pairs[0] < 0 or pairs[3] < 0:
+        _fail("archive pairs are not 5 finite sums (count and sum of squares >= 0)")
 
 
 def can_checkpoint(es) -> bool:
