@@ -43,6 +43,7 @@ install:  ## create .venv and install imix (non-editable): runner, plots, render
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install $(PIN) ".[test,render]"
+	$(PY) -m imix_cli.warmup  # compile the numba kernels now (~20-40 s) so that the first run does not
 
 install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers and MuJoCo
 	$(PY) -m pip install $(PIN) "$(TORCH)"

@@ -15,16 +15,34 @@ moved), it assumes the cache is warm, i.e. the workers compile as they go, as be
 
 Nothing here changes a result: the groups run the kernels on throw-away inputs of the run's
 own types, with their own random numbers, and write no file but numba's cache.
+
+``python -m imix_cli.warmup`` (``make install`` runs it) compiles, the same way, the kernels of
+every built-in environment, mixing variant and ES, so that even a user's first run loads them.
+A kernel's machine code depends on its argument types only (not on dimensions or population
+sizes), so a few configurations cover all runs on the built-in environments.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
+import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-__all__ = ["compile_groups", "warm_up"]
+__all__ = ["compile_groups", "warm_up", "warm_all"]
+
+#: Configurations whose kernels together are every compiled kernel of a run on a built-in
+#: environment: each mixing variant's step, both episode kernels (continuous CartPole shares
+#: CartPole's), the diagonal ES update and CMA-ES's linear algebra.
+INSTALL_CONFIGS = [
+    ["algo=snes", "env=cartpole", "eim=true"],
+    ["algo=snes", "env=acrobot", "im=true"],
+    ["algo=snes", "env=cartpole", "im=true", "im_variant=sun2009"],
+    ["algo=cmaes", "env=cartpole", "eim=true"],
+]
 
 
 def _mixing_group(spec) -> None:
@@ -40,6 +58,14 @@ def _mixing_group(spec) -> None:
     for _ in range(settings.depth + 1):
         plan = plan_generation(st.es, archive, settings, st.sample_rng)
         finish_generation(st.es, archive, settings, plan, rng.normal(size=plan.evaluate.size))
+
+
+def _policy_group(spec) -> None:
+    """The libm functions of the gymnasium policies and of the numpy mixing path (CMA-ES)."""
+    from imix_cli import linalg_kernels as lk
+
+    lk.tanh(np.zeros((2, 2)))
+    lk.expm1(np.zeros(2))
 
 
 def _episodes_group(spec) -> None:
@@ -104,3 +130,31 @@ def warm_up(spec, workers: int) -> int:
         for future in [pool.submit(group, spec) for group in todo]:
             future.result()
     return len(todo)
+
+
+def warm_all(workers: int | None = None) -> int:
+    """Compile every kernel of :data:`INSTALL_CONFIGS` not yet in numba's cache, over ``workers``
+    processes (default: all cores); return the number of groups compiled."""
+    from imix_cli import linalg_kernels
+    from imix_cli.config import validate_overrides
+
+    jobs, seen = [(_policy_group, None)] if not _cached(linalg_kernels._tanh_inplace) else [], set()
+    for overrides in INSTALL_CONFIGS:
+        (spec,) = validate_overrides(overrides)
+        for group, entries in compile_groups(spec):
+            key = (group.__name__, tuple(id(e) for e in entries))
+            if key not in seen and not all(_cached(e) for e in entries):
+                seen.add(key)
+                jobs.append((group, spec))
+    if jobs:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(workers or os.cpu_count() or 1, len(jobs)), mp_context=ctx) as pool:
+            for future in [pool.submit(group, spec) for group, spec in jobs]:
+                future.result()
+    return len(jobs)
+
+
+if __name__ == "__main__":
+    started = time.perf_counter()
+    compiled = warm_all()
+    print(f"imix: {compiled} group(s) of compiled kernels written to numba's cache in {time.perf_counter() - started:.0f} s", file=sys.stderr)

@@ -44,3 +44,18 @@ def test_after_the_warm_up_a_run_compiles_nothing(tmp_path, args):
     assert _python(WARM_UP, args, cache) == "2"
     assert _python(COUNT_COMPILES, [*args, "seeds=2", "generations=5"], cache) == "[]"
     assert _python(WARM_UP, args, cache) == "0"
+
+
+@pytest.mark.slow
+def test_the_install_warm_up_covers_every_built_in_kernel(tmp_path):
+    cache = tmp_path / "numba_cache"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    out = subprocess.run([sys.executable, "-m", "imix_cli.warmup"], env=env, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    for args in (
+        ["algo=cem", "env=acrobot", "eim=true"],
+        ["algo=openes", "env=continuous_cartpole", "im=true", "im_variant=sun2009"],
+        ["algo=cmaes", "env=cartpole", "im=true"],
+        ["algo=snes", "env=gym", "env.id=Pendulum-v1", "env.max_steps=20", "eim=true"],
+    ):
+        assert _python(COUNT_COMPILES, [*args, "seeds=1", "generations=4", "popsize=10"], cache) == "[]", args
