@@ -125,11 +125,24 @@ def warm_up(spec, workers: int) -> int:
         return 0
     if len(todo) < 2:
         return 0  # a single group would compile serially, as the first worker does
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx) as pool:
-        for future in [pool.submit(group, spec) for group in todo]:
-            future.result()
+    _run_groups([(group, spec) for group in todo], workers)
     return len(todo)
+
+
+def _run_groups(jobs, workers: int) -> None:
+    """``group(spec)`` for each job, in up to ``workers`` spawn processes; on Ctrl-C or an error the
+    processes are stopped at once (a compile can take tens of seconds) and the exception re-raised."""
+    from imix_cli.pool import _terminate_workers
+
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"))
+    try:
+        for future in [pool.submit(group, spec) for group, spec in jobs]:
+            future.result()
+    except BaseException:
+        _terminate_workers(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def warm_all(workers: int | None = None) -> int:
@@ -147,10 +160,7 @@ def warm_all(workers: int | None = None) -> int:
                 seen.add(key)
                 jobs.append((group, spec))
     if jobs:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(workers or os.cpu_count() or 1, len(jobs)), mp_context=ctx) as pool:
-            for future in [pool.submit(group, spec) for group, spec in jobs]:
-                future.result()
+        _run_groups(jobs, workers or os.cpu_count() or 1)
     return len(jobs)
 
 
