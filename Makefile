@@ -45,6 +45,7 @@ install:  ## create .venv and install imix (non-editable): runner, plots, render
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install $(PIN) ".[test,render]"
+	$(PY) -m imix_cli.warmup  # compile the numba kernels now (~20-40 s): the first run then compiles nothing
 	@echo "imix is installed in $(VENV). Run it as $(IMIX), or put it on PATH for this shell with:  source $(VENV)/bin/activate"
 
 install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools

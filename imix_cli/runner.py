@@ -23,6 +23,7 @@ from imix_cli.pool import progress_bar, report_progress, run_pool
 from imix_cli.run_folder import RunError, prepare_run_dir, run_dir_lock
 from imix_cli.summary import format_summary, summarize
 from imix_cli.trainers import trainer_for
+from imix_cli.warmup import warm_up
 
 __all__ = ["RunError", "run", "run_seeds"]
 
@@ -58,6 +59,8 @@ def _run_locked(spec, echo) -> dict:
         if workers == 1:
             done = run_seeds(spec, chunks[0], progress=bar.update)
         else:
+            if spec.algo != "ddpg":
+                warm_up(spec, workers)  # a first run: the kernels compiled once, over the cores, not in every worker
             for share in run_pool(run_seeds, spec, chunks, bar):
                 done.update(share)
     bar.close()

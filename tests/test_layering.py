@@ -15,7 +15,7 @@ LAYERS = [
     ["registry", "config_keys", "messages", "processes", "keyvalue", "stats", "safe_npz", "linalg_kernels", "distributions", "mixing", "mixing_kernels", "results"],
     ["generation", "ask_tell", "tracking", "algorithms", "divergence", "envs", "env_ids", "policies", "evaluation", "parallel_evaluation", "checkpoints", "policy_files"],
     ["config_checks", "run_spec", "es_config", "ddpg_config", "config"],
-    ["lockstep", "trainers", "resume", "run_folder", "es_seeds", "ddpg_seeds", "pool", "summary", "runner"],
+    ["lockstep", "warmup", "trainers", "resume", "run_folder", "es_seeds", "ddpg_seeds", "pool", "summary", "runner"],
     ["evaluate", "render", "status", "plotting", "bench", "experiment", "cli"],
 ]
 

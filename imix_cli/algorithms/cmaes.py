@@ -57,9 +57,10 @@ from imix_cli.distributions import FullGaussian
 #: Largest dimension CMAES accepts. Each seed keeps four d x d float64 matrices (C, its
 #: eigenvectors, the distribution's covariance and Cholesky factor: 128 MB at d = 2000) and
 #: eigendecomposes C every generation, O(d^3). Measured ``tell`` per generation, lambda = 50
-#: (benchmarks/cmaes_speed.py --big, shared 2-core AMD EPYC VM): d = 500 0.18 s, 1000 1.1 s,
-#: 2000 7.9 s, i.e. 53 min per seed for the paper's 400 generations at d = 2000, and ~15x
-#: that (d^3) at 5000. Above the limit SNES/OpenES (O(d) per member) are the tools.
+#: (benchmarks/cmaes_speed.py --big, shared 2-core VM, one BLAS thread): d = 500 0.33 s, 1000
+#: 3.0 s, i.e. ~2.8 h per seed for the paper's 400 generations at d = 2000 (d^3 from 1000). The
+#: eigensolver (linalg_kernels.eigh: the same bits on every CPU) is unblocked: LAPACK's took
+#: 0.03 s and 0.26 s in the same session. Above the limit SNES/OpenES (O(d) per member) are the tools.
 MAX_DIM = 2000
 
 #: CMA options this class implements (pycma option names and defaults).

@@ -1,0 +1,170 @@
+"""A run's first compile, spread over the cores before its workers start.
+
+Why: imix's compiled kernels (numba, ``cache=True``) are compiled on first use and then loaded
+from numba's on-disk cache by every later process. On a user's first run the cache is empty,
+so every worker process compiled the same kernels at once: the mixing step (the biggest: about
+two thirds of the compile), the episodes and the ES's linear algebra, one after the other in
+each worker. Here the run's kernels are split into groups -- mixing (with the ES update that
+builds its archive) and episodes -- that are compiled at the same time in separate processes,
+each writing its share to the cache; the workers then only load them. The first run's extra
+time is then the slowest group's compile rather than the sum of all of them.
+
+When the cache already holds the run's entry points (every run after the first), nothing is
+started: the check reads numba's cache index, and when it cannot tell (numba's internals
+moved), it assumes the cache is warm, i.e. the workers compile as they go, as before.
+
+Nothing here changes a result: the groups run the kernels on throw-away inputs of the run's
+own types, with their own random numbers, and write no file but numba's cache.
+
+``python -m imix_cli.warmup`` (``make install`` runs it) compiles, the same way, the kernels of
+every built-in environment, mixing variant and ES, so that even a user's first run loads them.
+A kernel's machine code depends on its argument types only (not on dimensions or population
+sizes), so a few configurations cover all runs on the built-in environments.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+__all__ = ["compile_groups", "warm_up", "warm_all"]
+
+#: Configurations whose kernels together are every compiled kernel of a run on a built-in
+#: environment: each mixing variant's step, both episode kernels (continuous CartPole shares
+#: CartPole's), the diagonal ES update and CMA-ES's linear algebra.
+INSTALL_CONFIGS = [
+    ["algo=snes", "env=cartpole", "eim=true"],
+    ["algo=snes", "env=acrobot", "im=true"],
+    ["algo=snes", "env=cartpole", "im=true", "im_variant=sun2009"],
+    ["algo=cmaes", "env=cartpole", "eim=true"],
+]
+
+
+def _mixing_group(spec) -> None:
+    """A few generations of the run's ES with the run's mixing, on made-up returns: compiles the ES
+    update and the mixing step (the run's variant), with the run's dimension and population."""
+    from imix_cli.generation import Archive, finish_generation, plan_generation
+    from imix_cli.lockstep import mixing_settings, new_seed_state
+
+    st = new_seed_state(spec, 0, _num_params(spec))
+    settings = mixing_settings(spec)
+    archive = Archive()
+    rng = np.random.default_rng(0)
+    for _ in range(settings.depth + 1):
+        plan = plan_generation(st.es, archive, settings, st.sample_rng)
+        finish_generation(st.es, archive, settings, plan, rng.normal(size=plan.evaluate.size))
+
+
+def _policy_group(spec) -> None:
+    """The libm functions of the gymnasium policies and of the numpy mixing path (CMA-ES)."""
+    from imix_cli import linalg_kernels as lk
+
+    lk.tanh(np.zeros((2, 2)))
+    lk.expm1(np.zeros(2))
+
+
+def _episodes_group(spec) -> None:
+    """One episode of one member through the run's evaluator: compiles its episode kernel."""
+    from imix_cli.parallel_evaluation import build_evaluator
+
+    evaluator = build_evaluator(spec)
+    evaluator.evaluate(np.zeros((1, evaluator.num_params)), np.zeros(1, dtype=np.int64))
+
+
+def _num_params(spec) -> int:
+    from imix_cli.parallel_evaluation import build_evaluator
+
+    return build_evaluator(spec).num_params
+
+
+def compile_groups(spec) -> list:
+    """The groups of kernels (functions of ``spec``) whose compile the run can spread over cores, and
+    the compiled entry points whose presence in the cache says a group is already compiled."""
+    from imix_cli import linalg_kernels, mixing_kernels
+
+    groups = []
+    entries = [linalg_kernels._vec_mat] if spec.algo != "cmaes" else [linalg_kernels._eigh, linalg_kernels._cholesky]
+    if spec.variant is not None and spec.algo != "cmaes" and spec.variant in mixing_kernels._ENTRY:
+        entries.append(mixing_kernels._ENTRY[spec.variant])
+    groups.append((_mixing_group, entries))
+    if spec.evaluator == "local":
+        from imix_cli.envs import kernels
+        from imix_cli.evaluation import AcrobotEvaluator, CartPoleEvaluator, ContinuousCartPoleEvaluator
+        from imix_cli.parallel_evaluation import build_evaluator
+
+        evaluator = build_evaluator(spec)
+        if isinstance(evaluator, (CartPoleEvaluator, ContinuousCartPoleEvaluator)):
+            groups.append((_episodes_group, [kernels.cartpole_episodes]))
+        elif isinstance(evaluator, AcrobotEvaluator):
+            groups.append((_episodes_group, [kernels.acrobot_episodes]))
+    return groups
+
+
+def _cached(dispatcher) -> bool:
+    """Whether numba's on-disk cache holds an overload of ``dispatcher`` valid for its current source
+    (numba's internal index; True when it cannot tell, so that nothing is started on a doubt)."""
+    try:
+        return bool(dispatcher._cache._cache_file._load_index())
+    except Exception:  # numba internals: any change means "cannot tell"
+        return True
+
+
+def warm_up(spec, workers: int) -> int:
+    """Compile the run's kernel groups in parallel processes if the cache lacks them and the run has
+    ``workers`` >= 2 processes; return the number of groups compiled (0: nothing to do)."""
+    if workers < 2:
+        return 0  # one process compiles each kernel once anyway, and nothing runs beside it
+    try:
+        todo = [group for group, entries in compile_groups(spec) if not all(_cached(e) for e in entries)]
+    except Exception:  # a warm-up is an optimisation: never a reason for a run to fail
+        return 0
+    if len(todo) < 2:
+        return 0  # a single group would compile serially, as the first worker does
+    _run_groups([(group, spec) for group in todo], workers)
+    return len(todo)
+
+
+def _run_groups(jobs, workers: int) -> None:
+    """``group(spec)`` for each job, in up to ``workers`` spawn processes; on Ctrl-C or an error the
+    processes are stopped at once (a compile can take tens of seconds) and the exception re-raised."""
+    from imix_cli.pool import _terminate_workers
+
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"))
+    try:
+        for future in [pool.submit(group, spec) for group, spec in jobs]:
+            future.result()
+    except BaseException:
+        _terminate_workers(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def warm_all(workers: int | None = None) -> int:
+    """Compile every kernel of :data:`INSTALL_CONFIGS` not yet in numba's cache, over ``workers``
+    processes (default: all cores); return the number of groups compiled."""
+    from imix_cli import linalg_kernels
+    from imix_cli.config import validate_overrides
+
+    jobs, seen = [(_policy_group, None)] if not _cached(linalg_kernels._tanh_inplace) else [], set()
+    for overrides in INSTALL_CONFIGS:
+        (spec,) = validate_overrides(overrides)
+        for group, entries in compile_groups(spec):
+            key = (group.__name__, tuple(id(e) for e in entries))
+            if key not in seen and not all(_cached(e) for e in entries):
+                seen.add(key)
+                jobs.append((group, spec))
+    if jobs:
+        _run_groups(jobs, workers or os.cpu_count() or 1)
+    return len(jobs)
+
+
+if __name__ == "__main__":
+    started = time.perf_counter()
+    compiled = warm_all()
+    print(f"imix: {compiled} group(s) of compiled kernels written to numba's cache in {time.perf_counter() - started:.0f} s", file=sys.stderr)

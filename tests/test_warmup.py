@@ -1,0 +1,61 @@
+"""A first run compiles its kernels once, spread over processes, before its workers start.
+
+With an empty numba cache (a fresh NUMBA_CACHE_DIR), ``warm_up`` compiles the run's groups in
+parallel processes; a run afterwards compiles nothing (numba's compile events, counted in the
+run's own process), and a second ``warm_up`` starts nothing.
+"""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+COUNT_COMPILES = """
+import sys, tempfile
+from numba.core import event
+from imix_cli.cli import main
+with event.install_recorder("numba:compile") as rec:
+    assert main(["run", *sys.argv[1:], "results_dir=" + tempfile.mkdtemp(), "progress=false", "workers=1"]) == 0
+print(sorted({e.data["dispatcher"].py_func.__qualname__ for _, e in rec.buffer if e.is_start}))
+"""
+
+WARM_UP = """
+import sys
+from imix_cli.config import validate_overrides
+from imix_cli.warmup import warm_up
+(spec,) = validate_overrides(sys.argv[1:])
+print(warm_up(spec, 2))
+"""
+
+
+def _python(code, args, cache_dir):
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
+    out = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out.stdout.strip().splitlines()[-1]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("args", [["algo=snes", "env=cartpole", "eim=true"], ["algo=cmaes", "env=acrobot", "im=true", "popsize=10"]])
+def test_after_the_warm_up_a_run_compiles_nothing(tmp_path, args):
+    cache = tmp_path / "numba_cache"
+    assert _python(COUNT_COMPILES, [*args, "seeds=1", "generations=2"], tmp_path / "other_cache") != "[]"  # what a cold run compiles
+    assert _python(WARM_UP, args, cache) == "2"
+    assert _python(COUNT_COMPILES, [*args, "seeds=2", "generations=5"], cache) == "[]"
+    assert _python(WARM_UP, args, cache) == "0"
+
+
+@pytest.mark.slow
+def test_the_install_warm_up_covers_every_built_in_kernel(tmp_path):
+    cache = tmp_path / "numba_cache"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    out = subprocess.run([sys.executable, "-m", "imix_cli.warmup"], env=env, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    for args in (
+        ["algo=cem", "env=acrobot", "eim=true"],
+        ["algo=openes", "env=continuous_cartpole", "im=true", "im_variant=sun2009"],
+        ["algo=cmaes", "env=cartpole", "im=true"],
+        ["algo=snes", "env=gym", "env.id=Pendulum-v1", "env.max_steps=20", "eim=true"],
+    ):
+        assert _python(COUNT_COMPILES, [*args, "seeds=1", "generations=4", "popsize=10"], cache) == "[]", args
