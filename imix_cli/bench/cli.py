@@ -17,7 +17,7 @@ from imix_cli.bench.memory import format_memory, memory_row
 from imix_cli.bench.mixing import format_mixing, mixing_rows
 from imix_cli.bench.peers import QUICK_PEERS, format_peer_ratios, format_peers, peer_rows, peers_available
 from imix_cli.bench.rollouts import format_rollouts, rollout_rows
-from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS
+from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS, PAPER_ES_NAMES
 
 SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "grid", "peers")
 DEFAULT_SECTIONS = ("rollouts", "mixing", "memory")
@@ -84,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument(
         "--quick", action="store_true", help=f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless --seeds/--generations say otherwise"
     )
-    g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(ES_NAMES), help="grid and breakdown algorithms")
+    g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(PAPER_ES_NAMES), help="grid and breakdown algorithms")
     return p
 
 
