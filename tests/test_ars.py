@@ -247,3 +247,50 @@ def test_bad_ars_settings_are_one_line_errors(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and key in err and "algo=ars" in err, err
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+# ------------------------------------------------------------------------------ the study's outputs
+def _fake_run(folder: Path, scores, episodes_per_generation: int, popsize=None, reused=None) -> None:
+    folder.mkdir(parents=True)
+    n = len(scores)
+    frame = {
+        "generation": np.arange(n), "evaluations": episodes_per_generation * np.arange(1, n + 1),
+        "env_steps": 1000 * episodes_per_generation * np.arange(1, n + 1), "mean_policy_score": scores,
+        "wall_time": np.arange(1, n + 1, dtype=float),
+    }  # fmt: skip
+    if popsize is not None:
+        frame["popsize"] = np.full(n, popsize)
+        frame["reused"] = reused
+        frame["evaluations"] = np.cumsum(popsize - np.asarray(reused))
+    pd.DataFrame(frame).to_csv(folder / "seed_0.csv", index=False)
+
+
+def test_the_study_table_counts_episodes_to_the_papers_threshold_and_the_episodes_mixing_saved(tmp_path):
+    from imix_cli.plotting.ars import main as plot_main
+
+    exp = tmp_path / "ars"
+    nan = float("nan")
+    _fake_run(exp / "sb3_ars-Swimmer-v5", [nan, 100.0, nan, 330.0, nan, 340.0], 2)  # crosses 325 at 8 episodes
+    # imix + EIM: 4 members per generation, 1 then 2 reused: 4, 3, 2, 2 episodes -> crosses at 4 + 3 + 2 = 9
+    _fake_run(exp / "ars-Swimmer-v5-eim-algo.top=1", [nan, 200.0, 326.0, 300.0], 4, popsize=4, reused=[0, 1, 2, 2])
+    assert plot_main([f"results_dir={tmp_path}", "experiment=ars", "resamples=50"]) == 0
+    table = pd.read_csv(exp / "figures" / "ars_table.csv").set_index("method")
+    assert table.loc["sb3-contrib ARS", "episodes_to_threshold"] == 8 and table.loc["sb3-contrib ARS", "reached"] == "1/1"
+    assert table.loc["imix ARS + EIM", "episodes_to_threshold"] == 9
+    assert table.loc["imix ARS + EIM", "final_mean_policy_return"] == 300.0
+    assert table.loc["imix ARS + EIM", "episodes_saved"] == pytest.approx(5 / 16)
+    assert (exp / "figures" / "ars_swimmer.png").exists()
+
+
+@pytest.mark.slow
+def test_the_sb3_contrib_peer_writes_a_csv_of_whole_iterations(tmp_path):
+    pytest.importorskip("sb3_contrib")
+    pytest.importorskip("mujoco")
+    from imix_cli.bench.ars_peer import main as peer_main
+
+    args = ["--envs", "swimmer", "--seeds", "1", "--episodes", "3", "--eval-every", "1", "--eval-episodes", "1", "--results-dir", str(tmp_path)]
+    assert peer_main(args) == 0
+    frame = pd.read_csv(tmp_path / "ars" / "sb3_ars-Swimmer-v5" / "seed_0.csv")
+    assert frame["evaluations"].tolist() == [2, 4]  # N = 1: 2 episodes per iteration, until >= 3
+    assert frame["env_steps"].tolist() == [2000, 4000] and frame["mean_policy_episodes"].tolist() == [1, 2]
+    assert np.all(np.isfinite(frame["mean_policy_score"]))

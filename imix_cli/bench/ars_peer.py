@@ -100,6 +100,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m imix_cli.bench.ars_peer", description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", choices=sorted(ZOO_ARS), default=["swimmer"])
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=None, help="run only this seed (to spread seeds over processes)")
     parser.add_argument("--episodes", type=int, default=1000, help="training episodes per seed (whole iterations)")
     parser.add_argument("--eval-every", type=int, default=10, help="iterations between measurements of the mean policy")
     parser.add_argument("--eval-episodes", type=int, default=5)
@@ -118,7 +119,7 @@ def main(argv=None) -> int:
     from imix_cli.results import atomic_write_bytes
 
     for env_name in args.envs:
-        for seed in range(args.seeds):
+        for seed in range(args.seeds) if args.seed is None else [args.seed]:
             path = seed_csv(args.results_dir, args.experiment, env_name, seed)
             if path.exists():
                 print(f"{path}: exists, skipped", flush=True)
