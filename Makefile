@@ -98,8 +98,8 @@ reproduce-mujoco:  ## MuJoCo study (SNES/OpenES x EIM x Swimmer/Hopper/HalfCheet
 # generations x 2N episodes (N = 1, 8, 32 directions). The mean policy is measured on fresh
 # episodes every ARS_EVAL_* generations (not counted as training episodes). Finished seeds are
 # skipped. The defaults are rl-zoo3's budgets (2e6, ~7e6, ~1.25e7 env steps): many hours here.
-# The reduced study of docs/ars.md:
-#   make reproduce-ars ARS_SWIMMER_GENERATIONS=300 ARS_HOPPER_GENERATIONS=20 ARS_HALFCHEETAH_GENERATIONS=5
+# docs/ars.md's reduced study used these budgets (its commands ran side by side):
+#   make reproduce-ars ARS_SWIMMER_GENERATIONS=300 ARS_HOPPER_GENERATIONS=10 ARS_HALFCHEETAH_GENERATIONS=2
 ARS_SEEDS                   ?= 3
 ARS_SWIMMER_GENERATIONS     ?= 1000
 ARS_HOPPER_GENERATIONS      ?= 450

@@ -121,7 +121,7 @@ def test_one_mixed_generation_is_n_exact_ars_pairs_around_the_new_mean(variant, 
 # generation or drifting by 0.2 nu per generation (reuse ~88-92 %). The means are exogenous, as in
 # tests/test_mixing.py: when ARS's own steps move the mean, stored returns pull it toward the
 # members that are reused (README, "Reused returns and selection bias") and E[z^2] drops to
-# 0.83-0.87 (benchmarks/ars_pairs.py; docs/ars.md). Power: mirrors left around the old mean
+# 0.86-0.88 (benchmarks/ars_pairs.py; docs/ars.md). Power: mirrors left around the old mean
 # (whole pairs reused) fail both this and the single-step test.
 CHAINS, CHAIN_GENERATIONS, BURN_IN = 40, 300, 20
 

@@ -44,7 +44,10 @@ INSTALL = "pip install 'imix-cli[ars]'  (sb3-contrib)"
 def run_seed(env_name: str, seed: int, episodes: int, eval_every: int, eval_episodes: int) -> list[dict]:
     """Train sb3-contrib ARS on ``env_name`` for ``episodes`` training episodes; the rows of its CSV."""
     import gymnasium as gym
+    import torch
     from sb3_contrib import ARS
+
+    torch.set_num_threads(1)  # a linear policy: threads only contend (imix's episodes run on one thread too)
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     settings = dict(ZOO_ARS[env_name])
