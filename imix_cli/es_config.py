@@ -67,6 +67,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         raise ConfigError(f"popsize={popsize}: algo=cmaes needs popsize >= 3 (its recombination weights need at least 2 parents and one non-parent)")
     if not math.isfinite(sigma * sigma):
         raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
+    _check_params_together(algo, popsize, algo_options)
     _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
     num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"])
     check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0))
@@ -137,6 +138,14 @@ def _algo_options(algo: str, algo_cfg: dict) -> dict:
     except (TypeError, ValueError) as err:
         raise ConfigError(f"algo={algo}: {first_line(err)}") from None
     return options
+
+
+def _check_params_together(algo: str, popsize: int, algo_options: dict) -> None:
+    """The ES's Params with popsize and its ``algo.*`` options together (ARS: an even popsize, top <= popsize/2)."""
+    try:
+        ALGORITHM_SPECS[algo].es_class().Params(popsize=popsize, **algo_options)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"algo={algo}: {first_line(err)}") from None
 
 
 def _policy_size(env_name: str, env_id: str, max_steps: int | None) -> int:

@@ -127,6 +127,10 @@ class Plan:
 
 def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> Plan:
     """Draw (or mix) the next generation of ``es`` and decide which members to evaluate."""
+    if getattr(es, "mirrored", False):  # mirrored pairs (ARS): anchors mixed, mirrors fresh (imix_cli.mirrored)
+        from imix_cli.mirrored import plan_mirrored
+
+        return plan_mirrored(es, archive, settings, rng)
     dist, popsize = es.distribution, es.popsize
     if settings.variant is None or not archive.generations:
         g = Generation(es.ask(rng), np.zeros(popsize, np.int64), np.full(popsize, -1, np.int64), dist)
@@ -152,6 +156,10 @@ def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.rand
 def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:
     """Assemble the generation's fitness (stored returns + ``returns`` of ``plan.evaluate``), tell
     the ES, archive the generation; return the fitness (one per member)."""
+    if getattr(es, "mirrored", False):
+        from imix_cli.mirrored import finish_mirrored
+
+        return finish_mirrored(es, archive, settings, plan, returns)
     g = plan.generation
     fitness = np.empty(g.samples.shape[0])
     for k, stored in enumerate(archive.returns, start=1):  # reused members keep their stored return

@@ -102,6 +102,9 @@ ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
         AlgorithmSpec("snes", "SNES", OKABE_ITO["vermillion"], "imix_cli.algorithms.snes:SNES", 1000, uses_lr=True),
         AlgorithmSpec("cem", "CEM", OKABE_ITO["bluish_green"], "imix_cli.algorithms.cem:CEM", 400, options=("style",)),
         AlgorithmSpec("cmaes", "CMA-ES", OKABE_ITO["reddish_purple"], "imix_cli.algorithms.cmaes:CMAES", 400),
+        # Augmented Random Search (Mania et al. 2018): mirrored pairs, popsize = 2 x directions, lr = its
+        # step size alpha, sigma = its noise nu; per-env presets of its paper: +ars=<env> (conf/ars/)
+        AlgorithmSpec("ars", "ARS", OKABE_ITO["orange"], "imix_cli.algorithms.ars:ARS", 1000, uses_lr=True, options=("top",)),
         # the deep-RL baseline of section 4.3 (stable-baselines3): one CSV row per episode
         AlgorithmSpec("ddpg", "DDPG", OKABE_ITO["black"]),
     )
@@ -112,6 +115,8 @@ ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
 ALGO_NAMES = tuple(ALGORITHM_SPECS)
 ES_NAMES = tuple(name for name, spec in ALGORITHM_SPECS.items() if spec.is_es)
 NON_ES_NAMES = frozenset(name for name, spec in ALGORITHM_SPECS.items() if not spec.is_es)
+#: The paper's four evolution strategies (section 2.1): the main grid (`make reproduce`, ``imix bench grid``).
+PAPER_ES_NAMES = ("openes", "snes", "cem", "cmaes")
 
 
 def algo_label(name: str) -> str:

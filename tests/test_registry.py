@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 import imix_cli.algorithms.base as base
-from imix_cli.algorithms import ALGORITHMS, CEM, SNES, EvolutionStrategy, OpenES, Params, make_es
+from imix_cli.algorithms import ALGORITHMS, CEM, MIRRORED_ALGORITHMS, SNES, EvolutionStrategy, OpenES, Params, make_es
 from imix_cli.config import PAPER_DEFAULTS, config_dir
 from imix_cli.evaluation import make_evaluator
 from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS, ES_NAMES, MIX_VARIANTS, MIXING_SPECS
@@ -77,7 +77,7 @@ def test_mixing_variants_are_those_mix_implements():
 # -------------------------------------------------------------------------- ES parameter records
 @pytest.mark.parametrize("name", ES_NAMES)
 def test_every_es_is_built_from_its_params_record(name):
-    cls = ALGORITHMS[name]
+    cls = {**ALGORITHMS, **MIRRORED_ALGORITHMS}[name]
     assert cls is ALGORITHM_SPECS[name].es_class() and cls.name == name
     assert issubclass(cls.Params, Params) and cls.Params.__dataclass_params__.frozen
     params = cls.Params(popsize=12, sigma=0.3, weight_decay=0.0)

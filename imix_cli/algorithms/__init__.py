@@ -7,6 +7,7 @@ openes     :class:`OpenES`         N(mu, sigma^2 I), sigma fixed
 snes       :class:`SNES`           N(mu, diag(sigma^2)), sigma adapted
 cem        :class:`CEM`            N(mu, diag(sigma^2)), refitted to elites
 cmaes      :class:`CMAES`          N(mu, sigma^2 C), full C (pycma)
+ars        :class:`ARS`            N(mu, nu^2 I) in mirrored pairs (Mania et al. 2018)
 =========  ======================  =========================================
 
 ``make_es("snes", dim=130, popsize=50)`` builds one by name; the names are those of
@@ -17,6 +18,7 @@ keywords (:class:`~imix_cli.algorithms.base.Params`).
 
 from __future__ import annotations
 
+from imix_cli.algorithms.ars import ARS
 from imix_cli.algorithms.base import EvolutionStrategy, Params
 from imix_cli.algorithms.cem import CEM
 from imix_cli.algorithms.cmaes import CMAES
@@ -24,8 +26,11 @@ from imix_cli.algorithms.openes import OpenES
 from imix_cli.algorithms.snes import SNES
 from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES
 
-#: ES name -> class, for every evolution strategy of the registry.
-ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES}
+#: ES name -> class, for every evolution strategy of the registry whose ``tell`` takes any population
+#: (any rows, in any order); ARS's members come in mirrored pairs (:data:`MIRRORED_ALGORITHMS`).
+ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if not getattr(ALGORITHM_SPECS[name].es_class(), "mirrored", False)}
+#: ES name -> class, for the ES whose ``tell`` takes N mirrored pairs ``[plus; minus]`` (imix_cli.mirrored).
+MIRRORED_ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if name not in ALGORITHMS}
 
 
 def make_es(name: str, dim: int, **kwargs) -> EvolutionStrategy:
@@ -34,10 +39,10 @@ def make_es(name: str, dim: int, **kwargs) -> EvolutionStrategy:
     ``kwargs``: ``mean`` and the fields of the class's ``Params`` (popsize, sigma, lr, ...).
     """
     try:
-        cls = ALGORITHMS[name]
+        cls = {**ALGORITHMS, **MIRRORED_ALGORITHMS}[name]
     except KeyError:
-        raise ValueError(f"unknown algorithm {name!r}; valid names: {', '.join(sorted(ALGORITHMS))}") from None
+        raise ValueError(f"unknown algorithm {name!r}; valid names: {', '.join(sorted([*ALGORITHMS, *MIRRORED_ALGORITHMS]))}") from None
     return cls(dim, **kwargs)
 
 
-__all__ = ["EvolutionStrategy", "Params", "OpenES", "SNES", "CEM", "CMAES", "ALGORITHMS", "make_es"]
+__all__ = ["EvolutionStrategy", "Params", "OpenES", "SNES", "CEM", "CMAES", "ARS", "ALGORITHMS", "MIRRORED_ALGORITHMS", "make_es"]

@@ -18,7 +18,7 @@ from imix_cli.bench.mixing import format_mixing, mixing_rows
 from imix_cli.bench.mujoco import MUJOCO_BENCH_ENVS, format_mujoco, mujoco_rows
 from imix_cli.bench.peers import QUICK_PEERS, format_peer_ratios, format_peers, peer_rows, peers_available
 from imix_cli.bench.rollouts import format_rollouts, rollout_rows
-from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS, MUJOCO_ENVS
+from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS, MUJOCO_ENVS, PAPER_ES_NAMES
 
 SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "grid", "peers", "mujoco")
 DEFAULT_SECTIONS = ("rollouts", "mixing", "memory")
@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument(
         "--quick", action="store_true", help=f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless --seeds/--generations say otherwise"
     )
-    g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(ES_NAMES), help="grid and breakdown algorithms")
+    g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(PAPER_ES_NAMES), help="grid and breakdown algorithms")
     g = p.add_argument_group("mujoco")
     g.add_argument("--mujoco-envs", nargs="+", choices=sorted(MUJOCO_ENVS), default=list(MUJOCO_BENCH_ENVS), help="environments (default: halfcheetah hopper)")
     g.add_argument("--popsize", type=_positive_int, default=50, help="mujoco: policies per measurement and the run's popsize (default: 50)")

@@ -5,9 +5,9 @@ from __future__ import annotations
 import tempfile
 
 from imix_cli.bench.common import cpu_seconds, table
-from imix_cli.registry import ES_NAMES, MAIN_GRID_ENVS
+from imix_cli.registry import MAIN_GRID_ENVS, PAPER_ES_NAMES
 
-PAPER_GRID = [f"algo={','.join(ES_NAMES)}", f"env={','.join(MAIN_GRID_ENVS)}"]  # as `make reproduce` (estool weight decay: the default)
+PAPER_GRID = [f"algo={','.join(PAPER_ES_NAMES)}", f"env={','.join(MAIN_GRID_ENVS)}"]  # as `make reproduce` (estool weight decay: the default)
 
 
 def grid_rows(seeds: int | None, generations: int | None, algos, envs, extra: list[str], echo=None) -> list[dict]:

@@ -1,0 +1,296 @@
+"""ARS (algo=ars): the step is the paper's, and mixing keeps its mirrored pairs exactly ARS's pairs.
+
+Mixing for pairs (imix_cli.mirrored): the anchors are mixed from earlier anchors, each mirror is
+drawn fresh around the new mean. The statistical tests check what must then hold: every pair is
+(m + nu delta, m - nu delta) with the N directions delta independent N(0, I) -- in one step (KS,
+pooled over many independent steps) and along chains of hundreds of generations whose mean moves
+(z-scores of E[z] and E[z^2] across independent chains, as tests/test_mixing.py). Tolerances are
+stated at each test; seeds are fixed.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from imix_cli.algorithms import ARS, make_es
+from imix_cli.distributions import DiagonalGaussian
+from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.mirrored import mix_pairs
+
+KS_P_MIN = 1e-3
+IMIX = str(Path(sys.executable).parent / "imix")
+
+
+# ------------------------------------------------------------------------------- the ARS step
+def test_the_step_is_alpha_over_b_sigma_r_times_the_sum_over_the_top_b_pairs():
+    """Hand-computed: 3 directions in 2-D, top b = 2, alpha 0.1, nu 0.5."""
+    es = ARS(2, popsize=6, sigma=0.5, lr=0.1, top=2, mean=[1.0, -1.0])
+    deltas = np.array([[1.0, 0.0], [0.0, 2.0], [-1.0, 1.0]])
+    plus, minus = es.mean + 0.5 * deltas, es.mean - 0.5 * deltas
+    r_plus, r_minus = np.array([3.0, 1.0, 10.0]), np.array([1.0, 5.0, 2.0])
+    # max(r+, r-): 3, 5, 10 -> the top 2 are directions 3 and 2 (by r+ alone: 3 and 1); their 4 returns 10, 2, 1, 5
+    sigma_r = np.std([10.0, 2.0, 1.0, 5.0])
+    expected = np.array([1.0, -1.0]) + 0.1 / (2 * sigma_r) * ((10.0 - 2.0) * deltas[2] + (1.0 - 5.0) * deltas[1])
+    es.tell(np.concatenate([plus, minus]), np.concatenate([r_plus, r_minus]))
+    np.testing.assert_allclose(es.mean, expected, rtol=1e-12)
+    assert es.last_return_std == pytest.approx(sigma_r)
+
+
+def test_without_top_every_direction_counts_and_the_pairs_order_does_not_matter():
+    rng = np.random.default_rng(0)
+    es = ARS(4, popsize=10, sigma=0.1, lr=0.05, top=3)
+    members = es.ask(rng)
+    fitness = -np.sum((members - 1.0) ** 2, axis=1)
+    perm = rng.permutation(5)
+    other = ARS(4, popsize=10, sigma=0.1, lr=0.05, top=3)
+    es.tell(members, fitness)
+    other.tell(np.concatenate([members[:5][perm], members[5:][perm]]), np.concatenate([fitness[:5][perm], fitness[5:][perm]]))
+    np.testing.assert_allclose(other.mean, es.mean, rtol=0, atol=1e-15)
+    full = ARS(4, popsize=10, sigma=0.1, lr=0.05)
+    full.tell(members, fitness)
+    deltas = (members[:5] - members[5:]) / 0.2
+    expected = 0.05 / (5 * np.std(fitness)) * ((fitness[:5] - fitness[5:]) @ deltas)
+    np.testing.assert_allclose(full.mean, expected, rtol=1e-12, atol=1e-15)
+
+
+def test_ars_climbs_a_sphere_and_refuses_odd_popsizes_and_a_top_beyond_n():
+    rng = np.random.default_rng(1)
+    es = make_es("ars", 10, popsize=16, sigma=0.1, lr=0.05, top=4, mean=np.full(10, 3.0))
+    start = np.sum(es.mean**2)
+    for _ in range(200):
+        x = es.ask(rng)
+        es.tell(x, -np.sum(x * x, axis=1))
+    assert np.sum(es.mean**2) < 0.05 * start
+    with pytest.raises(ValueError, match="even"):
+        ARS(3, popsize=5)
+    with pytest.raises(ValueError, match="top"):
+        ARS(3, popsize=6, top=4)
+
+
+# --------------------------------------------------------------------- pairs under mixing: one step
+def _old_anchors(old, n, rng):
+    return mix_pairs(old, [], n, rng, None)[0]
+
+
+@pytest.mark.parametrize("variant", ["sun2009", "eim"])
+@pytest.mark.parametrize("shift", [0.3, 1.5])
+def test_one_mixed_generation_is_n_exact_ars_pairs_around_the_new_mean(variant, shift):
+    """3-D, nu = 0.5, N = 8 directions, the mean moved by ``shift`` nu along the first axis; 2000
+    independent steps pooled. Every member is standardised by the NEW mean: all 3 coordinates of the
+    directions must be N(0, 1) (KS p > 1e-3), every mirror is exactly 2 m' - anchor, and a member is
+    never taken twice. Power: reusing old pairs whole (old mirrors) puts the mirrors at -delta -
+    2 shift, far off N(0, 1) at 2000 x 8 draws."""
+    rng = np.random.default_rng(7)
+    nu, n, dim = 0.5, 8, 3
+    old = DiagonalGaussian(np.zeros(dim), nu)
+    new_mean = np.array([shift * nu, 0.0, 0.0])
+    new = DiagonalGaussian(new_mean, nu)
+    plus, minus, reused = [], [], 0
+    for _ in range(2000):
+        archive = [_old_anchors(old, n, rng)]
+        if variant == "eim":
+            archive.append(_old_anchors(DiagonalGaussian(np.array([-shift * nu, 0.0, 0.0]), nu), n, rng))
+        anchors, members = mix_pairs(new, archive, n, rng, variant)
+        np.testing.assert_array_equal(members[:n], anchors.samples)
+        np.testing.assert_allclose(members[:n] + members[n:], np.tile(2 * new_mean, (n, 1)), rtol=0, atol=1e-12)  # pairs around m'
+        assert np.unique(members, axis=0).shape[0] == 2 * n  # no member twice
+        plus.append((members[:n] - new_mean) / nu)
+        minus.append((members[n:] - new_mean) / nu)
+        reused += anchors.reused
+    plus, minus = np.concatenate(plus), np.concatenate(minus)
+    for coord in range(dim):
+        assert stats.kstest(plus[:, coord], "norm").pvalue > KS_P_MIN, coord
+        assert stats.kstest(minus[:, coord], "norm").pvalue > KS_P_MIN, coord
+    assert 0.0 < reused / (2000 * n) < 1.0
+
+
+# --------------------------------------------------------------- pairs under mixing: chains
+# As tests/test_mixing.py's chains: per chain the mean of z and of z^2 over the generations after
+# a burn-in (z: every member standardised by the mean and nu of its own generation, anchors and
+# mirrors), across 40 independent chains their means with standard errors from the spread between
+# chains; |z-score| < 4 and |E[z^2] - 1| < 0.025 (the standard error of E[z^2] is ~0.01 here).
+# Each chain: 300 generations, d = 2, N = 10 directions, the mean random-walking by ~0.25 nu per
+# generation or drifting by 0.2 nu per generation (reuse ~88-92 %). The means are exogenous, as in
+# tests/test_mixing.py: when ARS's own steps move the mean, stored returns pull it toward the
+# members that are reused (README, "Reused returns and selection bias") and E[z^2] drops to
+# 0.86-0.88 (benchmarks/ars_pairs.py; docs/ars.md). Power: mirrors left around the old mean
+# (whole pairs reused) fail both this and the single-step test.
+CHAINS, CHAIN_GENERATIONS, BURN_IN = 40, 300, 20
+
+
+def pair_chain_statistics(variant, motion, seed, dim=2, n=10, nu=1.0):
+    rng = np.random.default_rng(seed)
+    first, second, reuse = [], [], []
+    for _ in range(CHAINS):
+        es = ARS(dim, popsize=2 * n, sigma=nu, lr=0.4, top=n)
+        archive, settings, zs, reused = Archive(), MixingSettings(variant, 3), [], 0
+        mean = np.zeros(dim)
+        for t in range(CHAIN_GENERATIONS):
+            if motion != "ars":  # an exogenous mean: the ES's mean is set, its steps are not used
+                es._mu = mean.copy()
+                es._dist = DiagonalGaussian(mean, nu)
+            plan = plan_generation(es, archive, settings, rng)
+            g = plan.generation
+            m = es.distribution.mean
+            assert np.unique(g.samples, axis=0).shape[0] == 2 * n
+            if t >= BURN_IN:
+                zs.append(((g.samples - m) / nu).ravel())
+                reused += g.reused
+            x = g.samples[plan.evaluate]
+            returns = x[:, 0] + 0.5 * rng.standard_normal(x.shape[0])  # ARS keeps climbing it: the mean never settles
+            finish_generation(es, archive, settings, plan, returns)
+            if motion == "walk":
+                mean = mean + nu * 0.25 * rng.standard_normal(dim)
+            elif motion == "drift":
+                mean = mean + nu * 0.2 * np.eye(dim)[0]
+        zs = np.concatenate(zs)
+        first.append(zs.mean())
+        second.append(np.mean(zs * zs))
+        reuse.append(reused / ((CHAIN_GENERATIONS - BURN_IN) * n))
+    first, second = np.array(first), np.array(second)
+    return {
+        "z_mean": first.mean() / (first.std(ddof=1) / np.sqrt(CHAINS)),
+        "E[z^2]": second.mean(),
+        "z_var": (second.mean() - 1.0) / (second.std(ddof=1) / np.sqrt(CHAINS)),
+        "reuse": float(np.mean(reuse)),
+    }
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("motion", ["walk", "drift"])
+@pytest.mark.parametrize("variant", ["sun2009", "eim"])
+def test_chains_of_mixed_pair_generations_stay_ars_pairs(variant, motion):
+    r = pair_chain_statistics(variant, motion, seed=2026)
+    assert abs(r["z_mean"]) < 4 and abs(r["z_var"]) < 4, r
+    assert abs(r["E[z^2]"] - 1.0) < 0.025, r
+    assert r["reuse"] > 0.3, r  # the chain really reuses (anchors reused per direction)
+
+
+def test_every_member_is_told_the_return_of_its_own_parameters():
+    """Honesty of stored returns: with a deterministic objective, the fitness a generation is told is
+    f(member) for every member -- fresh anchors, reused anchors (their stored return) and mirrors --
+    along a chain that reuses (small ARS steps), and the reused ones come from the archive."""
+    rng = np.random.default_rng(3)
+    es = ARS(3, popsize=12, sigma=1.0, lr=0.05)
+    archive, settings, reused = Archive(), MixingSettings("eim", 3), 0
+
+    def f(x):
+        return -np.sum((x - 2.0) ** 2, axis=1) + np.sin(7 * x[:, 0])
+
+    for _ in range(60):
+        plan = plan_generation(es, archive, settings, rng)
+        g = plan.generation
+        assert np.all(plan.evaluate >= 0) and set(range(6, 12)) <= set(plan.evaluate.tolist())  # mirrors always fresh
+        fitness = finish_generation(es, archive, settings, plan, f(g.samples[plan.evaluate]))
+        np.testing.assert_array_equal(fitness, f(g.samples))
+        reused += g.reused
+        assert len(archive.generations) <= 3 and archive.generations[0].samples.shape == (6, 3)  # anchors only
+    assert reused > 60  # > 1 reused anchor per generation on average
+
+
+# ---------------------------------------------------------------------------------- imix run
+SWIMMER = ["run", "algo=ars", "env=swimmer", "eim=true", "env.max_steps=50", "popsize=8", "sigma=0.1", "lr=0.002", "policy.hidden=[]",
+           "seeds=2", "checkpoint_every=4", "workers=1", "progress=false", "eval_mean_every=5", "eval_mean_episodes=2"]  # fmt: skip
+
+
+def _csvs(root: Path) -> dict:
+    return {p.relative_to(root): pd.read_csv(p).drop(columns=["wall_time"]) for p in sorted(root.rglob("seed_*.csv")) if ".partial" not in p.name}
+
+
+@pytest.mark.slow
+def test_imix_run_ars_on_swimmer_saves_policies_and_resumes_after_a_kill(tmp_path):
+    """The real console script, algo=ars env=swimmer eim=true: SIGKILL the process group once a
+    checkpoint exists, re-run the same command, and get the CSVs of an uninterrupted run (but for
+    wall time), with reuse, policies and the checkpoint's resume message."""
+    pytest.importorskip("mujoco")
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    args = [*SWIMMER, "generations=40"]
+    subprocess.run([IMIX, *args, f"results_dir={tmp_path / 'ref'}"], check=True, env=env, capture_output=True)
+    target = tmp_path / "killed"
+    proc = subprocess.Popen([IMIX, *args, f"results_dir={target}"], env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and time.monotonic() < deadline and not list(target.rglob(".checkpoints/seed_*.npz")):
+        time.sleep(0.05)
+    killed = proc.poll() is None
+    if killed:
+        os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert killed, "the run ended before a checkpoint could be killed"
+    done = subprocess.run([IMIX, *args, f"results_dir={target}"], env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "resumes at generation" in done.stderr, done.stderr
+    expected, got = _csvs(tmp_path / "ref"), _csvs(target)
+    assert sorted(got) == sorted(expected) and len(got) == 2
+    for name in expected:
+        pd.testing.assert_frame_equal(got[name], expected[name])
+        assert got[name]["reused"].sum() > 0  # the archive (anchors, returns, heights) came back with the checkpoint
+    run_dir = next(target.glob("default/ars-Swimmer-v5-eim*"))
+    for seed in (0, 1):
+        for kind in ("mean", "best"):
+            with np.load(run_dir / f"policy_{seed}_{kind}.npz", allow_pickle=False) as saved:
+                assert np.all(np.isfinite(saved["params"])) and saved["params"].shape == (8 * 2 + 2,)  # linear: 8 observations -> 2 actions
+
+
+def test_bad_ars_settings_are_one_line_errors(tmp_path, capsys):
+    from imix_cli.cli import main
+
+    for bad, key in ((["popsize=7"], "popsize must be even"), (["algo.top=5", "popsize=8"], "top must be in")):
+        assert main(["run", "algo=ars", "env=cartpole", "seeds=1", "generations=1", f"results_dir={tmp_path}", *bad]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and key in err and "algo=ars" in err, err
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+# ------------------------------------------------------------------------------ the study's outputs
+def _fake_run(folder: Path, scores, episodes_per_generation: int, popsize=None, reused=None) -> None:
+    folder.mkdir(parents=True)
+    n = len(scores)
+    frame = {
+        "generation": np.arange(n), "evaluations": episodes_per_generation * np.arange(1, n + 1),
+        "env_steps": 1000 * episodes_per_generation * np.arange(1, n + 1), "mean_policy_score": scores,
+        "wall_time": np.arange(1, n + 1, dtype=float),
+    }  # fmt: skip
+    if popsize is not None:
+        frame["popsize"] = np.full(n, popsize)
+        frame["reused"] = reused
+        frame["evaluations"] = np.cumsum(popsize - np.asarray(reused))
+    pd.DataFrame(frame).to_csv(folder / "seed_0.csv", index=False)
+
+
+def test_the_study_table_counts_episodes_to_the_papers_threshold_and_the_episodes_mixing_saved(tmp_path):
+    from imix_cli.plotting.ars import main as plot_main
+
+    exp = tmp_path / "ars"
+    nan = float("nan")
+    _fake_run(exp / "sb3_ars-Swimmer-v5", [nan, 100.0, nan, 330.0, nan, 340.0], 2)  # crosses 325 at 8 episodes
+    # imix + EIM: 4 members per generation, 1 then 2 reused: 4, 3, 2, 2 episodes -> crosses at 4 + 3 + 2 = 9
+    _fake_run(exp / "ars-Swimmer-v5-eim-algo.top=1", [nan, 200.0, 326.0, 300.0], 4, popsize=4, reused=[0, 1, 2, 2])
+    assert plot_main([f"results_dir={tmp_path}", "experiment=ars", "resamples=50"]) == 0
+    table = pd.read_csv(exp / "figures" / "ars_table.csv").set_index("method")
+    assert table.loc["sb3-contrib ARS", "episodes_to_threshold"] == 8 and table.loc["sb3-contrib ARS", "reached"] == "1/1"
+    assert table.loc["imix ARS + EIM", "episodes_to_threshold"] == 9
+    assert table.loc["imix ARS + EIM", "final_mean_policy_return"] == 300.0
+    assert table.loc["imix ARS + EIM", "episodes_saved"] == pytest.approx(5 / 16)
+    assert (exp / "figures" / "ars_swimmer.png").exists()
+
+
+@pytest.mark.slow
+def test_the_sb3_contrib_peer_writes_a_csv_of_whole_iterations(tmp_path):
+    pytest.importorskip("sb3_contrib")
+    pytest.importorskip("mujoco")
+    from imix_cli.bench.ars_peer import main as peer_main
+
+    args = ["--envs", "swimmer", "--seeds", "1", "--episodes", "3", "--eval-every", "1", "--eval-episodes", "1", "--results-dir", str(tmp_path)]
+    assert peer_main(args) == 0
+    frame = pd.read_csv(tmp_path / "ars" / "sb3_ars-Swimmer-v5" / "seed_0.csv")
+    assert frame["evaluations"].tolist() == [2, 4]  # N = 1: 2 episodes per iteration, until >= 3
+    assert frame["env_steps"].tolist() == [2000, 4000] and frame["mean_policy_episodes"].tolist() == [1, 2]
+    assert np.all(np.isfinite(frame["mean_policy_score"]))
