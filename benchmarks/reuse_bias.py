@@ -139,7 +139,7 @@ def tasks_table(experiments: list[str]) -> None:
 
     rows = []
     for folder in sorted(f for e in experiments for f in glob.glob(os.path.join(e, "*"))):
-        csvs = sorted(glob.glob(os.path.join(folder, "seed_*.csv")))
+        csvs = sorted(f for f in glob.glob(os.path.join(folder, "seed_*.csv")) if os.path.basename(f)[5:-4].isdigit())  # not .partial
         if not csvs:
             continue
         frames = [pd.read_csv(f) for f in csvs]
