@@ -105,7 +105,9 @@ def refuse_links(spec) -> None:
     experiment_dir = spec.run_dir.parent
     for folder in (experiment_dir, spec.run_dir):
         if folder.is_symlink():
-            raise RunError(f"{folder} is a symbolic link; imix writes through no link inside results_dir (only results_dir itself may be one): replace it by a folder")
+            raise RunError(
+                f"{folder} is a symbolic link; imix writes through no link inside results_dir (only results_dir itself may be one): replace it by a folder"
+            )
     for folder in (spec.run_dir, spec.run_dir / ".checkpoints"):
         if folder.is_symlink() or not folder.is_dir():
             continue

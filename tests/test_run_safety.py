@@ -265,7 +265,8 @@ def test_sigterm_stops_the_run_with_one_line_and_no_warning(tmp_path, to):
 
 def test_sigterm_during_validation_prints_one_line(tmp_path):
     sweep = "popsize=" + ",".join(map(str, range(8, 400)))
-    proc = subprocess.Popen([IMIX, "run", "-m", sweep, *SMALL[:3], "progress=false", f"results_dir={tmp_path}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    args = [IMIX, "run", "-m", sweep, *SMALL[:3], "progress=false", f"results_dir={tmp_path}"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(1.5)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
