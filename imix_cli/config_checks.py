@@ -94,7 +94,9 @@ def seeds_of(cfg: dict) -> int:
     return seeds
 
 
-def workers_and_experiment(cfg: dict, launcher: str | None, pool: bool = False) -> tuple[int, str]:
+def workers_and_experiment(cfg: dict, launcher: str | None, pool: str | None = None) -> tuple[int, str]:
+    """``workers`` (default: all cores; 1 under a parallel launcher or with ``pool``, the name of an
+    evaluator that spreads each generation itself: ``pool`` or ``ray``) and ``experiment``."""
     workers, parallel = cfg.get("workers"), parallel_launcher_name(launcher)
     if workers is None:
         workers = 1 if parallel or pool else default_workers()
@@ -104,7 +106,8 @@ def workers_and_experiment(cfg: dict, launcher: str | None, pool: bool = False) 
             raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
         if pool and workers > 1:
             raise ConfigError(
-                f"workers={workers}: evaluator=pool already spreads each generation over evaluator_workers processes; use workers=1 (or leave it null)"
+                f"workers={workers}: evaluator={pool} already spreads each generation over evaluator_workers "
+                f"{'processes' if pool == 'pool' else 'Ray actors (one Ray runtime per run)'}; use workers=1 (or leave it null)"
             )
     experiment = as_name(cfg, "experiment")
     if "/" in experiment or "\\" in experiment or experiment in (".", ".."):

@@ -60,7 +60,10 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
 
     env_name, env_id, max_steps = env_of(env_cfg)
     policy = _policy_and_evaluator(cfg, algo, env_name, env_id, max_steps, launcher)
-    workers, experiment = workers_and_experiment(cfg, launcher, pool=policy["evaluator"] == "pool")
+    # evaluator=ray: the seeds run in the main process, which alone drives the run's one Ray runtime
+    # (seed processes each started a Ray of their own, each sized to every CPU).
+    spreading = policy["evaluator"] if policy["evaluator"] in ("pool", "ray") else None
+    workers, experiment = workers_and_experiment(cfg, launcher, pool=spreading)
     if cfg.get("total_steps") is not None:  # silently running `generations` instead would waste the user's budget
         raise ConfigError(
             f"total_steps={cfg['total_steps']!r}: algo=ddpg's budget (environment steps); an evolution strategy (algo={algo}) runs generations= instead"

@@ -26,6 +26,15 @@ def run_es_seeds(spec, seeds: list[int], progress) -> dict:
     """Run ``seeds`` of ``spec`` to completion in this process, in lockstep; ``progress(n)`` gets the
     number of seed-generations just completed. Returns seed -> :func:`imix_cli.results.seed_summary`."""
     evaluator = build_evaluator(spec)
+    try:  # the evaluator's processes (pool, Ray) end with the seeds, a Ctrl-C or SIGTERM included
+        return _run_es_seeds(spec, seeds, progress, evaluator)
+    finally:
+        close = getattr(evaluator, "close", None)
+        if close is not None:
+            close()
+
+
+def _run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
     identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
     run_dir = spec.run_dir
     states = []
