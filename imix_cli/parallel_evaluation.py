@@ -39,6 +39,8 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
+import threading
 import weakref
 from concurrent.futures import ProcessPoolExecutor
 
@@ -188,6 +190,7 @@ class RayEvaluator(_Remote):
         self._started_ray = not ray.is_initialized()
         if self._started_ray:
             options = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
+            handlers = _python_signal_handlers()
             if address is None:  # a local Ray for this run alone, sized to it
                 before = children_of(os.getpid())
                 with _quiet_token_notice():
@@ -195,6 +198,10 @@ class RayEvaluator(_Remote):
                 self._reaper = start_reaper(children_of(os.getpid()) - before)
             else:
                 ray.init(address=address, **options)
+            # Ray's driver replaces the SIGTERM/SIGINT handlers at C level (a stack dump, then exit 15):
+            # the run's own handlers stop it cleanly, with one line.
+            for signum, handler in handlers.items():
+                signal.signal(signum, handler)
         self.workers = int(workers or max(1, int(ray.cluster_resources().get("CPU", 1))))
         actor = ray.remote(num_cpus=1, max_restarts=self.max_restarts, max_task_retries=self.max_restarts)(_RayWorker)
         self._actors = [actor.remote(self._make_args) for _ in range(self.workers)]
@@ -234,6 +241,14 @@ class RayEvaluator(_Remote):
         self._started_ray = False
         stop_reaper(getattr(self, "_reaper", None))
         self._reaper = None
+
+
+def _python_signal_handlers() -> dict:
+    """SIGINT's and SIGTERM's Python handlers, where this is the main thread (only it may set them)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    return {signum: handler for signum, handler in handlers.items() if handler is not None}
 
 
 def _quiet_token_notice():
