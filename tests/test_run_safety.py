@@ -59,6 +59,32 @@ def test_a_refused_run_writes_nothing_not_even_its_lock(tmp_path, capsys):
     assert files_under(tmp_path) == before  # no .lock, no temporary, nothing
 
 
+def test_the_lock_never_follows_a_link_planted_after_the_folder_was_checked(tmp_path):
+    from imix_cli.run_folder import RunError
+
+    victim = tmp_path / "victim"
+    victim.write_text("precious\n")
+    (spec,) = validate_overrides([*SMALL, f"results_dir={tmp_path / 'R'}"])
+    spec.run_dir.mkdir(parents=True)
+    (spec.run_dir / ".lock").symlink_to(victim)
+    with pytest.raises(RunError, match="symbolic link"):
+        with run_dir_lock(spec):
+            pass
+    assert victim.read_text() == "precious\n"
+
+
+def test_the_library_run_checks_the_folder_before_taking_its_lock(tmp_path):
+    from imix_cli.run_folder import RunError
+    from imix_cli.runner import run
+
+    (spec,) = validate_overrides([*SMALL, f"results_dir={tmp_path}"])
+    spec.run_dir.mkdir(parents=True)
+    (spec.run_dir / "config.yaml").write_text("- not a mapping\n")
+    with pytest.raises(RunError, match="config.yaml"):
+        run(spec, echo=lambda text: None)
+    assert sorted(p.name for p in spec.run_dir.iterdir()) == ["config.yaml"]
+
+
 @pytest.mark.parametrize("name", ["config.yaml", "seed_0.csv", "seed_0.partial.csv", ".checkpoints"])
 def test_a_symlink_among_a_run_folders_files_is_refused(tmp_path, capsys, name):
     outside = tmp_path / "outside"
