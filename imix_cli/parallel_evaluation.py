@@ -220,8 +220,7 @@ class RayEvaluator(_Remote):
 
             reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
             raise RunError(
-                f"evaluator=ray: an actor was lost after {self.max_restarts} restarts ({reason[:200]}); "
-                "re-run the same command to resume from the checkpoints"
+                f"evaluator=ray: an actor was lost after {self.max_restarts} restarts ({reason[:200]}); re-run the same command to resume from the checkpoints"
             ) from None
         return self._gather(results, len(seeds))
 
