@@ -121,6 +121,10 @@ def _init_pool_worker(make_args, parent_pid: int) -> None:
     global _worker_evaluator
     env_key, max_steps, hidden = make_args
     _worker_evaluator = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
+    # Ctrl-C reaches the whole process group: the main process alone decides, and shuts the pool down
+    # (each worker printed a line of its own); SIGTERM ends a worker silently.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     start_orphan_watchdog(parent_pid)
 
 

@@ -289,6 +289,34 @@ def test_sigterm_stops_the_run_with_one_line_and_no_warning(tmp_path, to):
     assert len(list(tmp_path.rglob(".checkpoints/seed_*.npz"))) == 2
 
 
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["Ctrl-C", "SIGTERM"])
+def test_the_evaluation_pool_stops_with_the_run_and_says_nothing(tmp_path, signum):
+    """evaluator=pool, the signal sent to the whole process group (a terminal's Ctrl-C, a scheduler):
+    the pool's workers printed a line each; now only the main process speaks."""
+    args = [IMIX, "run", "algo=cem", "seeds=2", "generations=100000", "popsize=8", "checkpoint_every=5", "evaluator=pool", "evaluator_workers=2",
+            "progress=false", f"results_dir={tmp_path}"]  # fmt: skip
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 90
+        while not list(tmp_path.rglob(".checkpoints/seed_*.npz")) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        workers = _descendants(proc.pid)
+        assert len(workers) >= 2, workers
+        os.killpg(proc.pid, signum)
+        code = proc.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        left = [p for p in workers if _alive(p)]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    err = proc.stderr.read().strip()
+    assert code == 128 + signum, (code, err)
+    assert len(err.splitlines()) == 1 and "Traceback" not in err and "leaked" not in err, err
+    assert not left, left
+
+
 def test_sigterm_during_validation_prints_one_line(tmp_path):
     sweep = "popsize=" + ",".join(map(str, range(8, 400)))
     args = [IMIX, "run", "-m", sweep, *SMALL[:3], "progress=false", f"results_dir={tmp_path}"]
