@@ -151,7 +151,10 @@ def gym_env_bytes(env_id: str) -> int:
     """The memory one instance of gymnasium env ``env_id`` is counted at (:data:`MUJOCO_ENV_BYTES`)."""
     import gymnasium as gym
 
-    entry_point = gym.spec(env_id).entry_point
+    try:
+        entry_point = gym.spec(env_id).entry_point
+    except Exception:  # noqa: BLE001 - an id env_of accepted in a form gym.spec does not resolve here: count it as a plain env
+        return GYM_ENV_BYTES
     return MUJOCO_ENV_BYTES if isinstance(entry_point, str) and entry_point.startswith("gymnasium.envs.mujoco") else GYM_ENV_BYTES
 
 
