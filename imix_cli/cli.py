@@ -192,6 +192,7 @@ def _task(cfg) -> None:
         sys.exit(_error(str(err), 2))
     from hydra.types import RunMode
 
+    from imix_cli.parallel_evaluation import EvaluatorError
     from imix_cli.runner import RunError, run
 
     try:
@@ -201,6 +202,8 @@ def _task(cfg) -> None:
         if in_process_sweep:  # the sweep's other points still run; this one is reported at the end
             _SKIPPED_POINTS.append(str(err))
             return
+        sys.exit(_error(str(err), 1))
+    except EvaluatorError as err:
         sys.exit(_error(str(err), 1))
     except BrokenProcessPool:
         sys.exit(_error("a worker process died (killed?); re-run the same command to resume from the checkpoints", 1))

@@ -49,7 +49,12 @@ import numpy as np
 from imix_cli.evaluation import make_evaluator
 from imix_cli.processes import default_workers, start_orphan_watchdog
 
-__all__ = ["PoolEvaluator", "RayEvaluator", "build_evaluator", "EVALUATORS"]
+__all__ = ["PoolEvaluator", "RayEvaluator", "EvaluatorError", "build_evaluator", "EVALUATORS"]
+
+
+class EvaluatorError(RuntimeError):
+    """Evaluation cannot go on (a Ray actor lost for good); ``str(err)`` is one line for the user."""
+
 
 EVALUATORS = ("local", "pool", "ray")
 
@@ -178,7 +183,7 @@ class RayEvaluator(_Remote):
     ends every process of the local Ray within a second, however this process ends. A killed
     actor is restarted by Ray and its chunk retried (``max_restarts`` times; an episode depends only
     on its parameters and episode seed, so a retry returns the same numbers); an actor lost for good
-    is a :class:`~imix_cli.run_folder.RunError` (one line).
+    is an :class:`EvaluatorError` (one line).
     """
 
     #: Restarts of a dead actor (and retries of the chunks it was running) before the run stops.
@@ -220,10 +225,8 @@ class RayEvaluator(_Remote):
         try:
             results = list(pool.map(lambda actor, c: actor.evaluate.remote(params[c], seeds[c]), chunks))  # in order
         except RayActorError as err:
-            from imix_cli.run_folder import RunError
-
             reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            raise RunError(
+            raise EvaluatorError(
                 f"evaluator=ray: an actor was lost after {self.max_restarts} restarts ({reason[:200]}); re-run the same command to resume from the checkpoints"
             ) from None
         return self._gather(results, len(seeds))

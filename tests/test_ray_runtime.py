@@ -53,15 +53,14 @@ def test_a_local_ray_is_sized_to_the_run_and_a_killed_actor_is_restarted():
 
 
 def test_an_actor_lost_for_good_is_one_line(monkeypatch):
-    from imix_cli.parallel_evaluation import RayEvaluator
-    from imix_cli.run_folder import RunError
+    from imix_cli.parallel_evaluation import EvaluatorError, RayEvaluator
 
     monkeypatch.setattr(RayEvaluator, "max_restarts", 0)
     evaluator = RayEvaluator("cartpole", hidden=(4,), workers=1)
     try:
         os.kill(_actor_pid(evaluator, 0), signal.SIGKILL)
         time.sleep(1)
-        with pytest.raises(RunError) as caught:
+        with pytest.raises(EvaluatorError) as caught:
             evaluator.evaluate(np.zeros((3, evaluator.num_params)), np.arange(3))
         assert len(str(caught.value).splitlines()) == 1 and "evaluator=ray" in str(caught.value)
     finally:
