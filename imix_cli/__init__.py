@@ -23,8 +23,9 @@ import sys as _sys
 
 
 def _stop_before_anything_is_written(signum, frame):
-    print("imix: interrupted (nothing was written); re-run the same command to start again", file=_sys.stderr, flush=True)
-    _os._exit(130)
+    how = "terminated" if signum == _signal.SIGTERM else "interrupted"
+    print(f"imix: {how} (nothing was written); re-run the same command to start again", file=_sys.stderr, flush=True)
+    _os._exit(128 + signum)
 
 
 # The `imix` console script: a Ctrl-C during the imports of a run (numpy, gymnasium, Hydra) or the

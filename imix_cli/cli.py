@@ -60,14 +60,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"imix {__version__}")
         return 0
     command, rest = argv[0], argv[1:]
-    if command != "run":  # imix_cli's early Ctrl-C handler (see imix_cli/__init__.py) is for `imix run` only
+    if command != "run":  # imix_cli's early Ctrl-C/SIGTERM handler (see imix_cli/__init__.py) is for `imix run` only
         signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if command == "run":
         try:
             return run_command(rest)
-        except KeyboardInterrupt:  # during validation or Hydra's start-up (the run itself reports its own)
-            print(INTERRUPTED, file=sys.stderr)
-            return 130
+        except KeyboardInterrupt as stop:  # during validation or Hydra's start-up (the run itself reports its own)
+            print(TERMINATED if isinstance(stop, Terminated) else INTERRUPTED, file=sys.stderr)
+            return 143 if isinstance(stop, Terminated) else 130
     if command == "plot":
         from imix_cli.plotting import main as plot_main
 
@@ -85,11 +86,27 @@ def main(argv: list[str] | None = None) -> int:
 
 
 INTERRUPTED = "imix run: interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)"
+TERMINATED = "imix run: terminated (SIGTERM); re-run the same command to resume (finished seeds and checkpoints are kept)"
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (kill, a scheduler's time limit), raised in the main thread like a Ctrl-C: the run stops
+    its worker pools the same way and ends with one line and exit status 143 (128 + SIGTERM)."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated()
 
 
 def _interrupted_before_anything_is_written(signum, frame) -> None:
-    print(INTERRUPTED, file=sys.stderr, flush=True)
-    os._exit(130)
+    print(TERMINATED if signum == signal.SIGTERM else INTERRUPTED, file=sys.stderr, flush=True)
+    os._exit(128 + signum)
+
+
+#: Sweep points of this process's ``imix run -m`` refused by their run folder (in use by another run,
+#: say): the others still run, and these are reported at the end, one line each, with exit status 1.
+_SKIPPED_POINTS: list[str] = []
+_SWEEPS_STARTED = 0
 
 
 def _error(message: str, code: int) -> int:
@@ -100,6 +117,7 @@ def _error(message: str, code: int) -> int:
 def run_command(args: list[str]) -> int:
     """``imix run [hydra flags] [overrides]``."""
     from imix_cli.config import ConfigError, validate_overrides
+    from imix_cli.run_folder import RunError
 
     info_only = any(a in _HYDRA_INFO_FLAGS or a.startswith("--cfg=") for a in args)
     if not info_only:
@@ -113,13 +131,20 @@ def run_command(args: list[str]) -> int:
         # Nothing is written before validation ends: a Ctrl-C then stops at once with one line, even
         # if it lands in a library that would swallow a KeyboardInterrupt (an import, a plugin scan).
         signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)
+        signal.signal(signal.SIGTERM, _interrupted_before_anything_is_written)
         try:
             specs = validate_overrides(overrides)
+            _check_run_folders(specs)
         except ConfigError as err:
             return _error(str(err), 2)
+        except RunError as err:
+            return _error(str(err), 1)
         finally:
             signal.signal(signal.SIGINT, signal.default_int_handler)  # the run handles Ctrl-C itself
+            signal.signal(signal.SIGTERM, _raise_terminated)  # ... and SIGTERM the same way
+        args = [*args, *_own_sweep_folder(args)]
     sys.argv = ["imix run", *args]
+    _SKIPPED_POINTS.clear()
     try:
         _hydra_run()
     except SystemExit as exit_:
@@ -132,7 +157,30 @@ def run_command(args: list[str]) -> int:
         table = format_sweep_table(specs)
         if table:
             print(table)
-    return 0
+    for message in _SKIPPED_POINTS:
+        _error(f"sweep point skipped: {message}", 1)
+    return 1 if _SKIPPED_POINTS else 0
+
+
+def _check_run_folders(specs) -> None:
+    """Every point's run folder, read only (:func:`imix_cli.run_folder.check_run_dir`), before any point runs:
+    a folder holding another config, a corrupt CSV or a link stops the sweep before its first point."""
+    from imix_cli.run_folder import check_run_dir
+
+    for spec in specs:
+        check_run_dir(spec)
+
+
+def _own_sweep_folder(args: list[str]) -> list[str]:
+    """For ``-m``: Hydra names a sweep's bookkeeping folder by the second it starts, so two sweeps started
+    together shared one (and overwrote each other's ``multirun.yaml``); the process id (and a count, for
+    several sweeps in one process) makes it theirs. A ``hydra.sweep.dir=`` of the user's is kept."""
+    global _SWEEPS_STARTED
+    if not any(a in ("-m", "--multirun") for a in args) or any(a.startswith("hydra.sweep.dir=") for a in args):
+        return []
+    _SWEEPS_STARTED += 1
+    suffix = f"{os.getpid()}" + (f".{_SWEEPS_STARTED}" if _SWEEPS_STARTED > 1 else "")
+    return [f"hydra.sweep.dir=${{results_dir}}/${{experiment}}/.multirun/${{now:%Y-%m-%d_%H-%M-%S}}_{suffix}"]
 
 
 def _hydra_run() -> None:
@@ -155,17 +203,28 @@ def _task(cfg) -> None:
         spec = spec_from_config(OmegaConf.to_container(cfg, resolve=True), launcher)
     except ConfigError as err:
         sys.exit(_error(str(err), 2))
+    from hydra.types import RunMode
+
+    from imix_cli.parallel_evaluation import EvaluatorError
     from imix_cli.runner import RunError, run
 
     try:
         run(spec)
     except RunError as err:
+        in_process_sweep = HydraConfig.get().mode == RunMode.MULTIRUN and str(launcher or "").endswith("BasicLauncher")
+        if in_process_sweep:  # the sweep's other points still run; this one is reported at the end
+            _SKIPPED_POINTS.append(str(err))
+            return
+        sys.exit(_error(str(err), 1))
+    except EvaluatorError as err:
         sys.exit(_error(str(err), 1))
     except BrokenProcessPool:
         sys.exit(_error("a worker process died (killed?); re-run the same command to resume from the checkpoints", 1))
     except OSError as err:
         where = f" {err.filename}" if getattr(err, "filename", None) else ""
         sys.exit(_error(f"cannot write{where}: {err.strerror or err}", 1))
+    except Terminated:
+        sys.exit(_error("terminated (SIGTERM); re-run the same command to resume (finished seeds and checkpoints are kept)", 143))
     except KeyboardInterrupt:
         sys.exit(_error("interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)", 130))
 

@@ -55,7 +55,24 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     algo_cfg, env_cfg = cfg.get("algo") or {}, cfg.get("env") or {}
     algo = as_choice(algo_cfg.get("name"), "algo", ALGO_NAMES)
     build = es_spec if ALGORITHM_SPECS[algo].is_es else ddpg_spec
-    return build(cfg, algo, algo_cfg, env_cfg, launcher)
+    spec = build(cfg, algo, algo_cfg, env_cfg, launcher)
+    _check_folder_names(spec)
+    return spec
+
+
+#: The longest file or folder name (bytes) of the file systems imix writes to (ext4, xfs, btrfs, APFS, NTFS).
+NAME_MAX = 255
+
+
+def _check_folder_names(spec: RunSpec) -> None:
+    """ConfigError if the experiment's or the run's folder name is longer than a file system allows (a sweep
+    point would fail with "File name too long" only when its turn comes, after earlier points ran)."""
+    for label, name in (("experiment", spec.experiment), ("run folder", spec.run_name)):
+        size = len(name.encode())
+        if size > NAME_MAX:
+            why = " (it names the hyper-parameters that differ from the paper's)" if label == "run folder" else ""
+            shown = name if len(name) <= 90 else name[:90] + "..."
+            raise ConfigError(f"{label} name {shown!r} is {size} bytes, more than the {NAME_MAX} a file name may have{why}; use shorter values")
 
 
 def config_dir() -> str:

@@ -21,6 +21,7 @@ from imix_cli.config_checks import (
     check_memory,
     env_of,
     first_line,
+    gym_env_bytes,
     is_number,
     parallel_launcher_name,
     seeds_of,
@@ -60,7 +61,14 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
 
     env_name, env_id, max_steps = env_of(env_cfg)
     policy = _policy_and_evaluator(cfg, algo, env_name, env_id, max_steps, launcher)
-    workers, experiment = workers_and_experiment(cfg, launcher, pool=policy["evaluator"] == "pool")
+    # evaluator=ray: the seeds run in the main process, which alone drives the run's one Ray runtime
+    # (seed processes each started a Ray of their own, each sized to every CPU).
+    spreading = policy["evaluator"] if policy["evaluator"] in ("pool", "ray") else None
+    workers, experiment = workers_and_experiment(cfg, launcher, pool=spreading)
+    if cfg.get("total_steps") is not None:  # silently running `generations` instead would waste the user's budget
+        raise ConfigError(
+            f"total_steps={cfg['total_steps']!r}: algo=ddpg's budget (environment steps); an evolution strategy (algo={algo}) runs generations= instead"
+        )
     config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
     popsize, sigma = as_int(cfg, "popsize", 2), as_float(cfg, "sigma", 0.0, False)
     if algo == "cmaes" and popsize < 3:
@@ -70,8 +78,9 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     _check_params_together(algo, popsize, algo_options)
     _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
     num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"])
-    check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0))
     seeds = seeds_of(cfg)
+    env_bytes = 0 if env_name in BUILTIN_ENVS else gym_env_bytes(env_id)  # the built-ins are compiled: no env objects
+    check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0), seeds, env_bytes, env_id)
     if policy["stored"] is None:
         config.pop("policy", None)  # the default policy: config.yaml stays as it was before the key existed
     else:

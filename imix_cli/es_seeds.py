@@ -27,12 +27,27 @@ def run_es_seeds(spec, seeds: list[int], progress) -> dict:
     """Run ``seeds`` of ``spec`` to completion in this process, in lockstep; ``progress(n)`` gets the
     number of seed-generations just completed. Returns seed -> :func:`imix_cli.results.seed_summary`."""
     evaluator = build_evaluator(spec)
+    try:  # the evaluator's processes (pool, Ray) end with the seeds, a Ctrl-C or SIGTERM included
+        return _run_es_seeds(spec, seeds, progress, evaluator)
+    finally:
+        close = getattr(evaluator, "close", None)
+        if close is not None:
+            close()
+
+
+def _run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
     identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
     run_dir = spec.run_dir
     states = []
     for seed in seeds:
         # A refused checkpoint may have been half loaded into the ES it was given: start from a new one.
         st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, evaluator.num_params), spec=spec, max_steps=int(evaluator.max_steps))
+        if st is not None and st.generation > spec.generations:  # a longer continuation's, killed before it finished
+            warn(
+                f"{checkpoint_path(run_dir, seed)}: checkpoint at generation {st.generation} is past generations={spec.generations}; "
+                f"seed {seed} restarts from generation 0"
+            )
+            st = None
         st = st or new_seed_state(spec, seed, evaluator.num_params)
         states.append(st)
         if st.generation:
@@ -109,10 +124,14 @@ def end_if_diverged(st: SeedState) -> bool:
 def needs_running(spec, seed: int, path: Path, frame) -> bool:
     """Whether seed ``seed``, whose CSV ``frame`` exists at ``path``, is to be continued to more generations.
 
-    RunError if the CSV holds more generations than asked, or fewer with no final state to continue from."""
+    RunError if the CSV holds more generations than asked (a run is never shortened below what a seed
+    finished), or fewer with no final state to continue from."""
     run_dir = spec.run_dir
     if len(frame) > spec.generations:
-        raise RunError(f"{path}: has {len(frame)} generations, config asks for {spec.generations}; move it away or choose another experiment=")
+        raise RunError(
+            f"{path}: has {len(frame)} generations, config asks for {spec.generations}: a run can be continued to more generations, "
+            "not shortened below what a seed finished; choose another experiment= or move that folder away"
+        )
     if len(frame) < spec.generations and frame["diverged"].iloc[-1] != 1:  # continue it from its final state
         if not checkpoint_path(run_dir, seed).exists():
             raise RunError(

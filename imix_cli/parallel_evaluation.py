@@ -39,6 +39,8 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
+import threading
 import weakref
 from concurrent.futures import ProcessPoolExecutor
 
@@ -47,7 +49,12 @@ import numpy as np
 from imix_cli.evaluation import make_evaluator
 from imix_cli.processes import default_workers, one_blas_thread, start_orphan_watchdog
 
-__all__ = ["PoolEvaluator", "RayEvaluator", "build_evaluator", "EVALUATORS"]
+__all__ = ["PoolEvaluator", "RayEvaluator", "EvaluatorError", "build_evaluator", "EVALUATORS"]
+
+
+class EvaluatorError(RuntimeError):
+    """Evaluation cannot go on (a Ray actor lost for good); ``str(err)`` is one line for the user."""
+
 
 EVALUATORS = ("local", "pool", "ray")
 
@@ -122,6 +129,10 @@ def _init_pool_worker(make_args, parent_pid: int) -> None:
     global _worker_evaluator
     env_key, max_steps, hidden = make_args
     _worker_evaluator = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
+    # Ctrl-C reaches the whole process group: the main process alone decides, and shuts the pool down
+    # (each worker printed a line of its own); SIGTERM ends a worker silently.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     start_orphan_watchdog(parent_pid)
 
 
@@ -168,37 +179,104 @@ class _RayWorker:
 class RayEvaluator(_Remote):
     """Evaluation over Ray actors, one CPU each (module docstring).
 
-    ``address``: given to ``ray.init`` (None: start a local Ray for this process, shut down
-    by :meth:`close`). Every node needs imix installed (the same version) in the Python
-    that runs its Ray workers.
+    ``address``: given to ``ray.init`` (None: start a local Ray for this process, sized to
+    ``workers`` CPUs, shut down by :meth:`close`). Every node needs imix installed (the same
+    version) in the Python that runs its Ray workers.
+
+    Why a reaper: Ray's server processes die with the process that started them, but the agents
+    they start lingered 30-90 s after a kill -9 of it; :func:`imix_cli.processes.start_reaper`
+    ends every process of the local Ray within a second, however this process ends. A killed
+    actor is restarted by Ray and its chunk retried (``max_restarts`` times; an episode depends only
+    on its parameters and episode seed, so a retry returns the same numbers); an actor lost for good
+    is an :class:`EvaluatorError` (one line).
     """
+
+    #: Restarts of a dead actor (and retries of the chunks it was running) before the run stops.
+    max_restarts = 3
 
     def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, address: str | None = None):
         super().__init__(env_key, max_steps, hidden)
         import ray
 
+        from imix_cli.processes import children_of, start_reaper
+
+        self._reaper = None
         self._started_ray = not ray.is_initialized()
         if self._started_ray:
-            ray.init(address=address, include_dashboard=False, log_to_driver=False, configure_logging=False)
+            options = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
+            handlers = _python_signal_handlers()
+            if address is None:  # a local Ray for this run alone, sized to it
+                before = children_of(os.getpid())
+                with _quiet_token_notice():
+                    ray.init(num_cpus=int(workers or default_workers()), **options)
+                self._reaper = start_reaper(children_of(os.getpid()) - before)
+            else:
+                ray.init(address=address, **options)
+            # Ray's driver replaces the SIGTERM/SIGINT handlers at C level (a stack dump, then exit 15):
+            # the run's own handlers stop it cleanly, with one line.
+            for signum, handler in handlers.items():
+                signal.signal(signum, handler)
         self.workers = int(workers or max(1, int(ray.cluster_resources().get("CPU", 1))))
-        actor = ray.remote(num_cpus=1)(_RayWorker)
+        actor = ray.remote(num_cpus=1, max_restarts=self.max_restarts, max_task_retries=self.max_restarts)(_RayWorker)
         self._actors = [actor.remote(self._make_args) for _ in range(self.workers)]
 
     def evaluate(self, params, seeds) -> tuple[np.ndarray, np.ndarray]:
+        from ray.exceptions import RayActorError
         from ray.util import ActorPool
 
         params, seeds = self._check(params, seeds)
         chunks = self._chunks(len(seeds))
         pool = ActorPool(self._actors)
-        results = list(pool.map(lambda actor, c: actor.evaluate.remote(params[c], seeds[c]), chunks))  # in order
+        try:
+            results = list(pool.map(lambda actor, c: actor.evaluate.remote(params[c], seeds[c]), chunks))  # in order
+        except RayActorError as err:
+            reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise EvaluatorError(
+                f"evaluator=ray: an actor was lost after {self.max_restarts} restarts ({reason[:200]}); re-run the same command to resume from the checkpoints"
+            ) from None
         return self._gather(results, len(seeds))
 
     def close(self) -> None:
         import ray
 
+        from imix_cli.processes import stop_reaper
+
         for a in getattr(self, "_actors", []):
-            ray.kill(a)
+            try:
+                ray.kill(a)
+            except Exception:  # noqa: BLE001 - an actor already gone
+                pass
         self._actors = []
         if self._started_ray and ray.is_initialized():
             ray.shutdown()
         self._started_ray = False
+        stop_reaper(getattr(self, "_reaper", None))
+        self._reaper = None
+
+
+def _python_signal_handlers() -> dict:
+    """SIGINT's and SIGTERM's Python handlers, where this is the main thread (only it may set them)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    return {signum: handler for signum, handler in handlers.items() if handler is not None}
+
+
+def _quiet_token_notice():
+    """Ray 2.5x+ logs a notice at every local start that it enabled token authentication (it stays
+    enabled): one line per run on stderr that says nothing about the run."""
+    import contextlib
+    import logging
+
+    logger = logging.getLogger("ray._private.authentication.authentication_token_setup")
+
+    @contextlib.contextmanager
+    def quiet():
+        level = logger.level
+        logger.setLevel(logging.ERROR)
+        try:
+            yield
+        finally:
+            logger.setLevel(level)
+
+    return quiet()

@@ -56,6 +56,7 @@ def _init_worker(progress_queue) -> None:
     _progress_queue = progress_queue
     # Ctrl-C reaches the whole process group: the main process alone decides, and stops us.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the main process's one line is enough: a worker ends silently
     start_orphan_watchdog(os.getppid())
 
 

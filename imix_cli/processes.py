@@ -58,3 +58,98 @@ def _exit_when_orphaned(parent_pid: int) -> None:
         time.sleep(1.0)
         if os.getppid() != parent_pid:
             os._exit(1)
+
+
+# A process of its own (a new session: a terminal's Ctrl-C or a kill of the main's process group
+# does not reach it) that keeps the list of the processes under ``roots`` while the main process
+# lives, and SIGKILLs those still running once the main process dies (its stdin, a pipe from the
+# main, reaches end of file) or says it is done (closes that pipe). A process is recognised by
+# its pid and start time, so a pid reused by an unrelated process is never killed. Linux only.
+_REAPER = r"""
+import os, signal, sys, threading
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+roots = {int(a) for a in sys.argv[1:]}
+me = os.getpid()
+
+def table():
+    procs = {}
+    for name in os.listdir("/proc"):
+        if name.isdigit():
+            try:
+                with open(f"/proc/{name}/stat") as fh:
+                    fields = fh.read().rsplit(")", 1)[1].split()
+                if fields[0] != "Z":
+                    procs[int(name)] = (int(fields[1]), fields[19])  # parent pid, start time
+            except (OSError, IndexError, ValueError):
+                pass
+    return procs
+
+def subtree(procs, tops):
+    tree = {p for p in tops if p in procs}
+    while True:
+        more = {p for p, (parent, _) in procs.items() if parent in tree} - tree
+        if not more:
+            return tree - {me}
+        tree |= more
+
+seen = {}
+ended = threading.Event()
+threading.Thread(target=lambda: (sys.stdin.buffer.read(), ended.set()), daemon=True).start()
+while not ended.wait(0.5):
+    procs = table()
+    seen.update({p: procs[p][1] for p in subtree(procs, roots | set(seen))})
+for _ in range(3):  # what they start while being killed is killed in the next pass
+    procs = table()
+    alive = {p for p, start in seen.items() if p in procs and procs[p][1] == start}
+    for p in subtree(procs, alive):
+        try:
+            os.kill(p, signal.SIGKILL)
+        except OSError:
+            pass
+        seen.setdefault(p, procs[p][1])
+"""
+
+
+def children_of(pid: int) -> set:
+    """The pids whose parent is ``pid`` (Linux; an empty set elsewhere)."""
+    found = set()
+    try:
+        names = os.listdir("/proc")
+    except OSError:
+        return found
+    for name in names:
+        if name.isdigit():
+            try:
+                with open(f"/proc/{name}/stat") as fh:
+                    if int(fh.read().rsplit(")", 1)[1].split()[1]) == pid:
+                        found.add(int(name))
+            except (OSError, IndexError, ValueError):
+                pass
+    return found
+
+
+def start_reaper(roots: set):
+    """Make sure the processes under ``roots`` (and all they start) end with this process, however it
+    ends -- kill -9 included: see ``_REAPER``. Returns the reaper (a Popen) for :func:`stop_reaper`,
+    or None where /proc is missing."""
+    import subprocess
+    import sys
+
+    if not roots or not os.path.isdir("/proc/self"):
+        return None
+    return subprocess.Popen(
+        [sys.executable, "-c", _REAPER, *map(str, sorted(roots))],
+        stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, close_fds=True,
+    )  # fmt: skip
+
+
+def stop_reaper(reaper) -> None:
+    """This process is done with the processes under the reaper's roots: the reaper kills what is left of them, and exits."""
+    if reaper is None:
+        return
+    try:
+        reaper.stdin.close()
+        reaper.wait(timeout=10)
+    except Exception:  # noqa: BLE001 - a reaper that is already gone has nothing left to do
+        pass

@@ -1,16 +1,20 @@
-"""A run's folder: created, checked against the config it holds, locked while a run writes it.
+"""A run's folder: checked against the config it holds, then locked and written while a run writes it.
 
-``prepare_run_dir`` decides which seeds are still to run: a finished seed (its CSV exists) is
-skipped, or continued when the config asks for more generations (from its final checkpoint);
-results of a different config, a corrupt CSV or one that does not fit the config are refused
-with one line (:class:`RunError`) before anything is written.
+``check_run_dir`` decides which seeds are still to run, reading only: a finished seed (its CSV
+exists) is skipped, or continued when the config asks for more generations (from its final
+checkpoint); results of a different config, a corrupt CSV, one that does not fit the config, or a
+symbolic link anywhere in the folder are refused with one line (:class:`RunError`). The runner
+calls it before taking the folder's lock, so a refused run writes nothing, not even its lock;
+``prepare_run_dir`` checks again under the lock, then writes config.yaml.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import reprlib
+import stat
 
 from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, regular_file_size, seed_csv_path
 from imix_cli.run_spec import differing_keys, identity_of, resume_identity
@@ -24,42 +28,38 @@ class RunError(RuntimeError):
     """A run cannot proceed (existing results conflict, unwritable folder...); one-line message."""
 
 
-def prepare_run_dir(spec) -> list[int]:
-    """Create the run folder, check/write config.yaml, and return the seeds still to run.
+def check_run_dir(spec) -> tuple[list[int], bool]:
+    """Check the run folder against ``spec`` without writing anything; return (seeds still to run, whether
+    config.yaml is to be (re)written).
 
-    Raises RunError if the folder holds results of a different config or a corrupt CSV;
-    nothing existing is overwritten.
+    Raises RunError (one line) if the folder, the experiment folder or anything in the run folder is a
+    symbolic link, if the folder holds results of a different config, a corrupt CSV, or a seed finished
+    beyond ``generations`` (a run is never shortened below what a seed finished).
     """
     import yaml
 
     trainer = trainer_for(spec)
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
-    make_run_dir(spec)
-    refuse_symlinks(run_dir)
+    refuse_links(spec)
+    old = None
     if config_file.exists():
         try:
             if regular_file_size(config_file) > MAX_CONFIG_BYTES:  # a config is a few kB: bound what a reader allocates
                 raise ValueError(f"{config_file.stat().st_size:,} bytes")
-            existing = yaml.safe_load(config_file.read_text())
+            old = yaml.safe_load(config_file.read_text())
         except OSError as err:
             raise RunError(f"{config_file}: unreadable ({err.strerror or err}); move it away or choose another experiment=") from None
         except Exception as err:
             raise RunError(f"{config_file}: unreadable ({type(err).__name__}); move it away or choose another experiment=") from None
-        if not isinstance(existing, dict) or not all(isinstance(k, str) for k in existing):
+        if not isinstance(old, dict) or not all(isinstance(k, str) for k in old):
             raise RunError(f"{config_file}: not a config mapping; move it away or choose another experiment=")
-        old, new = identity_of(existing), spec.identity()
+        old, new = identity_of(old), spec.identity()
         differing = differing_keys(resume_identity(old), resume_identity(new))
         if differing:
             # reprlib: a value read from the file is shown shortened (a YAML alias bomb must not expand here)
             changes = ", ".join(f"{k}={reprlib.repr(old.get(k))} there, {new.get(k)!r} now" for k in differing[:8])
             raise RunError(f"{config_file} holds a different config ({changes}); choose another experiment= or move that folder away")
-        if trainer.continuable and isinstance(old.get("generations"), int) and old["generations"] > spec.generations:
-            raise RunError(
-                f"{config_file} holds a different config (generations={old['generations']} there, {spec.generations} now): "
-                "a run can be continued to more generations, not shortened; choose another experiment= or move that folder away"
-            )
-    continued = config_file.exists() and trainer.continuable and old.get("generations") != spec.generations
     todo = []
     for seed in range(spec.seeds):
         path = seed_csv_path(run_dir, seed)
@@ -70,11 +70,31 @@ def prepare_run_dir(spec) -> list[int]:
             frame = read_run_csv(path)
         except CorruptResultError as err:
             raise RunError(f"{err}; move or delete it, then re-run") from None
-        partial_csv_path(run_dir, seed).unlink(missing_ok=True)  # left by a kill between the CSV and its clean-up
         if trainer.needs_running(spec, seed, path, frame):
             todo.append(seed)
-    if not config_file.exists() or continued:  # new, or continued to more generations
-        atomic_write_text(config_file, yaml.safe_dump(spec.config, sort_keys=False))
+    # A continuable run's generations may change (to more, or back to fewer than a continuation that was
+    # killed reached): config.yaml records the latest target. What a run holds is its finished CSVs,
+    # which needs_running has checked against that target.
+    write_config = old is None or (trainer.continuable and old.get("generations") != spec.generations)
+    return todo, write_config
+
+
+def prepare_run_dir(spec) -> list[int]:
+    """Check the run folder (:func:`check_run_dir`), write config.yaml, clear what a kill left; return the seeds still to run.
+
+    Called under the folder's lock (:func:`run_dir_lock`); nothing existing is overwritten but
+    config.yaml's recorded target (``generations``) and the temporaries of killed writes.
+    """
+    import yaml
+
+    todo, write_config = check_run_dir(spec)
+    run_dir = spec.run_dir
+    make_run_dir(spec)
+    for seed in range(spec.seeds):
+        if seed_csv_path(run_dir, seed).exists():
+            partial_csv_path(run_dir, seed).unlink(missing_ok=True)  # left by a kill between the CSV and its clean-up
+    if write_config:  # new, or continued to another number of generations
+        atomic_write_text(run_dir / "config.yaml", yaml.safe_dump(spec.config, sort_keys=False))
     # Temporaries of writes cut short by a kill are never at a final name; clear them away. (run()
     # holds the folder's lock, so no other live run is writing them; an orphaned worker of a
     # killed run exits within a second and only loses a write that is redone on resume.)
@@ -92,20 +112,26 @@ def prepare_run_dir(spec) -> list[int]:
 CHECKPOINT_AREA = ".checkpoints"
 
 
-def refuse_symlinks(run_dir) -> None:
-    """RunError if the run's checkpoint area, or anything in it, is a symlink.
+def refuse_links(spec) -> None:
+    """RunError if the experiment folder, the run folder, or an entry of the run folder (or of its
+    ``.checkpoints``) is a symbolic link.
 
-    Why: imix writes checkpoints there, reads them back and deletes its temporaries there; a
-    symlink (a results folder from elsewhere, a prank) would make it write, read or delete
-    outside the run folder. It is refused, never followed.
+    Why: a results folder travels (copied from a cluster, shared, downloaded); a link in it would
+    make imix write, or delete, outside results_dir (a ``.lock`` pointing at a user's file would
+    get a pid written into it). ``results_dir`` itself may be a link: the user chose it.
     """
-    area = run_dir / CHECKPOINT_AREA
-    if area.is_symlink():
-        raise RunError(f"{area} is a symlink; imix never writes or deletes through one: replace it with a folder (or remove it)")
-    if area.is_dir():
-        linked = next((p for p in sorted(area.iterdir()) if p.is_symlink()), None)
-        if linked is not None:
-            raise RunError(f"{linked} is a symlink in {CHECKPOINT_AREA}; imix never reads, writes or deletes through one: remove it")
+    experiment_dir = spec.run_dir.parent
+    for folder in (experiment_dir, spec.run_dir):
+        if folder.is_symlink():
+            raise RunError(
+                f"{folder} is a symbolic link; imix writes through no link inside results_dir (only results_dir itself may be one): replace it by a folder"
+            )
+    for folder in (spec.run_dir, spec.run_dir / CHECKPOINT_AREA):
+        if folder.is_symlink() or not folder.is_dir():
+            continue
+        for entry in os.scandir(folder):
+            if entry.is_symlink():
+                raise RunError(f"{entry.path} is a symbolic link; imix follows no link in a run folder: remove it, then re-run")
 
 
 def make_run_dir(spec) -> None:
@@ -133,8 +159,15 @@ def run_dir_lock(spec):
 
     make_run_dir(spec)
     path = spec.run_dir / LOCK_NAME
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:  # O_NOFOLLOW: a link planted at .lock is refused, never followed (its target would get our pid)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK, 0o666)
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            raise RunError(f"{path} is a symbolic link; imix follows no link in a run folder: remove it, then re-run") from None
+        raise
     try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise RunError(f"{path} is not a regular file; remove it, then re-run")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

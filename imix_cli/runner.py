@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from imix_cli.pool import progress_bar, report_progress, run_pool
-from imix_cli.run_folder import RunError, prepare_run_dir, run_dir_lock
+from imix_cli.run_folder import RunError, check_run_dir, prepare_run_dir, run_dir_lock
 from imix_cli.summary import format_summary, summarize
 from imix_cli.trainers import trainer_for
 from imix_cli.warmup import warm_up
@@ -31,9 +31,12 @@ __all__ = ["RunError", "run", "run_seeds"]
 def run(spec, echo=print) -> dict:
     """Run every unfinished seed of ``spec`` (a :class:`imix_cli.run_spec.RunSpec`); print and return the summary.
 
-    The run folder is locked for the whole run (:func:`imix_cli.run_folder.run_dir_lock`): a
-    second run on it is refused with RunError before it touches anything.
+    The run folder is checked first (:func:`imix_cli.run_folder.check_run_dir`: a refused run
+    writes nothing, not even its lock), then locked for the whole run
+    (:func:`imix_cli.run_folder.run_dir_lock`): a second run on it is refused with RunError
+    before it touches anything.
     """
+    check_run_dir(spec)
     with run_dir_lock(spec):
         return _run_locked(spec, echo)
 

@@ -8,11 +8,14 @@ reading (a partial CSV removed as its seed finishes) is read again as finished o
 
 Per seed ``k`` of a run folder (``seeds`` from its config.yaml, else the files found):
 
-* done: ``seed_<k>.csv`` exists;
+* done: ``seed_<k>.csv`` exists (and no partial CSV goes beyond it);
 * running: ``seed_<k>.partial.csv`` (rows up to the last checkpoint) or a checkpoint
-  ``.checkpoints/seed_<k>.*`` exists. "Running" means "started and not finished": a killed run
-  looks the same until it is resumed;
-* not started: neither.
+  ``.checkpoints/seed_<k>.*`` exists, and no final CSV -- or a partial CSV longer than the final
+  one (a continuation to more generations). "Running" means "started and not finished": a killed
+  run looks the same until it is resumed;
+* corrupt: ``seed_<k>.csv`` (or its partial CSV) does not follow the CSV contract; listed by name
+  and reason, and counted neither done nor running (``imix run`` refuses the folder until it is moved);
+* not started: none of these.
 
 Last generation: the most advanced of the CSV/partial rows and the checkpoint's JSON header
 (``generation``, if the checkpoint is an ``.npz`` holding a ``header`` entry or has a
@@ -48,12 +51,16 @@ keys:
 _SEED_FILE = re.compile(r"^seed_(\d+)(\.partial)?\.csv$")
 
 
-def _read_rows(path: Path):
+def _read_rows(path: Path, corrupt: dict | None = None):
+    """The rows of a seed's CSV, or None (absent, being replaced); a file that does not follow the
+    CSV contract is noted in ``corrupt`` (name -> reason) when given."""
     from imix_cli.results import CorruptResultError, read_run_csv
 
     try:
         return read_run_csv(path)
-    except (FileNotFoundError, CorruptResultError, OSError):
+    except (FileNotFoundError, CorruptResultError, OSError) as err:
+        if corrupt is not None and isinstance(err, CorruptResultError) and path.exists():
+            corrupt[path.name] = str(err).replace(f"{path}: ", "", 1)
         return None
 
 
@@ -99,16 +106,21 @@ def run_status(run_dir: Path) -> dict:
     n_seeds = config.get("seeds") if isinstance(config.get("seeds"), int) else (max(found) + 1 if found else 0)
     algo = config.get("algo") if isinstance(config.get("algo"), dict) else {}
     target = config.get(trainer_named(algo.get("name")).budget_key)  # generations, or DDPG's total_steps
-    done, running, not_started = [], [], []
+    done, running, not_started, corrupt = [], [], [], {}
     last_gen, best, current = [], -math.inf, []
     for seed in range(max(n_seeds, max(found) + 1 if found else 0)):
-        final = _read_rows(run_dir / f"seed_{seed}.csv")
-        if final is not None:
+        final = _read_rows(run_dir / f"seed_{seed}.csv", corrupt)
+        partial = _read_rows(run_dir / f"seed_{seed}.partial.csv", corrupt)
+        if final is not None and (partial is None or len(partial) <= len(final)):
             done.append(seed)
             frame = final
+        elif f"seed_{seed}.csv" in corrupt:  # neither done nor running: a file to move away (imix run refuses it)
+            continue
         else:
-            frame = _read_rows(run_dir / f"seed_{seed}.partial.csv")
-            if frame is None and (run_dir / f"seed_{seed}.csv").exists():  # finished between the two reads
+            # No final CSV, or a continuation to more generations (started, killed or still running) whose
+            # partial rows go beyond it: the seed is running, and its rows are the partial ones.
+            frame = partial
+            if frame is None and final is None and (run_dir / f"seed_{seed}.csv").exists():  # finished between the two reads
                 frame = _read_rows(run_dir / f"seed_{seed}.csv")
                 done.append(seed) if frame is not None else None
             if seed not in done:
@@ -124,7 +136,7 @@ def run_status(run_dir: Path) -> dict:
             best = max(best, float(frame["best_score"].max()))
             current.append(float(frame["mean_score"].iloc[-1]))
     return {
-        "run": run_dir.name, "seeds": n_seeds, "done": done, "running": running, "not_started": not_started,
+        "run": run_dir.name, "seeds": n_seeds, "done": done, "running": running, "not_started": not_started, "corrupt": corrupt,
         "last_generation": max(last_gen) if last_gen else None, "target": target,
         "best_score": best if math.isfinite(best) else None,
         "current_score": sum(current) / len(current) if current else None,
@@ -152,6 +164,8 @@ def format_status(experiment: str, statuses: list) -> str:
         lines.append(f"  {s['run']:<{width}} {len(s['done']):>5} {len(s['running']):>8} {len(s['not_started']):>12} {last:>12} {best:>9} {current:>9}")
         if s["running"]:
             lines.append(f"  {'':<{width}}   running seeds: {_seed_list(s['running'])}")
+        for name, reason in s.get("corrupt", {}).items():
+            lines.append(f"  {'':<{width}}   corrupt: {name} ({reason}); imix run refuses it: move it away")
     return "\n".join(lines)
 
 
@@ -171,7 +185,7 @@ def main(argv: list | None = None) -> int:
         blocks = []
         for experiment in experiments:
             statuses = [run_status(d) for d in run_folders(root, experiment)]
-            statuses = [st for st in statuses if st["seeds"] or st["done"] or st["running"]]
+            statuses = [st for st in statuses if st["seeds"] or st["done"] or st["running"] or st["corrupt"]]
             if statuses:
                 blocks.append(format_status(experiment, statuses))
     except UsageError as err:

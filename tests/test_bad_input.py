@@ -107,13 +107,13 @@ def test_corrupt_csv_already_in_the_folder(results, capsys):
 def test_config_yaml_of_a_different_config_in_the_target_folder(results, capsys):
     config = results / RUN_DIR / "config.yaml"
     text = config.read_text()
-    assert "\ngenerations: 3\n" in text
-    config.write_text(text.replace("\ngenerations: 3\n", "\ngenerations: 7\n"))  # not eim_generations
+    assert "\nsigma: 0.25\n" in text
+    config.write_text(text.replace("\nsigma: 0.25\n", "\nsigma: 0.5\n"))
     before = snapshot(results)
     assert main(["run", *BASE, f"results_dir={results}"]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "config.yaml" in err, err
-    assert "(generations=7 there, 3 now)" in err, err  # names exactly the key that differs
+    assert "(sigma=0.5 there, 0.25 now)" in err, err  # names exactly the key that differs
     assert snapshot(results) == before
 
 
