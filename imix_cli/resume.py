@@ -207,6 +207,8 @@ def _validate_es(st, spec, dim: int) -> None:
 
 def _validate_archive(st, spec, dim: int, score_ok) -> None:
     archive, popsize, depth = st.archive, spec.popsize, _archive_depth(spec)
+    if getattr(st.es, "mirrored", False):  # mirrored pairs (ARS): the archive holds the N anchors only (imix_cli.mirrored)
+        popsize //= 2
     gens, returns, ages = archive.generations, archive.returns, archive.ages
     if not (isinstance(gens, list) and isinstance(returns, list) and isinstance(ages, list)):
         _fail("archive is not three lists")
