@@ -26,6 +26,7 @@ from imix_cli.cli import main
 from imix_cli.policy_files import policy_path, read_policy, write_policy
 
 RUN = "cem-cartpole-none-popsize=6"
+IMIX = str(Path(sys.executable).parent / "imix")
 TINY = ["algo=cem", "env=cartpole", "seeds=1", "generations=2", "popsize=6", "progress=false", "workers=1"]
 
 #: A gymnasium env of the user's own, in a module of its own; it notes every import of the module in
@@ -684,3 +685,25 @@ def test_render_refuses_what_eval_refuses(copied, tmp_path, capsys, change):
     assert main(["render", f"results_dir={root}", "experiment=e", f"out={tmp_path / 'p.gif'}"]) == 1
     one_error_line(capsys.readouterr().err, "imix render:")
     assert not (tmp_path / "p.gif").exists()
+
+
+@pytest.mark.parametrize("special", ["/dev/zero", "fifo"])
+@pytest.mark.parametrize("name", ["config.yaml", ".checkpoints/seed_0.json", ".checkpoints/seed_0.npz"])
+def test_status_reads_no_device_or_fifo(copied, special, name):
+    """``imix status`` is read-only and safe while runs write: a config.yaml or checkpoint that is /dev/zero
+    or a FIFO must neither fill the memory nor block it (3 GiB address-space limit, 60 s timeout)."""
+    root, run_dir = copied
+    target = run_dir / name
+    target.parent.mkdir(exist_ok=True)
+    target.unlink(missing_ok=True)
+    if special == "fifo":
+        os.mkfifo(target)
+    else:
+        target.symlink_to(special)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    try:
+        proc = subprocess.run([IMIX, "status", f"results_dir={root}", "experiment=e"], capture_output=True, text=True, timeout=60, preexec_fn=_limited, env=env)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"imix status blocks on a {special} as {name}")
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr[-800:]
+    assert RUN in proc.stdout, proc.stdout
