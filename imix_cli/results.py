@@ -217,6 +217,21 @@ def regular_file_size(path) -> int:
     return info.st_size
 
 
+#: The largest config.yaml (or checkpoint sidecar) imix reads back: a real one is a few kB.
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def read_small_text(path, limit: int = MAX_CONFIG_BYTES) -> str:
+    """The text of ``path`` if it is a regular file of at most ``limit`` bytes; OSError or ValueError otherwise.
+
+    Why: a config.yaml is read back by run, plot, status and the summary; bounding it here keeps a
+    huge file, ``/dev/zero`` or a FIFO under that name from filling the memory or blocking any of them."""
+    size = regular_file_size(path)
+    if size > limit:
+        raise ValueError(f"{path}: {size:,} bytes, more than {limit:,}")
+    return Path(path).read_text()
+
+
 def _kind(mode: int) -> str:
     for test, name in (
         (stat.S_ISDIR, "a folder"),

@@ -16,12 +16,9 @@ import os
 import reprlib
 import stat
 
-from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, regular_file_size, seed_csv_path
+from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
 from imix_cli.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.trainers import trainer_for
-
-#: The largest config.yaml read back (a real one is a few kB).
-MAX_CONFIG_BYTES = 1 << 20
 
 
 class RunError(RuntimeError):
@@ -45,9 +42,7 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
     old = None
     if config_file.exists():
         try:
-            if regular_file_size(config_file) > MAX_CONFIG_BYTES:  # a config is a few kB: bound what a reader allocates
-                raise ValueError(f"{config_file.stat().st_size:,} bytes")
-            old = yaml.safe_load(config_file.read_text())
+            old = yaml.safe_load(read_small_text(config_file))  # bounded: a config is a few kB
         except OSError as err:
             raise RunError(f"{config_file}: unreadable ({err.strerror or err}); move it away or choose another experiment=") from None
         except Exception as err:

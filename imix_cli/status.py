@@ -34,7 +34,7 @@ from pathlib import Path
 
 from imix_cli.evaluate import run_folders
 from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key_values
-from imix_cli.results import regular_file_size
+from imix_cli.results import MAX_CONFIG_BYTES, read_small_text, regular_file_size
 from imix_cli.trainers import trainer_named
 
 HELP = """\
@@ -65,24 +65,13 @@ def _read_rows(path: Path, corrupt: dict | None = None):
         return None
 
 
-#: The largest config.yaml, sidecar or checkpoint header ``status`` reads (real ones are a few kB).
-_SMALL_FILE_BYTES = 1 << 20
-
-
-def _small_text(path: Path) -> str:
-    """The text of a small regular file; ValueError for anything else (a FIFO would block, /dev/zero never ends)."""
-    if regular_file_size(path) > _SMALL_FILE_BYTES:
-        raise ValueError(f"{path}: larger than {_SMALL_FILE_BYTES} bytes")
-    return path.read_text()
-
-
 def _checkpoint_generation(run_dir: Path, seed: int):
     """The generation in a checkpoint's JSON header, or None (absent, other format, unreadable)."""
     ckpt_dir = run_dir / ".checkpoints"
     sidecar = ckpt_dir / f"seed_{seed}.json"
     try:
         if sidecar.exists():
-            return int(json.loads(_small_text(sidecar))["generation"])
+            return int(json.loads(read_small_text(sidecar))["generation"])
         npz = ckpt_dir / f"seed_{seed}.npz"
         if npz.exists():
             import zipfile
@@ -91,7 +80,7 @@ def _checkpoint_generation(run_dir: Path, seed: int):
 
             regular_file_size(npz)  # a regular file, or nothing is opened
             with zipfile.ZipFile(npz) as archive:  # the header's declared size is checked before it is inflated
-                if archive.getinfo("header.npy").file_size > _SMALL_FILE_BYTES:
+                if archive.getinfo("header.npy").file_size > MAX_CONFIG_BYTES:
                     return None
             with np.load(npz, allow_pickle=False) as data:
                 return int(json.loads(str(data["header"][()]))["generation"])
@@ -110,7 +99,7 @@ def run_status(run_dir: Path) -> dict:
     import yaml
 
     try:
-        config = yaml.safe_load(_small_text(run_dir / "config.yaml")) or {}
+        config = yaml.safe_load(read_small_text(run_dir / "config.yaml")) or {}
     except Exception:  # noqa: BLE001 - missing or being written: fall back on the files found
         config = {}
     config = config if isinstance(config, dict) else {}

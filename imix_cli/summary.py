@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.results import CorruptResultError, read_run_csv, regular_file_size, seed_csv_path, seed_summary
+from imix_cli.results import CorruptResultError, read_run_csv, read_small_text, seed_csv_path, seed_summary
 from imix_cli.run_spec import identity_of
 from imix_cli.stats import mean_ci
 from imix_cli.trainers import trainer_for
@@ -67,9 +67,7 @@ def counterpart_runs(spec) -> list[Path]:
         if other == spec.run_dir or not (other / "config.yaml").is_file() or not any(other.glob("seed_*[0-9].csv")):
             continue
         try:
-            if regular_file_size(other / "config.yaml") > 1 << 20:  # a config is a few kB: bounded memory
-                continue
-            config = yaml.safe_load((other / "config.yaml").read_text())
+            config = yaml.safe_load(read_small_text(other / "config.yaml"))  # bounded memory
         except Exception:  # an unreadable sibling is simply not compared
             continue
         if isinstance(config, dict) and {k: v for k, v in identity_of(config).items() if k not in MIXING_KEYS} == mine:

@@ -645,6 +645,17 @@ def _limited():
     resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))  # a reader that reads forever fails here, not the machine
 
 
+def plant_special(target, special):
+    """Put ``/dev/zero`` (as a symlink) or a FIFO where a file of imix's is expected; return the path."""
+    target.parent.mkdir(exist_ok=True)
+    target.unlink(missing_ok=True)
+    if special == "fifo":
+        os.mkfifo(target)
+    else:
+        target.symlink_to(special)
+    return target
+
+
 @pytest.mark.parametrize("special", ["/dev/zero", "fifo"])
 @pytest.mark.parametrize("name", ["seed_0.csv", "policy_0_mean.npz", "config.yaml", ".checkpoints/seed_0.npz"])
 def test_a_file_that_is_a_device_or_a_fifo_is_refused_without_reading_it(copied, tmp_path, special, name):
@@ -653,13 +664,7 @@ def test_a_file_that_is_a_device_or_a_fifo_is_refused_without_reading_it(copied,
     (Run in a subprocess with a 3 GiB address-space limit and a 60 s timeout: the readers before this
     check read /dev/zero until the machine ran out of memory.)"""
     root, run_dir = copied
-    target = run_dir / name
-    target.parent.mkdir(exist_ok=True)
-    target.unlink(missing_ok=True)
-    if special == "fifo":
-        os.mkfifo(target)
-    else:
-        target.symlink_to(special)
+    target = plant_special(run_dir / name, special)
     repo = str(Path(__file__).resolve().parent.parent)
     script = READ_SPECIAL.format(paths=[repo], name=name, target=str(target), overrides=[*TINY, f"results_dir={root}", "experiment=e"])
     try:
@@ -693,13 +698,7 @@ def test_status_reads_no_device_or_fifo(copied, special, name):
     """``imix status`` is read-only and safe while runs write: a config.yaml or checkpoint that is /dev/zero
     or a FIFO must neither fill the memory nor block it (3 GiB address-space limit, 60 s timeout)."""
     root, run_dir = copied
-    target = run_dir / name
-    target.parent.mkdir(exist_ok=True)
-    target.unlink(missing_ok=True)
-    if special == "fifo":
-        os.mkfifo(target)
-    else:
-        target.symlink_to(special)
+    plant_special(run_dir / name, special)
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
     try:
         proc = subprocess.run([IMIX, "status", f"results_dir={root}", "experiment=e"], capture_output=True, text=True, timeout=60, preexec_fn=_limited, env=env)

@@ -65,7 +65,7 @@ import numpy as np
 import pandas as pd
 
 from imix_cli.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
-from imix_cli.results import CorruptResultError, read_run_csv, regular_file_size, run_dir_name, seed_csv_path
+from imix_cli.results import CorruptResultError, read_run_csv, read_small_text, run_dir_name, seed_csv_path
 from imix_cli.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 
 __all__ = [
@@ -197,9 +197,7 @@ def _read_config(path: Path, warn) -> dict:
     try:
         import yaml
 
-        if regular_file_size(path) > 1 << 20:  # a config is a few kB: a huge file (or /dev/zero) is not read
-            raise ValueError("larger than 1 MiB")
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(read_small_text(path))  # a huge file (or /dev/zero) is not read
     except Exception as err:  # noqa: BLE001 - any parse error: keep going without the config
         warn(f"{path}: unreadable config.yaml ({type(err).__name__}); hyper-parameters taken from the folder name")
         return {}
