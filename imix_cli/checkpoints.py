@@ -217,12 +217,67 @@ def _encode(value, name: str, arrays: dict):
     if dataclasses.is_dataclass(value):
         return {"state": {f.name: _encode(getattr(value, f.name), f"{name}/{f.name}".lstrip("/"), arrays) for f in dataclasses.fields(value)}}
     if isinstance(value, (list, tuple)):
+        table = _encode_table(value, name, arrays)
+        if table is not None:
+            return table
         return {"list": [_encode(v, f"{name}/{i}", arrays) for i, v in enumerate(value)]}
     if isinstance(value, dict):
         if not all(isinstance(k, str) for k in value):
             raise TypeError(f"{name}: only dicts with string keys can be checkpointed")
         return {"dict": {k: _encode(v, f"{name}/{k}", arrays) for k, v in value.items()}}
     raise TypeError(f"{name}: cannot checkpoint a {type(value).__name__}")
+
+
+def _encode_table(rows, name: str, arrays: dict):
+    """A list of dicts with the same keys in the same order (a seed's CSV rows), column by column:
+    the int columns as one int64 array, the float columns as one float64 array, any other column
+    (strings) as a list. None if ``rows`` is not such a list.
+
+    Why: a seed's rows are the bulk of its checkpoint, and they grow with every generation; one
+    JSON node per value made a checkpoint of a 1000-generation seed cost ~30 ms (encoding, hashing
+    and writing the JSON tree), more than the generations between two checkpoints took to compute."""
+    if len(rows) < 2 or not all(type(r) is dict for r in rows):
+        return None
+    keys = tuple(rows[0])
+    if not all(type(k) is str for k in keys) or any(tuple(r) != keys for r in rows):
+        return None
+    ints, floats, columns = [], [], []
+    for k, values in zip(keys, zip(*(r.values() for r in rows))):
+        kinds = set(map(type, values))
+        if kinds == {int} and -(2**63) <= min(values) and max(values) < 2**63:
+            columns.append({"int": len(ints)})
+            ints.append(values)
+        elif kinds == {float}:
+            columns.append({"float": len(floats)})
+            floats.append(values)
+        else:
+            columns.append({"list": [_encode(v, f"{name}/{k}/{i}", arrays) for i, v in enumerate(values)]})
+    arrays[f"{name}/int"] = np.array(ints, dtype=np.int64).reshape(len(ints), len(rows))
+    arrays[f"{name}/float"] = np.array(floats, dtype=np.float64).reshape(len(floats), len(rows))
+    return {"table": {"keys": list(keys), "columns": columns, "int": f"{name}/int", "float": f"{name}/float"}}
+
+
+def _decode_table(body, arrays: dict, field: str) -> list:
+    keys, columns, ints, floats = body["keys"], body["columns"], arrays[body["int"]], arrays[body["float"]]
+    if not isinstance(keys, list) or not isinstance(columns, list) or len(keys) != len(columns) or not all(isinstance(k, str) for k in keys):
+        raise ValueError(f"{field}: malformed table")
+    if ints.dtype != np.int64 or floats.dtype != np.float64 or ints.ndim != 2 or floats.ndim != 2:
+        raise ValueError(f"{field}: malformed table arrays")
+    values = []
+    for column in columns:
+        if not isinstance(column, dict) or len(column) != 1:
+            raise ValueError(f"{field}: malformed table column")
+        ((kind, body_),) = column.items()
+        if kind in ("int", "float"):
+            matrix = ints if kind == "int" else floats
+            if type(body_) is not int or not 0 <= body_ < matrix.shape[0]:
+                raise ValueError(f"{field}: malformed table column")
+            values.append(matrix[body_].tolist())  # Python ints and floats, as the rows held them
+        else:
+            values.append(_decode(column, None, arrays, field))
+    if len({len(v) for v in values}) > 1:
+        raise ValueError(f"{field}: table columns of different lengths")
+    return [dict(zip(keys, row)) for row in zip(*values)]
 
 
 def _decode(node, template, arrays: dict, field: str = ""):
@@ -247,6 +302,10 @@ def _decode(node, template, arrays: dict, field: str = ""):
         return rng
     if tag == "list":
         return [_decode(v, None, arrays, field) for v in body]
+    if tag == "table":
+        if not isinstance(body, dict) or sorted(body) != ["columns", "float", "int", "keys"]:
+            raise ValueError(f"{field}: malformed table")
+        return _decode_table(body, arrays, field)
     if tag == "dict":
         return {k: _decode(v, None, arrays, field) for k, v in body.items()}
     if tag == "generation":

@@ -16,7 +16,7 @@ from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, raw_o
 from imix_cli.messages import warn
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.policy_files import write_seed_policies
-from imix_cli.results import partial_csv_path, seed_csv_path, seed_summary, write_run_csv
+from imix_cli.results import atomic_write_text, csv_text, partial_csv_path, rows_to_frame, seed_csv_path, seed_summary, write_run_csv
 from imix_cli.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
 from imix_cli.run_folder import RunError
 from imix_cli.run_spec import resume_identity
@@ -70,30 +70,86 @@ def _run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
     return summaries
 
 
+#: Most generations a seed runs in one compiled call (:mod:`imix_cli.compiled_loop`): the progress bar
+#: and the rows' wall times move by this step (about a tenth of a second on the main job).
+CHUNK = 25
+
+
 def _run_active(spec, states, active, evaluator, identity, checkpoint_every, started, summaries, progress, tracker) -> None:
-    """The lockstep loop of :func:`run_es_seeds`: generations of the ``active`` seeds until each is done."""
-    run_dir = spec.run_dir
+    """The lockstep loop of :func:`run_es_seeds`: generations of the ``active`` seeds until each is done.
+
+    Seeds the compiled loop applies to (:mod:`imix_cli.compiled_loop`: the same rows, bit for bit)
+    advance by chunks of up to :data:`CHUNK` generations, a chunk ending where the loop below would
+    checkpoint or finish; the other seeds advance one generation at a time, together."""
+    from imix_cli import compiled_loop  # numba's kernels: loaded by the processes that run seeds only
+
+    ended = _SeedEnd(spec, evaluator, identity, checkpoint_every, started, summaries, tracker)
     while active:
-        advance_lockstep(active, spec, evaluator)
-        now = time.perf_counter() - started
+        advanced = 0
+        stepped = []
         for st in active:
-            st.rows[-1]["wall_time"] = st.elapsed + now
-            diverged = end_if_diverged(st)
-            if tracker is not None:
-                tracker.log(st.seed, st.rows[-1])
-            if diverged:
-                summaries[st.seed] = seed_summary(write_run_csv(seed_csv_path(run_dir, st.seed), st.rows))
-                remove_checkpoints(run_dir, st.seed)
-            elif st.generation == spec.generations:
-                summaries[st.seed] = _finish_seed(spec, st, evaluator)
-                if checkpoint_every:  # the final state: `generations=` larger continues from it
-                    _checkpoint(run_dir, st, identity, now)
-                remove_checkpoints(run_dir, st.seed, keep_final=bool(checkpoint_every))
-            elif checkpoint_every and st.generation % checkpoint_every == 0:
-                _checkpoint(run_dir, st, identity, now)
-                write_run_csv(partial_csv_path(run_dir, st.seed), st.rows)  # live view (imix status/plot)
-        progress(len(active))
+            if not compiled_loop.applies(spec, evaluator, st):
+                stepped.append(st)
+                continue
+            first, began = st.generation, time.perf_counter() - started
+            stop = min(spec.generations, first + CHUNK)
+            if checkpoint_every:
+                stop = min(stop, (first // checkpoint_every + 1) * checkpoint_every)
+            if compiled_loop.advance(st, spec, evaluator, stop - first):
+                ended(st, first, began)
+            else:  # a non-finite return or a diverging update: the Python loop takes the chunk
+                while st.generation < stop and not st.es.diverged:
+                    advance_lockstep([st], spec, evaluator)
+                    ended(st, st.generation - 1)
+            advanced += st.generation - first
+        if stepped:
+            advance_lockstep(stepped, spec, evaluator)
+            for st in stepped:
+                ended(st, st.generation - 1)
+            advanced += len(stepped)
+        progress(advanced)
         active = [st for st in active if st.generation < spec.generations and not st.es.diverged]
+
+
+class _SeedEnd:
+    """What follows a seed's new rows: their wall times, the tracker, then -- at the last one -- the
+    end of a diverged or finished seed, or a checkpoint with its live CSV."""
+
+    def __init__(self, spec, evaluator, identity, checkpoint_every, started, summaries, tracker):
+        self.spec, self.evaluator, self.identity, self.checkpoint_every = spec, evaluator, identity, checkpoint_every
+        self.started, self.summaries, self.tracker = started, summaries, tracker
+        self.partial: dict[int, tuple[int, str]] = {}  # seed -> (rows in its live CSV, their text)
+
+    def __call__(self, st: SeedState, first: int, began: float | None = None) -> None:
+        """``st.rows[first:]`` are new; ``began``: when the compiled chunk that made them began."""
+        spec, run_dir = self.spec, self.spec.run_dir
+        now = time.perf_counter() - self.started
+        rows = st.rows[first:]
+        for i, row in enumerate(rows, start=1):  # a compiled chunk's rows: times spread evenly over it
+            row["wall_time"] = st.elapsed + (now if began is None else began + (now - began) * i / len(rows))
+        diverged = end_if_diverged(st)
+        if self.tracker is not None:
+            for row in rows:
+                self.tracker.log(st.seed, row)
+        if diverged:
+            self.summaries[st.seed] = seed_summary(write_run_csv(seed_csv_path(run_dir, st.seed), st.rows))
+            remove_checkpoints(run_dir, st.seed)
+        elif st.generation == spec.generations:
+            self.summaries[st.seed] = _finish_seed(spec, st, self.evaluator)
+            if self.checkpoint_every:  # the final state: `generations=` larger continues from it
+                _checkpoint(run_dir, st, self.identity, now)
+            remove_checkpoints(run_dir, st.seed, keep_final=bool(self.checkpoint_every))
+        elif self.checkpoint_every and st.generation % self.checkpoint_every == 0:
+            _checkpoint(run_dir, st, self.identity, now)
+            self._write_partial(st)
+
+    def _write_partial(self, st: SeedState) -> None:
+        """The seed's live view (``seed_<k>.partial.csv``, read by imix status and plot), rewritten
+        whole (atomically) with only its new rows formatted: a seed's earlier rows never change."""
+        done, text = self.partial.get(st.seed, (0, ""))
+        text += csv_text(rows_to_frame(st.rows[done:]), header=not done)
+        self.partial[st.seed] = (len(st.rows), text)
+        atomic_write_text(partial_csv_path(self.spec.run_dir, st.seed), text)
 
 
 def _finish_seed(spec, st: SeedState, evaluator) -> dict:

@@ -192,8 +192,15 @@ def seed_summary(frame: pd.DataFrame) -> dict:
 def write_run_csv(path, rows) -> pd.DataFrame:
     """Write one seed's rows atomically to ``path`` (``seed_<k>.csv``); return them as a frame."""
     frame = rows if isinstance(rows, pd.DataFrame) else rows_to_frame(rows)
-    atomic_write_text(path, frame.to_csv(index=False, float_format="%.10g", lineterminator="\n"))
+    atomic_write_text(path, csv_text(frame))
     return frame
+
+
+def csv_text(frame: pd.DataFrame, header: bool = True) -> str:
+    """The text of a seed CSV of ``frame`` (:func:`rows_to_frame`'s); without ``header``, its rows only.
+    Each value is formatted on its own (its column's type), so the text of consecutive frames
+    concatenated is the text of the frame of all their rows."""
+    return frame.to_csv(index=False, header=header, float_format="%.10g", lineterminator="\n")
 
 
 #: The largest seed CSV read back (a row is ~300 bytes: ~1 million generations or episodes). pandas

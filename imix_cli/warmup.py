@@ -76,6 +76,17 @@ def _episodes_group(spec) -> None:
     evaluator.evaluate(np.zeros((1, evaluator.num_params)), np.zeros(1, dtype=np.int64))
 
 
+def _compiled_loop_group(spec) -> None:
+    """One generation of one seed through the compiled loop (:mod:`imix_cli.compiled_loop`): compiles
+    its entry point, which holds its own copy of the mixing, episode and update kernels."""
+    from imix_cli import compiled_loop
+    from imix_cli.lockstep import new_seed_state
+    from imix_cli.parallel_evaluation import build_evaluator
+
+    evaluator = build_evaluator(spec)
+    compiled_loop.advance(new_seed_state(spec, 0, evaluator.num_params), spec, evaluator, 1)
+
+
 def _num_params(spec) -> int:
     from imix_cli.parallel_evaluation import build_evaluator
 
@@ -100,6 +111,10 @@ def compile_groups(spec) -> list:
         evaluator = build_evaluator(spec)
         if isinstance(evaluator, (CartPoleEvaluator, ContinuousCartPoleEvaluator)):
             groups.append((_episodes_group, [kernels.cartpole_episodes]))
+            from imix_cli import compiled_loop
+
+            if compiled_loop.applies_to_run(spec, evaluator):
+                groups.append((_compiled_loop_group, [compiled_loop.entry()]))
         elif isinstance(evaluator, AcrobotEvaluator):
             groups.append((_episodes_group, [kernels.acrobot_episodes]))
     return groups

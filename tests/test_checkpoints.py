@@ -210,9 +210,11 @@ def test_a_pickle_payload_is_never_executed(tmp_path, capfd):
     assert not legacy_checkpoint_path(spec.run_dir, 0).exists()  # removed once the seed finished
 
 
-def test_a_damaged_checkpoint_gives_the_uninterrupted_csv_not_a_wrong_one(tmp_path, capfd):
+def test_a_damaged_checkpoint_gives_the_uninterrupted_csv_not_a_wrong_one(tmp_path, capfd, monkeypatch):
     """End to end: a checkpoint whose ES mean moved by 1e-3 (re-zipped, CRCs valid) is refused and the
-    seed's CSV equals that of an uninterrupted run."""
+    seed's CSV equals that of an uninterrupted run. The Python loop (one progress call per generation,
+    so the interruption falls mid-run; the compiled loop gives the same rows: test_compiled_loop.py)."""
+    monkeypatch.setenv("IMIX_COMPILED_LOOP", "0")
     assert main(["run", *COMMON, f"results_dir={tmp_path / 'ref'}"]) == 0
     (spec,) = validate_overrides([*COMMON, f"results_dir={tmp_path / 'run'}"])
     todo = prepare_run_dir(spec)

@@ -1,0 +1,163 @@
+"""The compiled generation loop (imix_cli.compiled_loop) against the Python loop, its reference.
+
+What must hold: the same rows, the same ES and archive state, the same random generators, the same
+best member -- bit for bit -- after any number of chunks; whole runs through `imix run` (CSVs,
+policies, checkpoints, a continued run) identical with IMIX_COMPILED_LOOP=0 and without; and where
+the compiled loop does not apply, or meets a diverging update, the Python loop's rows exactly.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from imix_cli import compiled_loop
+from imix_cli.checkpoints import _encode, _read_npz
+from imix_cli.config import validate_overrides
+from imix_cli.lockstep import advance_lockstep, new_seed_state
+from imix_cli.parallel_evaluation import build_evaluator
+
+CASES = [
+    ["algo=snes", "env=cartpole", "eim=true"],  # the main job
+    ["algo=openes", "env=cartpole", "eim=true", "popsize=20"],
+    ["algo=snes", "env=cartpole", "eim=false", "popsize=12"],
+    ["algo=snes", "env=cartpole", "im=true", "popsize=16"],
+    ["algo=openes", "env=continuous_cartpole_hard", "im=true", "im_variant=sun2009", "im_alpha=0.1", "popsize=10"],
+    ["algo=snes", "env=continuous_cartpole", "eim=true", "eim_generations=5", "weight_decay=0", "sigma=0.5", "lr=0.05"],
+]
+
+
+def _seed_state(overrides, seed=3):
+    (spec,) = validate_overrides([*overrides, "eval_mean_every=7", "eval_mean_episodes=3"])
+    evaluator = build_evaluator(spec)
+    return spec, evaluator, new_seed_state(spec, seed, evaluator.num_params)
+
+
+def _snapshot(st) -> dict:
+    """Everything a checkpoint would hold of the seed (its encoded tree and arrays), wall times aside."""
+    arrays = {}
+    tree = _encode(st, "", arrays)
+    return {"tree": repr(tree), "arrays": {k: v.copy() for k, v in arrays.items()}}
+
+
+def _same(a: dict, b: dict) -> None:
+    assert a["tree"] == b["tree"]
+    assert sorted(a["arrays"]) == sorted(b["arrays"])
+    for name in a["arrays"]:
+        np.testing.assert_array_equal(a["arrays"][name], b["arrays"][name], err_msg=name, strict=True)
+
+
+@pytest.mark.parametrize("overrides", CASES, ids=lambda o: " ".join(o))
+def test_compiled_chunks_give_the_python_loops_state_bit_for_bit(overrides):
+    spec, evaluator, python = _seed_state(overrides)
+    _, _, compiled = _seed_state(overrides)
+    assert compiled_loop.applies(spec, evaluator, compiled)
+    for chunk in (1, 4, 25, 30):  # chunks of several lengths, the archive carried from one to the next
+        for _ in range(chunk):
+            advance_lockstep([python], spec, evaluator)
+        assert compiled_loop.advance(compiled, spec, evaluator, chunk)
+        for row in python.rows + compiled.rows:
+            row["wall_time"] = 0.0
+        _same(_snapshot(python), _snapshot(compiled))
+    reused = sum(row["reused"] for row in python.rows)
+    assert python.generation == 60 and (reused == 0 if "eim=false" in overrides else reused > 100)
+    assert any(np.isfinite(row["mean_policy_score"]) for row in python.rows)
+
+
+def test_a_chunk_that_diverges_changes_nothing_and_is_left_to_the_python_loop():
+    # lr=100: SNES's log sigma overflows within a few generations (imix_cli.divergence)
+    spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "lr=100", "weight_decay=0"])
+    before = _snapshot(st)
+    assert not compiled_loop.advance(st, spec, evaluator, 200)
+    _same(before, _snapshot(st))
+
+
+def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
+    for overrides in (
+        ["algo=cem", "env=cartpole", "eim=true"],
+        ["algo=snes", "env=acrobot", "eim=true"],  # numpy's float32 cos/sin in its reset
+        ["algo=snes", "env=cartpole", "eim=true", "eim_variant=conditional"],
+        ["algo=snes", "env=cartpole", "eim=true", "reeval_count=2"],
+        ["algo=snes", "env=cartpole", "eim=true", "weight_decay_form=paper"],
+        ["algo=snes", "env=cartpole", "eim=true", "reeval_age=3"],
+        ["algo=snes", "env=cartpole", "eim=true", "evaluator=pool"],
+    ):
+        spec, evaluator, st = _seed_state(overrides)
+        assert not compiled_loop.applies(spec, evaluator, st), overrides
+    spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true"])
+    os.environ[compiled_loop.ENV_VARIABLE] = "0"
+    try:
+        assert not compiled_loop.applies(spec, evaluator, st)
+    finally:
+        del os.environ[compiled_loop.ENV_VARIABLE]
+
+
+def test_numpy_sum_is_numpys_pairwise_sum():
+    rng = np.random.default_rng(7)
+    for n in [*range(0, 300), 1000, 1023, 1024, 4097, 70001]:
+        for _ in range(5):
+            a = rng.standard_normal(n) * 10.0 ** rng.uniform(-4, 4, n)
+            assert compiled_loop._numpy_sum(a) == np.sum(a), n
+            if n:
+                assert compiled_loop._numpy_sum(a) / n == np.mean(a), n
+
+
+def _run(args, results_dir, **env):
+    environ = {**os.environ, "PYTHONHASHSEED": "0", **env}
+    done = subprocess.run(
+        [sys.executable, "-m", "imix_cli.cli", "run", *args, f"results_dir={results_dir}", "progress=false"],
+        env=environ, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+
+
+def _without_times(header: dict, arrays: dict) -> dict:
+    """A checkpoint's content less what measures wall time: the seed's elapsed seconds, its rows'
+    wall_time column, and the checksum and header that cover them."""
+    state = header["state"]["state"]
+    state.pop("elapsed")
+    rows = state["rows"]["table"]
+    wall = rows["columns"][rows["keys"].index("wall_time")]["float"]
+    arrays = dict(arrays)
+    arrays[rows["float"]] = np.delete(arrays[rows["float"]], wall, axis=0)
+    return {"header": json.dumps(state, sort_keys=True), **arrays}
+
+
+def _files(root: Path) -> dict:
+    out = {}
+    for path in sorted(root.rglob("*")):
+        if path.suffix == ".csv":
+            out[path.relative_to(root)] = pd.read_csv(path).drop(columns=["wall_time"])
+        elif path.suffix == ".npz" and path.parent.name == ".checkpoints":
+            header, arrays = _read_npz(path, 1 << 30)
+            out[path.relative_to(root)] = _without_times(header, arrays)
+        elif path.suffix == ".npz":
+            with np.load(path) as z:
+                out[path.relative_to(root)] = {k: z[k] for k in z.files}
+    return out
+
+
+@pytest.mark.slow
+def test_runs_are_identical_with_the_python_loop_continued_runs_included(tmp_path):
+    args = ["algo=snes", "env=cartpole", "eim=true", "seeds=3", "workers=2", "checkpoint_every=20", "experiment=x"]
+    for name, env in (("python", {compiled_loop.ENV_VARIABLE: "0"}), ("compiled", {})):
+        _run([*args, "generations=45"], tmp_path / name, **env)
+        _run([*args, "generations=90"], tmp_path / name, **env)  # continued from the final states
+    python, compiled = _files(tmp_path / "python"), _files(tmp_path / "compiled")
+    assert sorted(python) == sorted(compiled) and any(str(p).endswith("seed_2.csv") for p in python)
+    for path, value in python.items():
+        if isinstance(value, pd.DataFrame):
+            assert len(value) == 90
+            pd.testing.assert_frame_equal(value, compiled[path], check_exact=True)
+        else:
+            assert sorted(value) == sorted(compiled[path]), path
+            for k in value:
+                if k == "header":
+                    assert value[k] == compiled[path][k], path
+                    continue
+                np.testing.assert_array_equal(value[k], compiled[path][k], err_msg=f"{path}:{k}", strict=True)
