@@ -98,10 +98,10 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
     are expanded here. Hydra composes the config once per combination of config-group choices
     (``algo``, ``env``, ``hydra/...``) and of ``+``/``~`` overrides; each point's plain
     ``key=value`` overrides are then applied to a copy by Hydra's own override function, so a
-    point costs milliseconds instead of a full composition.
+    point costs milliseconds instead of a full composition (:func:`_apply_values`, public
+    OmegaConf API only).
     """
     from hydra import compose, initialize_config_dir
-    from hydra._internal.config_loader_impl import ConfigLoaderImpl
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.core.override_parser.types import Glob
@@ -159,7 +159,7 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
                             del full["hydra"]
                         composed[base] = (full, launcher)
                     cfg, launcher = copy.deepcopy(composed[base][0]), composed[base][1]
-                    ConfigLoaderImpl._apply_overrides_to_config(values, cfg)
+                    _apply_values(values, cfg)
                     plain = OmegaConf.to_container(cfg, resolve=True)
                 except Exception as err:
                     raise ConfigError(_explain_compose_error(err, point)) from None
@@ -168,6 +168,22 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
         GlobalHydra.instance().clear()
     _refuse_shared_folders(specs)
     return specs
+
+
+def _apply_values(values, cfg) -> None:
+    """Set each plain ``key=value`` override (see :func:`_is_value_override`) on the composed ``cfg``, as Hydra's
+    own composition sets a task override: ``OmegaConf.update(..., merge=True)``, the struct flag refusing a key the
+    config does not have. The errors say what Hydra's say, so :func:`_explain_compose_error` reads both alike."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
+
+    for override in values:
+        try:
+            OmegaConf.update(cfg, override.key_or_group, override.value(), merge=True)
+        except (ConfigAttributeError, ConfigKeyError):
+            raise ValueError(f"Could not override '{override.key_or_group}'.") from None
+        except OmegaConfBaseException:
+            raise ValueError(f"Error merging override {override.input_line}") from None
 
 
 def _is_value_override(override) -> bool:
