@@ -20,24 +20,25 @@ from __future__ import annotations
 
 import copy
 import itertools
+import json
 import re
 from pathlib import Path
 
 from imix_cli.config_checks import ConfigError, as_choice, first_line
 from imix_cli.ddpg_config import ddpg_spec
-from imix_cli.es_config import CMAES_MAX_DIM, es_spec
+from imix_cli.es_config import es_spec
 from imix_cli.registry import ALGO_NAMES, ALGORITHM_SPECS, BUILTIN_ENVS
 from imix_cli.run_spec import DDPG_DEFAULTS, PAPER_DEFAULTS, TOP_LEVEL_KEYS, RunSpec, differing_keys
 
 __all__ = [
     "BUILTIN_ENVS",
-    "CMAES_MAX_DIM",
     "DDPG_DEFAULTS",
     "PAPER_DEFAULTS",
     "ConfigError",
     "RunSpec",
     "config_dir",
     "group_options",
+    "point_key",
     "spec_from_config",
     "validate_overrides",
 ]
@@ -89,8 +90,17 @@ def group_options(group: str) -> list[str]:
     return sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml"))
 
 
-def validate_overrides(overrides: list[str]) -> list[RunSpec]:
+def point_key(plain: dict, launcher: str | None) -> str:
+    """What identifies one composed point: its resolved config (a plain dict) and the launcher's ``_target_``,
+    the two inputs of :func:`spec_from_config`."""
+    return json.dumps([plain, launcher], sort_keys=True, default=repr)
+
+
+def validate_overrides(overrides: list[str], validated: dict | None = None) -> list[RunSpec]:
     """Compose and validate the config of every point of a (possibly multirun) command line.
+
+    ``validated``, if given, receives each point's RunSpec under its :func:`point_key`: ``imix run`` hands
+    them to the Hydra task, which runs them without validating its point a second time.
 
     Raises ConfigError (one line) on the first problem, or when two points would share a run
     folder with different configs (the second would be refused halfway through the sweep).
@@ -164,6 +174,8 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
                 except Exception as err:
                     raise ConfigError(_explain_compose_error(err, point)) from None
                 specs.append(spec_from_config(plain, launcher))
+                if validated is not None:
+                    validated[point_key(plain, launcher)] = specs[-1]
     finally:
         GlobalHydra.instance().clear()
     _refuse_shared_folders(specs)
