@@ -77,10 +77,18 @@ def main(argv: list[str] | None = None) -> int:
         from imix_cli.bench import main as bench_main
 
         return bench_main(rest)
-    if command in ("eval", "render", "status"):
-        from importlib import import_module
+    if command == "eval":
+        from imix_cli.evaluate import main as eval_main
 
-        return import_module(f"imix_cli.{ {'eval': 'evaluate'}.get(command, command) }").main(rest)
+        return eval_main(rest)
+    if command == "render":
+        from imix_cli.render import main as render_main
+
+        return render_main(rest)
+    if command == "status":
+        from imix_cli.status import main as status_main
+
+        return status_main(rest)
     print(f"imix: unknown command {command!r}; valid commands: {', '.join(COMMANDS)} (see imix --help)", file=sys.stderr)
     return 2
 
