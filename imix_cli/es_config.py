@@ -27,6 +27,7 @@ from imix_cli.config_checks import (
     seeds_of,
     workers_and_experiment,
 )
+from imix_cli.mixing import variant_spec
 from imix_cli.processes import default_workers
 from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS
 from imix_cli.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields
@@ -45,12 +46,12 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     algo_options = _algo_options(algo, algo_cfg)
     im_alpha = as_float(cfg, "im_alpha", 0.0, True, 1.0, False)
     eim_generations = as_int(cfg, "eim_generations", 1)
-    if eim and im_variant != "paper":
+    if eim and im_variant != PAPER_DEFAULTS["im_variant"]:
         raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(EIM_VARIANTS)}")
-    if im_alpha != 0.0 and not (im and not eim and im_variant == "sun2009"):
-        raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
     mixing = "eim" if eim else ("im" if im else "none")
     variant = EIM_VARIANTS[eim_variant] if eim else (im_variant if im else None)
+    if im_alpha != 0.0 and not (variant is not None and variant_spec(variant).uses_alpha):
+        raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
     if mixing == "none" and (reeval_age is not None or reeval_prob or reeval_count):
         raise ConfigError("reeval_age/reeval_prob/reeval_count: only apply with im=true or eim=true (they re-evaluate reused members)")
 
@@ -82,7 +83,8 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         )
     seeds = seeds_of(cfg)
     env_bytes = 0 if env_name in BUILTIN_ENVS else gym_env_bytes(env_id)  # the built-ins are compiled: no env objects
-    check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0), seeds, env_bytes, env_id)
+    archive_depth = 0 if variant is None else variant_spec(variant).depth(eim_generations)
+    check_memory(popsize, num_params, archive_depth, seeds, env_bytes, env_id)
     if policy["stored"] is None:
         config.pop("policy", None)  # the default policy: config.yaml stays as it was before the key existed
     else:

@@ -288,8 +288,9 @@ class MixingSpec:
     label : str
         Its table cell.
     variants : dict
-        Config value of ``im_variant``/``eim_variant`` -> the variant of
-        :func:`imix_cli.mixing.mix` it selects; the first is the default.
+        Config value of ``im_variant``/``eim_variant`` -> the name of the
+        :class:`imix_cli.mixing.Variant` it selects (its step, look-back rule, compiled kernel:
+        :data:`imix_cli.mixing.VARIANT_SPECS`); the first is the default.
     """
 
     name: str
@@ -343,7 +344,7 @@ MIXING_NAMES = tuple(MIXING_SPECS)
 #: ``im_variant`` choices, and ``eim_variant`` choices -> :func:`~imix_cli.mixing.mix` variant.
 IM_VARIANTS = tuple(MIXING_SPECS["im"].variants)
 EIM_VARIANTS = dict(MIXING_SPECS["eim"].variants)
-#: Every variant :func:`~imix_cli.mixing.mix` implements.
+#: Every variant the config selects: those of :data:`imix_cli.mixing.VARIANT_SPECS` (tests/test_registry.py).
 MIX_VARIANTS = tuple(dict.fromkeys(v for spec in MIXING_SPECS.values() for v in spec.variants.values()))
 
 #: The paper's mixing settings (section 4.1), the defaults of conf/config.yaml.
