@@ -77,10 +77,18 @@ def main(argv: list[str] | None = None) -> int:
         from imix_cli.bench import main as bench_main
 
         return bench_main(rest)
-    if command in ("eval", "render", "status"):
-        from importlib import import_module
+    if command == "eval":
+        from imix_cli.evaluate import main as eval_main
 
-        return import_module(f"imix_cli.{ {'eval': 'evaluate'}.get(command, command) }").main(rest)
+        return eval_main(rest)
+    if command == "render":
+        from imix_cli.render import main as render_main
+
+        return render_main(rest)
+    if command == "status":
+        from imix_cli.status import main as status_main
+
+        return status_main(rest)
     print(f"imix: unknown command {command!r}; valid commands: {', '.join(COMMANDS)} (see imix --help)", file=sys.stderr)
     return 2
 
@@ -106,6 +114,10 @@ def _interrupted_before_anything_is_written(signum, frame) -> None:
 #: Sweep points of this process's ``imix run -m`` refused by their run folder (in use by another run,
 #: say): the others still run, and these are reported at the end, one line each, with exit status 1.
 _SKIPPED_POINTS: list[str] = []
+#: The RunSpecs that :func:`run_command` validated up front, by :func:`imix_cli.config.point_key`: the Hydra task
+#: takes its point's from here, so each point is validated once. A task run in another process (a launcher such
+#: as joblib) finds none there and validates its point itself.
+_VALIDATED: dict = {}
 _SWEEPS_STARTED = 0
 
 
@@ -133,7 +145,8 @@ def run_command(args: list[str]) -> int:
         signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)
         signal.signal(signal.SIGTERM, _interrupted_before_anything_is_written)
         try:
-            specs = validate_overrides(overrides)
+            _VALIDATED.clear()
+            specs = validate_overrides(overrides, validated=_VALIDATED)
             _check_run_folders(specs)
         except ConfigError as err:
             return _error(str(err), 2)
@@ -151,6 +164,8 @@ def run_command(args: list[str]) -> int:
         return exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
     except Exception as err:  # Hydra's own argument errors (e.g. --cfg together with -m)
         return _error(str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__, 2)
+    finally:
+        _VALIDATED.clear()
     if not info_only and ("-m" in args or "--multirun" in args):  # a sweep: every point in one table at the end
         from imix_cli.summary import format_sweep_table
 
@@ -192,15 +207,16 @@ def _hydra_run() -> None:
 
 
 def _task(cfg) -> None:
-    """The Hydra task: one config (one sweep point) -> validated RunSpec -> runner."""
+    """The Hydra task: one config (one sweep point) -> its RunSpec (validated by :func:`run_command`) -> runner."""
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
-    from imix_cli.config import ConfigError, spec_from_config
+    from imix_cli.config import ConfigError, point_key, spec_from_config
 
     try:
         launcher = OmegaConf.select(HydraConfig.get(), "launcher._target_")
-        spec = spec_from_config(OmegaConf.to_container(cfg, resolve=True), launcher)
+        plain = OmegaConf.to_container(cfg, resolve=True)
+        spec = _VALIDATED.get(point_key(plain, launcher)) or spec_from_config(plain, launcher)
     except ConfigError as err:
         sys.exit(_error(str(err), 2))
     from hydra.types import RunMode

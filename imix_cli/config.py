@@ -20,24 +20,25 @@ from __future__ import annotations
 
 import copy
 import itertools
+import json
 import re
 from pathlib import Path
 
 from imix_cli.config_checks import ConfigError, as_choice, first_line
 from imix_cli.ddpg_config import ddpg_spec
-from imix_cli.es_config import CMAES_MAX_DIM, es_spec
+from imix_cli.es_config import es_spec
 from imix_cli.registry import ALGO_NAMES, ALGORITHM_SPECS, BUILTIN_ENVS
 from imix_cli.run_spec import DDPG_DEFAULTS, PAPER_DEFAULTS, TOP_LEVEL_KEYS, RunSpec, differing_keys
 
 __all__ = [
     "BUILTIN_ENVS",
-    "CMAES_MAX_DIM",
     "DDPG_DEFAULTS",
     "PAPER_DEFAULTS",
     "ConfigError",
     "RunSpec",
     "config_dir",
     "group_options",
+    "point_key",
     "spec_from_config",
     "validate_overrides",
 ]
@@ -89,8 +90,17 @@ def group_options(group: str) -> list[str]:
     return sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml"))
 
 
-def validate_overrides(overrides: list[str]) -> list[RunSpec]:
+def point_key(plain: dict, launcher: str | None) -> str:
+    """What identifies one composed point: its resolved config (a plain dict) and the launcher's ``_target_``,
+    the two inputs of :func:`spec_from_config`."""
+    return json.dumps([plain, launcher], sort_keys=True, default=repr)
+
+
+def validate_overrides(overrides: list[str], validated: dict | None = None) -> list[RunSpec]:
     """Compose and validate the config of every point of a (possibly multirun) command line.
+
+    ``validated``, if given, receives each point's RunSpec under its :func:`point_key`: ``imix run`` hands
+    them to the Hydra task, which runs them without validating its point a second time.
 
     Raises ConfigError (one line) on the first problem, or when two points would share a run
     folder with different configs (the second would be refused halfway through the sweep).
@@ -98,10 +108,10 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
     are expanded here. Hydra composes the config once per combination of config-group choices
     (``algo``, ``env``, ``hydra/...``) and of ``+``/``~`` overrides; each point's plain
     ``key=value`` overrides are then applied to a copy by Hydra's own override function, so a
-    point costs milliseconds instead of a full composition.
+    point costs milliseconds instead of a full composition (:func:`_apply_values`, public
+    OmegaConf API only).
     """
     from hydra import compose, initialize_config_dir
-    from hydra._internal.config_loader_impl import ConfigLoaderImpl
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.core.override_parser.types import Glob
@@ -159,15 +169,33 @@ def validate_overrides(overrides: list[str]) -> list[RunSpec]:
                             del full["hydra"]
                         composed[base] = (full, launcher)
                     cfg, launcher = copy.deepcopy(composed[base][0]), composed[base][1]
-                    ConfigLoaderImpl._apply_overrides_to_config(values, cfg)
+                    _apply_values(values, cfg)
                     plain = OmegaConf.to_container(cfg, resolve=True)
                 except Exception as err:
                     raise ConfigError(_explain_compose_error(err, point)) from None
                 specs.append(spec_from_config(plain, launcher))
+                if validated is not None:
+                    validated[point_key(plain, launcher)] = specs[-1]
     finally:
         GlobalHydra.instance().clear()
     _refuse_shared_folders(specs)
     return specs
+
+
+def _apply_values(values, cfg) -> None:
+    """Set each plain ``key=value`` override (see :func:`_is_value_override`) on the composed ``cfg``, as Hydra's
+    own composition sets a task override: ``OmegaConf.update(..., merge=True)``, the struct flag refusing a key the
+    config does not have. The errors say what Hydra's say, so :func:`_explain_compose_error` reads both alike."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
+
+    for override in values:
+        try:
+            OmegaConf.update(cfg, override.key_or_group, override.value(), merge=True)
+        except (ConfigAttributeError, ConfigKeyError):
+            raise ValueError(f"Could not override '{override.key_or_group}'.") from None
+        except OmegaConfBaseException:
+            raise ValueError(f"Error merging override {override.input_line}") from None
 
 
 def _is_value_override(override) -> bool:

@@ -223,7 +223,7 @@ class DiagonalGaussian:
 
     def _precision(self) -> np.ndarray:
         """1 / std**2, computed once per distribution (it enters every log-ratio it is part of)."""
-        w = self.__dict__.get("_w")  # (absent from distributions pickled by older versions)
+        w = self.__dict__.get("_w")  # computed on first use, then kept
         if w is None:
             w = self._w = self._inv_std**2
         return w

@@ -1,7 +1,7 @@
 """An evolution strategy's config: mixing, the ES's hyper-parameters and ``algo.*`` options, the policy and the evaluator.
 
 Besides each key's own check, a run the machine cannot hold is refused here: CMA-ES above
-:data:`CMAES_MAX_DIM` parameters, a population whose arrays exceed the memory, an env imix
+:data:`imix_cli.algorithms.cmaes.MAX_DIM` parameters, a population whose arrays exceed the memory, an env imix
 cannot evaluate.
 """
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import math
 
+from imix_cli.algorithms import cmaes
 from imix_cli.algorithms.base import WEIGHT_DECAY_FORMS
-from imix_cli.algorithms.cmaes import MAX_DIM as CMAES_CLASS_MAX_DIM
 from imix_cli.config_checks import (
     ConfigError,
     as_bool,
@@ -27,14 +27,10 @@ from imix_cli.config_checks import (
     seeds_of,
     workers_and_experiment,
 )
+from imix_cli.mixing import variant_spec
 from imix_cli.processes import default_workers
 from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS
 from imix_cli.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields
-
-EVALUATORS = ("local", "pool", "ray")
-#: CMA-ES keeps a d x d covariance and eigendecomposes it (O(d^2) memory, O(d^3) time): above
-#: this many parameters imix refuses it before anything runs (the CMAES class's own limit).
-CMAES_MAX_DIM = CMAES_CLASS_MAX_DIM
 
 
 def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
@@ -50,12 +46,12 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     algo_options = _algo_options(algo, algo_cfg)
     im_alpha = as_float(cfg, "im_alpha", 0.0, True, 1.0, False)
     eim_generations = as_int(cfg, "eim_generations", 1)
-    if eim and im_variant != "paper":
+    if eim and im_variant != PAPER_DEFAULTS["im_variant"]:
         raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(EIM_VARIANTS)}")
-    if im_alpha != 0.0 and not (im and not eim and im_variant == "sun2009"):
-        raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
     mixing = "eim" if eim else ("im" if im else "none")
     variant = EIM_VARIANTS[eim_variant] if eim else (im_variant if im else None)
+    if im_alpha != 0.0 and not (variant is not None and variant_spec(variant).uses_alpha):
+        raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
     if mixing == "none" and (reeval_age is not None or reeval_prob or reeval_count):
         raise ConfigError("reeval_age/reeval_prob/reeval_count: only apply with im=true or eim=true (they re-evaluate reused members)")
 
@@ -71,16 +67,24 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         )
     config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
     popsize, sigma = as_int(cfg, "popsize", 2), as_float(cfg, "sigma", 0.0, False)
-    if algo == "cmaes" and popsize < 3:
-        raise ConfigError(f"popsize={popsize}: algo=cmaes needs popsize >= 3 (its recombination weights need at least 2 parents and one non-parent)")
+    if algo == "cmaes" and popsize < cmaes.MIN_POPSIZE:
+        raise ConfigError(
+            f"popsize={popsize}: algo=cmaes needs popsize >= {cmaes.MIN_POPSIZE} (its recombination weights need at least 2 parents and one non-parent)"
+        )
     if not math.isfinite(sigma * sigma):
         raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
     _check_params_together(algo, popsize, algo_options)
     _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
     num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"])
+    if algo == "cmaes" and num_params > cmaes.MAX_DIM:
+        raise ConfigError(
+            f"algo=cmaes: the {'x'.join(map(str, policy['hidden'])) or 'linear'} policy on {env_id} has {num_params} parameters, more than "
+            f"CMA-ES's limit of {cmaes.MAX_DIM} (O(d^2) memory, O(d^3) time); use algo=snes or algo=openes (diagonal), or a smaller policy.hidden"
+        )
     seeds = seeds_of(cfg)
     env_bytes = 0 if env_name in BUILTIN_ENVS else gym_env_bytes(env_id)  # the built-ins are compiled: no env objects
-    check_memory(popsize, num_params, eim_generations if eim else (1 if im else 0), seeds, env_bytes, env_id)
+    archive_depth = 0 if variant is None else variant_spec(variant).depth(eim_generations)
+    check_memory(popsize, num_params, archive_depth, seeds, env_bytes, env_id)
     if policy["stored"] is None:
         config.pop("policy", None)  # the default policy: config.yaml stays as it was before the key existed
     else:
@@ -135,17 +139,14 @@ def _logger(cfg: dict) -> str:
 
 
 def _algo_options(algo: str, algo_cfg: dict) -> dict:
-    """The validated ``algo.<key>`` options of an ES (:func:`algo_option_fields`), defaults filled in."""
+    """The ``algo.<key>`` options of an ES (:func:`algo_option_fields`), defaults filled in, those with choices
+    checked; the ES's Params checks them all with the run's popsize (:func:`_check_params_together`)."""
     options = {}
     for key, f in algo_option_fields(algo).items():
         value = algo_cfg.get(key, f.default)
         if "choices" in f.metadata:
             as_choice(value, f"algo.{key}", f.metadata["choices"])
         options[key] = value
-    try:
-        ALGORITHM_SPECS[algo].es_class().Params(**options)
-    except (TypeError, ValueError) as err:
-        raise ConfigError(f"algo={algo}: {first_line(err)}") from None
     return options
 
 
@@ -185,14 +186,8 @@ def _evaluator_shape(key: str, max_steps: int | None) -> int:
     return shape
 
 
-EVALUATORS = ("local", "pool", "ray")
-#: CMA-ES keeps a d x d covariance and eigendecomposes it (O(d^2) memory, O(d^3) time): above
-#: this many parameters imix refuses it before anything runs (the CMAES class's own limit).
-CMAES_MAX_DIM = CMAES_CLASS_MAX_DIM
-
-
 def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_steps, launcher: str | None) -> dict:
-    """Validate ``policy.*``, ``evaluator``, ``evaluator_workers``, ``ray_address``; refuse CMA-ES at large d."""
+    """Validate ``policy.*``, ``evaluator``, ``evaluator_workers``, ``ray_address``."""
     policy = cfg.get("policy")
     policy = {} if policy is None else policy
     if not isinstance(policy, dict):
@@ -209,6 +204,8 @@ def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_
     warmup = as_int(p, "policy.obs_norm_warmup", 1)
     if obs_norm and env_name in BUILTIN_ENVS:
         raise ConfigError(f"policy.obs_norm=true: only on gymnasium environments (env=gym or a MuJoCo env), not the built-in env={env_name}")
+    from imix_cli.parallel_evaluation import EVALUATORS
+
     evaluator = as_choice(cfg.get("evaluator", "local"), "evaluator", EVALUATORS)
     n_workers = cfg.get("evaluator_workers")
     if n_workers is not None:
@@ -227,13 +224,6 @@ def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_
             import ray  # noqa: F401
         except ImportError:
             raise ConfigError('evaluator=ray: ray is not installed; pip install "imix-cli[cluster]"') from None
-    if algo == "cmaes":
-        dim = _policy_dim(env_name, env_id, max_steps, hidden)
-        if dim > CMAES_MAX_DIM:
-            raise ConfigError(
-                f"algo=cmaes: the {'x'.join(map(str, hidden)) or 'linear'} policy on {env_id} has {dim} parameters, more than "
-                f"CMA-ES's limit of {CMAES_MAX_DIM} (O(d^2) memory, O(d^3) time); use algo=snes or algo=openes (diagonal), or a smaller policy.hidden"
-            )
     default = hidden == POLICY_DEFAULTS["hidden"] and not obs_norm
     stored = None if default else {"hidden": list(hidden), "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else None}
     return {

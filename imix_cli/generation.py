@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imix_cli import linalg_kernels as lk
-from imix_cli.mixing import Generation, mix
+from imix_cli.mixing import Generation, mix, variant_spec
 
 
 @dataclass(frozen=True)
@@ -52,7 +52,8 @@ class MixingSettings:
     Attributes
     ----------
     variant : {None, "paper", "sun2009", "conditional", "eim", "eim_paper"}
-        The :func:`~imix_cli.mixing.mix` variant; None draws every generation fresh.
+        The :func:`~imix_cli.mixing.mix` variant (:data:`~imix_cli.mixing.VARIANT_SPECS`); None draws
+        every generation fresh.
     eim_generations : int
         K, the archived generations ``"eim"``/``"eim_paper"`` reuse from.
     alpha : float
@@ -76,10 +77,10 @@ class MixingSettings:
 
     @property
     def depth(self) -> int:
-        """Number of generations kept in the archive."""
+        """Number of generations kept in the archive: those the variant looks back at (:meth:`~imix_cli.mixing.Variant.depth`)."""
         if self.variant is None:
             return 0
-        return self.eim_generations if self.variant in ("eim", "eim_paper") else 1
+        return variant_spec(self.variant).depth(self.eim_generations)
 
 
 @dataclass

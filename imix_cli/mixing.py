@@ -155,15 +155,15 @@ returned by an earlier ``mix``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from imix_cli import linalg_kernels as lk
 from imix_cli.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
-from imix_cli.registry import MIX_VARIANTS as VARIANTS  # what im_variant / eim_variant select (MIXING_SPECS)
 
-__all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "mix", "VARIANTS"]
+__all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "Variant", "VARIANT_SPECS", "VARIANTS", "mix", "variant_spec"]
 
 # Sun et al.'s rule-2 loop accepts a fresh draw with probability ~(1 - lambda); when the two
 # distributions nearly coincide that can take very many draws. After this many candidate
@@ -550,9 +550,94 @@ def _conditional(builder: _Builder, new_dist, entry, rng: np.random.Generator) -
     return draws  # slots still pending: filled with plain draws by builder.finish
 
 
-def _compiled_applies(new_dist, entries, popsize: int, variant: str) -> bool:
+# ------------------------------------------------------------------------------ the variants
+# Each variant's numpy step: fills ``builder`` from the non-empty archive (``entries``: its (dist, samples)
+# pairs; ``depth``: how many it may look back at) and returns the number of trials.
+def _step_alternate(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+    """``"paper"`` (depth 1) and ``"eim_paper"``: Algorithm 2's alternation over the entries in turn, newest first."""
+    trials = 0
+    for number, (old_dist, old_samples) in enumerate(entries[:depth], start=1):
+        trials += _alternate_rules(builder, new_dist, old_dist, old_samples, number, rng)
+        if builder.missing <= 0:
+            break
+    if builder.missing < 0:  # both rules accepted on the last step
+        builder.drop_random(rng)
+    return trials
+
+
+def _step_sun2009(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+    old_dist, old_samples = entries[0]
+    return _sun2009(builder, new_dist, old_dist, old_samples, alpha, rng)
+
+
+def _step_conditional(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+    return _conditional(builder, new_dist, archive[0], rng)
+
+
+def _step_eim(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+    return _multi_generation(builder, new_dist, list(archive), depth, rng)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A mixing variant, ``mix(..., variant=name)`` (module docstring, "Variants").
+
+    Attributes
+    ----------
+    name : str
+        What :func:`mix`, :class:`~imix_cli.generation.MixingSettings` and a RunSpec's ``variant`` call it
+        (``im_variant``/``eim_variant`` select it: :data:`imix_cli.registry.MIXING_SPECS`).
+    looks_back : bool
+        Draws from up to ``eim_generations`` archived generations; else from the previous one only
+        (:meth:`depth`, the archive a search keeps).
+    compiled : bool
+        :mod:`imix_cli.mixing_kernels` has its step (taken between float64 DiagonalGaussians).
+    heights : bool
+        Keeps each archived member's height (``Generation.log_u``) from one call to the next.
+    uses_alpha : bool
+        Takes ``alpha``, the minimal refresh rate (``im_alpha``).
+    step : callable
+        Its numpy step.
+    """
+
+    name: str
+    looks_back: bool
+    compiled: bool
+    heights: bool
+    uses_alpha: bool
+    step: Callable[..., int]
+
+    def depth(self, eim_generations: int) -> int:
+        """The archived generations it reads, and so a search with it keeps."""
+        return eim_generations if self.looks_back else 1
+
+
+#: Every variant, by name, in the order of the module docstring.
+VARIANT_SPECS: dict[str, Variant] = {
+    v.name: v
+    for v in (
+        Variant("paper", looks_back=False, compiled=True, heights=False, uses_alpha=False, step=_step_alternate),
+        Variant("sun2009", looks_back=False, compiled=True, heights=False, uses_alpha=True, step=_step_sun2009),
+        Variant("conditional", looks_back=False, compiled=False, heights=False, uses_alpha=False, step=_step_conditional),
+        Variant("eim", looks_back=True, compiled=True, heights=True, uses_alpha=False, step=_step_eim),
+        Variant("eim_paper", looks_back=True, compiled=False, heights=False, uses_alpha=False, step=_step_alternate),
+    )
+}
+#: The variants' names (what ``im_variant`` / ``eim_variant`` select: :data:`imix_cli.registry.MIXING_SPECS`).
+VARIANTS = tuple(VARIANT_SPECS)
+
+
+def variant_spec(name: str) -> Variant:
+    """The :class:`Variant` called ``name``; ValueError naming the valid ones otherwise."""
+    try:
+        return VARIANT_SPECS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown mixing variant {name!r}; valid: {', '.join(VARIANTS)}") from None
+
+
+def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool:
     """Whether :mod:`imix_cli.mixing_kernels` computes this step (see ``mix``'s ``compiled``)."""
-    if variant in ("eim_paper", "conditional") or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
+    if not variant.compiled or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
         return False
     archived = 0
     for dist, samples in entries:
@@ -608,8 +693,7 @@ def mix(
     Generation
         ``.samples``, ``.source`` (0 fresh, k >= 1 from ``archive[k-1]``), ``.index``.
     """
-    if variant not in VARIANTS:
-        raise ValueError(f"unknown mixing variant {variant!r}; valid: {', '.join(VARIANTS)}")
+    spec = variant_spec(variant)
     if popsize < 1:
         raise ValueError(f"popsize must be >= 1, got {popsize}")
     if not 0.0 <= alpha < 1.0:
@@ -622,34 +706,18 @@ def mix(
         if samples.ndim != 2 or samples.shape[1] != dim:
             raise ValueError(f"archive[{number - 1}] samples have shape {samples.shape}, expected (n, {dim})")
 
-    depth = eim_generations if variant in ("eim", "eim_paper") else 1
-    if compiled is not False and _compiled_applies(new_dist, entries[:depth], popsize, variant):
+    depth = spec.depth(eim_generations)
+    if compiled is not False and _compiled_applies(new_dist, entries[:depth], popsize, spec):
         from imix_cli.mixing_kernels import mix_diagonal  # numba: imported on first use only
 
         used = list(archive[:depth])
-        heights = [_heights(e, rng) for e in used] if variant == "eim" else None
+        heights = [_heights(e, rng) for e in used] if spec.heights else None
         dists, samples = zip(*entries[:depth])
-        x, source, index, trials = mix_diagonal(new_dist, dists, samples, heights, popsize, rng, variant, alpha)
+        x, source, index, trials = mix_diagonal(new_dist, dists, samples, heights, popsize, rng, spec.name, alpha)
         return Generation(x, source, index, new_dist, trials)
     if compiled:
         raise ValueError(f"the compiled mixing step does not apply to variant {variant!r} with {type(new_dist).__name__} and this archive")
 
     builder = _Builder(popsize, dim, getattr(new_dist, "dtype", np.float64))
-    trials = 0
-    if entries and variant == "conditional":
-        trials = _conditional(builder, new_dist, archive[0], rng)
-    elif entries and variant == "sun2009":
-        old_dist, old_samples = entries[0]
-        trials = _sun2009(builder, new_dist, old_dist, old_samples, alpha, rng)
-    elif variant == "eim":
-        if archive:
-            trials = _multi_generation(builder, new_dist, list(archive), eim_generations, rng)
-        return builder.finish(new_dist, rng, trials)
-    elif entries:
-        for number, (old_dist, old_samples) in enumerate(entries[:depth], start=1):
-            trials += _alternate_rules(builder, new_dist, old_dist, old_samples, number, rng)
-            if builder.missing <= 0:
-                break
-        if builder.missing < 0:  # both rules accepted on the last step
-            builder.drop_random(rng)
+    trials = spec.step(builder, new_dist, archive, entries, depth, alpha, rng) if entries else 0
     return builder.finish(new_dist, rng, trials)

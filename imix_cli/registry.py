@@ -7,8 +7,9 @@ of names: :mod:`imix_cli.config` validates against these records, :mod:`imix_cli
 builds an ES from :data:`ALGORITHM_SPECS`, :mod:`imix_cli.evaluation` builds a built-in
 evaluator from :data:`ENV_SPECS`, and the figures and tables take their labels from here.
 
-This module imports nothing heavy (no numpy, no gymnasium): classes and evaluators are named
-as ``"module:attribute"`` and imported only when asked for.
+This module imports nothing heavy (no numpy, no gymnasium): each ES class and each built-in
+evaluator is reached through a small loader function below (``_openes``, ``_cartpole_evaluator``,
+...) that imports its module when called, so a reader (or an IDE) follows the import from here.
 
 Adding an evolution strategy: one module under ``imix_cli/algorithms/`` (a subclass of
 :class:`~imix_cli.algorithms.base.EvolutionStrategy`), one :class:`AlgorithmSpec` below and
@@ -23,19 +24,42 @@ The paper's hyper-parameters shared by every ES are the defaults of
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
-
-
-def _load(path: str) -> Any:
-    """The object named ``"package.module:attribute"``."""
-    module, _, attribute = path.partition(":")
-    return getattr(importlib.import_module(module), attribute)
 
 
 # ------------------------------------------------------------------------------ algorithms
+# The ES classes, each imported when its loader is called (the classes load numpy and numba).
+def _openes() -> type:
+    from imix_cli.algorithms.openes import OpenES
+
+    return OpenES
+
+
+def _snes() -> type:
+    from imix_cli.algorithms.snes import SNES
+
+    return SNES
+
+
+def _cem() -> type:
+    from imix_cli.algorithms.cem import CEM
+
+    return CEM
+
+
+def _cmaes() -> type:
+    from imix_cli.algorithms.cmaes import CMAES
+
+    return CMAES
+
+
+def _ars() -> type:
+    from imix_cli.algorithms.ars import ARS
+
+    return ARS
+
+
 @dataclass(frozen=True)
 class AlgorithmSpec:
     """An algorithm ``algo=<name>`` can run.
@@ -48,9 +72,9 @@ class AlgorithmSpec:
         How figures and tables print it.
     color : str
         Its colour in every figure (Okabe-Ito, colour-blind safe).
-    cls : str or None
-        ``"module:Class"`` of the :class:`~imix_cli.algorithms.base.EvolutionStrategy`;
-        None for an algorithm that is not an ES (DDPG: no generations, no mixing).
+    load_class : callable or None
+        ``load_class()`` returns the :class:`~imix_cli.algorithms.base.EvolutionStrategy` class
+        (importing its module); None for an algorithm that is not an ES (DDPG: no generations, no mixing).
     generations : int or None
         The paper's generation count (``conf/algo/<name>.yaml`` ``generations``).
     uses_lr : bool
@@ -65,7 +89,7 @@ class AlgorithmSpec:
     name: str
     label: str
     color: str
-    cls: str | None = None
+    load_class: Callable[[], type] | None = field(default=None, compare=False)
     generations: int | None = None
     uses_lr: bool = False
     options: tuple[str, ...] = ()
@@ -73,13 +97,13 @@ class AlgorithmSpec:
     @property
     def is_es(self) -> bool:
         """An evolution strategy: runs generations, can mix, one CSV row per generation."""
-        return self.cls is not None
+        return self.load_class is not None
 
-    def es_class(self):
+    def es_class(self) -> type:
         """The ES class (imported now)."""
-        if self.cls is None:
+        if self.load_class is None:
             raise ValueError(f"algo={self.name} is not an evolution strategy")
-        return _load(self.cls)
+        return self.load_class()
 
 
 #: Okabe & Ito (2008), colour-blind safe; ``imix_cli.plotting.figures`` uses the spare ones.
@@ -98,13 +122,13 @@ OKABE_ITO = {
 ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
     spec.name: spec
     for spec in (
-        AlgorithmSpec("openes", "OpenES", OKABE_ITO["blue"], "imix_cli.algorithms.openes:OpenES", 1000, uses_lr=True),
-        AlgorithmSpec("snes", "SNES", OKABE_ITO["vermillion"], "imix_cli.algorithms.snes:SNES", 1000, uses_lr=True),
-        AlgorithmSpec("cem", "CEM", OKABE_ITO["bluish_green"], "imix_cli.algorithms.cem:CEM", 400, options=("style",)),
-        AlgorithmSpec("cmaes", "CMA-ES", OKABE_ITO["reddish_purple"], "imix_cli.algorithms.cmaes:CMAES", 400),
+        AlgorithmSpec("openes", "OpenES", OKABE_ITO["blue"], _openes, 1000, uses_lr=True),
+        AlgorithmSpec("snes", "SNES", OKABE_ITO["vermillion"], _snes, 1000, uses_lr=True),
+        AlgorithmSpec("cem", "CEM", OKABE_ITO["bluish_green"], _cem, 400, options=("style",)),
+        AlgorithmSpec("cmaes", "CMA-ES", OKABE_ITO["reddish_purple"], _cmaes, 400),
         # Augmented Random Search (Mania et al. 2018): mirrored pairs, popsize = 2 x directions, lr = its
         # step size alpha, sigma = its noise nu; per-env presets of its paper: +ars=<env> (conf/ars/)
-        AlgorithmSpec("ars", "ARS", OKABE_ITO["orange"], "imix_cli.algorithms.ars:ARS", 1000, uses_lr=True, options=("top",)),
+        AlgorithmSpec("ars", "ARS", OKABE_ITO["orange"], _ars, 1000, uses_lr=True, options=("top",)),
         # the deep-RL baseline of section 4.3 (stable-baselines3): one CSV row per episode
         AlgorithmSpec("ddpg", "DDPG", OKABE_ITO["black"]),
     )
@@ -126,13 +150,29 @@ def algo_label(name: str) -> str:
 
 
 # ---------------------------------------------------------------------------- environments
-def _evaluator(path: str, *args) -> Callable:
-    """A factory ``max_steps -> BatchEvaluator`` that imports ``path`` only when called."""
+# The built-ins' batched evaluators, ``max_steps -> evaluator``, each imported when called (numba, the kernels).
+def _cartpole_evaluator(max_steps: int | None):
+    from imix_cli.evaluation import CartPoleEvaluator
 
-    def make(max_steps: int | None):
-        return _load(path)(*args, max_steps)
+    return CartPoleEvaluator(max_steps)
 
-    return make
+
+def _acrobot_evaluator(max_steps: int | None):
+    from imix_cli.evaluation import AcrobotEvaluator
+
+    return AcrobotEvaluator(max_steps)
+
+
+def _continuous_cartpole_evaluator(max_steps: int | None):
+    from imix_cli.evaluation import ContinuousCartPoleEvaluator
+
+    return ContinuousCartPoleEvaluator(False, max_steps)
+
+
+def _continuous_cartpole_hard_evaluator(max_steps: int | None):
+    from imix_cli.evaluation import ContinuousCartPoleEvaluator
+
+    return ContinuousCartPoleEvaluator(True, max_steps)
 
 
 @dataclass(frozen=True)
@@ -188,15 +228,15 @@ ENV_SPECS: dict[str, EnvSpec] = {
     for spec in (
         # CartPole-v0 semantics: CartPole-v1 dynamics (compiled), 200 steps, threshold 195
         EnvSpec("cartpole", "CartPole-v0", "CartPole", 200, _CARTPOLE_THRESHOLD,
-                evaluator=_evaluator("imix_cli.evaluation:CartPoleEvaluator"), policy_dims=(4, 2), step_reward=(0.0, 1.0)),
+                evaluator=_cartpole_evaluator, policy_dims=(4, 2), step_reward=(0.0, 1.0)),
         # Acrobot-v1 dynamics capped at 200 steps as in the paper (Acrobot-v1 itself allows 500)
         EnvSpec("acrobot", "Acrobot-v1", "Acrobot", 200, -100.0,
-                evaluator=_evaluator("imix_cli.evaluation:AcrobotEvaluator"), policy_dims=(6, 3), step_reward=(-1.0, 0.0)),
+                evaluator=_acrobot_evaluator, policy_dims=(6, 3), step_reward=(-1.0, 0.0)),
         EnvSpec("continuous_cartpole", "imix/ContinuousCartPole-v0", "ContinuousCartPole", 200, _CARTPOLE_THRESHOLD,
-                continuous=True, evaluator=_evaluator("imix_cli.evaluation:ContinuousCartPoleEvaluator", False), policy_dims=(4, 1), step_reward=(0.0, 1.0)),
+                continuous=True, evaluator=_continuous_cartpole_evaluator, policy_dims=(4, 1), step_reward=(0.0, 1.0)),
         # the sparse (Hard) variant: its episode's sum is the same return as the dense one's
         EnvSpec("continuous_cartpole_hard", "imix/ContinuousCartPoleHard-v0", "ContinuousCartPoleHard", 200, _CARTPOLE_THRESHOLD,
-                continuous=True, evaluator=_evaluator("imix_cli.evaluation:ContinuousCartPoleEvaluator", True), policy_dims=(4, 1), step_reward=(0.0, 1.0)),
+                continuous=True, evaluator=_continuous_cartpole_hard_evaluator, policy_dims=(4, 1), step_reward=(0.0, 1.0)),
         # MuJoCo v5 (the mujoco extra), thresholds: a clear sign of learning within the study's budget
         EnvSpec("swimmer", "Swimmer-v5", "Swimmer", _MUJOCO_STEPS, 50.0, continuous=True),
         EnvSpec("hopper", "Hopper-v5", "Hopper", _MUJOCO_STEPS, 500.0, continuous=True),
@@ -248,8 +288,9 @@ class MixingSpec:
     label : str
         Its table cell.
     variants : dict
-        Config value of ``im_variant``/``eim_variant`` -> the variant of
-        :func:`imix_cli.mixing.mix` it selects; the first is the default.
+        Config value of ``im_variant``/``eim_variant`` -> the name of the
+        :class:`imix_cli.mixing.Variant` it selects (its step, look-back rule, compiled kernel:
+        :data:`imix_cli.mixing.VARIANT_SPECS`); the first is the default.
     """
 
     name: str
@@ -303,7 +344,7 @@ MIXING_NAMES = tuple(MIXING_SPECS)
 #: ``im_variant`` choices, and ``eim_variant`` choices -> :func:`~imix_cli.mixing.mix` variant.
 IM_VARIANTS = tuple(MIXING_SPECS["im"].variants)
 EIM_VARIANTS = dict(MIXING_SPECS["eim"].variants)
-#: Every variant :func:`~imix_cli.mixing.mix` implements.
+#: Every variant the config selects: those of :data:`imix_cli.mixing.VARIANT_SPECS` (tests/test_registry.py).
 MIX_VARIANTS = tuple(dict.fromkeys(v for spec in MIXING_SPECS.values() for v in spec.variants.values()))
 
 #: The paper's mixing settings (section 4.1), the defaults of conf/config.yaml.

@@ -46,8 +46,9 @@ COLUMNS = (
     "diverged",  # 1 on the last row of a seed whose search distribution became non-finite (the seed ends there), else 0
 )
 
-#: Columns a CSV of an older imix may lack, with the value they then hold on every row.
-_OPTIONAL_COLUMNS = {"reevaluated": 0, "mean_policy_score": float("nan"), "mean_policy_episodes": 0, "diverged": 0}
+#: Columns a row may leave out (:func:`rows_to_frame` fills them in): ``generation_row`` leaves the distribution
+#: mean's columns to whoever measures it, and ``diverged`` is set only on a diverged seed's last row.
+_ROW_DEFAULTS = {"reevaluated": 0, "mean_policy_score": float("nan"), "mean_policy_episodes": 0, "diverged": 0}
 
 
 _INT_COLUMNS = (
@@ -126,7 +127,7 @@ def _umask() -> int:
 def rows_to_frame(rows) -> pd.DataFrame:
     """Build a contract-conforming DataFrame from a list of dicts (one per generation)."""
     frame = pd.DataFrame(list(rows))
-    for column, value in _OPTIONAL_COLUMNS.items():
+    for column, value in _ROW_DEFAULTS.items():
         if column not in frame.columns:
             frame[column] = value
         frame[column] = frame[column].fillna(value).astype(type(value))
@@ -274,9 +275,6 @@ def read_run_csv(path) -> pd.DataFrame:
         frame = pd.read_csv(path)
     except Exception as err:  # pandas raises many types for malformed files
         raise CorruptResultError(f"{path}: unreadable CSV ({type(err).__name__}: {_first_line(err)})") from None
-    for column, value in _OPTIONAL_COLUMNS.items():
-        if column not in frame.columns:
-            frame[column] = value
     missing = [c for c in COLUMNS if c not in frame.columns]
     if missing:
         raise CorruptResultError(f"{path}: missing columns {missing}")

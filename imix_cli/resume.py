@@ -4,7 +4,7 @@ A checkpoint of a seed's whole state (:class:`imix_cli.lockstep.SeedState`: ES, 
 states, rows so far) is written atomically to ``.checkpoints/seed_<k>.npz`` (plain data, see
 :mod:`imix_cli.checkpoints`) and deleted once the seed's CSV exists -- but for the final state,
 from which a larger ``generations=`` continues the seed. A checkpoint that is damaged, of
-another seed or config, or a pickle of an older imix is refused with one warning line naming
+another seed or config, or not a checkpoint at all is refused with one warning line naming
 the file and why, and its seed restarts from scratch.
 """
 
@@ -24,11 +24,6 @@ def checkpoint_path(run_dir: Path, seed: int) -> Path:
     return Path(run_dir) / ".checkpoints" / f"seed_{seed}.npz"
 
 
-def legacy_checkpoint_path(run_dir: Path, seed: int) -> Path:
-    """Where imix 0.1 kept a pickled checkpoint: never opened (unpickling runs code), only removed."""
-    return Path(run_dir) / ".checkpoints" / f"seed_{seed}.pkl"
-
-
 def save_checkpoint(run_dir: Path, st, identity: dict) -> None:
     write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation)
 
@@ -37,15 +32,12 @@ def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh, warn=None, 
     """The saved state of ``seed`` (built on ``fresh``, a new state of the same run and seed), or None.
 
     None if there is no checkpoint, or -- after one warning line naming the file and why --
-    if it is damaged, of another seed or config, a pickle of an older imix, or (given the run's
+    if it is damaged, of another seed or config, not a checkpoint (a pickle, say), or (given the run's
     ``spec`` and episode cap ``max_steps``) larger than the run's config allows or holding a value
     the run could not have produced (:func:`validate_seed_state`). The seed then restarts from
     scratch: that costs recomputation, and gives the same CSV as an uninterrupted run.
     """
     say = warn or _warn
-    legacy = legacy_checkpoint_path(run_dir, seed)
-    if legacy.exists():
-        say(f"{legacy}: checkpoint ignored: a pickle (older imix), never opened since loading it could run code; seed {seed} restarts from scratch")
     path = checkpoint_path(run_dir, seed)
     max_bytes = DEFAULT_MAX_BYTES if spec is None else checkpoint_byte_limit(spec, _dim_of(fresh))
     st = load_or_warn(path, fresh, identity=identity, seed=seed, warn=warn, max_bytes=max_bytes)
@@ -259,5 +251,4 @@ def remove_checkpoints(run_dir: Path, seed: int, keep_final: bool = False) -> No
     its final state (``keep_final``), from which a larger ``generations=`` continues the seed."""
     if not keep_final:
         checkpoint_path(run_dir, seed).unlink(missing_ok=True)
-    legacy_checkpoint_path(run_dir, seed).unlink(missing_ok=True)
     partial_csv_path(run_dir, seed).unlink(missing_ok=True)

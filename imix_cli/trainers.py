@@ -8,8 +8,8 @@ folder, process pool and CSV contract, and differ only in what is declared here.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from importlib import import_module
 from pathlib import Path
 
 
@@ -17,14 +17,16 @@ from pathlib import Path
 class Trainer:
     """How the seeds of one kind of algorithm are trained.
 
-    ``module`` holds the two functions (imported when needed, so that SB3 loads only for DDPG):
-    ``<loop>(spec, seeds, progress) -> {seed: summary}`` runs seeds to completion in this process
+    ``run_seeds(spec, seeds, progress) -> {seed: summary}`` runs seeds to completion in this process
     and ``needs_running(spec, seed, path, frame) -> bool`` says whether a seed whose CSV exists
-    is to be run further (RunError if that CSV does not fit the config).
+    is to be run further (RunError if that CSV does not fit the config). Both are the functions
+    below, which import their trainer's module when called: ``imix status`` and the run folder's
+    checks load neither numba nor the envs, and SB3 loads only for DDPG (and the trainer modules
+    import :mod:`imix_cli.run_folder`, which imports this one).
     """
 
-    module: str
-    loop: str
+    run_seeds: Callable[..., dict]
+    needs_running: Callable[..., bool]
     unit: str  # what progress counts: "gen" (seed-generations) or "step" (environment steps)
     budget_key: str  # the RunSpec field (and config.yaml key) holding a seed's budget in those units
     continuable: bool  # a finished run may be continued to a larger budget from its final states
@@ -33,15 +35,33 @@ class Trainer:
     def budget(self, spec) -> int:
         return getattr(spec, self.budget_key)
 
-    def run_seeds(self, spec, seeds: list[int], progress) -> dict:
-        return getattr(import_module(self.module), self.loop)(spec, seeds, progress)
 
-    def needs_running(self, spec, seed: int, path: Path, frame) -> bool:
-        return import_module(self.module).needs_running(spec, seed, path, frame)
+def _run_es_seeds(spec, seeds: list[int], progress) -> dict:
+    from imix_cli.es_seeds import run_es_seeds
+
+    return run_es_seeds(spec, seeds, progress)
 
 
-EVOLUTION_STRATEGY = Trainer("imix_cli.es_seeds", "run_es_seeds", "gen", "generations", continuable=True, compares_mixing=True)
-DDPG = Trainer("imix_cli.ddpg_seeds", "run_ddpg_seeds", "step", "total_steps", continuable=False, compares_mixing=False)
+def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
+    from imix_cli.es_seeds import needs_running
+
+    return needs_running(spec, seed, path, frame)
+
+
+def _run_ddpg_seeds(spec, seeds: list[int], progress) -> dict:
+    from imix_cli.ddpg_seeds import run_ddpg_seeds
+
+    return run_ddpg_seeds(spec, seeds, progress)
+
+
+def _ddpg_needs_running(spec, seed: int, path: Path, frame) -> bool:
+    from imix_cli.ddpg_seeds import needs_running
+
+    return needs_running(spec, seed, path, frame)
+
+
+EVOLUTION_STRATEGY = Trainer(_run_es_seeds, _es_needs_running, "gen", "generations", continuable=True, compares_mixing=True)
+DDPG = Trainer(_run_ddpg_seeds, _ddpg_needs_running, "step", "total_steps", continuable=False, compares_mixing=False)
 
 #: Algorithms that are not evolution strategies, by name; every other algo is an ES.
 TRAINERS = {"ddpg": DDPG}

@@ -249,6 +249,14 @@ def test_bad_ars_settings_are_one_line_errors(tmp_path, capsys):
     assert not list(tmp_path.iterdir())  # nothing written
 
 
+def test_algo_top_is_checked_against_the_runs_own_popsize():
+    """algo.top <= popsize/2 with the popsize of the run (200: top up to 100), not the default popsize's 25."""
+    from imix_cli.config import validate_overrides
+
+    (spec,) = validate_overrides(["algo=ars", "popsize=200", "algo.top=80"])
+    assert spec.algo_options == {"top": 80} and spec.popsize == 200
+
+
 # ------------------------------------------------------------------------------ the study's outputs
 def _fake_run(folder: Path, scores, episodes_per_generation: int, popsize=None, reused=None) -> None:
     folder.mkdir(parents=True)

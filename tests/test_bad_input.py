@@ -104,6 +104,21 @@ def test_corrupt_csv_already_in_the_folder(results, capsys):
     assert snapshot(results) == before
 
 
+@pytest.mark.parametrize("column", ["reevaluated", "diverged", "mean_policy_score"])
+def test_a_csv_without_a_column_of_the_contract_is_refused_by_name(results, capsys, column):
+    """Every column of the CSV contract is required: a seed CSV without one is refused (one line naming the
+    file and the column) by the run that would extend the folder, which leaves it untouched."""
+    import pandas as pd
+
+    bad = results / RUN_DIR / "seed_0.csv"
+    pd.read_csv(bad).drop(columns=column).to_csv(bad, index=False)
+    before = snapshot(results)
+    assert main(["run", *[a for a in BASE if not a.startswith("seeds")], "seeds=2", f"results_dir={results}"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "seed_0.csv" in err and column in err, err
+    assert snapshot(results) == before
+
+
 def test_config_yaml_of_a_different_config_in_the_target_folder(results, capsys):
     config = results / RUN_DIR / "config.yaml"
     text = config.read_text()

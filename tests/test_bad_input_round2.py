@@ -248,6 +248,30 @@ def test_fast_validation_composes_what_hydra_composes(tmp_path):
         assert fast == full and fast.config == full.config, point
 
 
+def test_no_private_hydra_api_in_the_package():
+    """imix_cli calls Hydra through its public API only (``hydra._internal`` may change in any release)."""
+    package = Path(__file__).resolve().parents[1] / "imix_cli"
+    private = [
+        f"{p.relative_to(package)}:{n}"
+        for p in sorted(package.rglob("*.py"))
+        for n, line in enumerate(p.read_text().splitlines(), 1)
+        if "hydra._internal" in line
+    ]
+    assert private == []
+
+
+@pytest.mark.parametrize(
+    "override, text",
+    [("algo.popsiz=3", "unknown key 'algo.popsiz'"), ("env.id.x=1", "unknown key 'env.id.x'"), ("policy.hidden={a:1}", "policy.hidden={a:1}")],
+)
+def test_a_bad_value_override_of_a_nested_key_is_named(override, text):
+    """The fast path sets value overrides on a composed config itself: a key the config lacks, or a value that
+    cannot be merged, is still one ConfigError naming it."""
+    with pytest.raises(ConfigError) as err:
+        validate_overrides([override])
+    assert text in str(err.value) and len(str(err.value).splitlines()) == 1, err.value
+
+
 @pytest.mark.slow
 def test_every_sweep_point_is_validated_beyond_2000(tmp_path, capsys):
     """The bad points come after the 2,000th (the old cap stopped checking there)."""

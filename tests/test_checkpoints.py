@@ -23,7 +23,7 @@ from imix_cli.cli import main
 from imix_cli.config import validate_overrides
 from imix_cli.evaluation import make_evaluator
 from imix_cli.lockstep import advance_lockstep, new_seed_state
-from imix_cli.resume import checkpoint_path, legacy_checkpoint_path, load_checkpoint, save_checkpoint
+from imix_cli.resume import checkpoint_path, load_checkpoint, save_checkpoint
 from imix_cli.run_folder import prepare_run_dir
 from imix_cli.runner import run_seeds
 
@@ -186,8 +186,8 @@ class Payload:
 
 
 def test_a_pickle_payload_is_never_executed(tmp_path, capfd):
-    """The payload sits at the checkpoint's name, at imix 0.1's .pkl name and inside an .npz
-    object array; the run completes from scratch and the marker never appears."""
+    """The payload sits at the checkpoint's name and inside an .npz object array; the run completes from
+    scratch and the marker never appears."""
     marker = tmp_path / "PWNED"
     payload = pickle.dumps(Payload(marker))
     pickle.loads(payload)  # the payload works: it does create the marker when unpickled
@@ -197,7 +197,6 @@ def test_a_pickle_payload_is_never_executed(tmp_path, capfd):
     todo = prepare_run_dir(spec)
     checkpoint_path(spec.run_dir, 0).parent.mkdir()
     checkpoint_path(spec.run_dir, 0).write_bytes(payload)
-    legacy_checkpoint_path(spec.run_dir, 0).write_bytes(payload)
     buffer = io.BytesIO()
     np.savez(buffer, header=np.zeros(3, np.uint8), evil=np.array([Payload(marker)], dtype=object))
     checkpoint_path(spec.run_dir, 1).write_bytes(buffer.getvalue())
@@ -205,9 +204,8 @@ def test_a_pickle_payload_is_never_executed(tmp_path, capfd):
     run_seeds(spec, todo, progress=lambda n: None)
     err = capfd.readouterr().err
     assert not marker.exists()
-    assert err.count("checkpoint ignored") == 3, err
+    assert err.count("checkpoint ignored") == 2, err
     assert len(pd.read_csv(spec.run_dir / "seed_0.csv")) == 12
-    assert not legacy_checkpoint_path(spec.run_dir, 0).exists()  # removed once the seed finished
 
 
 def test_a_damaged_checkpoint_gives_the_uninterrupted_csv_not_a_wrong_one(tmp_path, capfd, monkeypatch):

@@ -410,3 +410,28 @@ def test_any_search_distribution_mixes_through_the_generic_path(variant):
     for j in range(2):
         assert stats.kstest(pooled[:, j] - 0.3, "laplace").pvalue > KS_P_MIN
     assert reused / (400 * 20) > 0.6
+
+
+def test_a_registered_variant_is_what_mix_and_the_settings_read(monkeypatch):
+    """A variant is one object (imix_cli.mixing.VARIANT_SPECS): mix() runs its own step over the generations
+    its look-back rule allows, and MixingSettings keeps that many in the archive."""
+    from imix_cli import mixing
+    from imix_cli.generation import MixingSettings
+
+    depths = []
+
+    def step(builder, new_dist, archive, entries, depth, alpha, rng):
+        depths.append(depth)
+        return mixing._step_alternate(builder, new_dist, archive, entries, depth, alpha, rng)
+
+    monkeypatch.setitem(mixing.VARIANT_SPECS, "probe", mixing.Variant("probe", looks_back=True, compiled=False, heights=False, uses_alpha=False, step=step))
+    rng = np.random.default_rng(0)
+    dist = DiagonalGaussian(np.zeros(3), np.ones(3))
+    archive = [(dist, dist.sample(10, rng)) for _ in range(4)]
+    g = mix(dist, archive, 10, rng, variant="probe", eim_generations=4)
+    assert depths == [4] and g.samples.shape == (10, 3) and g.reused == 10  # the same distribution: all reused
+    assert MixingSettings("probe", eim_generations=4).depth == 4
+    for name in VARIANTS:
+        assert MixingSettings(name, eim_generations=5).depth == (5 if name in ("eim", "eim_paper") else 1), name
+    with pytest.raises(ValueError, match="unknown mixing variant 'nope'"):
+        _ = MixingSettings("nope").depth

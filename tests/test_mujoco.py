@@ -15,8 +15,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from imix_cli.algorithms.cmaes import MAX_DIM as CMAES_MAX_DIM
 from imix_cli.cli import main
-from imix_cli.config import CMAES_MAX_DIM, validate_overrides
+from imix_cli.config import validate_overrides
 from imix_cli.evaluation import MUJOCO_EXTRA_HINT, make_evaluator
 from imix_cli.lockstep import advance_lockstep, new_seed_state
 from imix_cli.policies import BatchPolicy, ObsNormalizer, fold_normalizer, num_params

@@ -27,6 +27,24 @@ def conf(*parts):
 
 
 # ------------------------------------------------------------------------ conf/ and the registry
+def test_the_registry_and_the_trainers_hold_objects_not_names():
+    """An ES class, a built-in's evaluator and a trainer's functions are reached through function objects a
+    reader can follow, not "module:attribute" strings given to import_module (only the public API's lazy names,
+    imix_cli/__init__.py, and the user's own env module, env_ids.py, are imported by name)."""
+    from imix_cli.trainers import DDPG, EVOLUTION_STRATEGY
+
+    package = Path(__file__).resolve().parents[1] / "imix_cli"
+    by_name = sorted(str(p.relative_to(package)) for p in package.rglob("*.py") if "import_module" in p.read_text())
+    assert by_name == ["__init__.py", "env_ids.py"]
+    for name in ES_NAMES:
+        assert ALGORITHM_SPECS[name].es_class() is {**ALGORITHMS, **MIRRORED_ALGORITHMS}[name]
+        assert issubclass(ALGORITHM_SPECS[name].es_class(), EvolutionStrategy) and ALGORITHM_SPECS[name].es_class().name == name
+    for trainer in (EVOLUTION_STRATEGY, DDPG):
+        assert callable(trainer.run_seeds) and callable(trainer.needs_running)
+    for name in BUILTIN_ENVS:
+        assert type(ENV_SPECS[name].evaluator(None)).__name__.endswith("Evaluator")
+
+
 def test_conf_algo_options_are_the_registered_algorithms_with_their_generation_counts():
     assert sorted(p.stem for p in (Path(config_dir()) / "algo").glob("*.yaml")) == sorted(ALGORITHM_SPECS)
     for name, spec in ALGORITHM_SPECS.items():

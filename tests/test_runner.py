@@ -117,6 +117,24 @@ PAPER_SETTING = {"popsize": 50, "sigma": 0.25, "lr": 0.01, "weight_decay": 0.05,
 PAPER_GENERATIONS = {"openes": 1000, "snes": 1000, "cem": 400, "cmaes": 400}
 
 
+def test_each_point_of_imix_run_is_validated_once(tmp_path, monkeypatch):
+    """`imix run` validates every point up front (before any runs); the Hydra task then runs the point's
+    RunSpec from that validation instead of validating its config again."""
+    import imix_cli.config
+
+    validated = []
+    real = imix_cli.config.spec_from_config
+
+    def counting(cfg, launcher=None):
+        validated.append(cfg["sigma"])
+        return real(cfg, launcher)
+
+    monkeypatch.setattr(imix_cli.config, "spec_from_config", counting)
+    assert imix("-m", "algo=cem", "sigma=0.25,0.5", *TINY, results_dir=tmp_path) == 0
+    assert sorted(validated) == [0.25, 0.5]
+    assert len(list(tmp_path.glob("default/cem-cartpole-none-popsize=8*/seed_*.csv"))) == 4
+
+
 @pytest.mark.parametrize("algo", sorted(PAPER_GENERATIONS))
 def test_a_run_without_overrides_is_the_paper_setting_in_a_bare_folder(algo):
     """The shipped defaults are the paper's, and the folder-name baseline agrees with them:

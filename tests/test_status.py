@@ -32,7 +32,7 @@ def make_run(root):
     buffer = io.BytesIO()  # running, only a checkpoint (npz + JSON header) at generation 7
     np.savez(buffer, header=np.array(json.dumps({"generation": 7})))
     (run_dir / ".checkpoints" / "seed_2.npz").write_bytes(buffer.getvalue())
-    (run_dir / ".checkpoints" / "seed_3.pkl").write_bytes(b"\x80old pickle")  # running, an old-style checkpoint
+    (run_dir / ".checkpoints" / "seed_3.npz").write_bytes(b"")  # running, a checkpoint cut short: tolerated
     # seed 4: nothing yet
     return run_dir
 

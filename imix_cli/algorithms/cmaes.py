@@ -63,6 +63,9 @@ from imix_cli.distributions import FullGaussian
 #: 0.03 s and 0.26 s in the same session. Above the limit SNES/OpenES (O(d) per member) are the tools.
 MAX_DIM = 2000
 
+#: Smallest population CMAES accepts (lambda): its recombination weights need at least 2 parents and one non-parent.
+MIN_POPSIZE = 3
+
 #: CMA options this class implements (pycma option names and defaults).
 SUPPORTED_OPTIONS = {
     # active CMA: negative recombination weights in the covariance update
@@ -188,8 +191,8 @@ class CMAES(EvolutionStrategy):
 
     def _setup(self) -> None:
         cma_options = self.params.cma_options
-        if self.popsize < 3:
-            raise ValueError(f"CMAES needs popsize >= 3, got {self.popsize}")
+        if self.popsize < MIN_POPSIZE:
+            raise ValueError(f"CMAES needs popsize >= {MIN_POPSIZE}, got {self.popsize}")
         check_dimension(self.dim)
         unknown = sorted(set(cma_options or {}) - set(SUPPORTED_OPTIONS))
         if unknown:

@@ -135,7 +135,7 @@ def table_rows(runs: dict, thresholds: dict, resamples: int) -> list[dict]:
             finals = np.array([float(f["mean_score"].iloc[-1]) for f in frames])
             at_budget = [float(f["mean_score"][f["evaluations"] <= budget].iloc[-1]) for f in frames if (f["evaluations"] <= budget).any()]
             # The distribution mean's return on fresh episodes (eval_mean_every), last measurement per seed
-            # (read_run_csv gives older CSVs the column, all NaN).
+            # (NaN on the rows where it was not measured).
             theta = [float(f["mean_policy_score"].dropna().iloc[-1]) for f in frames if f["mean_policy_score"].notna().any()]
             mean, low, high = bootstrap_ci(finals[:, None], resamples)
             reached = [r for r in (first_reach(f, threshold) for f in frames) if r is not None] if threshold is not None else []
