@@ -16,7 +16,7 @@ from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, raw_o
 from imix_cli.messages import warn
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.policy_files import write_seed_policies
-from imix_cli.results import atomic_write_text, csv_text, partial_csv_path, rows_to_frame, seed_csv_path, seed_summary, write_run_csv
+from imix_cli.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, seed_summary, write_run_csv
 from imix_cli.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
 from imix_cli.run_folder import RunError
 from imix_cli.run_spec import resume_identity
@@ -147,7 +147,7 @@ class _SeedEnd:
         """The seed's live view (``seed_<k>.partial.csv``, read by imix status and plot), rewritten
         whole (atomically) with only its new rows formatted: a seed's earlier rows never change."""
         done, text = self.partial.get(st.seed, (0, ""))
-        text += csv_text(rows_to_frame(st.rows[done:]), header=not done)
+        text += rows_csv_text(st.rows[done:], header=not done)
         self.partial[st.seed] = (len(st.rows), text)
         atomic_write_text(partial_csv_path(self.spec.run_dir, st.seed), text)
 

@@ -161,3 +161,20 @@ def test_runs_are_identical_with_the_python_loop_continued_runs_included(tmp_pat
                     assert value[k] == compiled[path][k], path
                     continue
                 np.testing.assert_array_equal(value[k], compiled[path][k], err_msg=f"{path}:{k}", strict=True)
+
+
+def test_the_live_csv_text_is_pandas_text_in_pieces():
+    from imix_cli.results import csv_text, rows_csv_text, rows_to_frame
+
+    spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10"])
+    compiled_loop.advance(st, spec, evaluator, 40)
+    rows = [dict(r) for r in st.rows]
+    for r, value in zip(rows, [np.inf, -np.inf, -0.0, 1e-300, 123456789.123456, float("nan"), 2.0**60, 0.1]):
+        r["wall_time"] = value  # awkward floats
+    rows[3]["algo"] = "a,b"  # a value pandas quotes
+    rows[4]["env"] = 'say "x"'
+    whole = csv_text(rows_to_frame(rows))
+    assert rows_csv_text(rows) == whole
+    assert rows_csv_text(rows[:7]) + rows_csv_text(rows[7:20], header=False) + rows_csv_text(rows[20:], header=False) == whole
+    plain = rows[5:]
+    assert rows_csv_text(plain) == csv_text(rows_to_frame(plain))
