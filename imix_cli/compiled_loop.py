@@ -273,7 +273,7 @@ def _make_entry(digest: int):
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
         sample_rng, episode_rng, mean_rng, sizes, continuous, sparse, max_steps, eval_every, eval_episodes, generation0,
         best, best_return, last_u,
-        out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
+        out_scores, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
     ):  # fmt: skip
         """Run ``generations`` generations of one seed (module docstring). Every state array is
         updated in place; returns the number of generations done -- fewer when a generation met what
@@ -386,8 +386,6 @@ def _make_entry(digest: int):
                 a_trials[0] = trials
                 a_n[0] = min(a_n[0] + 1, depth)
             # ---- the row's numbers
-            for i in range(popsize):
-                out_fitness[g, i] = fitness[i]
             reused = 0
             from_previous = 0
             for i in range(popsize):
@@ -395,6 +393,10 @@ def _make_entry(digest: int):
                     reused += 1
                     if source[i] == 1:
                         from_previous += 1
+            out_scores[g, 0] = _numpy_sum(fitness) / popsize  # np.mean (every return is finite here)
+            out_scores[g, 1] = fitness[0]
+            for i in range(1, popsize):
+                out_scores[g, 1] = max(out_scores[g, 1], fitness[i])
             out_reused[g, 0] = reused
             out_reused[g, 1] = from_previous
             out_reused[g, 2] = reused - from_previous
@@ -485,7 +487,6 @@ def advance(st, spec, evaluator, generations: int) -> bool:
     :func:`applies`) in one compiled call, appending their rows as the Python path does. Returns
     False, having changed nothing, when a generation needs the Python path (module docstring)."""
     from imix_cli.lockstep import mixing_settings
-    from imix_cli.results import generation_row
 
     settings = mixing_settings(spec)
     es = getattr(st.es, "es", st.es)
@@ -522,7 +523,7 @@ def advance(st, spec, evaluator, generations: int) -> bool:
     last_u = np.zeros(popsize)
     a_n = np.array([n_arch], dtype=np.int64)
 
-    out_fitness = np.empty((generations, popsize))
+    out_scores = np.empty((generations, 2))  # mean and best return of the generation
     out_reused = np.empty((generations, 3), dtype=np.int64)
     out_evaluated = np.empty(generations, dtype=np.int64)
     out_steps = np.empty(generations, dtype=np.int64)
@@ -541,7 +542,7 @@ def advance(st, spec, evaluator, generations: int) -> bool:
         st.sample_rng, st.episode_rng, st.mean_eval_rng, evaluator._sizes(), type(evaluator).__name__ != "CartPoleEvaluator",
         bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps), int(spec.eval_mean_every), int(spec.eval_mean_episodes),
         st.generation, best, best_return, last_u,
-        out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
+        out_scores, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
     )  # fmt: skip
     if done < generations:  # put the generators back: the Python path takes this chunk
         for r, state in zip(rngs, snapshot):
@@ -569,22 +570,22 @@ def advance(st, spec, evaluator, generations: int) -> bool:
         archive.ages = [a_age[k].copy() for k in range(int(a_n[0]))]
     if best_return[0] > st.best_return:
         st.best_params, st.best_return = best, float(best_return[0])
-    for g in range(generations):
-        n = int(out_evaluated[g])
+    every, episodes = spec.eval_mean_every, int(spec.eval_mean_episodes)
+    for g, (scores, counts, n, steps, sigma_mean, theta) in enumerate(
+        zip(out_scores.tolist(), out_reused.tolist(), out_evaluated.tolist(), out_steps.tolist(), out_sigma_mean.tolist(), out_theta.tolist())
+    ):
         st.evaluations += n
-        st.env_steps += int(out_steps[g])
-        reused, reused_im, reused_eim = (int(v) for v in out_reused[g])
-        row = generation_row(
-            algo=spec.algo, env=spec.env_name, mixing=spec.mixing, seed=st.seed, generation=st.generation,
-            evaluations=st.evaluations, env_steps=st.env_steps, fitness=out_fitness[g], reused=reused,
-            reused_im=reused_im, reused_eim=reused_eim, reevaluated=0, popsize=spec.popsize, sigma_mean=float(out_sigma_mean[g]),
-        )  # fmt: skip
-        theta = float(out_theta[g])
-        row["mean_policy_score"] = theta
-        if spec.eval_mean_every and (st.generation + 1) % spec.eval_mean_every == 0:
-            st.mean_policy_episodes += int(spec.eval_mean_episodes)
-        row["mean_policy_episodes"] = st.mean_policy_episodes
-        st.rows.append(row)
+        st.env_steps += steps
+        if every and (st.generation + 1) % every == 0:
+            st.mean_policy_episodes += episodes
+        # results.generation_row's row, key for key, from the numbers the kernel computed as it does
+        st.rows.append({
+            "algo": spec.algo, "env": spec.env_name, "mixing": spec.mixing, "seed": st.seed, "generation": st.generation,
+            "evaluations": st.evaluations, "env_steps": st.env_steps, "mean_score": scores[0], "best_score": scores[1],
+            "reused": counts[0], "reused_im": counts[1], "reused_eim": counts[2], "reevaluated": 0,
+            "popsize": spec.popsize, "sigma_mean": sigma_mean, "nonfinite": 0, "wall_time": 0.0,
+            "mean_policy_score": theta, "mean_policy_episodes": st.mean_policy_episodes,
+        })  # fmt: skip
     return True
 
 
