@@ -192,7 +192,7 @@ def needs_running(spec, seed: int, path: Path, frame) -> bool:
         if not checkpoint_path(run_dir, seed).exists():
             raise RunError(
                 f"{path}: has {len(frame)} of {spec.generations} generations and no final state to continue from "
-                f"({checkpoint_path(run_dir, seed).name} missing: made with checkpoint_every=0 or an older imix); "
+                f"({checkpoint_path(run_dir, seed).name} missing: made with checkpoint_every=0); "
                 "move it away or choose another experiment="
             )
         return True

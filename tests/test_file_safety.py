@@ -316,8 +316,29 @@ def forge_checkpoint(path, change) -> None:
     Path(path).write_bytes(buffer.getvalue())
 
 
-def _rows(header):
-    return [row["dict"] for row in header["state"]["state"]["rows"]["list"]]
+def _drop_last_row(header, arrays):
+    table = header["state"]["state"]["rows"]["table"]
+    for kind in ("int", "float"):
+        arrays[table[kind]] = arrays[table[kind]][:, :-1]
+    for column in table["columns"]:
+        if "str" in column:
+            column["str"].pop()
+
+
+def _set_row(header, arrays, index, **values):
+    """Set values of row ``index`` of the checkpoint's rows (a table: checkpoints._encode_table). A value its
+    column's array cannot hold (a string in an int column) turns the column into a list of values."""
+    table = header["state"]["state"]["rows"]["table"]
+    for key, value in values.items():
+        i = table["keys"].index(key)
+        ((kind, where),) = table["columns"][i].items()
+        matrix = arrays[table[kind]]
+        if isinstance(value, (int, float)):
+            matrix[where, index] = value
+        else:
+            column = matrix[where].tolist()
+            column[index] = value
+            table["columns"][i] = {"list": column}
 
 
 def _state(header):
@@ -329,14 +350,14 @@ def _set_array(arrays, name, value):
 
 
 FORGERIES = {
-    "a row's mean_score": lambda h, a: _rows(h)[1].update(mean_score=1234.5, best_score=1234.5),
+    "a row's mean_score": lambda h, a: _set_row(h, a, 1, mean_score=1234.5, best_score=1234.5),
     "best_params of the wrong size": lambda h, a: _set_array(a, "best_params", np.zeros(7)),
     "NaN weights and train_return 1e300": lambda h, a: (_set_array(a, "best_params", np.full(130, np.nan)), _state(h).update(best_return=1e300)),
     "a wrong archive shape": lambda h, a: _set_array(a, "archive/generations/0/samples", np.zeros((3, 130))),
     "a string counter": lambda h, a: _state(h).update(evaluations=str(_state(h)["evaluations"])),
-    "a string counter in a row": lambda h, a: _rows(h)[0].update(evaluations="6"),
-    "episodes that decrease": lambda h, a: _rows(h)[1].update(evaluations=1),
-    "a row dropped": lambda h, a: h["state"]["state"]["rows"]["list"].pop(),
+    "a string counter in a row": lambda h, a: _set_row(h, a, 0, evaluations="6"),
+    "episodes that decrease": lambda h, a: _set_row(h, a, 1, evaluations=1),
+    "a row dropped": lambda h, a: _drop_last_row(h, a),
     "an ES generation count": lambda h, a: h["state"]["state"]["es"]["es"]["dict"].update(generation=99),
     "a NaN distribution mean": lambda h, a: _set_array(a, "es/dist.mean", np.full(130, np.nan)),
     "archive sources out of range": lambda h, a: _set_array(a, "archive/generations/0/source", np.full(6, 9)),
