@@ -571,9 +571,8 @@ def advance(st, spec, evaluator, generations: int) -> bool:
     if best_return[0] > st.best_return:
         st.best_params, st.best_return = best, float(best_return[0])
     every, episodes = spec.eval_mean_every, int(spec.eval_mean_episodes)
-    for g, (scores, counts, n, steps, sigma_mean, theta) in enumerate(
-        zip(out_scores.tolist(), out_reused.tolist(), out_evaluated.tolist(), out_steps.tolist(), out_sigma_mean.tolist(), out_theta.tolist())
-    ):
+    numbers = (out_scores, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
+    for scores, counts, n, steps, sigma_mean, theta in zip(*(a.tolist() for a in numbers)):
         st.evaluations += n
         st.env_steps += steps
         if every and (st.generation + 1) % every == 0:

@@ -210,7 +210,7 @@ def rows_csv_text(rows: list, header: bool = True) -> str:
             value = row.get(column, _ROW_DEFAULTS.get(column, row))
             kind = type(value)
             if column in _FLOAT_COLUMNS and kind is float:
-                cells.append("" if value != value else "%.10g" % value)
+                cells.append("" if value != value else f"{value:.10g}")
             elif column in _INT_COLUMNS and kind is int:
                 cells.append(str(value))
             elif kind is str and column not in _FLOAT_COLUMNS and column not in _INT_COLUMNS and not set(value) & set(',"\r\n'):

@@ -47,6 +47,14 @@ def test_rollouts_and_mixing_rows_and_columns(capsys):
     assert all(0.0 <= float(r[5]) <= 1.0 for r in rows)
 
 
+def test_loop_compares_the_compiled_and_python_loops_on_the_same_rows(capsys):
+    assert main(["loop", "--seeds", "2", "--generations", "30"]) == 0
+    header, rows = _table(_tables(capsys.readouterr().out), "The compiled generation loop")
+    assert header[0] == "run" and header[-1] == "same rows"
+    assert [r[0] for r in rows] == ["snes cartpole true", "openes cartpole true", "snes cartpole false"]
+    assert all(r[-1] == "yes" and float(r[3]) > 0 and float(r[4]) > 0 for r in rows)
+
+
 @pytest.mark.slow
 def test_memory_breakdown_and_grid(capsys, tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where the runs' temporary folders go

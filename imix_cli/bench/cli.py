@@ -13,6 +13,7 @@ import imix_cli.bench as _package
 from imix_cli.bench.breakdown import breakdown_rows, format_breakdown
 from imix_cli.bench.common import ROLLOUT_ENVS
 from imix_cli.bench.grid import PAPER_GRID, format_grid, grid_rows
+from imix_cli.bench.loop import LOOP_CONFIGS, format_loop, loop_rows
 from imix_cli.bench.memory import format_memory, memory_row
 from imix_cli.bench.mixing import format_mixing, mixing_rows
 from imix_cli.bench.mujoco import MUJOCO_BENCH_ENVS, format_mujoco, mujoco_rows
@@ -20,7 +21,7 @@ from imix_cli.bench.peers import QUICK_PEERS, format_peer_ratios, format_peers, 
 from imix_cli.bench.rollouts import format_rollouts, rollout_rows
 from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS, MUJOCO_ENVS, PAPER_ES_NAMES
 
-SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "grid", "peers", "mujoco")
+SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "loop", "grid", "peers", "mujoco")
 DEFAULT_SECTIONS = ("rollouts", "mixing", "memory")
 
 
@@ -79,7 +80,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="dimensions (default: 130 1000 100000 1000000)",
     )
     g = p.add_argument_group("memory, breakdown, grid, peers")
-    g.add_argument("--seeds", type=_positive_int, default=None, help="seeds per run (default: 25; breakdown: 13, one worker's share)")
+    g.add_argument("--seeds", type=_positive_int, default=None, help="seeds per run (default: 25; breakdown and loop: 13, one worker's share)")
     g.add_argument("--generations", type=_positive_int, default=None, help="generations per run (default: the paper's, per algorithm)")
     g.add_argument("--workers", type=_positive_int, default=None, help="memory run's worker processes (default: all cores)")
     g.add_argument(
@@ -151,6 +152,9 @@ def main(argv: list[str] | None = None) -> int:
             echo("## Where a run's time goes (lockstep seeds of one worker, in-process)")
             configs = [[f"algo={a}", f"env={e}", "eim=true"] for e in args.envs for a in args.algos]
             echo(format_breakdown(breakdown_rows(configs, args.seeds or 13, args.generations)))
+        elif section == "loop":
+            echo("## The compiled generation loop against the Python loop (the same seeds, in-process)")
+            echo(format_loop(loop_rows(LOOP_CONFIGS, args.seeds or 13, args.generations or 300)))
         elif section == "peers":
             seeds = args.seeds or (QUICK_PEERS[0] if args.quick else 25)
             generations = args.generations or (QUICK_PEERS[1] if args.quick else ALGORITHM_SPECS["snes"].generations)

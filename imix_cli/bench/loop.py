@@ -1,0 +1,68 @@
+"""``imix bench loop``: the compiled generation loop against the Python loop, in this process.
+
+The same seeds of the same run advance through :func:`imix_cli.lockstep.advance_lockstep` (the
+reference: one generation of all seeds per call) and through :func:`imix_cli.compiled_loop.advance`
+(chunks of :data:`imix_cli.es_seeds.CHUNK` generations per seed); the table gives each one's time
+per seed-generation, their ratio, and whether their rows are the same (wall times aside).
+"""
+
+from __future__ import annotations
+
+import time
+
+from imix_cli.bench.common import table
+
+#: The runs measured: the main job, OpenES with EIM, and SNES without mixing (every episode run).
+LOOP_CONFIGS = (
+    ["algo=snes", "env=cartpole", "eim=true"],
+    ["algo=openes", "env=cartpole", "eim=true"],
+    ["algo=snes", "env=cartpole", "eim=false"],
+)
+
+
+def _rows_without_times(states) -> list:
+    return [[{k: v for k, v in row.items() if k != "wall_time"} for row in st.rows] for st in states]
+
+
+def loop_rows(configs, seeds: int, generations: int) -> list[dict]:
+    from imix_cli import compiled_loop
+    from imix_cli.config import validate_overrides
+    from imix_cli.es_seeds import CHUNK
+    from imix_cli.lockstep import advance_lockstep, new_seed_state
+    from imix_cli.parallel_evaluation import build_evaluator
+
+    rows = []
+    for overrides in configs:
+        (spec,) = validate_overrides(list(overrides))
+        evaluator = build_evaluator(spec)
+        warm = new_seed_state(spec, 10_000, evaluator.num_params)
+        compiled_loop.advance(warm, spec, evaluator, 2)  # loads (or compiles) the kernels of both loops
+        advance_lockstep([warm], spec, evaluator)
+        python = [new_seed_state(spec, s, evaluator.num_params) for s in range(seeds)]
+        started = time.perf_counter()
+        for _ in range(generations):
+            advance_lockstep(python, spec, evaluator)
+        python_s = time.perf_counter() - started
+        compiled = [new_seed_state(spec, s, evaluator.num_params) for s in range(seeds)]
+        started = time.perf_counter()
+        for st in compiled:
+            while st.generation < generations:
+                if not compiled_loop.advance(st, spec, evaluator, min(CHUNK, generations - st.generation)):
+                    advance_lockstep([st], spec, evaluator)
+        compiled_s = time.perf_counter() - started
+        per = 1e6 / (seeds * generations)
+        rows.append({
+            "run": " ".join(o.split("=", 1)[1] for o in overrides), "seeds": seeds, "generations": generations,
+            "python_us": python_s * per, "compiled_us": compiled_s * per, "ratio": python_s / compiled_s,
+            "same": _rows_without_times(python) == _rows_without_times(compiled),
+        })  # fmt: skip
+    return rows
+
+
+def format_loop(rows: list[dict]) -> str:
+    header = ["run", "seeds", "generations", "Python loop (µs / seed-generation)", "compiled loop", "× faster", "same rows"]
+    body = [
+        [r["run"], r["seeds"], r["generations"], f"{r['python_us']:.0f}", f"{r['compiled_us']:.0f}", f"{r['ratio']:.2f}", "yes" if r["same"] else "**NO**"]
+        for r in rows
+    ]
+    return table(header, body, "lrrrrrl")
