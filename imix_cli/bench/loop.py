@@ -20,8 +20,9 @@ LOOP_CONFIGS = (
 )
 
 
-def _rows_without_times(states) -> list:
-    return [[{k: v for k, v in row.items() if k != "wall_time"} for row in st.rows] for st in states]
+def _rows_without_times(states) -> str:
+    """The states' rows, wall times aside, as text (repr: floats exactly, and NaN equal to NaN)."""
+    return repr([[{k: v for k, v in row.items() if k != "wall_time"} for row in st.rows] for st in states])
 
 
 def loop_rows(configs, seeds: int, generations: int) -> list[dict]:
