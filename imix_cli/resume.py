@@ -17,6 +17,7 @@ import numpy as np
 
 from imix_cli.checkpoints import DEFAULT_MAX_BYTES, CheckpointError, load_or_warn, write_checkpoint
 from imix_cli.messages import warn as _warn
+from imix_cli.mixing import variant_spec
 from imix_cli.results import COLUMNS, partial_csv_path
 
 
@@ -58,9 +59,8 @@ def _dim_of(state) -> int:
 
 
 def _archive_depth(spec) -> int:
-    if spec.mixing == "none":
-        return 0
-    return spec.eim_generations if spec.mixing == "eim" else 1
+    """The generations a seed of ``spec`` archives: its variant's look-back rule (:meth:`imix_cli.mixing.Variant.depth`)."""
+    return 0 if spec.variant is None else variant_spec(spec.variant).depth(spec.eim_generations)
 
 
 def checkpoint_byte_limit(spec, dim: int) -> int:
