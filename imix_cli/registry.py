@@ -202,6 +202,9 @@ class EnvSpec:
     step_reward : (float, float) or None
         A built-in's smallest and largest reward of one step: its returns lie within
         ``max_steps`` times these (what a checkpoint read back is checked against); None: not known.
+    mujoco : bool
+        A MuJoCo locomotion env (the ``mujoco`` extra): in :data:`MUJOCO_ENVS`, ``imix bench mujoco``
+        and ``imix plot mujoco``'s thresholds. A preset of another gymnasium id leaves it False.
     """
 
     name: str
@@ -213,6 +216,7 @@ class EnvSpec:
     evaluator: Callable | None = field(default=None, compare=False)
     policy_dims: tuple[int, int] | None = None
     step_reward: tuple[float, float] | None = None
+    mujoco: bool = False
 
     @property
     def builtin(self) -> bool:
@@ -238,11 +242,11 @@ ENV_SPECS: dict[str, EnvSpec] = {
         EnvSpec("continuous_cartpole_hard", "imix/ContinuousCartPoleHard-v0", "ContinuousCartPoleHard", 200, _CARTPOLE_THRESHOLD,
                 continuous=True, evaluator=_continuous_cartpole_hard_evaluator, policy_dims=(4, 1), step_reward=(0.0, 1.0)),
         # MuJoCo v5 (the mujoco extra), thresholds: a clear sign of learning within the study's budget
-        EnvSpec("swimmer", "Swimmer-v5", "Swimmer", _MUJOCO_STEPS, 50.0, continuous=True),
-        EnvSpec("hopper", "Hopper-v5", "Hopper", _MUJOCO_STEPS, 500.0, continuous=True),
-        EnvSpec("halfcheetah", "HalfCheetah-v5", "HalfCheetah", _MUJOCO_STEPS, 500.0, continuous=True),
-        EnvSpec("walker2d", "Walker2d-v5", "Walker2d", _MUJOCO_STEPS, 500.0, continuous=True),
-        EnvSpec("ant", "Ant-v5", "Ant", _MUJOCO_STEPS, 500.0, continuous=True),
+        EnvSpec("swimmer", "Swimmer-v5", "Swimmer", _MUJOCO_STEPS, 50.0, continuous=True, mujoco=True),
+        EnvSpec("hopper", "Hopper-v5", "Hopper", _MUJOCO_STEPS, 500.0, continuous=True, mujoco=True),
+        EnvSpec("halfcheetah", "HalfCheetah-v5", "HalfCheetah", _MUJOCO_STEPS, 500.0, continuous=True, mujoco=True),
+        EnvSpec("walker2d", "Walker2d-v5", "Walker2d", _MUJOCO_STEPS, 500.0, continuous=True, mujoco=True),
+        EnvSpec("ant", "Ant-v5", "Ant", _MUJOCO_STEPS, 500.0, continuous=True, mujoco=True),
     )
 }  # fmt: skip
 
@@ -253,7 +257,7 @@ CONTINUOUS_BUILTIN_ENVS = tuple(name for name in BUILTIN_ENVS if ENV_SPECS[name]
 #: The environments of the paper's main comparison (section 4.2: Figs 5-8, Table 1).
 MAIN_GRID_ENVS = ("cartpole", "acrobot")
 #: The MuJoCo configs: config name -> gymnasium id.
-MUJOCO_ENVS = {name: spec.gym_id for name, spec in ENV_SPECS.items() if not spec.builtin}
+MUJOCO_ENVS = {name: spec.gym_id for name, spec in ENV_SPECS.items() if spec.mujoco}
 
 
 def env_label(name: str) -> str:
@@ -269,7 +273,7 @@ def builtin_thresholds() -> dict:
 
 def mujoco_thresholds() -> dict:
     """``imix mujoco``'s default thresholds: gymnasium id -> threshold (runs are named by id)."""
-    return {spec.gym_id: spec.threshold for spec in ENV_SPECS.values() if not spec.builtin}
+    return {spec.gym_id: spec.threshold for spec in ENV_SPECS.values() if spec.mujoco}
 
 
 # ---------------------------------------------------------------------------------- mixing

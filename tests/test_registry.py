@@ -154,3 +154,15 @@ def test_algo_options_come_from_the_es_params():
         validate_overrides(["algo=cem", "algo.style=textbook"])
     (snes,) = validate_overrides(["algo=snes"])
     assert snes.algo_options == {}
+
+
+def test_only_envs_marked_mujoco_are_mujoco_envs(monkeypatch):
+    # a preset of another gymnasium id (no compiled evaluator) is not a MuJoCo env
+    from imix_cli import registry
+
+    spec = registry.EnvSpec("mountaincar", "MountainCar-v0", "MountainCar", 200, -110.0)
+    assert not spec.builtin and not spec.mujoco
+    assert set(registry.MUJOCO_ENVS) == {"swimmer", "hopper", "halfcheetah", "walker2d", "ant"}
+    assert all(registry.ENV_SPECS[name].mujoco for name in registry.MUJOCO_ENVS)
+    monkeypatch.setitem(registry.ENV_SPECS, "mountaincar", spec)
+    assert "MountainCar-v0" not in registry.mujoco_thresholds()
