@@ -82,7 +82,7 @@ def test_memory_breakdown_and_grid(capsys, tmp_path, monkeypatch):
 @pytest.mark.parametrize(
     "args",
     [["nonsense"], ["--sizes", "0"], ["--sizes", "x"], ["--repeats", "-1"], ["--envs", "pong"], ["--no-such-flag"],
-     ["rollouts", "--dims"], ["--algos", "ddpg"]],
+     ["rollouts", "--dims"], ["--algos", "ddpg"], ["seedz=3"], ["quick=maybe"], ["sizes=0"], ["envs=pong"]],
 )  # fmt: skip
 def test_bad_arguments_one_line_exit_2(capsys, args):
     assert cli_main(["bench", *args]) == 2
@@ -90,6 +90,15 @@ def test_bad_arguments_one_line_exit_2(capsys, args):
     assert captured.out == ""
     lines = captured.err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("imix bench: error:")
+
+
+def test_key_value_arguments_are_the_options_they_name():
+    from imix_cli.bench.cli import parse_args
+
+    as_keys = parse_args(["peers", "loop", "seeds=3", "generations=40", "envs=cartpole,acrobot", "quick=true", "grid=false", "min_seconds=0.5"])
+    as_options = parse_args(["peers", "loop", "--seeds", "3", "--generations", "40", "--envs", "cartpole", "acrobot", "--quick", "--min-seconds", "0.5"])
+    assert vars(as_keys) == vars(as_options)
+    assert as_keys.seeds == 3 and as_keys.envs == ["cartpole", "acrobot"] and as_keys.quick and not as_keys.grid
 
 
 def test_help(capsys):

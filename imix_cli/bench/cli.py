@@ -59,8 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="imix bench",
         description=_package.__doc__.replace("``", "`"),
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  imix bench\n  imix bench rollouts --sizes 50 250 1250\n  imix bench grid\n"
-        "  imix bench all --seeds 5 --generations 50\n  imix bench peers --quick",
+        epilog="examples (key=value, as every imix command, or --key value):\n  imix bench\n  imix bench rollouts sizes=50,250,1250\n"
+        "  imix bench grid\n  imix bench all seeds=5 generations=50\n  imix bench peers quick=true\n  imix bench loop --seeds 5",
     )
     p.add_argument("sections", nargs="*", metavar="section", help=f"any of {', '.join(SECTIONS)}, all (default: {' '.join(DEFAULT_SECTIONS)})")
     p.add_argument("--grid", action="store_true", help="also run the grid section")
@@ -93,8 +93,35 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _options_from_key_values(parser: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """``key=value`` arguments (every imix command's style) as the options they name: ``seeds=5`` is
+    ``--seeds 5``, ``envs=cartpole,acrobot`` is ``--envs cartpole acrobot``, ``quick=true`` is
+    ``--quick``; other arguments (sections, ``--options``) are kept. BenchError for an unknown key."""
+    actions = {a.dest: a for a in parser._actions if a.option_strings and a.dest != "help"}
+    out = []
+    for arg in argv:
+        if arg.startswith("-") or "=" not in arg:
+            out.append(arg)
+            continue
+        key, value = arg.split("=", 1)
+        action = actions.get(key.replace("-", "_"))
+        if action is None:
+            raise BenchError(f"unknown key {key!r}; valid keys: {', '.join(sorted(actions))}")
+        option = action.option_strings[-1]
+        if action.nargs == 0:  # a flag
+            if value.lower() not in ("true", "false"):
+                raise BenchError(f"{key}={value}: must be true or false")
+            out += [option] if value.lower() == "true" else []
+        elif action.nargs == "+":
+            out += [option, *[v for v in value.split(",") if v]]
+        else:
+            out += [option, value]
+    return out
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(_options_from_key_values(parser, argv))
     sections = []
     for s in args.sections:
         if s == "all":
