@@ -120,6 +120,38 @@ class BatchEvaluator:
     def _run(self, policy: BatchPolicy, seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
+    def _roll_out(self, policy: BatchPolicy, obs: np.ndarray, step) -> tuple[np.ndarray, np.ndarray]:
+        """Every member's episode from its first observation ``obs`` (B, obs_dim), all live members stepped
+        together until each ends or ``max_steps``: ``(returns, steps)``; the per-member sums of the
+        observations seen go to ``self.last_obs_stats`` (``policy.obs_norm``'s warm-up).
+
+        ``step(live, members, actions, ret, length, alive, obs)`` steps the members ``members`` (held by
+        the policy slots ``live``) with their slots' ``actions``, adds each reward and step to ``ret`` and
+        ``length`` (by member), clears ``alive`` of the slots whose episode ended and writes the others'
+        new observations into ``obs`` (by slot). Once half the slots are done, finished members leave the
+        policy batch."""
+        n = obs.shape[0]
+        ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
+        sums, sumsqs = np.zeros((n, self.obs_dim)), np.zeros((n, self.obs_dim))
+        idx = np.arange(n)  # member held by each policy slot
+        alive = np.ones(n, dtype=bool)
+        for _ in range(self.max_steps):
+            actions = policy(obs)
+            live = np.flatnonzero(alive)
+            members = idx[live]
+            sums[members] += obs[live]
+            sumsqs[members] += obs[live] * obs[live]
+            step(live, members, actions, ret, length, alive, obs)
+            n_alive = np.count_nonzero(alive)
+            if n_alive == 0:
+                break
+            if n_alive <= alive.size // 2:  # drop finished members from the policy batch
+                rows = np.flatnonzero(alive)
+                idx, obs, alive = idx[rows], obs[rows], alive[rows]
+                policy.select(rows)
+        self.last_obs_stats = (sums, sumsqs)
+        return ret, length
+
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}({self.env_name!r}, obs_dim={self.obs_dim}, out_dim={self.out_dim}, "
@@ -269,22 +301,13 @@ class GymEvaluator(BatchEvaluator):
         self._envs = []
 
     def _run(self, policy, seeds):
-        n = len(seeds)
-        envs = self._env_list(n)
-        obs = np.empty((n, self.obs_dim))
+        envs = self._env_list(len(seeds))
+        obs = np.empty((len(seeds), self.obs_dim))
         for i, env in enumerate(envs):
             obs[i] = np.asarray(env.reset(seed=int(seeds[i]))[0], dtype=np.float64).reshape(-1)
-        ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
-        sums, sumsqs = np.zeros((n, self.obs_dim)), np.zeros((n, self.obs_dim))
-        idx = np.arange(n)  # member held by each policy slot
-        alive = np.ones(n, dtype=bool)
         shape, dtype = self._act_space.shape, self._act_space.dtype
-        for _ in range(self.max_steps):
-            actions = policy(obs)
-            live = np.flatnonzero(alive)
-            members = idx[live]
-            sums[members] += obs[live]
-            sumsqs[members] += obs[live] * obs[live]
+
+        def step(live, members, actions, ret, length, alive, obs):
             for j, i in zip(live, members):
                 a = actions[j] + self._start if self.discrete else actions[j].reshape(shape).astype(dtype)
                 o, reward, terminated, truncated, _ = envs[i].step(a)
@@ -294,15 +317,8 @@ class GymEvaluator(BatchEvaluator):
                     alive[j] = False
                 else:
                     obs[j] = np.asarray(o, dtype=np.float64).reshape(-1)
-            n_alive = np.count_nonzero(alive)
-            if n_alive == 0:
-                break
-            if n_alive <= alive.size // 2:  # drop finished members from the policy batch
-                rows = np.flatnonzero(alive)
-                idx, obs, alive = idx[rows], obs[rows], alive[rows]
-                policy.select(rows)
-        self.last_obs_stats = (sums, sumsqs)
-        return ret, length
+
+        return self._roll_out(policy, obs, step)
 
 
 class MujocoDirectEvaluator(BatchEvaluator):
@@ -341,34 +357,17 @@ class MujocoDirectEvaluator(BatchEvaluator):
         pass
 
     def _run(self, policy, seeds):
-        n = len(seeds)
         episodes = self._episodes
-        obs = episodes.reset(seeds)
-        ret, length = np.zeros(n), np.zeros(n, dtype=np.int64)
-        sums, sumsqs = np.zeros((n, self.obs_dim)), np.zeros((n, self.obs_dim))
-        idx = np.arange(n)  # member held by each policy slot
-        alive = np.ones(n, dtype=bool)
-        for _ in range(self.max_steps):
-            actions = policy(obs)
-            live = np.flatnonzero(alive)
-            members = idx[live]
-            sums[members] += obs[live]
-            sumsqs[members] += obs[live] * obs[live]
+
+        def step(live, members, actions, ret, length, alive, obs):
             # float32: what gymnasium's Box action space hands the env
             new_obs, reward, terminated = episodes.step(members, actions[live].astype(np.float32))
             ret[members] += reward
             length[members] += 1
             alive[live[terminated]] = False
             obs[live] = new_obs
-            n_alive = np.count_nonzero(alive)
-            if n_alive == 0:
-                break
-            if n_alive <= alive.size // 2:  # drop finished members from the policy batch
-                rows = np.flatnonzero(alive)
-                idx, obs, alive = idx[rows], obs[rows], alive[rows]
-                policy.select(rows)
-        self.last_obs_stats = (sums, sumsqs)
-        return ret, length
+
+        return self._roll_out(policy, episodes.reset(seeds), step)
 
 
 #: Gymnasium's MuJoCo environments need the ``mujoco`` package: imix's ``mujoco`` extra.
