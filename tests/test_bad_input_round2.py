@@ -14,6 +14,7 @@ import warnings
 from pathlib import Path
 
 import pytest
+from process_tree import alive, children_of, cmdline
 
 from imix_cli.cli import main
 from imix_cli.config import ConfigError, validate_overrides
@@ -94,26 +95,6 @@ def test_a_sweep_whose_points_would_share_a_folder_is_refused_before_anything_ru
 
 
 # ------------------------------------------------------------------ 5. signals
-def children(pid: int) -> list[int]:
-    out = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
-                    out.append(int(entry.name))
-            except (OSError, IndexError, ValueError):
-                pass
-    return out
-
-
-def alive(pid: int) -> bool:
-    try:
-        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
 @pytest.mark.slow
 def test_sigint_to_the_main_process_alone_stops_the_workers_and_keeps_checkpoints(tmp_path):
     args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "workers=2", "progress=false",
@@ -123,7 +104,7 @@ def test_sigint_to_the_main_process_alone_stops_the_workers_and_keeps_checkpoint
         deadline = time.monotonic() + 60
         while len(list(tmp_path.rglob(".checkpoints/seed_*.npz"))) < 2 and time.monotonic() < deadline:
             time.sleep(0.1)
-        workers = [p for p in children(proc.pid) if "spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes().decode(errors="replace")]
+        workers = [p for p in children_of({proc.pid}) if "spawn_main" in cmdline(p)]
         assert len(workers) == 2, workers
         os.kill(proc.pid, signal.SIGINT)  # the main process only, as kill -INT or a scheduler does
         sent = time.monotonic()

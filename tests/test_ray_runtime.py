@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from process_tree import alive, cmdline, descendants
 
 from imix_cli.config import ConfigError, validate_overrides
 
@@ -68,40 +69,6 @@ def test_an_actor_lost_for_good_is_one_line(monkeypatch):
 
 
 # ------------------------------------------------------------------ nothing left behind
-def _children_of(pids: set) -> set:
-    found = set()
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) in pids:
-                    found.add(int(entry.name))
-            except (OSError, IndexError, ValueError):
-                pass
-    return found
-
-
-def _descendants(pid: int) -> set:
-    found, frontier = set(), {pid}
-    while frontier:
-        frontier = _children_of(frontier) - found
-        found |= frontier
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
-
-
 @pytest.mark.parametrize("stop", ["kill -9", "Ctrl-C", "SIGTERM"])
 def test_no_process_is_left_behind(tmp_path, stop):
     args = [IMIX, "run", "algo=cem", "seeds=2", "generations=100000", "popsize=8", "checkpoint_every=5", "evaluator=ray", "evaluator_workers=1",
@@ -111,13 +78,13 @@ def test_no_process_is_left_behind(tmp_path, stop):
     try:
         deadline = time.monotonic() + 120
         while not list(tmp_path.rglob(".checkpoints/seed_*.npz")) and time.monotonic() < deadline and proc.poll() is None:
-            seen |= _descendants(proc.pid)
+            seen |= descendants(proc.pid)
             time.sleep(0.2)
         for _ in range(10):  # Ray's helpers (agents) start a little later
-            seen |= _descendants(proc.pid)
+            seen |= descendants(proc.pid)
             time.sleep(0.2)
-        assert any("ray::" in _cmdline(p) for p in seen), [_cmdline(p) for p in seen]
-        assert sum("gcs_server" in _cmdline(p) for p in seen) == 1  # one Ray runtime for the run
+        assert any("ray::" in cmdline(p) for p in seen), [cmdline(p) for p in seen]
+        assert sum("gcs_server" in cmdline(p) for p in seen) == 1  # one Ray runtime for the run
         if stop == "kill -9":
             os.kill(proc.pid, signal.SIGKILL)
         elif stop == "Ctrl-C":
@@ -126,14 +93,14 @@ def test_no_process_is_left_behind(tmp_path, stop):
             os.kill(proc.pid, signal.SIGTERM)
         code = proc.wait(timeout=60)
         deadline = time.monotonic() + 15
-        while any(_alive(p) for p in seen) and time.monotonic() < deadline:
+        while any(alive(p) for p in seen) and time.monotonic() < deadline:
             time.sleep(0.1)
-        left = {p: _cmdline(p) for p in seen if _alive(p)}
+        left = {p: cmdline(p) for p in seen if alive(p)}
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
         for p in seen:
-            if _alive(p):
+            if alive(p):
                 try:
                     os.kill(p, signal.SIGKILL)
                 except OSError:

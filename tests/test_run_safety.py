@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+from process_tree import alive, descendants
 
 from imix_cli.cli import main
 from imix_cli.config import ConfigError, validate_overrides
@@ -240,49 +241,35 @@ def test_a_run_is_never_shortened_below_a_finished_csv(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------ SIGTERM
-def _descendants(pid: int) -> set:
-    found, frontier = set(), [pid]
-    while frontier:
-        parent = frontier.pop()
-        for entry in Path("/proc").iterdir():
-            if entry.name.isdigit():
-                try:
-                    if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == parent:
-                        found.add(int(entry.name))
-                        frontier.append(int(entry.name))
-                except (OSError, IndexError, ValueError):
-                    pass
-    return found
-
-
-def _alive(pid: int) -> bool:
+def _stop_when_checkpointed(args, tmp_path, checkpoints: int, send, min_workers: int):
+    """Start ``imix run args`` in a session of its own, wait for ``checkpoints`` checkpoint files, check it
+    has at least ``min_workers`` processes below it, ``send(pid)``; return its exit code, its stderr and
+    the processes below it still alive 10 s later."""
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
+        deadline = time.monotonic() + 90
+        while len(list(tmp_path.rglob(".checkpoints/seed_*.npz"))) < checkpoints and time.monotonic() < deadline:
+            time.sleep(0.1)
+        workers = descendants(proc.pid)
+        assert len(workers) >= min_workers, workers
+        send(proc.pid)
+        code = proc.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while any(alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        left = [p for p in workers if alive(p)]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    return code, proc.stderr.read().strip(), left
 
 
 @pytest.mark.parametrize("to", ["main", "group"])
 def test_sigterm_stops_the_run_with_one_line_and_no_warning(tmp_path, to):
     args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "workers=2", "progress=false",
             f"results_dir={tmp_path}"]  # fmt: skip
-    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 90
-        while len(list(tmp_path.rglob(".checkpoints/seed_*.npz"))) < 2 and time.monotonic() < deadline:
-            time.sleep(0.1)
-        workers = _descendants(proc.pid)
-        assert workers
-        (os.kill if to == "main" else os.killpg)(proc.pid, signal.SIGTERM)
-        code = proc.wait(timeout=30)
-        deadline = time.monotonic() + 10
-        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        left = [p for p in workers if _alive(p)]
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    err = proc.stderr.read().strip()
+    kill = os.kill if to == "main" else os.killpg
+    code, err, left = _stop_when_checkpointed(args, tmp_path, 2, lambda pid: kill(pid, signal.SIGTERM), min_workers=1)
     assert code == 143, (code, err)
     assert len(err.splitlines()) == 1 and "terminated" in err and "leaked" not in err, err
     assert not left, left
@@ -295,23 +282,7 @@ def test_the_evaluation_pool_stops_with_the_run_and_says_nothing(tmp_path, signu
     the pool's workers printed a line each; now only the main process speaks."""
     args = [IMIX, "run", "algo=cem", "seeds=2", "generations=100000", "popsize=8", "checkpoint_every=5", "evaluator=pool", "evaluator_workers=2",
             "progress=false", f"results_dir={tmp_path}"]  # fmt: skip
-    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 90
-        while not list(tmp_path.rglob(".checkpoints/seed_*.npz")) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        workers = _descendants(proc.pid)
-        assert len(workers) >= 2, workers
-        os.killpg(proc.pid, signum)
-        code = proc.wait(timeout=30)
-        deadline = time.monotonic() + 10
-        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        left = [p for p in workers if _alive(p)]
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    err = proc.stderr.read().strip()
+    code, err, left = _stop_when_checkpointed(args, tmp_path, 1, lambda pid: os.killpg(pid, signum), min_workers=2)
     assert code == 128 + signum, (code, err)
     assert len(err.splitlines()) == 1 and "Traceback" not in err and "leaked" not in err, err
     assert not left, left
