@@ -46,7 +46,7 @@ from numba import njit
 
 from imix_cli import linalg_kernels as lk
 from imix_cli import mixing_kernels as mk
-from imix_cli.algorithms.base import EstoolWeightDecay, centered_ranks, member_keys
+from imix_cli.algorithms.base import EstoolWeightDecay, centered_ranks, hash_multipliers
 from imix_cli.algorithms.openes import OpenES
 from imix_cli.algorithms.snes import SNES
 from imix_cli.distributions import DiagonalGaussian
@@ -536,7 +536,7 @@ def advance(st, spec, evaluator, generations: int) -> bool:
         log_keep = float(np.log1p(-settings.alpha))
     done = entry()(
         generations, _ALGOS[type(es)], _VARIANTS[settings.variant], depth, float(settings.alpha), log_keep,
-        float(es.weight_decay), _multipliers(d), es_generation,
+        float(es.weight_decay), hash_multipliers(d), es_generation,
         mu, log_sigma, std, float(es.sigma), opt_m, opt_v, opt_t, lrs, float(es.params.beta1), float(es.params.beta2),
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
         st.sample_rng, st.episode_rng, st.mean_eval_rng, evaluator._sizes(), type(evaluator).__name__ != "CartPoleEvaluator",
@@ -586,17 +586,3 @@ def advance(st, spec, evaluator, generations: int) -> bool:
             "mean_policy_score": theta, "mean_policy_episodes": st.mean_policy_episodes,
         })  # fmt: skip
     return True
-
-
-_MULTIPLIERS: dict = {}
-
-
-def _multipliers(d: int) -> np.ndarray:
-    """The per-coordinate odd multipliers of :func:`member_keys` (the same array: drawn the same way)."""
-    mult = _MULTIPLIERS.get(d)
-    if mult is None:
-        member_keys(np.zeros((1, d)))  # fills base's table for d
-        from imix_cli.algorithms.base import _HASH_MULTIPLIERS
-
-        mult = _MULTIPLIERS[d] = _HASH_MULTIPLIERS[d]
-    return mult

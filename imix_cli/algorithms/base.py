@@ -89,6 +89,16 @@ def centered_ranks(values: np.ndarray, tie_break: np.ndarray | None = None) -> n
 _HASH_MULTIPLIERS: dict[int, np.ndarray] = {}
 
 
+def hash_multipliers(dim: int) -> np.ndarray:
+    """:func:`member_keys`' fixed random odd multiplier per coordinate, for rows of ``dim`` numbers
+    (drawn once per dimension and kept; :mod:`imix_cli.compiled_loop` hashes with the same array)."""
+    mult = _HASH_MULTIPLIERS.get(dim)
+    if mult is None:
+        mult = np.random.default_rng(0x5EED).integers(0, 2**64, size=dim, dtype=np.uint64, endpoint=False) | np.uint64(1)
+        _HASH_MULTIPLIERS[dim] = mult
+    return mult
+
+
 def member_keys(samples: np.ndarray, salt: int = 0) -> np.ndarray:
     """A pseudo-random 64-bit key per row that depends only on the row's values (its float64 bits) and ``salt``.
 
@@ -108,12 +118,7 @@ def member_keys(samples: np.ndarray, salt: int = 0) -> np.ndarray:
     value (README, "Reused returns and the search").
     """
     bits = np.ascontiguousarray(samples, dtype=np.float64).view(np.uint64)
-    dim = bits.shape[1]
-    mult = _HASH_MULTIPLIERS.get(dim)
-    if mult is None:
-        mult = np.random.default_rng(0x5EED).integers(0, 2**64, size=dim, dtype=np.uint64, endpoint=False) | np.uint64(1)
-        _HASH_MULTIPLIERS[dim] = mult
-    h = (bits * mult).sum(axis=1, dtype=np.uint64)
+    h = (bits * hash_multipliers(bits.shape[1])).sum(axis=1, dtype=np.uint64)
     h += np.uint64((salt * 0x9E3779B97F4A7C15) % 2**64)  # splitmix64's increment, salt times (Python ints: no overflow warning)
     h ^= h >> np.uint64(30)
     h *= np.uint64(0xBF58476D1CE4E5B9)
