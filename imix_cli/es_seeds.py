@@ -84,11 +84,12 @@ def _run_active(spec, states, active, evaluator, identity, checkpoint_every, sta
     from imix_cli import compiled_loop  # numba's kernels: loaded by the processes that run seeds only
 
     ended = _SeedEnd(spec, evaluator, identity, checkpoint_every, started, summaries, tracker)
+    compiles = compiled_loop.applies_to_run(spec, evaluator)  # the run's part of the check, once
     while active:
         advanced = 0
         stepped = []
         for st in active:
-            if not compiled_loop.applies(spec, evaluator, st):
+            if not (compiles and compiled_loop.applies(spec, evaluator, st)):
                 stepped.append(st)
                 continue
             first, began = st.generation, time.perf_counter() - started
