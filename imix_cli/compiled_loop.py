@@ -452,7 +452,8 @@ def applies_to_run(spec, evaluator) -> bool:
     settings = mixing_settings(spec)
     if settings.variant not in _VARIANTS or settings.reeval_age is not None or settings.reeval_prob > 0.0 or settings.reeval_count > 0:
         return False
-    return not spec.obs_norm and spec.weight_decay_form == "estool"
+    # policy.bias=false: the ES's points are not the evaluator's parameter vectors (lockstep.policy_params)
+    return not spec.obs_norm and spec.policy_bias and spec.weight_decay_form == "estool"
 
 
 def applies(spec, evaluator, st) -> bool:

@@ -90,6 +90,12 @@ KEYS = (
         "normalise observations (gymnasium envs), statistics frozen after the warm-up (honest reuse)", "the policy"),
     Key("policy.obs_norm_warmup", "5", "warm-up generations, without mixing, that gather the statistics",
         "generations that gather the statistics, without mixing, before they freeze", "the policy"),
+    Key("policy.bias", "true", "false: no biases, the ES searches the weights only (ARS)",
+        "`false`: the policy has no biases and the ES searches its weights only (ARS's linear policy a = M s); saved "
+        "policies keep the usual layout with zero biases", "the policy"),
+    Key("policy.output", "tanh", "continuous actions: tanh | clip (ARS)",
+        "continuous actions: `tanh` (squashed onto the action bounds) or `clip` (the outputs clipped to them: ARS's linear "
+        "policy, sb3-contrib's `ARSLinearPolicy`); gymnasium/MuJoCo envs with continuous actions only", "the policy"),
     # ---------------------------------------------------------------- where episodes run
     Key("evaluator", "local", "local | pool (a generation over all cores) | ray",
         "`local`, `pool` (each generation's episodes over `evaluator_workers` processes), `ray` (Ray actors)", "where episodes run"),

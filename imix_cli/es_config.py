@@ -75,7 +75,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
     _check_params_together(algo, popsize, algo_options)
     _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
-    num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"])
+    num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"], policy["bias"], policy["output"])
     if algo == "cmaes" and num_params > cmaes.MAX_DIM:
         raise ConfigError(
             f"algo=cmaes: the {'x'.join(map(str, policy['hidden'])) or 'linear'} policy on {env_id} has {num_params} parameters, more than "
@@ -120,6 +120,8 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         hidden=policy["hidden"],
         obs_norm=policy["obs_norm"],
         obs_norm_warmup=policy["obs_norm_warmup"],
+        policy_bias=policy["bias"],
+        policy_output=policy["output"],
         evaluator=policy["evaluator"],
         evaluator_workers=policy["evaluator_workers"],
         ray_address=policy["ray_address"],
@@ -191,7 +193,7 @@ def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_
     policy = cfg.get("policy")
     policy = {} if policy is None else policy
     if not isinstance(policy, dict):
-        raise ConfigError(f"policy={policy!r}: must be a mapping with keys hidden, obs_norm, obs_norm_warmup")
+        raise ConfigError(f"policy={policy!r}: must be a mapping with keys {', '.join(POLICY_DEFAULTS)}")
     unknown = sorted(set(policy) - set(POLICY_DEFAULTS))
     if unknown:
         raise ConfigError(f"unknown key 'policy.{unknown[0]}'; valid policy keys: {', '.join(POLICY_DEFAULTS)}")
@@ -204,6 +206,12 @@ def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_
     warmup = as_int(p, "policy.obs_norm_warmup", 1)
     if obs_norm and env_name in BUILTIN_ENVS:
         raise ConfigError(f"policy.obs_norm=true: only on gymnasium environments (env=gym or a MuJoCo env), not the built-in env={env_name}")
+    from imix_cli.policies import OUTPUTS
+
+    bias = as_bool(p, "policy.bias")
+    output = as_choice(p["policy.output"], "policy.output", OUTPUTS)
+    if output != "tanh" and env_name in BUILTIN_ENVS:
+        raise ConfigError(f"policy.output={output}: only on gymnasium environments with continuous actions (a MuJoCo env), not the built-in env={env_name}")
     from imix_cli.parallel_evaluation import EVALUATORS
 
     evaluator = as_choice(cfg.get("evaluator", "local"), "evaluator", EVALUATORS)
@@ -224,20 +232,27 @@ def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_
             import ray  # noqa: F401
         except ImportError:
             raise ConfigError('evaluator=ray: ray is not installed; pip install "imix-cli[cluster]"') from None
-    default = hidden == POLICY_DEFAULTS["hidden"] and not obs_norm
-    stored = None if default else {"hidden": list(hidden), "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else None}
+    # config.yaml keeps the policy keys only if one differs from the default, and bias/output only if
+    # they do: a run's identity (and folder) stays what it was before these keys existed.
+    extra = {k: v for k, v in (("bias", bias), ("output", output)) if v != POLICY_DEFAULTS[k]}
+    default = hidden == POLICY_DEFAULTS["hidden"] and not obs_norm and not extra
+    stored = None if default else {"hidden": list(hidden), "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else None, **extra}
     return {
-        "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else 0, "evaluator": evaluator,
-        "evaluator_workers": n_workers or 1, "ray_address": address, "stored": stored,
+        "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else 0, "bias": bias, "output": output,
+        "evaluator": evaluator, "evaluator_workers": n_workers or 1, "ray_address": address, "stored": stored,
     }  # fmt: skip
 
 
-def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple) -> int:
-    """Number of policy parameters on this env (a gymnasium env is made once to read its spaces)."""
-    from imix_cli.policies import num_params
+def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple, bias: bool = True, output: str = "tanh") -> int:
+    """Number of parameters the ES searches on this env: the policy's, or its weights' with
+    ``policy.bias=false`` (a gymnasium env is made once to read its spaces)."""
+    from imix_cli.policies import num_params, weight_columns
+
+    def dim(obs_dim: int, out_dim: int) -> int:
+        return num_params(obs_dim, out_dim, hidden) if bias else weight_columns(obs_dim, out_dim, hidden).size
 
     if env_name in BUILTIN_ENVS:  # their observation and output sizes are known without making the env
-        return num_params(*ENV_SPECS[env_name].policy_dims, hidden)
+        return dim(*ENV_SPECS[env_name].policy_dims)
     import gymnasium as gym
 
     try:
@@ -248,5 +263,8 @@ def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple) -> int:
         obs_space, act_space = probe.observation_space, probe.action_space
     finally:
         probe.close()
-    out = int(act_space.n) if isinstance(act_space, gym.spaces.Discrete) else math.prod(act_space.shape or (1,))
-    return num_params(math.prod(obs_space.shape or (1,)), out, hidden)
+    discrete = isinstance(act_space, gym.spaces.Discrete)
+    if discrete and output != "tanh":
+        raise ConfigError(f"policy.output={output}: {env_id} has discrete actions (the argmax of the outputs); only continuous actions are clipped")
+    out = int(act_space.n) if discrete else math.prod(act_space.shape or (1,))
+    return dim(math.prod(obs_space.shape or (1,)), out)

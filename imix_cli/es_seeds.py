@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, raw_obs_params
+from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, policy_params, search_dim
 from imix_cli.messages import warn
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.policy_files import write_seed_policies
@@ -41,14 +41,14 @@ def _run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
     states = []
     for seed in seeds:
         # A refused checkpoint may have been half loaded into the ES it was given: start from a new one.
-        st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, evaluator.num_params), spec=spec, max_steps=int(evaluator.max_steps))
+        st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, search_dim(spec, evaluator)), spec=spec, max_steps=int(evaluator.max_steps))
         if st is not None and st.generation > spec.generations:  # a longer continuation's, killed before it finished
             warn(
                 f"{checkpoint_path(run_dir, seed)}: checkpoint at generation {st.generation} is past generations={spec.generations}; "
                 f"seed {seed} restarts from generation 0"
             )
             st = None
-        st = st or new_seed_state(spec, seed, evaluator.num_params)
+        st = st or new_seed_state(spec, seed, search_dim(spec, evaluator))
         states.append(st)
         if st.generation:
             print(f"imix: seed {seed} resumes at generation {st.generation} from {checkpoint_path(run_dir, seed)}", file=sys.stderr, flush=True)
@@ -155,7 +155,7 @@ class _SeedEnd:
 
 def _finish_seed(spec, st: SeedState, evaluator) -> dict:
     """Write seed ``st``'s policy files and CSV; return its summary."""
-    mean = raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0]
+    mean = policy_params(spec, st, st.es.distribution.mean[None, :], evaluator)[0]
     write_seed_policies(spec, st.seed, evaluator, mean, st.best_params, st.best_return, st.generation)
     return seed_summary(write_run_csv(seed_csv_path(spec.run_dir, st.seed), st.rows))
 

@@ -175,11 +175,11 @@ def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), r
     if header["max_steps"] > cap:
         raise PolicyFileError(f"{where}: header field max_steps={header['max_steps']!r} is above the run's episode cap ({cap}); not evaluated")
     hidden = tuple(int(h) for h in header["hidden"])  # policy.hidden of the run
-    key = (env, header["max_steps"], hidden)
+    key = (env, header["max_steps"], hidden, header["output"])
     cache = {} if cache is None else cache
     if key not in cache:
         try:
-            cache[key] = make_evaluator(env, header["max_steps"], hidden=hidden)
+            cache[key] = make_evaluator(env, header["max_steps"], hidden=hidden, output=header["output"])
         except ValueError as err:
             raise PolicyFileError(f"{where}: cannot evaluate on {env}: {str(err).splitlines()[0] if str(err) else type(err).__name__}") from None
     evaluator = cache[key]

@@ -59,7 +59,7 @@ from gymnasium import spaces
 
 import imix_cli.envs  # noqa: F401  (registers the imix/ gymnasium ids, in spawned workers too)
 from imix_cli.envs.mujoco_direct import DIRECT_ENV_IDS  # imports no mujoco
-from imix_cli.policies import HIDDEN, BatchPolicy, num_params
+from imix_cli.policies import HIDDEN, OUTPUTS, BatchPolicy, num_params
 from imix_cli.registry import BUILTIN_ENVS, ENV_SPECS
 
 __all__ = [
@@ -75,7 +75,8 @@ class BatchEvaluator:
     """Evaluates B policies for one episode each on one environment. See the module docstring.
 
     Attributes: ``env_name``, ``obs_dim``, ``out_dim`` (policy outputs), ``num_params``,
-    ``discrete``, ``max_steps``, ``hidden``.
+    ``discrete``, ``max_steps``, ``hidden``, ``output`` (continuous actions: ``"tanh"`` or ``"clip"``,
+    :mod:`imix_cli.policies`).
     """
 
     env_name: str
@@ -84,6 +85,7 @@ class BatchEvaluator:
     discrete: bool
     max_steps: int
     hidden: tuple[int, ...] = HIDDEN
+    output: str = "tanh"
 
     @property
     def num_params(self) -> int:
@@ -251,9 +253,9 @@ class GymEvaluator(BatchEvaluator):
     of them), for :class:`imix_cli.policies.ObsNormalizer`.
     """
 
-    def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN):
+    def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN, output: str = "tanh"):
         self.env_name = env_id
-        self.hidden = tuple(int(h) for h in hidden)
+        self.hidden, self.output = tuple(int(h) for h in hidden), output
         spec = gym.spec(env_id)
         limit = spec.max_episode_steps if max_steps is None else int(max_steps)
         if limit is None:
@@ -288,7 +290,7 @@ class GymEvaluator(BatchEvaluator):
         self.last_obs_stats: tuple[np.ndarray, np.ndarray] | None = None
 
     def policy(self, params):
-        return BatchPolicy(params, self.obs_dim, self.out_dim, discrete=self.discrete, hidden=self.hidden, low=self._low, high=self._high)
+        return BatchPolicy(params, self.obs_dim, self.out_dim, discrete=self.discrete, hidden=self.hidden, low=self._low, high=self._high, output=self.output)
 
     def _env_list(self, n: int) -> list:
         while len(self._envs) < n:
@@ -333,14 +335,14 @@ class MujocoDirectEvaluator(BatchEvaluator):
     per-member ``env.step`` calls replaced by one batched step.
     """
 
-    def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN):
+    def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN, output: str = "tanh"):
         from imix_cli.envs.mujoco_direct import DirectEpisodes
 
         message = missing_extra_message(env_id)  # also routes MuJoCo's warnings (HalfCheetah's model)
         if message:
             raise ValueError(message)
         self.env_name = env_id
-        self.hidden = tuple(int(h) for h in hidden)
+        self.hidden, self.output = tuple(int(h) for h in hidden), output
         self.max_steps = int(gym.spec(env_id).max_episode_steps if max_steps is None else max_steps)
         if self.max_steps < 1:
             raise ValueError(f"{env_id}: max_steps must be >= 1, got {max_steps}")
@@ -351,7 +353,7 @@ class MujocoDirectEvaluator(BatchEvaluator):
         self.last_obs_stats: tuple[np.ndarray, np.ndarray] | None = None
 
     def policy(self, params):
-        return BatchPolicy(params, self.obs_dim, self.out_dim, discrete=False, hidden=self.hidden, low=self._low, high=self._high)
+        return BatchPolicy(params, self.obs_dim, self.out_dim, discrete=False, hidden=self.hidden, low=self._low, high=self._high, output=self.output)
 
     def close(self) -> None:
         pass
@@ -425,12 +427,14 @@ def mujoco_backend(backend: str | None = None) -> str:
     return value
 
 
-def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, backend: str | None = None) -> BatchEvaluator:
+def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, backend: str | None = None, output: str = "tanh") -> BatchEvaluator:
     """Evaluator for a built-in (``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
     ``"continuous_cartpole_hard"``: :data:`imix_cli.registry.BUILTIN_ENVS`) or a gymnasium id
     (see the module docstring).
 
     ``hidden``: the policy's hidden layer sizes (``()``: linear), default the paper's (8, 8).
+    ``output``: how continuous actions are made from the outputs, ``"tanh"`` or ``"clip"``
+    (:mod:`imix_cli.policies`); the built-in envs' compiled episodes squash with tanh only.
     ``backend`` (default ``$IMIX_MUJOCO_BACKEND``, else ``"direct"``): how ``Swimmer-v5``,
     ``Hopper-v5``, ``HalfCheetah-v5``, ``Walker2d-v5`` and ``Ant-v5`` run -- ``"direct"``:
     :class:`MujocoDirectEvaluator` (the same episodes, bit for bit, without gymnasium's per-step
@@ -439,8 +443,12 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, b
     """
     hidden = tuple(int(h) for h in hidden)
     backend = mujoco_backend(backend)
+    if output not in OUTPUTS:
+        raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
     key = str(env_name).lower()
     if key in BUILTIN_ENVS:
+        if output != "tanh":
+            raise ValueError(f"{key}: the built-in env's compiled episodes take output='tanh' only, got {output!r}")
         builtin = ENV_SPECS[key].evaluator(max_steps)
         if hidden != HIDDEN:
             builtin.hidden = hidden  # the compiled kernels read the layer sizes from it
@@ -456,5 +464,5 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, b
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ValueError(f"unknown environment {env_name!r}: not {', '.join(map(repr, BUILTIN_ENVS))} or a registered gymnasium id ({msg})") from None
     if backend == "direct" and env_name in DIRECT_ENV_IDS:
-        return MujocoDirectEvaluator(env_name, max_steps, hidden=hidden)
-    return GymEvaluator(env_name, max_steps, hidden=hidden)
+        return MujocoDirectEvaluator(env_name, max_steps, hidden=hidden, output=output)
+    return GymEvaluator(env_name, max_steps, hidden=hidden, output=output)

@@ -21,7 +21,7 @@ import numpy as np
 from imix_cli.algorithms import make_es
 from imix_cli.divergence import GuardedES
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
-from imix_cli.policies import ObsNormalizer
+from imix_cli.policies import ObsNormalizer, weight_columns, with_zero_biases
 from imix_cli.results import generation_row
 
 
@@ -92,7 +92,7 @@ def advance_lockstep(states: list[SeedState], spec, evaluator, plan=plan_generat
     plans = [plan(st.es, st.archive, s, st.sample_rng) for st, s in zip(states, settings)]
     episode_seeds = [st.episode_rng.integers(0, np.iinfo(np.int64).max, size=p.evaluate.size, dtype=np.int64) for st, p in zip(states, plans)]
     returns, steps = evaluator.evaluate(
-        np.concatenate([raw_obs_params(st, p.generation.samples[p.evaluate], evaluator) for st, p in zip(states, plans)]),
+        np.concatenate([policy_params(spec, st, p.generation.samples[p.evaluate], evaluator) for st, p in zip(states, plans)]),
         np.concatenate(episode_seeds),
     )
     offset = 0
@@ -116,7 +116,7 @@ def advance_lockstep(states: list[SeedState], spec, evaluator, plan=plan_generat
         if finite.any() and np.max(fitness[finite]) > st.best_return:  # strictly better: the first best is kept
             top = np.flatnonzero(finite)[np.argmax(fitness[finite])]
             # with policy.obs_norm, as the policy on raw observations it was evaluated as
-            st.best_params, st.best_return = raw_obs_params(st, g.samples[top : top + 1], evaluator)[0], float(fitness[top])
+            st.best_params, st.best_return = policy_params(spec, st, g.samples[top : top + 1], evaluator)[0], float(fitness[top])
         if warm:
             st.obs_norm.add(*observed)
             st.obs_norm.end_generation()
@@ -137,7 +137,7 @@ def measure_distribution_means(states: list[SeedState], spec, evaluator) -> None
         if every and st.generation % every == 0 and np.all(np.isfinite(mean)):
             due.append(st)
     if due:
-        params = np.concatenate([np.repeat(raw_obs_params(st, st.es.distribution.mean[None, :], evaluator), episodes, axis=0) for st in due])
+        params = np.concatenate([np.repeat(policy_params(spec, st, st.es.distribution.mean[None, :], evaluator), episodes, axis=0) for st in due])
         seeds = np.concatenate([st.mean_eval_rng.integers(0, np.iinfo(np.int64).max, size=episodes, dtype=np.int64) for st in due])
         returns, _ = evaluator.evaluate(params, seeds)
         for k, st in enumerate(due):
@@ -149,8 +149,20 @@ def measure_distribution_means(states: list[SeedState], spec, evaluator) -> None
         st.rows[-1]["mean_policy_episodes"] = st.mean_policy_episodes
 
 
-def raw_obs_params(st: SeedState, params: np.ndarray, evaluator) -> np.ndarray:
-    """``params`` (B, d) as a policy on raw observations: the seed's normaliser folded in, if any."""
+def search_dim(spec, evaluator) -> int:
+    """The number of parameters the ES searches: the policy's, or its weights' with ``policy.bias=false``."""
+    if spec.policy_bias:
+        return evaluator.num_params
+    return weight_columns(evaluator.obs_dim, evaluator.out_dim, evaluator.hidden).size
+
+
+def policy_params(spec, st: SeedState, params: np.ndarray, evaluator) -> np.ndarray:
+    """ES points ``params`` (B, search_dim) as the evaluator's policies (B, num_params) on raw
+    observations: zero biases put back (``policy.bias=false``), then the seed's normaliser folded
+    in, if any (the fold gives the first layer a bias even where the policy had none)."""
+    params = np.array(params, dtype=np.float64)
+    if not spec.policy_bias:
+        params = with_zero_biases(params, evaluator.obs_dim, evaluator.out_dim, evaluator.hidden)
     if st.obs_norm is None:
-        return np.array(params, dtype=np.float64)
+        return params
     return st.obs_norm.fold(params, evaluator.out_dim, evaluator.hidden)

@@ -61,12 +61,12 @@ EVALUATORS = ("local", "pool", "ray")
 
 def build_evaluator(spec):
     """The evaluator of ``spec`` (a :class:`~imix_cli.run_spec.RunSpec`): local, pool or ray."""
-    args = (spec.evaluator_key, spec.env_max_steps, spec.hidden)
+    args, policy = (spec.evaluator_key, spec.env_max_steps), {"hidden": spec.hidden, "output": spec.policy_output}
     if spec.evaluator == "pool":
-        return PoolEvaluator(*args, workers=spec.evaluator_workers)
+        return PoolEvaluator(*args, **policy, workers=spec.evaluator_workers)
     if spec.evaluator == "ray":
-        return RayEvaluator(*args, workers=spec.evaluator_workers, address=spec.ray_address)
-    return make_evaluator(*args)
+        return RayEvaluator(*args, **policy, workers=spec.evaluator_workers, address=spec.ray_address)
+    return make_evaluator(*args, **policy)
 
 
 class _Remote:
@@ -75,9 +75,10 @@ class _Remote:
     #: Chunks per worker and call: more than 1 lets workers that drew short episodes take more.
     chunks_per_worker = 4
 
-    def __init__(self, env_key: str, max_steps: int | None, hidden):
-        self._local = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
-        self._make_args = (env_key, max_steps, None if hidden is None else tuple(hidden))
+    def __init__(self, env_key: str, max_steps: int | None, hidden, output: str):
+        # make_evaluator's keyword arguments, which every worker process or actor gets too
+        self._make_args = {"env_name": env_key, "max_steps": max_steps, "output": output, **({} if hidden is None else {"hidden": tuple(hidden)})}
+        self._local = make_evaluator(**self._make_args)
         self.last_obs_stats = None
 
     def __getattr__(self, name):  # env_name, obs_dim, out_dim, num_params, hidden, discrete, max_steps, policy
@@ -127,8 +128,7 @@ _worker_evaluator = None
 
 def _init_pool_worker(make_args, parent_pid: int) -> None:
     global _worker_evaluator
-    env_key, max_steps, hidden = make_args
-    _worker_evaluator = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
+    _worker_evaluator = make_evaluator(**make_args)
     # Ctrl-C reaches the whole process group: the main process alone decides, and shuts the pool down
     # (each worker printed a line of its own); SIGTERM ends a worker silently.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -144,8 +144,8 @@ def _evaluate_chunk(params: np.ndarray, seeds: np.ndarray):
 class PoolEvaluator(_Remote):
     """Evaluation over a persistent pool of ``workers`` spawned processes (module docstring)."""
 
-    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None):
-        super().__init__(env_key, max_steps, hidden)
+    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, output: str = "tanh"):
+        super().__init__(env_key, max_steps, hidden, output)
         self.workers = int(workers or default_workers())
         # One BLAS thread per worker process (the workers already use every core): one_blas_thread() around the
         # submits, which start them.
@@ -168,8 +168,7 @@ class _RayWorker:
     """A Ray actor holding one evaluator (its own env instances)."""
 
     def __init__(self, make_args):
-        env_key, max_steps, hidden = make_args
-        self.evaluator = make_evaluator(env_key, max_steps, **({} if hidden is None else {"hidden": hidden}))
+        self.evaluator = make_evaluator(**make_args)
 
     def evaluate(self, params, seeds):
         returns, steps = self.evaluator.evaluate(params, seeds)
@@ -194,8 +193,8 @@ class RayEvaluator(_Remote):
     #: Restarts of a dead actor (and retries of the chunks it was running) before the run stops.
     max_restarts = 3
 
-    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, address: str | None = None):
-        super().__init__(env_key, max_steps, hidden)
+    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, address: str | None = None, output: str = "tanh"):
+        super().__init__(env_key, max_steps, hidden, output)
         import ray
 
         from imix_cli.processes import children_of, start_reaper

@@ -20,8 +20,18 @@ Actions:
   if strictly greater, so ties go to the lowest index (as ``np.argmax``) and NaN outputs
   never take over (a NaN ``y[0]`` keeps action 0; ``np.argmax`` would instead pick the
   first NaN; this only matters for non-finite parameters);
-* continuous: ``tanh(y)``, mapped affinely onto ``[low, high]`` when bounds are given
-  (``high * tanh(y)`` when ``low == -high``, so ``[-1, 1]`` is exactly ``tanh(y)``).
+* continuous, ``output="tanh"`` (the default): ``tanh(y)``, mapped affinely onto ``[low, high]``
+  when bounds are given (``high * tanh(y)`` when ``low == -high``, so ``[-1, 1]`` is exactly
+  ``tanh(y)``);
+* continuous, ``output="clip"`` (config key ``policy.output``): ``y`` clipped to ``[low, high]``
+  (``[-1, 1]`` without bounds). This is ARS's linear policy (Mania et al. 2018; sb3-contrib's
+  ``ARSLinearPolicy``): the action is ``M s`` itself until it reaches the actuator's limit, where
+  a tanh would already have bent it.
+
+A policy without biases (``policy.bias=false``, ARS's ``a = M s``) keeps this layout: the
+evolution strategy searches the weights only (:func:`weight_columns`) and
+:func:`with_zero_biases` puts them back into the layout with zero biases, so every rollout,
+saved policy and normaliser fold stays the same code.
 
 Every member has its own weights: :class:`BatchPolicy` unpacks a ``(B, d)`` parameter
 matrix once per rollout into member-last weight stacks and evaluates all members with one
@@ -69,13 +79,40 @@ from imix_cli import linalg_kernels as lk
 
 HIDDEN: tuple[int, ...] = (8, 8)
 
-__all__ = ["HIDDEN", "num_params", "unpack", "BatchPolicy", "forward", "act", "policy_output", "policy_action", "ObsNormalizer", "fold_normalizer"]
+#: Continuous action maps (``policy.output``): see the module docstring.
+OUTPUTS = ("tanh", "clip")
+
+__all__ = [
+    "HIDDEN", "OUTPUTS", "num_params", "weight_columns", "with_zero_biases", "unpack", "BatchPolicy", "forward", "act",
+    "policy_output", "policy_action", "ObsNormalizer", "fold_normalizer",
+]  # fmt: skip
 
 
 def num_params(obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> int:
     """Number of parameters of the MLP ``obs_dim -> hidden... -> out_dim`` (with biases)."""
     sizes = [int(obs_dim), *map(int, hidden), int(out_dim)]
     return sum(a * b + b for a, b in zip(sizes[:-1], sizes[1:]))
+
+
+def weight_columns(obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> np.ndarray:
+    """Indices of the weights (not the biases) in the flat layout: what a bias-free policy's ES searches."""
+    sizes = [int(obs_dim), *map(int, hidden), int(out_dim)]
+    columns, k = [], 0
+    for a, b in zip(sizes[:-1], sizes[1:]):
+        columns.append(np.arange(k, k + a * b))
+        k += a * b + b
+    return np.concatenate(columns)
+
+
+def with_zero_biases(weights: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> np.ndarray:
+    """Weights (B, len(weight_columns)) as full parameter vectors (B, num_params) whose biases are 0 (a new array)."""
+    weights = np.asarray(weights, dtype=np.float64)
+    columns = weight_columns(obs_dim, out_dim, hidden)
+    if weights.ndim != 2 or weights.shape[1] != columns.size:
+        raise ValueError(f"weights must have shape (B, {columns.size}) for the bias-free {obs_dim}->{tuple(hidden)}->{out_dim} MLP, got {weights.shape}")
+    params = np.zeros((weights.shape[0], num_params(obs_dim, out_dim, hidden)))
+    params[:, columns] = weights
+    return params
 
 
 def unpack(params: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -140,8 +177,11 @@ class BatchPolicy:
         hidden: Sequence[int] = HIDDEN,
         low: np.ndarray | float | None = None,
         high: np.ndarray | float | None = None,
+        output: str = "tanh",
     ):
-        self.obs_dim, self.out_dim, self.discrete = int(obs_dim), int(out_dim), bool(discrete)
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
+        self.obs_dim, self.out_dim, self.discrete, self.output = int(obs_dim), int(out_dim), bool(discrete), output
         self.hidden = tuple(int(h) for h in hidden)
         params = np.asarray(params, dtype=np.float64)
         if params.ndim != 2 or params.shape[1] != num_params(obs_dim, out_dim, self.hidden):
@@ -160,11 +200,13 @@ class BatchPolicy:
             k += b
         self._alloc(n)
         self._scale = self._offset = None
+        self._clip = (-np.ones((self.out_dim, 1)), np.ones((self.out_dim, 1)))  # output="clip" without bounds: [-1, 1]
         if not self.discrete and (low is not None or high is not None):
             lo = np.broadcast_to(np.asarray(low, dtype=np.float64), (self.out_dim,))
             hi = np.broadcast_to(np.asarray(high, dtype=np.float64), (self.out_dim,))
             if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo < hi)):
                 raise ValueError(f"continuous actions need finite bounds low < high, got {lo}, {hi}")
+            self._clip = (lo[:, None].copy(), hi[:, None].copy())
             if np.array_equal(lo, -hi):
                 self._scale = None if np.all(hi == 1.0) else hi[:, None].copy()
             else:
@@ -209,6 +251,8 @@ class BatchPolicy:
         y = self.outputs_t(obs)
         if self.discrete:
             return _argmax_cols(y)
+        if self.output == "clip":
+            return np.ascontiguousarray(np.clip(y, *self._clip).T)
         a = lk.tanh(y)
         if self._offset is not None:  # low + (tanh + 1) * (high - low) / 2
             a += 1.0
@@ -233,15 +277,17 @@ def act(
     hidden: Sequence[int] = HIDDEN,
     low=None,
     high=None,
+    output: str = "tanh",
 ) -> np.ndarray:
     """Actions of B members on their own observations (B, obs_dim).
 
     Discrete: int64 (B,) argmax of the outputs. Continuous: float64 (B, out_dim),
-    ``tanh`` of the outputs, mapped onto ``[low, high]`` if given. For a rollout, build
-    a :class:`BatchPolicy` once instead (this unpacks the parameters on every call).
+    ``tanh`` of the outputs mapped onto ``[low, high]`` if given, or (``output="clip"``) the
+    outputs clipped to them. For a rollout, build a :class:`BatchPolicy` once instead (this
+    unpacks the parameters on every call).
     """
     obs = np.asarray(obs)
-    pol = BatchPolicy(params, obs.shape[1], out_dim, discrete=discrete, hidden=hidden, low=low, high=high)
+    pol = BatchPolicy(params, obs.shape[1], out_dim, discrete=discrete, hidden=hidden, low=low, high=high, output=output)
     return pol(obs)
 
 
@@ -354,7 +400,7 @@ def policy_output(params: np.ndarray, obs: np.ndarray, out_dim: int, hidden: Seq
     return y[0] if obs.ndim == 1 else y
 
 
-def policy_action(params: np.ndarray, obs: np.ndarray, out_dim: int, discrete: bool = True, hidden: Sequence[int] = HIDDEN, low=None, high=None):
+def policy_action(params: np.ndarray, obs: np.ndarray, out_dim: int, discrete: bool = True, hidden: Sequence[int] = HIDDEN, low=None, high=None, output="tanh"):
     """The action of ONE policy ``params`` (d,) on one observation (obs_dim,): an int (discrete: the
     argmax of the outputs) or an (out_dim,) array (continuous, as :func:`act`); with (T, obs_dim)
     observations, one action per row. Saved policies: ``np.load("policy_0_mean.npz")["params"]``."""
@@ -362,7 +408,7 @@ def policy_action(params: np.ndarray, obs: np.ndarray, out_dim: int, discrete: b
     if params.ndim != 1:
         raise ValueError(f"params must be one policy's (d,) vector, got shape {params.shape}; act() takes (B, d)")
     rows = np.atleast_2d(obs)
-    a = act(np.broadcast_to(params, (rows.shape[0], params.shape[0])), rows, out_dim, discrete, hidden, low, high)
+    a = act(np.broadcast_to(params, (rows.shape[0], params.shape[0])), rows, out_dim, discrete, hidden, low, high, output)
     if obs.ndim == 1:
         return int(a[0]) if discrete else a[0]
     return a

@@ -43,7 +43,8 @@ HEADER_FIELDS = (
     "obs_dim",  # policy inputs
     "out_dim",  # policy outputs (discrete: number of actions; continuous: action dimensions)
     "hidden",  # hidden layer sizes, tanh units
-    "discrete",  # true: action = action_start + argmax(outputs); false: tanh(outputs) mapped onto the bounds
+    "discrete",  # true: action = action_start + argmax(outputs); false: see output
+    "output",  # continuous actions: "tanh" (tanh of the outputs mapped onto the bounds) or "clip" (clipped to them)
     "action_start",  # first discrete action (gymnasium Discrete.start), 0 otherwise
     "action_low",  # continuous: per-dimension lower bounds (null: [-1, 1]); discrete: null
     "action_high",  # continuous: per-dimension upper bounds; discrete: null
@@ -58,6 +59,9 @@ HEADER_FIELDS = (
     "generation",  # generations completed when written
     "train_return",  # "best": the member's training return; "mean": null (θ itself is never evaluated in training)
 )
+
+#: Fields a file may lack because it was written before they existed, and what such a file meant.
+HEADER_DEFAULTS = {"output": "tanh"}
 
 
 class PolicyFileError(ValueError):
@@ -77,7 +81,7 @@ class PolicyFile:
         h = self.header
         return BatchPolicy(
             np.repeat(self.params[None, :], n, axis=0), h["obs_dim"], h["out_dim"], discrete=h["discrete"],
-            hidden=h["hidden"], low=h["action_low"], high=h["action_high"],
+            hidden=h["hidden"], low=h["action_low"], high=h["action_high"], output=h["output"],
         )  # fmt: skip
 
 
@@ -100,6 +104,7 @@ def architecture_of(evaluator) -> dict:
         "out_dim": int(evaluator.out_dim),
         "hidden": [int(h) for h in evaluator.hidden],
         "discrete": bool(evaluator.discrete),
+        "output": str(getattr(evaluator, "output", "tanh")),
         "action_start": int(getattr(evaluator, "_start", 0) or 0),
         "action_low": None if low is None else [float(v) for v in low],
         "action_high": None if high is None else [float(v) for v in high],
@@ -152,6 +157,9 @@ def validate_header(header, where: str = "policy file") -> dict:
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         found = header.get("format") if isinstance(header, dict) else None
         raise PolicyFileError(f"{where}: not an {FORMAT} file (format={found!r})")
+    from imix_cli.policies import OUTPUTS
+
+    header = {**header, **{k: v for k, v in HEADER_DEFAULTS.items() if k not in header}}
     missing = [k for k in HEADER_FIELDS if k not in header]
     if missing:
         raise PolicyFileError(f"{where}: header lacks {missing}")
@@ -166,6 +174,8 @@ def validate_header(header, where: str = "policy file") -> dict:
         raise bad("hidden", f"is not a list of at most {MAX_LAYERS} layer sizes in [1, {MAX_WIDTH}]")
     if not isinstance(header["discrete"], bool):
         raise bad("discrete", "is not true or false")
+    if header["output"] not in OUTPUTS:
+        raise bad("output", f"is not one of {list(OUTPUTS)}")
     if not _is_int(header["action_start"]) or abs(header["action_start"]) > 2**31:
         raise bad("action_start", "is not an integer")
     if header["discrete"]:

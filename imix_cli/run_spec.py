@@ -63,8 +63,9 @@ TOP_LEVEL_KEYS = (
     "eval_mean_every", "eval_mean_episodes", "logger",
 )  # fmt: skip
 
-#: ``policy.*`` defaults (conf/config.yaml): the paper's 8x8 tanh MLP without normalisation.
-POLICY_DEFAULTS = {"hidden": (8, 8), "obs_norm": False, "obs_norm_warmup": 5}
+#: ``policy.*`` defaults (conf/config.yaml): the paper's 8x8 tanh MLP without normalisation, with
+#: biases, continuous actions squashed by tanh.
+POLICY_DEFAULTS = {"hidden": (8, 8), "obs_norm": False, "obs_norm_warmup": 5, "bias": True, "output": "tanh"}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -105,6 +106,8 @@ class RunSpec:
     hidden: tuple = (8, 8)  # policy.hidden: tanh hidden layer sizes, () = linear
     obs_norm: bool = False  # policy.obs_norm: observation normalisation, frozen after the warm-up
     obs_norm_warmup: int = 0  # policy.obs_norm_warmup: generations of statistics (mixing off) before it freezes
+    policy_bias: bool = True  # policy.bias: false = the ES searches the weights only, biases stay 0 (ARS's a = M s)
+    policy_output: str = "tanh"  # policy.output: continuous actions tanh-squashed or clipped (imix_cli.policies)
     evaluator: str = "local"  # local | pool | ray (imix_cli.parallel_evaluation)
     evaluator_workers: int = 1  # processes (pool) or actors (ray)
     ray_address: str | None = None  # ray.init(address=...) for evaluator=ray
@@ -155,6 +158,10 @@ class RunSpec:
             changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"
         if self.obs_norm:
             changed["obs_norm"] = self.obs_norm_warmup  # the warm-up in generations
+        if not self.policy_bias:
+            changed["bias"] = False
+        if self.policy_output != POLICY_DEFAULTS["output"]:
+            changed["output"] = self.policy_output
         return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
 
     @property

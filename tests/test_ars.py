@@ -8,6 +8,7 @@ pooled over many independent steps) and along chains of hundreds of generations 
 stated at each test; seeds are fixed.
 """
 
+import json
 import os
 import signal
 import subprocess
@@ -255,6 +256,124 @@ def test_algo_top_is_checked_against_the_runs_own_popsize():
 
     (spec,) = validate_overrides(["algo=ars", "popsize=200", "algo.top=80"])
     assert spec.algo_options == {"top": 80} and spec.popsize == 200
+
+
+# ----------------------------------------------------------------- ARS's linear policy a = M s, clipped
+def test_clip_output_is_the_outputs_clipped_to_the_action_bounds():
+    """policy.output=clip: the action is the network's output itself, cut at the bounds (ARS,
+    sb3-contrib's ARSLinearPolicy) -- not tanh of it, which bends even small outputs."""
+    from imix_cli.policies import BatchPolicy, forward, num_params
+
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(7, 5))
+    params = 0.7 * rng.normal(size=(7, num_params(5, 3, ())))
+    y = forward(params, obs, 3, ())
+    for low, high in (([-1.0] * 3, [1.0] * 3), ([-2.0, -0.5, 0.0], [0.5, 0.25, 3.0])):
+        clipped = BatchPolicy(params, 5, 3, discrete=False, hidden=(), low=low, high=high, output="clip")(obs)
+        np.testing.assert_array_equal(clipped, np.clip(y, low, high))
+        inside = (y > np.array(low)) & (y < np.array(high))
+        assert inside.any() and (~inside).any()  # the case has outputs on both sides of the bounds
+        squashed = BatchPolicy(params, 5, 3, discrete=False, hidden=(), low=low, high=high)(obs)
+        assert not np.any(squashed[inside] == clipped[inside])  # tanh (the default) is another policy
+
+
+def test_a_bias_free_policy_is_its_weights_with_zero_biases():
+    """policy.bias=false: the ES's point is the weights alone, in layout order; the policy they make
+    has every bias 0 (a linear one is obs @ W, a hidden layer tanh(obs @ W1) @ W2)."""
+    from imix_cli.policies import forward, num_params, weight_columns, with_zero_biases
+
+    rng = np.random.default_rng(1)
+    obs = rng.normal(size=(4, 6))
+    for hidden in ((), (5,)):
+        columns = weight_columns(6, 2, hidden)
+        sizes = [6, *hidden, 2]
+        assert columns.size == num_params(6, 2, hidden) - sum(sizes[1:])
+        weights = rng.normal(size=(4, columns.size))
+        params = with_zero_biases(weights, 6, 2, hidden)
+        biases = np.setdiff1d(np.arange(params.shape[1]), columns)
+        assert np.all(params[:, biases] == 0.0) and np.array_equal(params[:, columns], weights)
+        W = [weights[:, :36].reshape(4, 6, -1)] if not hidden else [weights[:, :30].reshape(4, 6, 5), weights[:, 30:].reshape(4, 5, 2)]
+        x = obs
+        for i, w in enumerate(W):
+            x = np.einsum("bi,bij->bj", x, w)
+            x = np.tanh(x) if i < len(W) - 1 else x
+        np.testing.assert_allclose(forward(params, obs, 2, hidden), x, rtol=1e-12, atol=1e-12)
+
+
+def test_with_obs_norm_the_bias_free_weights_act_on_normalised_observations():
+    """ARS V2 with policy.bias=false: the policy is a = M (s - mu) / sd. The zero biases are put back
+    before the normaliser is folded in (the fold gives the layer the bias -M mu / sd)."""
+    from types import SimpleNamespace
+
+    from imix_cli.lockstep import policy_params, search_dim
+    from imix_cli.policies import ObsNormalizer, forward
+
+    rng = np.random.default_rng(2)
+    norm = ObsNormalizer(3, 1)
+    states = rng.normal(loc=[5.0, -2.0, 0.5], scale=[3.0, 0.2, 1.0], size=(50, 3))
+    norm.add(states.sum(0)[None], (states**2).sum(0)[None], np.array([50]))
+    norm.end_generation()
+    evaluator = SimpleNamespace(obs_dim=3, out_dim=2, hidden=(), num_params=8)
+    spec = SimpleNamespace(policy_bias=False)
+    assert search_dim(spec, evaluator) == 6
+    M = rng.normal(size=(1, 6))
+    raw = policy_params(spec, SimpleNamespace(obs_norm=norm), M, evaluator)
+    expected = ((states - norm.mean) / norm.std) @ M.reshape(3, 2)
+    np.testing.assert_allclose(forward(np.repeat(raw, 50, axis=0), states, 2, ()), expected, rtol=1e-10, atol=1e-10)
+
+
+def test_the_ars_presets_run_the_papers_policy_and_eval_acts_with_it(tmp_path):
+    """+ars=<env>: no biases (the ES searches 16 weights on Swimmer), clipped actions; the saved
+    policies keep zero biases and say "clip", and imix eval acts with the clip."""
+    pytest.importorskip("mujoco")
+    from imix_cli.cli import main
+    from imix_cli.config import validate_overrides
+    from imix_cli.evaluate import evaluator_for
+    from imix_cli.evaluation import make_evaluator
+    from imix_cli.policy_files import read_policy
+
+    for env in ("swimmer", "hopper", "halfcheetah", "walker2d"):
+        (spec,) = validate_overrides(["algo=ars", f"env={env}", f"+ars={env}"])
+        assert (spec.policy_bias, spec.policy_output, spec.hidden) == (False, "clip", ())
+    args = ["run", "algo=ars", "env=swimmer", "+ars=swimmer", "env.max_steps=60", "lr=0.5", "seeds=1", "generations=6", "progress=false", "workers=1"]
+    assert main([*args, f"results_dir={tmp_path}"]) == 0
+    (run_dir,) = tmp_path.glob("default/ars-Swimmer-v5-*")
+    assert "bias=False" in run_dir.name and "output=clip" in run_dir.name
+    policy = read_policy(run_dir / "policy_0_mean.npz")
+    assert policy.header["output"] == "clip" and policy.params.shape == (18,)
+    assert np.all(policy.params[16:] == 0.0) and np.any(policy.params[:16] != 0.0)
+    params, seeds = np.repeat(policy.params[None, :], 3, axis=0), np.arange(3)
+    returns, _ = evaluator_for(policy.header, run_dir=run_dir).evaluate(params, seeds)
+    np.testing.assert_array_equal(returns, make_evaluator("Swimmer-v5", 60, hidden=(), output="clip").evaluate(params, seeds)[0])
+    assert not np.array_equal(returns, make_evaluator("Swimmer-v5", 60, hidden=()).evaluate(params, seeds)[0])
+
+
+def test_policy_files_written_before_the_output_field_read_as_tanh(tmp_path):
+    from imix_cli.policy_files import HEADER_FIELDS, read_policy, write_policy
+
+    header = {k: None for k in HEADER_FIELDS}
+    header.update(format="imix-policy/1", env_name="swimmer", env_id="Swimmer-v5", max_steps=1000, obs_dim=8, out_dim=2, hidden=[],
+                  discrete=False, action_start=0, action_low=[-1.0, -1.0], action_high=[1.0, 1.0], seed=0, which="mean", generation=3)  # fmt: skip
+    write_policy(tmp_path / "new.npz", np.zeros(18), {**header, "output": "clip"})
+    assert read_policy(tmp_path / "new.npz").header["output"] == "clip"
+    old = tmp_path / "old.npz"  # as an earlier imix wrote it: no "output" in the header
+    np.savez(old, params=np.zeros(18), header=np.array(json.dumps({k: v for k, v in header.items() if k != "output"})))
+    assert read_policy(old).header["output"] == "tanh"
+
+
+def test_bad_policy_outputs_are_one_line_errors(tmp_path, capsys):
+    from imix_cli.cli import main
+
+    for bad, key in (
+        (["env=cartpole", "policy.output=clip"], "policy.output=clip: only on gymnasium environments with continuous actions"),
+        (["env=gym", "env.id=CartPole-v1", "policy.output=clip"], "CartPole-v1 has discrete actions"),
+        (["env=cartpole", "policy.output=sigmoid"], "policy.output='sigmoid'"),
+        (["env=cartpole", "policy.bias=maybe"], "policy.bias='maybe'"),
+    ):
+        assert main(["run", "algo=ars", "seeds=1", "generations=1", f"results_dir={tmp_path}", *bad]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and key in err, err
+    assert not list(tmp_path.iterdir())  # nothing written
 
 
 # ------------------------------------------------------------------------------ the study's outputs

@@ -19,7 +19,7 @@ import pytest
 from imix_cli import compiled_loop
 from imix_cli.checkpoints import _encode, _read_npz
 from imix_cli.config import validate_overrides
-from imix_cli.lockstep import advance_lockstep, new_seed_state
+from imix_cli.lockstep import advance_lockstep, new_seed_state, search_dim
 from imix_cli.parallel_evaluation import build_evaluator
 
 CASES = [
@@ -35,7 +35,7 @@ CASES = [
 def _seed_state(overrides, seed=3):
     (spec,) = validate_overrides([*overrides, "eval_mean_every=7", "eval_mean_episodes=3"])
     evaluator = build_evaluator(spec)
-    return spec, evaluator, new_seed_state(spec, seed, evaluator.num_params)
+    return spec, evaluator, new_seed_state(spec, seed, search_dim(spec, evaluator))
 
 
 def _snapshot(st) -> dict:
@@ -86,6 +86,7 @@ def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
         ["algo=snes", "env=cartpole", "eim=true", "weight_decay_form=paper"],
         ["algo=snes", "env=cartpole", "eim=true", "reeval_age=3"],
         ["algo=snes", "env=cartpole", "eim=true", "evaluator=pool"],
+        ["algo=snes", "env=cartpole", "eim=true", "policy.bias=false"],  # ES points are not the policy's parameters
     ):
         spec, evaluator, st = _seed_state(overrides)
         assert not compiled_loop.applies(spec, evaluator, st), overrides
