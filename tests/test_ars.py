@@ -409,6 +409,36 @@ def test_the_study_table_counts_episodes_to_the_papers_threshold_and_the_episode
     assert (exp / "figures" / "ars_swimmer.png").exists()
 
 
+def test_the_study_table_says_whether_imix_differs_from_sb3_contrib_beyond_noise(tmp_path):
+    """Rank tests, seeds that never reach the threshold ranked last: 5 seeds that all reach it against
+    5 that never do are as far apart as 5 against 5 can be (exact two-sided p = 2 / C(10, 5))."""
+    from imix_cli.plotting.ars import p_vs_peer, summary_rows
+
+    inf = float("inf")
+    assert p_vs_peer([inf] * 5, [300, 200, 100, 400, 250]) == pytest.approx(2 / 252)
+    assert p_vs_peer([1.0, 2.0, 3.0, 4.0, 5.0], [6.0, 7.0, 8.0, 9.0, 10.0]) == pytest.approx(2 / 252)
+    assert p_vs_peer([inf, inf, 20.0], [inf, inf, 20.0]) == 1.0 and p_vs_peer([inf] * 3, [inf] * 3) == 1.0
+    assert p_vs_peer([100.0, 300.0, 200.0], [150.0, 250.0, 120.0]) > 0.5  # interleaved: no evidence
+    nan = float("nan")
+    frames = lambda scores: [_frame(s) for s in scores]  # noqa: E731
+    runs = {"Swimmer-v5": {
+        "sb3_ars": frames([[nan, 330.0, 340.0], [nan, 400.0, 350.0], [nan, 200.0, 326.0]]),  # reach at 4, 4, 6 episodes
+        "none": frames([[nan, 100.0, 90.0], [nan, 110.0, 120.0], [nan, 330.0, 100.0]]),  # one reaches (at 4)
+    }}  # fmt: skip
+    rows = {r["method"]: r for r in summary_rows(runs, resamples=20)}
+    assert rows["imix ARS"]["p_episodes_vs_sb3"] == pytest.approx(p_vs_peer([inf, inf, 4], [4, 4, 6]))
+    assert rows["imix ARS"]["p_final_vs_sb3"] == pytest.approx(p_vs_peer([90.0, 120.0, 100.0], [340.0, 350.0, 326.0]))
+    assert np.isnan(rows["sb3-contrib ARS"]["p_final_vs_sb3"])
+
+
+def _frame(scores) -> pd.DataFrame:
+    n = len(scores)
+    return pd.DataFrame({
+        "generation": np.arange(n), "evaluations": 2 * np.arange(1, n + 1), "env_steps": 2000 * np.arange(1, n + 1),
+        "mean_policy_score": scores, "wall_time": np.arange(1, n + 1, dtype=float), "popsize": np.full(n, 2),
+    })  # fmt: skip
+
+
 @pytest.mark.slow
 def test_the_sb3_contrib_peer_writes_a_csv_of_whole_iterations(tmp_path):
     pytest.importorskip("sb3_contrib")

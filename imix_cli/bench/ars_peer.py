@@ -11,8 +11,8 @@ with imix's column names (generation, evaluations, env_steps, mean_policy_score,
 mean_policy_episodes, wall_time); a seed whose CSV exists is skipped.
 
 Hyper-parameters: rl-zoo3 2.9.2's hyperparams/ars.yml for the -v4 envs (:data:`ZOO_ARS`), run here
-on the -v5 envs. What differs from imix's ARS (docs/ars.md): sb3-contrib's linear policy has no
-bias and clips its actions (imix: bias, tanh); its sigma_R is the unbiased std (ddof 1; the ARS
+on the -v5 envs. The policy is imix's ``+ars=<env>`` one (linear, no bias, clipped actions). What
+differs from imix's ARS (docs/ars.md): sb3-contrib's sigma_R is the unbiased std (ddof 1; the ARS
 paper's code and imix: ddof 0); its state normalisation (VecNormalize) keeps updating (imix:
 frozen after a warm-up); rl-zoo3 adds ``alive_bonus_offset`` to Hopper's and Walker2d's training
 rewards (imix: the env's reward).

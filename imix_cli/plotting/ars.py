@@ -14,7 +14,10 @@ writes into ``<results_dir>/<experiment>/figures/``:
 * ``ars_table.csv`` / ``.md``: per env and method, the seeds, the training episodes and env steps
   to first reach the ARS paper's threshold with the mean policy (mean over the seeds that reached
   it, and how many did), the mean policy's last measured return (mean and 95 % CI), the episodes
-  saved by mixing (1 - episodes run / (generations x popsize)), the training episodes and wall time.
+  saved by mixing (1 - episodes run / (generations x popsize)), the training episodes and wall time;
+  and for imix's methods, whether they differ from sb3-contrib's ARS beyond noise: two-sided
+  Mann-Whitney p-values (:func:`p_vs_peer`) of the episodes to the threshold (a seed that never
+  reached it ranks after every seed that did) and of the last measured return.
 
 Why the mean policy: ARS (and its paper's thresholds) measure the policy at the centre of the
 search -- the one a user deploys -- not the perturbed members it was trained on.
@@ -61,24 +64,60 @@ def _measured(frame):
     return frame[np.isfinite(frame["mean_policy_score"].to_numpy(dtype=float))]
 
 
+def p_vs_peer(ours: list, peer: list) -> float:
+    """Two-sided Mann-Whitney U p-value of two samples of seeds, by permutation (exact up to 20,000
+    arrangements, else 20,000 random ones from a fixed seed); ``inf`` may stand for "never reached":
+    it ties with the other censored seeds, above every number.
+
+    Why a rank test: episodes to a threshold are censored at the budget and final returns of ARS on
+    Swimmer are bimodal (seeds stuck near 100 or near 350), so neither is close to normal. Why
+    permutations: censored seeds tie, and with ties scipy's exact null does not apply and its normal
+    approximation is poor for a handful of seeds."""
+    from scipy.stats import PermutationMethod, mannwhitneyu
+
+    ours, peer = np.asarray(ours, dtype=float), np.asarray(peer, dtype=float)
+    if len(ours) < 2 or len(peer) < 2:  # one seed on a side: nothing to rank against
+        return float("nan")
+    both = np.concatenate([ours, peer])
+    if np.all(both == both[0]):  # identical samples: no evidence of a difference (scipy returns nan)
+        return 1.0
+    finite_cap = np.max(both[np.isfinite(both)], initial=0.0) + 1.0  # ranks only: a censored seed after every finite one
+    return float(
+        mannwhitneyu(
+            np.where(np.isfinite(ours), ours, finite_cap),
+            np.where(np.isfinite(peer), peer, finite_cap),
+            alternative="two-sided",
+            method=PermutationMethod(n_resamples=20_000, rng=0),
+        ).pvalue
+    )
+
+
+def _per_seed(frames: list, threshold) -> tuple[list, list, list]:
+    """Per seed: the last measured return, and the episodes and env steps to the threshold (inf: never)."""
+    finals, to_episodes, to_steps = [], [], []
+    for f in frames:
+        m = _measured(f)
+        if len(m):
+            finals.append(float(m["mean_policy_score"].iloc[-1]))
+        hit = m[m["mean_policy_score"] >= threshold] if threshold is not None else m.iloc[:0]
+        to_episodes.append(int(hit["evaluations"].iloc[0]) if len(hit) else np.inf)
+        to_steps.append(int(hit["env_steps"].iloc[0]) if len(hit) else np.inf)
+    return finals, to_episodes, to_steps
+
+
 def summary_rows(runs: dict, resamples: int) -> list[dict]:
     rows = []
     for env in sorted(runs):
         threshold = THRESHOLDS.get(env)
+        peer = _per_seed(runs[env].get("sb3_ars", []), threshold)
         for method, label in METHODS:
             frames = runs[env].get(method)
             if not frames:
                 continue
-            finals, to_episodes, to_steps = [], [], []
-            for f in frames:
-                m = _measured(f)
-                if len(m):
-                    finals.append(float(m["mean_policy_score"].iloc[-1]))
-                if threshold is not None and len(m):
-                    hit = m[m["mean_policy_score"] >= threshold]
-                    if len(hit):
-                        to_episodes.append(int(hit["evaluations"].iloc[0]))
-                        to_steps.append(int(hit["env_steps"].iloc[0]))
+            finals, censored_episodes, censored_steps = _per_seed(frames, threshold)
+            to_episodes = [e for e in censored_episodes if np.isfinite(e)]
+            to_steps = [e for e in censored_steps if np.isfinite(e)]
+            vs_peer = method != "sb3_ars" and len(peer[0]) > 0
             mean, low, high = bootstrap_ci(np.array(finals), resamples) if finals else (np.nan, np.nan, np.nan)
             episodes = [int(f["evaluations"].iloc[-1]) for f in frames]
             saved = float("nan")
@@ -93,6 +132,8 @@ def summary_rows(runs: dict, resamples: int) -> list[dict]:
                 "final_mean_policy_return": float(mean), "ci_low": float(low), "ci_high": float(high),
                 "episodes_saved": saved, "episodes_run": float(np.mean(episodes)),
                 "wall_time_s": float(np.mean([f["wall_time"].iloc[-1] for f in frames])),
+                "p_episodes_vs_sb3": p_vs_peer(censored_episodes, peer[1]) if vs_peer and threshold is not None else float("nan"),
+                "p_final_vs_sb3": p_vs_peer(finals, peer[0]) if vs_peer else float("nan"),
             })  # fmt: skip
     return rows
 
@@ -100,9 +141,10 @@ def summary_rows(runs: dict, resamples: int) -> list[dict]:
 def markdown(rows: list[dict]) -> str:
     head = (
         "| env | method | seeds | threshold | reached | episodes to threshold | env steps to threshold | "
-        "final mean-policy return (95 % CI) | episodes saved by mixing | training episodes | wall time (s) |"
+        "final mean-policy return (95 % CI) | episodes saved by mixing | training episodes | wall time (s) | "
+        "vs sb3-contrib: p (episodes to threshold / final return) |"
     )
-    lines = [head, "|" + "---|" * 11]
+    lines = [head, "|" + "---|" * 12]
 
     def num(x, fmt="{:,.0f}"):
         return "–" if x is None or (isinstance(x, float) and not np.isfinite(x)) else fmt.format(x)
@@ -112,7 +154,8 @@ def markdown(rows: list[dict]) -> str:
             f"| {r['env']} | {r['method']} | {r['seeds']} | {num(r['threshold'])} | {r['reached']} | {num(r['episodes_to_threshold'])} | "
             f"{num(r['env_steps_to_threshold'])} | {num(r['final_mean_policy_return'], '{:.1f}')} "
             f"({num(r['ci_low'], '{:.1f}')} – {num(r['ci_high'], '{:.1f}')}) | {num(r['episodes_saved'], '{:.1%}')} | "
-            f"{num(r['episodes_run'])} | {num(r['wall_time_s'])} |"
+            f"{num(r['episodes_run'])} | {num(r['wall_time_s'])} | "
+            f"{num(r['p_episodes_vs_sb3'], '{:.2f}')} / {num(r['p_final_vs_sb3'], '{:.2f}')} |"
         )
     return "\n".join(lines) + "\n"
 
