@@ -32,13 +32,20 @@ SECTIONS = ("what to run", "mixing", "the evolution strategy", "the policy", "wh
 
 KEYS = (
     # ---------------------------------------------------------------- what to run
-    Key("algo", "snes", "openes | snes | cem | cmaes | ddpg",
-        "`openes`, `snes`, `cem`, `cmaes`, `ddpg` (stable-baselines3; continuous-action envs only, the `ddpg` extra)", "what to run"),
+    Key("algo", "snes", "openes | snes | cem | cmaes | ars | ddpg",
+        "`openes`, `snes`, `cem`, `cmaes`, `ars` (Augmented Random Search: docs/ars.md), `ddpg` (stable-baselines3; "
+        "continuous-action envs only, the `ddpg` extra)", "what to run"),
     Key("algo.generations", "1000 / 400", "the paper's generation count of the algorithm",
         "the paper's generation count of the algorithm (openes, snes: 1000; cem, cmaes: 400); the default of `generations`", "what to run"),
     Key("algo.style", "imix", "algo=cem only: imix | cemrl",
         "`algo=cem` only: `imix` (maximum-likelihood variance + decaying extra variance) or `cemrl` (the authors' sepCEM: log "
         "weights, variance about the old mean scaled by 1/K)", "what to run"),
+    Key("algo.top", "null", "algo=ars only: b, the best directions a step uses (null: all)",
+        "`algo=ars` only: b, the number of best directions a step uses (ARS V1-t/V2-t); `null` = all N = popsize/2", "what to run"),
+    Key("algo.alive_bonus_offset", "0.0", "algo=ars only: added to each step's reward in training",
+        "`algo=ars` only: added to every step's reward during training (ARS's shift; `-1` cancels Hopper's and Walker2d's survival "
+        "bonus, as `+ars=hopper` does); the CSV's population columns hold these training returns, `mean_policy_score` the env's "
+        "own", "what to run"),
     Key("env", "cartpole", "cartpole | acrobot | continuous_cartpole[_hard] | MuJoCo | gym",
         "`cartpole` (CartPole-v0 semantics, 200 steps), `acrobot` (Acrobot-v1 dynamics, capped at 200 steps as in the paper), "
         "`continuous_cartpole`, `continuous_cartpole_hard` (paper section 4.3), `swimmer`, `hopper`, `halfcheetah`, `walker2d`, "

@@ -99,7 +99,7 @@ def advance_lockstep(states: list[SeedState], spec, evaluator, plan=plan_generat
     for st, p, s, warm in zip(states, plans, settings, warming):
         g, n = p.generation, p.evaluate.size
         dist = st.es.distribution  # the distribution g was drawn from, before tell moves it
-        fitness = finish_generation(st.es, st.archive, s, p, returns[offset : offset + n])
+        fitness = finish_generation(st.es, st.archive, s, p, st.es.training_fitness(returns[offset : offset + n], steps[offset : offset + n]))
         if warm:  # the warm-up: the statistics absorb this generation's observations (after its best is kept)
             sums, sumsqs = evaluator.last_obs_stats
             observed = (sums[offset : offset + n], sumsqs[offset : offset + n], steps[offset : offset + n])

@@ -128,7 +128,7 @@ ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
         AlgorithmSpec("cmaes", "CMA-ES", OKABE_ITO["reddish_purple"], _cmaes, 400),
         # Augmented Random Search (Mania et al. 2018): mirrored pairs, popsize = 2 x directions, lr = its
         # step size alpha, sigma = its noise nu; per-env presets of its paper: +ars=<env> (conf/ars/)
-        AlgorithmSpec("ars", "ARS", OKABE_ITO["orange"], _ars, 1000, uses_lr=True, options=("top",)),
+        AlgorithmSpec("ars", "ARS", OKABE_ITO["orange"], _ars, 1000, uses_lr=True, options=("top", "alive_bonus_offset")),
         # the deep-RL baseline of section 4.3 (stable-baselines3): one CSV row per episode
         AlgorithmSpec("ddpg", "DDPG", OKABE_ITO["black"]),
     )

@@ -255,7 +255,7 @@ def test_algo_top_is_checked_against_the_runs_own_popsize():
     from imix_cli.config import validate_overrides
 
     (spec,) = validate_overrides(["algo=ars", "popsize=200", "algo.top=80"])
-    assert spec.algo_options == {"top": 80} and spec.popsize == 200
+    assert spec.algo_options == {"top": 80, "alive_bonus_offset": 0.0} and spec.popsize == 200
 
 
 # ----------------------------------------------------------------- ARS's linear policy a = M s, clipped
@@ -346,6 +346,31 @@ def test_the_ars_presets_run_the_papers_policy_and_eval_acts_with_it(tmp_path):
     returns, _ = evaluator_for(policy.header, run_dir=run_dir).evaluate(params, seeds)
     np.testing.assert_array_equal(returns, make_evaluator("Swimmer-v5", 60, hidden=(), output="clip").evaluate(params, seeds)[0])
     assert not np.array_equal(returns, make_evaluator("Swimmer-v5", 60, hidden=()).evaluate(params, seeds)[0])
+
+
+def test_the_alive_bonus_offset_reshapes_training_returns_only(tmp_path):
+    """algo.alive_bonus_offset=-1 (ARS's shift, +ars=hopper): members are told return - episode length.
+    On Swimmer every episode lasts env.max_steps, so the shift is the same constant for every member:
+    ARS's step (return differences over their std) and hence the whole run are unchanged, the
+    population columns move by exactly the offset x length, and the mean policy's fresh episodes
+    (mean_policy_score) stay on the env's own return."""
+    pytest.importorskip("mujoco")
+    from imix_cli.cli import main
+
+    es = make_es("ars", 3, popsize=4, alive_bonus_offset=-1.0)
+    np.testing.assert_array_equal(es.training_fitness(np.array([10.0, 5.0]), np.array([100, 7])), [-90.0, -2.0])
+    plain = make_es("ars", 3, popsize=4)
+    returns = np.array([10.0, 5.0])
+    assert plain.training_fitness(returns, np.array([100, 7])) is returns
+    args = ["run", "algo=ars", "env=swimmer", "+ars=swimmer", "env.max_steps=50", "seeds=1", "generations=5", "eval_mean_every=1", "eval_mean_episodes=2",
+            "progress=false", "workers=1"]  # fmt: skip
+    assert main([*args, f"results_dir={tmp_path / 'plain'}"]) == 0
+    assert main([*args, "algo.alive_bonus_offset=-1", f"results_dir={tmp_path / 'shifted'}"]) == 0
+    (a,), (b,) = (list((tmp_path / k).glob("default/ars-*/seed_0.csv")) for k in ("plain", "shifted"))
+    a, b = pd.read_csv(a), pd.read_csv(b)
+    pd.testing.assert_series_equal(a["mean_policy_score"], b["mean_policy_score"])
+    np.testing.assert_allclose(b["mean_score"], a["mean_score"] - 50.0, rtol=0, atol=1e-6)  # the CSV keeps 10 significant digits
+    np.testing.assert_allclose(b["best_score"], a["best_score"] - 50.0, rtol=0, atol=1e-6)  # the CSV keeps 10 significant digits
 
 
 def test_policy_files_written_before_the_output_field_read_as_tanh(tmp_path):

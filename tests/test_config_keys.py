@@ -5,6 +5,7 @@ key `imix run` accepts, and its defaults must be conf/config.yaml's."""
 import yaml
 
 from imix_cli.config_keys import CONFIG_YAML, KEYS, REFERENCE, config_yaml_with_help, reference_markdown
+from imix_cli.registry import ALGORITHM_SPECS
 from imix_cli.run_spec import POLICY_DEFAULTS, TOP_LEVEL_KEYS
 
 
@@ -16,8 +17,11 @@ def test_the_generated_reference_and_help_are_up_to_date():
 
 def test_every_key_imix_run_accepts_is_documented_and_nothing_else():
     accepted = {k for k in TOP_LEVEL_KEYS if k not in ("policy",)} | {f"policy.{k}" for k in POLICY_DEFAULTS}
-    documented = {k.name for k in KEYS if "," not in k.name and k.name not in ("algo.generations", "algo.style", "env.id", "env.max_steps")}
+    documented = {k.name for k in KEYS if "," not in k.name and not k.name.startswith("algo.") and k.name not in ("env.id", "env.max_steps")}
     assert documented == accepted
+    # algo.<option>: the options every ES registers (conf/algo/<name>.yaml), and the generation count
+    options = {f"algo.{o}" for spec in ALGORITHM_SPECS.values() for o in spec.options} | {"algo.generations"}
+    assert {k.name for k in KEYS if k.name.startswith("algo.") and "," not in k.name} == options  # "a, b, ...": the DDPG section
 
 
 def _shown(value) -> str:

@@ -41,8 +41,8 @@ from imix_cli.distributions import DiagonalGaussian
 #: The ARS paper's hyper-parameters for its MuJoCo tasks (-v1 envs) as rl-zoo3 2.9.2's hyperparams/ars.yml
 #: gives them ("Params closest to original paper", for -v4; the paper's own table could not be read
 #: offline): directions N, top directions b, step size alpha, noise nu, state normalisation (V2), and
-#: the survival bonus rl-zoo3 adds to every step's reward during training (``alive_bonus_offset``;
-#: imix trains on the env's own reward). conf/ars/<env>.yaml holds the same values for ``+ars=<env>``.
+#: the offset added to every step's reward during training (``alive_bonus_offset``, ARS's shift:
+#: :attr:`ARSParams.alive_bonus_offset`). conf/ars/<env>.yaml holds the same values for ``+ars=<env>``.
 PAPER_HYPERPARAMETERS = {
     "swimmer": {"directions": 1, "top": 1, "step_size": 0.02, "noise": 0.01, "obs_norm": False, "alive_bonus_offset": 0.0},
     "hopper": {"directions": 8, "top": 4, "step_size": 0.01, "noise": 0.025, "obs_norm": True, "alive_bonus_offset": -1.0},
@@ -62,6 +62,12 @@ class ARSParams(Params):
 
     #: b, the number of best directions a step uses ("ARS V1-t / V2-t"); None: all N.
     top: int | None = None
+    #: Added to every step's reward during training (ARS's "shift", rl-zoo3's ``alive_bonus_offset``):
+    #: -1 on Hopper and Walker2d cancels their survival bonus of 1 per step, so that a policy is not
+    #: rewarded for merely standing. A member's fitness is then return + offset x episode length (CSV
+    #: columns mean_score/best_score and the archive hold it); the distribution mean's measurements
+    #: (mean_policy_score, the thresholds) stay on the env's own return.
+    alive_bonus_offset: float = 0.0
 
     def __post_init__(self):
         super().__post_init__()
@@ -69,6 +75,8 @@ class ARSParams(Params):
             raise ValueError(f"popsize must be even for ARS (2 members per direction), got {self.popsize}")
         if self.top is not None and not 1 <= self.top <= self.popsize // 2:
             raise ValueError(f"top must be in [1, popsize/2 = {self.popsize // 2}] (directions), got {self.top}")
+        if not np.isfinite(self.alive_bonus_offset):
+            raise ValueError(f"alive_bonus_offset must be finite, got {self.alive_bonus_offset}")
 
 
 def _pair_keys(deltas: np.ndarray) -> np.ndarray:
@@ -106,6 +114,11 @@ class ARS(EvolutionStrategy):
         """N fresh mirrored pairs, as ``[theta_1+ .. theta_N+, theta_1- .. theta_N-]``."""
         plus = self._dist.sample(self.directions, rng)
         return np.concatenate([plus, mirror(plus, self._mu)])
+
+    def training_fitness(self, returns: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """return + alive_bonus_offset x episode length (:attr:`ARSParams.alive_bonus_offset`)."""
+        offset = self.params.alive_bonus_offset
+        return returns if offset == 0.0 else np.asarray(returns, dtype=np.float64) + offset * np.asarray(steps, dtype=np.float64)
 
     def tell(self, samples, fitness) -> None:
         """One ARS step from 2N members ``[plus; minus]`` and their returns (non-finite: the pair is left out)."""

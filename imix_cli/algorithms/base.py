@@ -345,6 +345,12 @@ class EvolutionStrategy(ABC):
         """Draw a fresh generation of ``popsize`` independent samples (no antithetic pairs)."""
         return self.distribution.sample(self.popsize, rng)
 
+    def training_fitness(self, returns: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """The fitness the runner tells (and archives) for episodes of these ``returns`` and lengths
+        ``steps``: the return itself, unless an ES trains on a reshaped reward (ARS's survival-bonus
+        offset). Measurements of the distribution mean always report the env's own return."""
+        return returns
+
     def tell(self, samples, fitness) -> None:
         """Update the search distribution from a generation's samples and their raw fitness (maximised).
 

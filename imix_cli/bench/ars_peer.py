@@ -14,8 +14,7 @@ Hyper-parameters: rl-zoo3 2.9.2's hyperparams/ars.yml for the -v4 envs (:data:`Z
 on the -v5 envs. The policy is imix's ``+ars=<env>`` one (linear, no bias, clipped actions). What
 differs from imix's ARS (docs/ars.md): sb3-contrib's sigma_R is the unbiased std (ddof 1; the ARS
 paper's code and imix: ddof 0); its state normalisation (VecNormalize) keeps updating (imix:
-frozen after a warm-up); rl-zoo3 adds ``alive_bonus_offset`` to Hopper's and Walker2d's training
-rewards (imix: the env's reward).
+frozen after a warm-up). Both train Hopper and Walker2d with ``alive_bonus_offset`` -1.
 
     python -m imix_cli.bench.ars_peer --envs swimmer --seeds 3 --episodes 1000 [--experiment ars]
 """
