@@ -16,7 +16,7 @@ from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, raw_o
 from imix_cli.messages import warn
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.policy_files import write_seed_policies
-from imix_cli.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, seed_summary, write_run_csv
+from imix_cli.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
 from imix_cli.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
 from imix_cli.run_folder import RunError
 from imix_cli.run_spec import resume_identity
@@ -133,7 +133,7 @@ class _SeedEnd:
             for row in rows:
                 self.tracker.log(st.seed, row)
         if diverged:
-            self.summaries[st.seed] = seed_summary(write_run_csv(seed_csv_path(run_dir, st.seed), st.rows))
+            self.summaries[st.seed] = write_run_csv(seed_csv_path(run_dir, st.seed), st.rows)
             remove_checkpoints(run_dir, st.seed)
         elif st.generation == spec.generations:
             self.summaries[st.seed] = _finish_seed(spec, st, self.evaluator)
@@ -157,7 +157,7 @@ def _finish_seed(spec, st: SeedState, evaluator) -> dict:
     """Write seed ``st``'s policy files and CSV; return its summary."""
     mean = raw_obs_params(st, st.es.distribution.mean[None, :], evaluator)[0]
     write_seed_policies(spec, st.seed, evaluator, mean, st.best_params, st.best_return, st.generation)
-    return seed_summary(write_run_csv(seed_csv_path(spec.run_dir, st.seed), st.rows))
+    return write_run_csv(seed_csv_path(spec.run_dir, st.seed), st.rows)
 
 
 def _checkpoint(run_dir: Path, st: SeedState, identity: dict, now: float) -> None:
