@@ -120,6 +120,7 @@ class _SeedEnd:
         self.spec, self.evaluator, self.identity, self.checkpoint_every = spec, evaluator, identity, checkpoint_every
         self.started, self.summaries, self.tracker = started, summaries, tracker
         self.partial: dict[int, tuple[int, str]] = {}  # seed -> (rows in its live CSV, their text)
+        self.tables: dict[int, dict] = {}  # seed -> its rows' encoding at its last checkpoint (imix_cli.checkpoints.TableCache)
 
     def __call__(self, st: SeedState, first: int, began: float | None = None) -> None:
         """``st.rows[first:]`` are new; ``began``: when the compiled chunk that made them began."""
@@ -133,15 +134,16 @@ class _SeedEnd:
             for row in rows:
                 self.tracker.log(st.seed, row)
         if diverged:
+            self.tables.pop(st.seed, None)
             self.summaries[st.seed] = write_run_csv(seed_csv_path(run_dir, st.seed), st.rows)
             remove_checkpoints(run_dir, st.seed)
         elif st.generation == spec.generations:
             self.summaries[st.seed] = _finish_seed(spec, st, self.evaluator)
             if self.checkpoint_every:  # the final state: `generations=` larger continues from it
-                _checkpoint(run_dir, st, self.identity, now)
+                _checkpoint(run_dir, st, self.identity, now, self.tables.pop(st.seed, None))
             remove_checkpoints(run_dir, st.seed, keep_final=bool(self.checkpoint_every))
         elif self.checkpoint_every and st.generation % self.checkpoint_every == 0:
-            _checkpoint(run_dir, st, self.identity, now)
+            _checkpoint(run_dir, st, self.identity, now, self.tables.setdefault(st.seed, {}))
             self._write_partial(st)
 
     def _write_partial(self, st: SeedState) -> None:
@@ -160,11 +162,11 @@ def _finish_seed(spec, st: SeedState, evaluator) -> dict:
     return write_run_csv(seed_csv_path(spec.run_dir, st.seed), st.rows)
 
 
-def _checkpoint(run_dir: Path, st: SeedState, identity: dict, now: float) -> None:
+def _checkpoint(run_dir: Path, st: SeedState, identity: dict, now: float, tables: dict | None = None) -> None:
     """Save ``st`` with the wall time it has spent so far, ``now`` seconds into this process's share."""
     elapsed, st.elapsed = st.elapsed, st.elapsed + now
     try:
-        save_checkpoint(run_dir, st, identity)
+        save_checkpoint(run_dir, st, identity, tables)
     finally:
         st.elapsed = elapsed
 
