@@ -29,8 +29,11 @@ def report_progress(n: int) -> None:
         _progress_queue.put(n)
 
 
-def run_pool(task, spec, chunks: list[list[int]], bar) -> list:
-    """``[task(spec, chunk) for chunk in chunks]``, each in a worker process of its own."""
+def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None) -> list:
+    """``[task(spec, chunk) for chunk in chunks]``, each in a worker process of its own.
+
+    ``when_a_core_is_free()`` is called once, here, when a worker has finished its chunk while others
+    still run: work this process will need next can be done then without slowing a worker."""
     ctx = multiprocessing.get_context("spawn")
     progress_queue = ctx.Queue()
     pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
@@ -43,6 +46,9 @@ def run_pool(task, spec, chunks: list[list[int]], bar) -> list:
             _drain(progress_queue, bar)
             for future in done:
                 future.result()  # re-raise a worker's error here
+            if done and pending and when_a_core_is_free is not None:
+                when_a_core_is_free()
+                when_a_core_is_free = None
         _drain(progress_queue, bar)
         return [future.result() for future in futures]
     except BaseException:
