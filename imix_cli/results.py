@@ -242,20 +242,26 @@ def _plain_csv_text(rows: list, header: bool) -> str | None:
     """:func:`rows_csv_text`'s text of rows of plain values; None where a value needs pandas to decide."""
     lines = [",".join(COLUMNS)] if header else []
     for row in rows:
-        cells = []
-        for column in COLUMNS:
-            value = row.get(column, _ROW_DEFAULTS.get(column, row))
-            kind = type(value)
-            if column in _FLOAT_COLUMNS and kind is float:
-                cells.append("" if value != value else f"{value:.10g}")
-            elif column in _INT_COLUMNS and kind is int:
-                cells.append(str(value))
-            elif kind is str and column not in _FLOAT_COLUMNS and column not in _INT_COLUMNS and not set(value) & set(',"\r\n'):
-                cells.append(value)
-            else:  # anything else (a missing column, NaN in an int column, a string to quote)
-                return None
-        lines.append(",".join(cells))
+        cells = [row.get(column, default) for column, default in _PLAIN_DEFAULTS]
+        if tuple(map(type, cells)) != _PLAIN_TYPES:  # a missing column, NaN in an int column, a bool ...
+            return None
+        for i in _PLAIN_FLOATS:
+            value = cells[i]
+            cells[i] = "" if value != value else f"{value:.10g}"
+        if not all(map(_QUOTED.isdisjoint, (cells[i] for i in _PLAIN_STRINGS))):  # a string pandas quotes
+            return None
+        lines.append(",".join(map(str, cells)))
     return "".join(line + "\n" for line in lines)
+
+
+#: What :func:`_plain_csv_text` formats itself: each column's value type, its default (where a row has
+#: none: the class ``dict``, never of a column's type), where its floats and strings are, and the
+#: characters that make pandas quote a string.
+_PLAIN_TYPES = tuple(float if c in _FLOAT_COLUMNS else int if c in _INT_COLUMNS else str for c in COLUMNS)
+_PLAIN_DEFAULTS = tuple((c, _ROW_DEFAULTS.get(c, dict)) for c in COLUMNS)
+_PLAIN_FLOATS = tuple(i for i, kind in enumerate(_PLAIN_TYPES) if kind is float)
+_PLAIN_STRINGS = tuple(i for i, kind in enumerate(_PLAIN_TYPES) if kind is str)
+_QUOTED = frozenset(',"\r\n')
 
 
 def csv_text(frame: pd.DataFrame, header: bool = True) -> str:
