@@ -69,12 +69,16 @@ def config_hash(identity: dict) -> str:
     return hashlib.sha256(_canonical(identity).encode()).hexdigest()
 
 
-def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int) -> None:
-    """Write dataclass ``state`` (a seed's state at ``generation``) to ``path`` atomically."""
+def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int, tables: dict | None = None) -> None:
+    """Write dataclass ``state`` (a seed's state at ``generation``) to ``path`` atomically.
+
+    ``tables``: a dict the caller keeps between the checkpoints of one seed (empty at first), where
+    the encoding of the state's tables (its rows) is kept for the next checkpoint to reuse
+    (:class:`TableCache`); the file is the same with or without it."""
     from imix_cli import __version__
 
     arrays: dict[str, np.ndarray] = {}
-    tree = _encode(state, "", arrays)
+    tree = _encode(state, "", arrays, tables)
     header = {
         "format": FORMAT,
         "version": FORMAT_VERSION,
@@ -194,7 +198,7 @@ def _first_line(err: Exception) -> str:
 
 
 # ----------------------------------------------------------------------------- the state tree
-def _encode(value, name: str, arrays: dict):
+def _encode(value, name: str, arrays: dict, tables: dict | None = None):
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     if isinstance(value, np.generic):
@@ -209,54 +213,110 @@ def _encode(value, name: str, arrays: dict):
             raise TypeError(f"{name}: only PCG64 generators can be checkpointed")
         return {"rng": value.bit_generator.state}
     if isinstance(value, Generation):
-        return {"generation": {f.name: _encode(getattr(value, f.name), f"{name}/{f.name}", arrays) for f in dataclasses.fields(value)}}
+        return {"generation": {f.name: _encode(getattr(value, f.name), f"{name}/{f.name}", arrays, tables) for f in dataclasses.fields(value)}}
     if type(value).__name__ in _DISTRIBUTIONS and type(value) is _DISTRIBUTIONS[type(value).__name__]:
-        return {"dist": type(value).__name__, "state": _encode(value.to_state(), name, arrays)}
+        return {"dist": type(value).__name__, "state": _encode(value.to_state(), name, arrays, tables)}
     if hasattr(value, "state_dict") and hasattr(value, "load_state_dict"):
-        return {"es": _encode(value.state_dict(), name, arrays)}
+        return {"es": _encode(value.state_dict(), name, arrays, tables)}
     if dataclasses.is_dataclass(value):
-        return {"state": {f.name: _encode(getattr(value, f.name), f"{name}/{f.name}".lstrip("/"), arrays) for f in dataclasses.fields(value)}}
+        return {"state": {f.name: _encode(getattr(value, f.name), f"{name}/{f.name}".lstrip("/"), arrays, tables) for f in dataclasses.fields(value)}}
     if isinstance(value, (list, tuple)):
-        table = _encode_table(value, name, arrays)
+        table = _encode_table(value, name, arrays, tables)
         if table is not None:
             return table
-        return {"list": [_encode(v, f"{name}/{i}", arrays) for i, v in enumerate(value)]}
+        return {"list": [_encode(v, f"{name}/{i}", arrays, tables) for i, v in enumerate(value)]}
     if isinstance(value, dict):
         if not all(isinstance(k, str) for k in value):
             raise TypeError(f"{name}: only dicts with string keys can be checkpointed")
-        return {"dict": {k: _encode(v, f"{name}/{k}", arrays) for k, v in value.items()}}
+        return {"dict": {k: _encode(v, f"{name}/{k}", arrays, tables) for k, v in value.items()}}
     raise TypeError(f"{name}: cannot checkpoint a {type(value).__name__}")
 
 
-def _encode_table(rows, name: str, arrays: dict):
+def _encode_table(rows, name: str, arrays: dict, tables: dict | None = None):
     """A list of dicts with the same keys in the same order (a seed's CSV rows), column by column:
     the int columns as one int64 array, the float columns as one float64 array, the string columns
     as JSON lists, any other column value by value. None if ``rows`` is not such a list.
 
     Why: a seed's rows are the bulk of its checkpoint, and they grow with every generation; one
     JSON node per value made a checkpoint of a 1000-generation seed cost ~30 ms (encoding, hashing
-    and writing the JSON tree), more than the generations between two checkpoints took to compute."""
+    and writing the JSON tree), more than the generations between two checkpoints took to compute.
+    ``tables`` (:func:`write_checkpoint`): the rows' encoding at an earlier checkpoint, whose
+    unchanged rows are not encoded again."""
     if len(rows) < 2 or not all(type(r) is dict for r in rows):
         return None
     keys = tuple(rows[0])
-    if not all(type(k) is str for k in keys) or any(tuple(r) != keys for r in rows):
+    if not all(type(k) is str for k in keys):
         return None
-    ints, floats, columns = [], [], []
-    for k, values in zip(keys, zip(*(r.values() for r in rows))):
-        kinds = set(map(type, values))
-        if kinds == {int} and -(2**63) <= min(values) and max(values) < 2**63:
-            columns.append({"int": len(ints)})
-            ints.append(values)
-        elif kinds == {float}:
-            columns.append({"float": len(floats)})
-            floats.append(values)
-        elif kinds == {str}:
-            columns.append({"str": list(values)})
+    cache = tables.get(name) if tables is not None else None
+    done = cache.unchanged_rows(rows, keys) if cache is not None else 0
+    if any(tuple(r) != keys for r in rows[done:]):
+        return None
+    kinds, values = _table_columns(rows[done:], keys) if done < len(rows) else (cache.kinds, [()] * len(keys))
+    if done and kinds != cache.kinds:  # a column whose kind the new rows change: the whole table anew
+        done, (kinds, values) = 0, _table_columns(rows, keys)
+    ints = [v for kind, v in zip(kinds, values) if kind == "int"]
+    floats = [v for kind, v in zip(kinds, values) if kind == "float"]
+    ints = np.array(ints, dtype=np.int64).reshape(len(ints), len(rows) - done)
+    floats = np.array(floats, dtype=np.float64).reshape(len(floats), len(rows) - done)
+    strings = [list(v) for kind, v in zip(kinds, values) if kind == "str"]
+    if done:
+        ints, floats = np.concatenate([cache.ints, ints], axis=1), np.concatenate([cache.floats, floats], axis=1)
+        strings = [old + new for old, new in zip(cache.strings, strings)]
+    columns, numbers, string_columns = [], {"int": 0, "float": 0}, iter(strings)
+    for k, kind, column in zip(keys, kinds, values):
+        if kind is None:
+            columns.append({"list": [_encode(v, f"{name}/{k}/{i}", arrays, tables) for i, v in enumerate(column)]})
+        elif kind == "str":
+            columns.append({"str": next(string_columns)})
         else:
-            columns.append({"list": [_encode(v, f"{name}/{k}/{i}", arrays) for i, v in enumerate(values)]})
-    arrays[f"{name}/int"] = np.array(ints, dtype=np.int64).reshape(len(ints), len(rows))
-    arrays[f"{name}/float"] = np.array(floats, dtype=np.float64).reshape(len(floats), len(rows))
+            columns.append({kind: numbers[kind]})
+            numbers[kind] += 1
+    arrays[f"{name}/int"], arrays[f"{name}/float"] = ints, floats
+    if tables is not None:
+        if None in kinds:  # a column of mixed values is encoded whole every time (none of the rows')
+            tables.pop(name, None)
+        else:
+            seen = (cache.seen if done else []) + [tuple(r.values()) for r in rows[done:]]
+            tables[name] = TableCache(rows, seen, keys, kinds, ints, floats, strings)
     return {"table": {"keys": list(keys), "columns": columns, "int": f"{name}/int", "float": f"{name}/float"}}
+
+
+def _table_columns(rows: list, keys: tuple) -> tuple[list, list]:
+    """Each column of ``rows``: its kind ("int": int64 ints, "float", "str", None: anything else) and its values."""
+    kinds, values = [], []
+    for column in zip(*(r.values() for r in rows)):
+        found = set(map(type, column))
+        if found == {int} and -(2**63) <= min(column) and max(column) < 2**63:
+            kinds.append("int")
+        elif found in ({float}, {str}):
+            kinds.append(found.pop().__name__)
+        else:
+            kinds.append(None)
+        values.append(column)
+    return kinds, values
+
+
+class TableCache:
+    """The encoding of a table (a seed's rows) at a checkpoint, for the next checkpoint of the same
+    seed to encode only the rows added since.
+
+    Why: the rows only grow, and re-encoding all of them at every checkpoint cost a 1000-generation
+    seed a quarter of its checkpoints' time. Trusted only as far as it is checked: rows are reused
+    while the list is the same object and each of its first rows the same keys and values as when
+    encoded (compared by value), so rows replaced (a resumed seed's), removed or changed are encoded
+    anew."""
+
+    def __init__(self, rows: list, seen: list, keys: tuple, kinds: list, ints, floats, strings: list):
+        self.rows, self.seen = rows, seen  # the list encoded, and each row's values then
+        self.keys, self.kinds = keys, kinds
+        self.ints, self.floats, self.strings = ints, floats, strings
+
+    def unchanged_rows(self, rows: list, keys: tuple) -> int:
+        """How many first rows of ``rows`` are still what was encoded: all of them, or none."""
+        if rows is not self.rows or keys != self.keys or len(rows) < len(self.seen):
+            return 0
+        same = all(tuple(r) == keys and tuple(r.values()) == values for r, values in zip(rows, self.seen))
+        return len(self.seen) if same else 0
 
 
 def _decode_table(body, arrays: dict, field: str) -> list:

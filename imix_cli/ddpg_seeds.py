@@ -16,7 +16,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from imix_cli.results import episode_row, seed_csv_path, seed_summary, write_run_csv
+from imix_cli.results import episode_row, seed_csv_path, write_run_csv
 from imix_cli.run_folder import RunError
 
 
@@ -46,7 +46,7 @@ def run_ddpg_seeds(spec, seeds: list[int], progress) -> dict:
             torch_threads=1,
         )
         model.env.close()
-        summaries[seed] = seed_summary(write_run_csv(seed_csv_path(spec.run_dir, seed), rows))
+        summaries[seed] = write_run_csv(seed_csv_path(spec.run_dir, seed), rows)
     return summaries
 
 

@@ -16,7 +16,7 @@ from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, polic
 from imix_cli.messages import warn
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.policy_files import write_seed_policies
-from imix_cli.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, seed_summary, write_run_csv
+from imix_cli.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
 from imix_cli.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
 from imix_cli.run_folder import RunError
 from imix_cli.run_spec import resume_identity
@@ -120,6 +120,7 @@ class _SeedEnd:
         self.spec, self.evaluator, self.identity, self.checkpoint_every = spec, evaluator, identity, checkpoint_every
         self.started, self.summaries, self.tracker = started, summaries, tracker
         self.partial: dict[int, tuple[int, str]] = {}  # seed -> (rows in its live CSV, their text)
+        self.tables: dict[int, dict] = {}  # seed -> its rows' encoding at its last checkpoint (imix_cli.checkpoints.TableCache)
 
     def __call__(self, st: SeedState, first: int, began: float | None = None) -> None:
         """``st.rows[first:]`` are new; ``began``: when the compiled chunk that made them began."""
@@ -133,15 +134,16 @@ class _SeedEnd:
             for row in rows:
                 self.tracker.log(st.seed, row)
         if diverged:
-            self.summaries[st.seed] = seed_summary(write_run_csv(seed_csv_path(run_dir, st.seed), st.rows))
+            self.tables.pop(st.seed, None)
+            self.summaries[st.seed] = write_run_csv(seed_csv_path(run_dir, st.seed), st.rows)
             remove_checkpoints(run_dir, st.seed)
         elif st.generation == spec.generations:
             self.summaries[st.seed] = _finish_seed(spec, st, self.evaluator)
             if self.checkpoint_every:  # the final state: `generations=` larger continues from it
-                _checkpoint(run_dir, st, self.identity, now)
+                _checkpoint(run_dir, st, self.identity, now, self.tables.pop(st.seed, None))
             remove_checkpoints(run_dir, st.seed, keep_final=bool(self.checkpoint_every))
         elif self.checkpoint_every and st.generation % self.checkpoint_every == 0:
-            _checkpoint(run_dir, st, self.identity, now)
+            _checkpoint(run_dir, st, self.identity, now, self.tables.setdefault(st.seed, {}))
             self._write_partial(st)
 
     def _write_partial(self, st: SeedState) -> None:
@@ -157,14 +159,14 @@ def _finish_seed(spec, st: SeedState, evaluator) -> dict:
     """Write seed ``st``'s policy files and CSV; return its summary."""
     mean = policy_params(spec, st, st.es.distribution.mean[None, :], evaluator)[0]
     write_seed_policies(spec, st.seed, evaluator, mean, st.best_params, st.best_return, st.generation)
-    return seed_summary(write_run_csv(seed_csv_path(spec.run_dir, st.seed), st.rows))
+    return write_run_csv(seed_csv_path(spec.run_dir, st.seed), st.rows)
 
 
-def _checkpoint(run_dir: Path, st: SeedState, identity: dict, now: float) -> None:
+def _checkpoint(run_dir: Path, st: SeedState, identity: dict, now: float, tables: dict | None = None) -> None:
     """Save ``st`` with the wall time it has spent so far, ``now`` seconds into this process's share."""
     elapsed, st.elapsed = st.elapsed, st.elapsed + now
     try:
-        save_checkpoint(run_dir, st, identity)
+        save_checkpoint(run_dir, st, identity, tables)
     finally:
         st.elapsed = elapsed
 

@@ -9,10 +9,13 @@ Workers are spawned with one BLAS thread each (:func:`imix_cli.processes.one_bla
 
 from __future__ import annotations
 
+import atexit
+import logging
 import multiprocessing
 import os
 import queue as queue_module
 import signal
+import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
 from imix_cli.processes import one_blas_thread, start_orphan_watchdog
@@ -26,8 +29,11 @@ def report_progress(n: int) -> None:
         _progress_queue.put(n)
 
 
-def run_pool(task, spec, chunks: list[list[int]], bar) -> list:
-    """``[task(spec, chunk) for chunk in chunks]``, each in a worker process of its own."""
+def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None) -> list:
+    """``[task(spec, chunk) for chunk in chunks]``, each in a worker process of its own.
+
+    ``when_a_core_is_free()`` is called once, here, when a worker has finished its chunk while others
+    still run: work this process will need next can be done then without slowing a worker."""
     ctx = multiprocessing.get_context("spawn")
     progress_queue = ctx.Queue()
     pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
@@ -40,6 +46,9 @@ def run_pool(task, spec, chunks: list[list[int]], bar) -> list:
             _drain(progress_queue, bar)
             for future in done:
                 future.result()  # re-raise a worker's error here
+            if done and pending and when_a_core_is_free is not None:
+                when_a_core_is_free()
+                when_a_core_is_free = None
         _drain(progress_queue, bar)
         return [future.result() for future in futures]
     except BaseException:
@@ -58,6 +67,24 @@ def _init_worker(progress_queue) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the main process's one line is enough: a worker ends silently
     start_orphan_watchdog(os.getppid())
+    atexit.register(_exit_without_teardown)  # registered first, so it runs after the tasks' own atexit hooks
+
+
+def _exit_without_teardown() -> None:
+    """End a worker whose work is done without the interpreter's teardown.
+
+    Why: the main process joins its workers before the run returns, and tearing down numba, pandas
+    and numpy's modules takes a worker ~0.2 s (more on a busy machine), every run. By the time the
+    atexit hooks run, the worker loop has returned its results and flushed its queues, and every
+    file the worker wrote was synced when it was written; only the logging handlers (a tracker's)
+    and Python's stdio buffers are left to flush."""
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # a closed or broken stream: nothing more can be said on it
+            pass
+    os._exit(0)
 
 
 def _terminate_workers(pool: ProcessPoolExecutor) -> None:

@@ -25,8 +25,9 @@ def checkpoint_path(run_dir: Path, seed: int) -> Path:
     return Path(run_dir) / ".checkpoints" / f"seed_{seed}.npz"
 
 
-def save_checkpoint(run_dir: Path, st, identity: dict) -> None:
-    write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation)
+def save_checkpoint(run_dir: Path, st, identity: dict, tables: dict | None = None) -> None:
+    """``tables``: kept by the caller between the checkpoints of seed ``st`` (:func:`imix_cli.checkpoints.write_checkpoint`)."""
+    write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation, tables=tables)
 
 
 def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh, warn=None, spec=None, max_steps: int | None = None):

@@ -21,7 +21,7 @@ import numpy as np
 
 from imix_cli.pool import progress_bar, report_progress, run_pool
 from imix_cli.run_folder import RunError, check_run_dir, prepare_run_dir, run_dir_lock
-from imix_cli.summary import format_summary, summarize
+from imix_cli.summary import format_summary, prepare_summary, summarize
 from imix_cli.trainers import trainer_for
 from imix_cli.warmup import warm_up
 
@@ -64,7 +64,7 @@ def _run_locked(spec, echo) -> dict:
         else:
             if spec.algo != "ddpg":
                 warm_up(spec, workers)  # a first run: the kernels compiled once, over the cores, not in every worker
-            for share in run_pool(run_seeds, spec, chunks, bar):
+            for share in run_pool(run_seeds, spec, chunks, bar, when_a_core_is_free=prepare_summary):
                 done.update(share)
     bar.close()
     summary = summarize(spec, known=done)

@@ -16,6 +16,13 @@ from imix_cli.trainers import trainer_for
 MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "mixing")
 
 
+def prepare_summary() -> None:
+    """Import what :func:`summarize` needs beyond what a run has imported: scipy.special, for the CI
+    (:func:`imix_cli.stats.mean_ci`), ~0.2 s. Why apart: the runner calls it while the last worker
+    finishes its seeds, rather than after every worker is done."""
+    import scipy.special  # noqa: F401
+
+
 def summarize(spec, run_dir: Path | None = None, known: dict | None = None) -> dict:
     """Final mean score +- 68 % CI over seeds, evaluations and env steps (total over seeds and per
     seed), reuse %, non-finite returns -- of ``spec``'s run folder, or of ``run_dir`` (a sibling).

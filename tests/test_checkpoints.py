@@ -271,3 +271,40 @@ def test_archived_generations_are_saved_field_by_field_whatever_their_fields(tmp
     for k, g in enumerate(loaded.archive.generations):
         np.testing.assert_array_equal(g.weights, np.arange(3.0) + k)
     assert encoded(loaded) == encoded(st)
+
+
+def test_the_rows_encoding_kept_between_checkpoints_gives_the_encoding_of_all_rows(tmp_path):
+    """A seed's rows are encoded once and only their new rows after (``tables``): every checkpoint
+    must still hold what encoding all its rows gives, whatever happened to the rows in between."""
+    spec, (st, _), evaluator = spec_and_states(tmp_path, generations=3)
+    tables = {}
+
+    def same_as_whole(label):
+        arrays = {}
+        tree = checkpoints._encode(st, "", arrays, tables)
+        assert (checkpoints._canonical(tree), {k: (v.dtype.str, v.shape, v.tobytes()) for k, v in arrays.items()}) == encoded(st), label
+
+    same_as_whole("first")
+    for _ in range(2):
+        advance_lockstep([st], spec, evaluator)
+    same_as_whole("rows added")
+    same_as_whole("no row added")
+    st.rows[1]["mean_score"] += 1.0
+    same_as_whole("an earlier row changed in place")
+    st.rows[0] = dict(st.rows[0], seed=7)
+    same_as_whole("an earlier row replaced")
+    st.rows = [dict(r) for r in st.rows[:3]]
+    same_as_whole("the rows replaced by fewer (a resumed seed's)")
+    st.rows[2]["wall_time"], st.rows[2]["sigma_mean"] = st.rows[2]["sigma_mean"], st.rows[2]["wall_time"]
+    same_as_whole("two values of a row swapped")
+    row = st.rows[1]
+    st.rows[1] = {k: row[k] for k in reversed(row)}
+    same_as_whole("an earlier row's keys reordered")
+    st.rows[1] = row
+    same_as_whole("and back")
+    assert "rows" in tables  # the rows' encoding is kept ...
+    st.rows.append(dict(st.rows[-1], generation=3, reused=1.5))
+    same_as_whole("a new row changes a column's kind (int to float)")
+    st.rows.append(dict(st.rows[-1], generation=4, reused=2))
+    same_as_whole("a column of mixed kinds")
+    assert "rows" not in tables  # ... but for a column of mixed kinds

@@ -179,3 +179,37 @@ def test_the_live_csv_text_is_pandas_text_in_pieces():
     assert rows_csv_text(rows[:7]) + rows_csv_text(rows[7:20], header=False) + rows_csv_text(rows[20:], header=False) == whole
     plain = rows[5:]
     assert rows_csv_text(plain) == csv_text(rows_to_frame(plain))
+
+
+def test_a_seed_csv_of_plain_rows_is_written_and_summed_up_as_pandas_does(tmp_path):
+    from imix_cli.results import csv_text, rows_to_frame, seed_summary, write_run_csv
+
+    spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10", "eval_mean_every=7"])
+    compiled_loop.advance(st, spec, evaluator, 40)
+    diverged = [dict(r) for r in st.rows]
+    diverged[-1]["diverged"] = 1
+    never_measured = [{k: v for k, v in r.items() if not k.startswith("mean_policy")} for r in st.rows]
+    for rows in (st.rows, diverged, never_measured):
+        summary = write_run_csv(tmp_path / "seed_0.csv", rows)
+        frame = rows_to_frame(rows)
+        assert (tmp_path / "seed_0.csv").read_text() == csv_text(frame)
+        expected = seed_summary(frame)
+        assert summary.keys() == expected.keys()
+        for key, value in expected.items():
+            assert type(summary[key]) is type(value) and (summary[key] == value or (value != value and summary[key] != summary[key])), key
+
+
+def test_a_worker_writes_a_seed_csv_without_pandas(tmp_path):
+    """Importing pandas costs a worker process ~0.25 s of its start: the modules a worker runs and the
+    CSV of plain rows must not need it."""
+    code = (
+        "import sys\n"
+        "import imix_cli.runner, imix_cli.es_seeds, imix_cli.compiled_loop\n"
+        "from imix_cli.results import write_run_csv\n"
+        "row = dict(algo='snes', env='cartpole', mixing='eim', seed=0, generation=0, evaluations=5, env_steps=50, mean_score=1.5,\n"
+        "           best_score=2.0, reused=0, reused_im=0, reused_eim=0, reevaluated=0, popsize=5, sigma_mean=0.1, nonfinite=0, wall_time=0.1)\n"
+        f"write_run_csv({str(tmp_path / 'seed_0.csv')!r}, [row])\n"
+        "assert 'pandas' not in sys.modules, 'pandas imported'\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
