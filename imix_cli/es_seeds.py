@@ -41,7 +41,8 @@ def _run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
     states = []
     for seed in seeds:
         # A refused checkpoint may have been half loaded into the ES it was given: start from a new one.
-        st = load_checkpoint(run_dir, seed, identity, new_seed_state(spec, seed, search_dim(spec, evaluator)), spec=spec, max_steps=int(evaluator.max_steps))
+        fresh = new_seed_state(spec, seed, search_dim(spec, evaluator))
+        st = load_checkpoint(run_dir, seed, identity, fresh, spec=spec, max_steps=int(evaluator.max_steps), policy_dim=evaluator.num_params)
         if st is not None and st.generation > spec.generations:  # a longer continuation's, killed before it finished
             warn(
                 f"{checkpoint_path(run_dir, seed)}: checkpoint at generation {st.generation} is past generations={spec.generations}; "

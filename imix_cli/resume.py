@@ -30,7 +30,7 @@ def save_checkpoint(run_dir: Path, st, identity: dict, tables: dict | None = Non
     write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation, tables=tables)
 
 
-def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh, warn=None, spec=None, max_steps: int | None = None):
+def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh, warn=None, spec=None, max_steps: int | None = None, policy_dim: int | None = None):
     """The saved state of ``seed`` (built on ``fresh``, a new state of the same run and seed), or None.
 
     None if there is no checkpoint, or -- after one warning line naming the file and why --
@@ -38,6 +38,7 @@ def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh, warn=None, 
     ``spec`` and episode cap ``max_steps``) larger than the run's config allows or holding a value
     the run could not have produced (:func:`validate_seed_state`). The seed then restarts from
     scratch: that costs recomputation, and gives the same CSV as an uninterrupted run.
+    ``policy_dim``: the policy's parameter count, where it differs from the ES's (``policy.bias=false``).
     """
     say = warn or _warn
     path = checkpoint_path(run_dir, seed)
@@ -48,7 +49,7 @@ def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh, warn=None, 
         return None
     if st is not None and spec is not None:
         try:
-            validate_seed_state(st, spec, _dim_of(fresh), max_steps)
+            validate_seed_state(st, spec, _dim_of(fresh), max_steps, policy_dim)
         except CheckpointError as err:
             say(f"{path}: checkpoint ignored: {err}; seed {seed} restarts from scratch")
             return None
@@ -93,17 +94,19 @@ def _number(value) -> bool:
 
 
 def return_bounds(spec, max_steps: int | None) -> tuple[float, float]:
-    """The returns run ``spec`` can produce: a built-in's ``max_steps`` x its step rewards; else unbounded."""
+    """The returns run ``spec`` can produce: a built-in's ``max_steps`` x its step rewards (plus ARS's
+    ``algo.alive_bonus_offset`` per step, which training returns include); else unbounded."""
     from imix_cli.registry import ENV_SPECS
 
     env = ENV_SPECS.get(spec.env_name)
     cap = max_steps or spec.env_max_steps or (env.max_steps if env else None)
     if env is None or env.step_reward is None or cap is None:
         return -math.inf, math.inf
-    return env.step_reward[0] * cap, env.step_reward[1] * cap
+    offset = float(spec.algo_options.get("alive_bonus_offset", 0.0))
+    return (env.step_reward[0] + min(offset, 0.0)) * cap, (env.step_reward[1] + max(offset, 0.0)) * cap
 
 
-def validate_seed_state(st, spec, dim: int, max_steps: int | None = None) -> None:
+def validate_seed_state(st, spec, dim: int, max_steps: int | None = None, policy_dim: int | None = None) -> None:
     """CheckpointError (a few words) unless every field of seed state ``st`` is one run ``spec`` can produce.
 
     Why: a checksum only proves that the file is what some writer wrote, and anyone can recompute
@@ -111,9 +114,9 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None) -> Non
     the CSV, the policy files or the search is checked against the run's config: the rows (one per
     generation, the run's algo/env/mixing/seed/popsize, integer counters in range, episodes and
     steps that add up, finite scores within the env's returns), the counters of the state, the
-    best member (d finite numbers, its return the best of the rows), the ES (finite, d parameters,
-    its generation count) and the archive (at most the run's depth, (popsize, d) finite samples,
-    sources and indices in range).
+    best member (the policy's ``policy_dim`` finite numbers, default d; its return the best of the
+    rows), the ES (finite, d parameters, its generation count) and the archive (at most the run's
+    depth, (popsize, d) finite samples, sources and indices in range).
     """
     low, high = return_bounds(spec, max_steps)
     cap = max_steps or spec.env_max_steps
@@ -168,9 +171,9 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None) -> Non
         if st.best_return != -math.inf or best_seen != -math.inf:
             _fail("best member missing")
     else:
-        params = st.best_params
-        if not isinstance(params, np.ndarray) or params.dtype != np.float64 or params.shape != (dim,) or not np.all(np.isfinite(params)):
-            _fail(f"best_params is not {dim} finite float64 numbers")
+        params, size = st.best_params, dim if policy_dim is None else policy_dim  # the best member as a policy (lockstep.policy_params)
+        if not isinstance(params, np.ndarray) or params.dtype != np.float64 or params.shape != (size,) or not np.all(np.isfinite(params)):
+            _fail(f"best_params is not {size} finite float64 numbers")
         if not (_number(st.best_return) and math.isfinite(st.best_return) and st.best_return == best_seen):
             _fail(f"best_return={st.best_return!r} is not the best score of its rows ({best_seen})")
     _validate_es(st, spec, dim)

@@ -373,6 +373,23 @@ def test_the_alive_bonus_offset_reshapes_training_returns_only(tmp_path):
     np.testing.assert_allclose(b["best_score"], a["best_score"] - 50.0, rtol=0, atol=1e-6)  # the CSV keeps 10 significant digits
 
 
+def test_a_bias_free_shifted_ars_run_resumes_from_its_checkpoint(tmp_path, capsys):
+    """A checkpoint's best member is a policy (biases included) while the ES searches the weights
+    only, and its training returns include the offset per step: the checkpoint must be taken back,
+    not refused as foreign (which would silently restart the seed)."""
+    from imix_cli.cli import main
+
+    args = ["run", "algo=ars", "env=continuous_cartpole", "policy.bias=false", "algo.alive_bonus_offset=-2", "popsize=4", "seeds=1",
+            "progress=false", "workers=1", f"results_dir={tmp_path}"]  # fmt: skip
+    assert main([*args, "generations=4"]) == 0
+    capsys.readouterr()
+    assert main([*args, "generations=6"]) == 0
+    err = capsys.readouterr().err
+    assert "resumes at generation 4" in err and "ignored" not in err, err
+    frame = pd.read_csv(next(tmp_path.glob("default/ars-*/seed_0.csv")))
+    assert len(frame) == 6 and (frame["mean_score"] < 0).all()  # every step's reward 1 - 2: the training returns are negative
+
+
 def test_policy_files_written_before_the_output_field_read_as_tanh(tmp_path):
     from imix_cli.policy_files import HEADER_FIELDS, read_policy, write_policy
 
