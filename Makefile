@@ -45,7 +45,7 @@ install:  ## create .venv and install imix (non-editable): runner, plots, render
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install $(PIN) ".[test,render]"
-	$(PY) -m imix_cli.warmup  # compile the numba kernels now (~20-40 s): the first run then compiles nothing
+	$(PY) -m imix_cli.running.warmup  # compile the numba kernels now (~20-40 s): the first run then compiles nothing
 	@echo "imix is installed in $(VENV). Run it as $(IMIX), or put it on PATH for this shell with:  source $(VENV)/bin/activate"
 
 install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools
@@ -85,7 +85,7 @@ docs:  ## the documentation site into site/ (mkdocs-material + mkdocstrings: the
 	$(PY) -m mkdocs build --strict
 
 docs-numbers:  ## regenerate the printed outputs the docs show (README's main job included: about a minute)
-	$(PY) -m imix_cli.docs_numbers write quick-mixing main-job
+	$(PY) -m imix_cli.commands.docs_numbers write quick-mixing main-job
 
 bench:  ## speed benchmarks (rollouts, mixing, grid) with baselines measured in the same run
 	$(IMIX) bench

@@ -31,7 +31,7 @@ def _stop_before_anything_is_written(signum, frame):
 # The `imix` console script: a Ctrl-C during the imports of a run (numpy, gymnasium, Hydra) or the
 # validation that follows can be swallowed by C code that clears errors (measured: with a cold
 # bytecode cache, SIGINT 0.2 s after start let a whole sweep run). Nothing is written before the
-# run starts, so until then a Ctrl-C ends the process at once; imix_cli.cli hands SIGINT back to
+# run starts, so until then a Ctrl-C ends the process at once; imix_cli.commands.cli hands SIGINT back to
 # Python's handler before anything runs. The same process gets imix's one-BLAS-thread default here,
 # before any module loads numpy (imix_cli.processes says why). Library imports are unaffected.
 if _os.path.basename(_sys.argv[0] if _sys.argv else "") == "imix":
@@ -59,8 +59,8 @@ _API = {
     "make_evaluator": "imix_cli.evaluation",
     "policy_action": "imix_cli.policies",
     "policy_output": "imix_cli.policies",
-    "ConfigError": "imix_cli.config_checks",
-    "RunError": "imix_cli.run_folder",
+    "ConfigError": "imix_cli.running.config_checks",
+    "RunError": "imix_cli.running.run_folder",
 }
 
 __all__ = [*_API, "__version__"]

@@ -1,8 +1,8 @@
 """Run an experiment from Python and get its results as a DataFrame: ``imix run`` without the shell.
 
 Why: a notebook or a script that compares settings wants the rows, not a folder to parse. This
-is ``imix run`` itself -- the same validation (:func:`imix_cli.config.validate_overrides`), the
-same runner (:func:`imix_cli.runner.run`: run folder, seeds over processes, checkpoints, resume,
+is ``imix run`` itself -- the same validation (:func:`imix_cli.running.config.validate_overrides`), the
+same runner (:func:`imix_cli.running.runner.run`: run folder, seeds over processes, checkpoints, resume,
 summary) and the same CSVs -- with the CSV rows read back and returned::
 
     import imix_cli
@@ -53,11 +53,11 @@ class Experiment:
 
     ``Experiment(algo="cem", eim=True, seeds=5).run()`` runs it and returns every seed's rows;
     :meth:`results` reads what exists without running anything. Bad keys or values raise
-    :class:`~imix_cli.config_checks.ConfigError` (a ValueError) with ``imix run``'s one-line message.
+    :class:`~imix_cli.running.config_checks.ConfigError` (a ValueError) with ``imix run``'s one-line message.
     """
 
     def __init__(self, *overrides: str, progress: bool = False, **keys):
-        from imix_cli.config import validate_overrides
+        from imix_cli.running.config import validate_overrides
 
         # progress=False: a library call prints the summary, not a progress bar (progress=True restores it)
         self.overrides = overrides_of(*overrides, progress=progress, **keys)
@@ -75,9 +75,9 @@ class Experiment:
         """Run every point (finished seeds are skipped, others resumed); return :meth:`results`.
 
         ``echo`` receives each run's summary table (``print`` by default; ``None`` for silence).
-        Raises :class:`~imix_cli.run_folder.RunError` if a run folder holds another config.
+        Raises :class:`~imix_cli.running.run_folder.RunError` if a run folder holds another config.
         """
-        from imix_cli.runner import run as run_spec
+        from imix_cli.running.runner import run as run_spec
 
         for spec in self.specs:
             run_spec(spec, echo=echo or (lambda text: None))
@@ -85,10 +85,10 @@ class Experiment:
 
     def results(self):
         """The rows of every finished seed of every point, as one DataFrame: the CSV columns
-        (:data:`imix_cli.results.COLUMNS`) and ``run``, the run folder's name."""
+        (:data:`imix_cli.running.results.COLUMNS`) and ``run``, the run folder's name."""
         import pandas as pd
 
-        from imix_cli.results import read_run_csv, seed_csv_path
+        from imix_cli.running.results import read_run_csv, seed_csv_path
 
         frames = []
         for spec in self.specs:
@@ -97,7 +97,7 @@ class Experiment:
                 if path.exists():
                     frames.append(read_run_csv(path).assign(run=spec.run_name))
         if not frames:
-            from imix_cli.results import COLUMNS
+            from imix_cli.running.results import COLUMNS
 
             return pd.DataFrame(columns=[*COLUMNS, "run"])
         return pd.concat(frames, ignore_index=True)

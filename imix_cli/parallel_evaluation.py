@@ -6,7 +6,7 @@ every core. The seeds of a run are already spread over processes (``workers``); 
 right layer when there are at least as many seeds as cores and episodes are cheap. With
 expensive episodes, or fewer seeds than cores, the members of a generation are the layer to
 parallelise. One layer at a time: ``evaluator=pool`` runs the seeds in one process
-(``workers`` defaults to 1 and a larger value is refused, see :mod:`imix_cli.config_checks`).
+(``workers`` defaults to 1 and a larger value is refused, see :mod:`imix_cli.running.config_checks`).
 
 ``evaluator`` (config key):
 
@@ -32,7 +32,7 @@ per-member sums, so whatever adds them up sees the same numbers in the same orde
 Every evaluator here has ``evaluate(params, seeds) -> (returns, steps)``, the attributes of
 :class:`imix_cli.evaluation.BatchEvaluator` (``num_params``, ``obs_dim``, ``out_dim``,
 ``hidden``...), ``last_obs_stats`` and ``close()``. :func:`build_evaluator` makes the one a
-:class:`~imix_cli.run_spec.RunSpec` asks for.
+:class:`~imix_cli.running.run_spec.RunSpec` asks for.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ EVALUATORS = ("local", "pool", "ray")
 
 
 def build_evaluator(spec):
-    """The evaluator of ``spec`` (a :class:`~imix_cli.run_spec.RunSpec`): local, pool or ray."""
+    """The evaluator of ``spec`` (a :class:`~imix_cli.running.run_spec.RunSpec`): local, pool or ray."""
     args, policy = (spec.evaluator_key, spec.env_max_steps), {"hidden": spec.hidden, "output": spec.policy_output}
     if spec.evaluator == "pool":
         return PoolEvaluator(*args, **policy, workers=spec.evaluator_workers)

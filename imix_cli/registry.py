@@ -3,7 +3,7 @@
 Every name imix knows -- ``algo=``, ``env=``, ``im``/``eim`` and their variants -- is declared
 here once, with what the rest of the code needs to know about it (display label, the paper's
 generation count, the plot threshold, the batched evaluator, ...). Nothing else keeps a list
-of names: :mod:`imix_cli.config` validates against these records, :mod:`imix_cli.algorithms`
+of names: :mod:`imix_cli.running.config` validates against these records, :mod:`imix_cli.algorithms`
 builds an ES from :data:`ALGORITHM_SPECS`, :mod:`imix_cli.evaluation` builds a built-in
 evaluator from :data:`ENV_SPECS`, and the figures and tables take their labels from here.
 

@@ -18,7 +18,7 @@ set_one_blas_thread()
 @pytest.fixture
 def csv_disk_full(monkeypatch):
     """Every fsync of a seed CSV being written (its ``.seed_*`` temporary) fails with ENOSPC, as on a full disk."""
-    import imix_cli.results as results_module
+    import imix_cli.running.results as results_module
 
     real_fsync = results_module.os.fsync
 

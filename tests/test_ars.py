@@ -241,7 +241,7 @@ def test_imix_run_ars_on_swimmer_saves_policies_and_resumes_after_a_kill(tmp_pat
 
 
 def test_bad_ars_settings_are_one_line_errors(tmp_path, capsys):
-    from imix_cli.cli import main
+    from imix_cli.commands.cli import main
 
     for bad, key in ((["popsize=7"], "popsize must be even"), (["algo.top=5", "popsize=8"], "top must be in")):
         assert main(["run", "algo=ars", "env=cartpole", "seeds=1", "generations=1", f"results_dir={tmp_path}", *bad]) == 2
@@ -252,7 +252,7 @@ def test_bad_ars_settings_are_one_line_errors(tmp_path, capsys):
 
 def test_algo_top_is_checked_against_the_runs_own_popsize():
     """algo.top <= popsize/2 with the popsize of the run (200: top up to 100), not the default popsize's 25."""
-    from imix_cli.config import validate_overrides
+    from imix_cli.running.config import validate_overrides
 
     (spec,) = validate_overrides(["algo=ars", "popsize=200", "algo.top=80"])
     assert spec.algo_options == {"top": 80, "alive_bonus_offset": 0.0} and spec.popsize == 200
@@ -305,8 +305,8 @@ def test_with_obs_norm_the_bias_free_weights_act_on_normalised_observations():
     before the normaliser is folded in (the fold gives the layer the bias -M mu / sd)."""
     from types import SimpleNamespace
 
-    from imix_cli.lockstep import policy_params, search_dim
     from imix_cli.policies import ObsNormalizer, forward
+    from imix_cli.running.lockstep import policy_params, search_dim
 
     rng = np.random.default_rng(2)
     norm = ObsNormalizer(3, 1)
@@ -326,11 +326,11 @@ def test_the_ars_presets_run_the_papers_policy_and_eval_acts_with_it(tmp_path):
     """+ars=<env>: no biases (the ES searches 16 weights on Swimmer), clipped actions; the saved
     policies keep zero biases and say "clip", and imix eval acts with the clip."""
     pytest.importorskip("mujoco")
-    from imix_cli.cli import main
-    from imix_cli.config import validate_overrides
-    from imix_cli.evaluate import evaluator_for
+    from imix_cli.commands.cli import main
+    from imix_cli.commands.eval_command import evaluator_for
     from imix_cli.evaluation import make_evaluator
-    from imix_cli.policy_files import read_policy
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.policy_files import read_policy
 
     for env in ("swimmer", "hopper", "halfcheetah", "walker2d"):
         (spec,) = validate_overrides(["algo=ars", f"env={env}", f"+ars={env}"])
@@ -355,7 +355,7 @@ def test_the_alive_bonus_offset_reshapes_training_returns_only(tmp_path):
     population columns move by exactly the offset x length, and the mean policy's fresh episodes
     (mean_policy_score) stay on the env's own return."""
     pytest.importorskip("mujoco")
-    from imix_cli.cli import main
+    from imix_cli.commands.cli import main
 
     es = make_es("ars", 3, popsize=4, alive_bonus_offset=-1.0)
     np.testing.assert_array_equal(es.training_fitness(np.array([10.0, 5.0]), np.array([100, 7])), [-90.0, -2.0])
@@ -377,7 +377,7 @@ def test_a_bias_free_shifted_ars_run_resumes_from_its_checkpoint(tmp_path, capsy
     """A checkpoint's best member is a policy (biases included) while the ES searches the weights
     only, and its training returns include the offset per step: the checkpoint must be taken back,
     not refused as foreign (which would silently restart the seed)."""
-    from imix_cli.cli import main
+    from imix_cli.commands.cli import main
 
     args = ["run", "algo=ars", "env=continuous_cartpole", "policy.bias=false", "algo.alive_bonus_offset=-2", "popsize=4", "seeds=1",
             "progress=false", "workers=1", f"results_dir={tmp_path}"]  # fmt: skip
@@ -391,7 +391,7 @@ def test_a_bias_free_shifted_ars_run_resumes_from_its_checkpoint(tmp_path, capsy
 
 
 def test_policy_files_written_before_the_output_field_read_as_tanh(tmp_path):
-    from imix_cli.policy_files import HEADER_FIELDS, read_policy, write_policy
+    from imix_cli.running.policy_files import HEADER_FIELDS, read_policy, write_policy
 
     header = {k: None for k in HEADER_FIELDS}
     header.update(format="imix-policy/1", env_name="swimmer", env_id="Swimmer-v5", max_steps=1000, obs_dim=8, out_dim=2, hidden=[],
@@ -404,7 +404,7 @@ def test_policy_files_written_before_the_output_field_read_as_tanh(tmp_path):
 
 
 def test_bad_policy_outputs_are_one_line_errors(tmp_path, capsys):
-    from imix_cli.cli import main
+    from imix_cli.commands.cli import main
 
     for bad, key in (
         (["env=cartpole", "policy.output=clip"], "policy.output=clip: only on gymnasium environments with continuous actions"),

@@ -1,6 +1,6 @@
 """Malformed invocations: one line naming the problem, exit != 0, no traceback, nothing overwritten.
 
-Each case runs `imix run` in-process (imix_cli.cli.main) against a results folder that already
+Each case runs `imix run` in-process (imix_cli.commands.cli.main) against a results folder that already
 holds a finished run; the folder's bytes must be identical afterwards. The finished run is made
 once per module and shared by the cases that must leave it alone; the cases that plant a bad
 file in it first work on a copy of their own.
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from imix_cli.cli import main
+from imix_cli.commands.cli import main
 
 BASE = ["algo=cem", "seeds=1", "generations=3", "popsize=8", "workers=1", "progress=false"]
 RUN_DIR = "default/cem-cartpole-none-popsize=8"

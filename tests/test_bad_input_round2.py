@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 from process_tree import alive, children_of, cmdline
 
-from imix_cli.cli import main
-from imix_cli.config import ConfigError, validate_overrides
-from imix_cli.results import read_run_csv
-from imix_cli.run_folder import run_dir_lock
+from imix_cli.commands.cli import main
+from imix_cli.running.config import ConfigError, validate_overrides
+from imix_cli.running.results import read_run_csv
+from imix_cli.running.run_folder import run_dir_lock
 
 IMIX = str(Path(sys.executable).parent / "imix")
 SMALL = ["seeds=1", "generations=3", "popsize=8", "workers=1", "progress=false"]
@@ -202,7 +202,7 @@ def test_fast_validation_composes_what_hydra_composes(tmp_path):
     from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf, open_dict
 
-    from imix_cli.config import config_dir, spec_from_config
+    from imix_cli.running.config import config_dir, spec_from_config
 
     points = [
         ["algo=cem", "popsize=12", "sigma=0.5", "env.max_steps=50", "generations=4"],

@@ -8,7 +8,7 @@ import tempfile
 import pytest
 
 from imix_cli.bench import main
-from imix_cli.cli import main as cli_main
+from imix_cli.commands.cli import main as cli_main
 
 TINY = ["--sizes", "3", "5", "--repeats", "1", "--min-seconds", "0", "--naive-members", "2", "--dims", "20",
         "--seeds", "2", "--generations", "2"]  # fmt: skip

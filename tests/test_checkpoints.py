@@ -1,4 +1,4 @@
-"""Checkpoints are data that cannot lie or run code (imix_cli.checkpoints).
+"""Checkpoints are data that cannot lie or run code (imix_cli.running.checkpoints).
 
 A checkpoint read back is either exactly what was saved, or refused with one warning line
 naming the file -- whatever happened to the file: truncation, random bit flips, another seed's
@@ -18,14 +18,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from imix_cli import checkpoints
-from imix_cli.cli import main
-from imix_cli.config import validate_overrides
+from imix_cli.commands.cli import main
 from imix_cli.evaluation import make_evaluator
-from imix_cli.lockstep import advance_lockstep, new_seed_state
-from imix_cli.resume import checkpoint_path, load_checkpoint, save_checkpoint
-from imix_cli.run_folder import prepare_run_dir
-from imix_cli.runner import run_seeds
+from imix_cli.running import checkpoints
+from imix_cli.running.config import validate_overrides
+from imix_cli.running.lockstep import advance_lockstep, new_seed_state
+from imix_cli.running.resume import checkpoint_path, load_checkpoint, save_checkpoint
+from imix_cli.running.run_folder import prepare_run_dir
+from imix_cli.running.runner import run_seeds
 
 COMMON = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=12", "popsize=8", "checkpoint_every=4", "workers=1", "progress=false"]
 
@@ -253,7 +253,7 @@ def test_checkpoint_is_a_plain_zip_of_npy_files(tmp_path):
 
 def test_archived_generations_are_saved_field_by_field_whatever_their_fields(tmp_path, monkeypatch):
     """A Generation with one more array field (as the lead is adding) round-trips without any change
-    to imix_cli.checkpoints: fields are found with dataclasses.fields, not listed."""
+    to imix_cli.running.checkpoints: fields are found with dataclasses.fields, not listed."""
     import dataclasses
 
     import imix_cli.mixing as mixing

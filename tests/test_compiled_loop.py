@@ -1,4 +1,4 @@
-"""The compiled generation loop (imix_cli.compiled_loop) against the Python loop, its reference.
+"""The compiled generation loop (imix_cli.running.compiled_loop) against the Python loop, its reference.
 
 What must hold: the same rows, the same ES and archive state, the same random generators, the same
 best member -- bit for bit -- after any number of chunks; whole runs through `imix run` (CSVs,
@@ -16,11 +16,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from imix_cli import compiled_loop
-from imix_cli.checkpoints import _encode, _read_npz
-from imix_cli.config import validate_overrides
-from imix_cli.lockstep import advance_lockstep, new_seed_state, search_dim
 from imix_cli.parallel_evaluation import build_evaluator
+from imix_cli.running import compiled_loop
+from imix_cli.running.checkpoints import _encode, _read_npz
+from imix_cli.running.config import validate_overrides
+from imix_cli.running.lockstep import advance_lockstep, new_seed_state, search_dim
 
 CASES = [
     ["algo=snes", "env=cartpole", "eim=true"],  # the main job
@@ -111,7 +111,7 @@ def test_numpy_sum_is_numpys_pairwise_sum():
 def _run(args, results_dir, **env):
     environ = {**os.environ, "PYTHONHASHSEED": "0", **env}
     done = subprocess.run(
-        [sys.executable, "-m", "imix_cli.cli", "run", *args, f"results_dir={results_dir}", "progress=false"],
+        [sys.executable, "-m", "imix_cli.commands.cli", "run", *args, f"results_dir={results_dir}", "progress=false"],
         env=environ, capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
@@ -165,7 +165,7 @@ def test_runs_are_identical_with_the_python_loop_continued_runs_included(tmp_pat
 
 
 def test_the_live_csv_text_is_pandas_text_in_pieces():
-    from imix_cli.results import csv_text, rows_csv_text, rows_to_frame
+    from imix_cli.running.results import csv_text, rows_csv_text, rows_to_frame
 
     spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10"])
     compiled_loop.advance(st, spec, evaluator, 40)
@@ -182,7 +182,7 @@ def test_the_live_csv_text_is_pandas_text_in_pieces():
 
 
 def test_a_seed_csv_of_plain_rows_is_written_and_summed_up_as_pandas_does(tmp_path):
-    from imix_cli.results import csv_text, rows_to_frame, seed_summary, write_run_csv
+    from imix_cli.running.results import csv_text, rows_to_frame, seed_summary, write_run_csv
 
     spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10", "eval_mean_every=7"])
     compiled_loop.advance(st, spec, evaluator, 40)
@@ -204,8 +204,8 @@ def test_a_worker_writes_a_seed_csv_without_pandas(tmp_path):
     CSV of plain rows must not need it."""
     code = (
         "import sys\n"
-        "import imix_cli.runner, imix_cli.es_seeds, imix_cli.compiled_loop\n"
-        "from imix_cli.results import write_run_csv\n"
+        "import imix_cli.running.runner, imix_cli.running.es_seeds, imix_cli.running.compiled_loop\n"
+        "from imix_cli.running.results import write_run_csv\n"
         "row = dict(algo='snes', env='cartpole', mixing='eim', seed=0, generation=0, evaluations=5, env_steps=50, mean_score=1.5,\n"
         "           best_score=2.0, reused=0, reused_im=0, reused_eim=0, reevaluated=0, popsize=5, sigma_mean=0.1, nonfinite=0, wall_time=0.1)\n"
         f"write_run_csv({str(tmp_path / 'seed_0.csv')!r}, [row])\n"

@@ -1,16 +1,16 @@
-"""The keys table (imix_cli/config_keys.py) is the one source of the configuration reference and of
+"""The keys table (imix_cli/running/config_keys.py) is the one source of the configuration reference and of
 `imix run --help`'s keys: both are generated from it and must be up to date, it must list every
 key `imix run` accepts, and its defaults must be conf/config.yaml's."""
 
 import yaml
 
-from imix_cli.config_keys import CONFIG_YAML, KEYS, REFERENCE, config_yaml_with_help, reference_markdown
 from imix_cli.registry import ALGORITHM_SPECS
-from imix_cli.run_spec import POLICY_DEFAULTS, TOP_LEVEL_KEYS
+from imix_cli.running.config_keys import CONFIG_YAML, KEYS, REFERENCE, config_yaml_with_help, reference_markdown
+from imix_cli.running.run_spec import POLICY_DEFAULTS, TOP_LEVEL_KEYS
 
 
 def test_the_generated_reference_and_help_are_up_to_date():
-    fix = "run `python -m imix_cli.config_keys write` and commit"
+    fix = "run `python -m imix_cli.running.config_keys write` and commit"
     assert REFERENCE.read_text() == reference_markdown(), fix
     assert CONFIG_YAML.read_text() == config_yaml_with_help(CONFIG_YAML.read_text()), fix
 

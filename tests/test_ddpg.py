@@ -15,11 +15,11 @@ th = pytest.importorskip("torch")
 
 from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise  # noqa: E402
 
-from imix_cli.algorithms.ddpg import PAPER_SETTINGS, TwoRateDDPG, make_ddpg, train_ddpg  # noqa: E402
-from imix_cli.cli import main  # noqa: E402
-from imix_cli.config import DDPG_DEFAULTS, ConfigError, config_dir, validate_overrides  # noqa: E402
+from imix_cli.commands.cli import main  # noqa: E402
+from imix_cli.ddpg.agent import PAPER_SETTINGS, TwoRateDDPG, make_ddpg, train_ddpg  # noqa: E402
 from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID  # noqa: E402
-from imix_cli.results import COLUMNS, read_run_csv  # noqa: E402
+from imix_cli.running.config import DDPG_DEFAULTS, ConfigError, config_dir, validate_overrides  # noqa: E402
+from imix_cli.running.results import COLUMNS, read_run_csv  # noqa: E402
 
 
 def layer_sizes(sequential) -> list[tuple[int, int]]:

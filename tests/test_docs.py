@@ -42,6 +42,6 @@ def test_no_development_log_words_in_readme_or_docs():
 
 @pytest.mark.slow  # two `imix run` processes, ~15-25 s
 def test_the_docs_show_what_the_code_prints():
-    from imix_cli.docs_numbers import check
+    from imix_cli.commands.docs_numbers import check
 
     assert check() == []

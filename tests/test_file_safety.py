@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imix_cli.cli import main
-from imix_cli.policy_files import policy_path, read_policy, write_policy
+from imix_cli.commands.cli import main
+from imix_cli.running.policy_files import policy_path, read_policy, write_policy
 
 RUN = "cem-cartpole-none-popsize=6"
 IMIX = str(Path(sys.executable).parent / "imix")
@@ -145,7 +145,7 @@ def test_a_module_named_on_the_command_line_must_be_the_files(copied, tmp_path, 
 
 
 def _imix(args, env, cwd):
-    return subprocess.run([sys.executable, "-m", "imix_cli.cli", *args], env=env, cwd=cwd, capture_output=True, text=True, timeout=300)
+    return subprocess.run([sys.executable, "-m", "imix_cli.commands.cli", *args], env=env, cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
 @pytest.mark.slow
@@ -254,7 +254,7 @@ def test_a_policy_zip_bomb_is_refused_before_inflating(copied, tmp_path):
     assert path.stat().st_size < 2 << 20
     peak, out = peak_rss_mib(
         f"""
-        from imix_cli.policy_files import PolicyFileError, read_policy
+        from imix_cli.running.policy_files import PolicyFileError, read_policy
         try:
             read_policy({str(path)!r})
         except PolicyFileError as err:
@@ -280,13 +280,13 @@ def test_a_checkpoint_zip_bomb_is_refused_before_inflating(tmp_path):
     assert path.stat().st_size < 2 << 20
     peak, out = peak_rss_mib(
         f"""
-        from imix_cli.config import validate_overrides
+        from imix_cli.running.config import validate_overrides
         from imix_cli.evaluation import make_evaluator
-        from imix_cli.lockstep import new_seed_state
-        from imix_cli.resume import load_checkpoint
+        from imix_cli.running.lockstep import new_seed_state
+        from imix_cli.running.resume import load_checkpoint
         (spec,) = validate_overrides({[*args[1:], "generations=6", f"results_dir={root}"]!r})
         fresh = new_seed_state(spec, 0, make_evaluator("cartpole").num_params)
-        from imix_cli.run_spec import resume_identity
+        from imix_cli.running.run_spec import resume_identity
         st = load_checkpoint(spec.run_dir, 0, resume_identity(spec.identity()), fresh, warn=lambda m: print("refused:", m), spec=spec)
         assert st is None
         """,
@@ -303,7 +303,7 @@ FORGE_RUN = ["run", "algo=cem", "env=cartpole", "seeds=1", "popsize=6", "checkpo
 def forge_checkpoint(path, change) -> None:
     """Rewrite a checkpoint with ``change(header, arrays)`` applied and its checksum recomputed: a forgery
     that passes every integrity check, only the values are wrong."""
-    from imix_cli import checkpoints
+    from imix_cli.running import checkpoints
 
     with np.load(path, allow_pickle=False) as npz:
         arrays = {name: npz[name] for name in npz.files}
@@ -575,16 +575,16 @@ def test_eval_refuses_non_finite_weights_instead_of_scoring_them(copied, capsys,
 def test_eval_bounds_episodes_and_runs_them_in_batches(copied, capsys, monkeypatch):
     """``episodes=1000000000`` is one line (it would take days), and any episodes= runs in batches whose
     memory does not grow with it -- with the same statistics as one batch."""
-    from imix_cli import evaluate
+    from imix_cli.commands import eval_command
 
     root, run_dir = copied
     assert main(["eval", f"results_dir={root}", "experiment=e", "episodes=1000000000"]) == 2
     assert "episodes" in one_error_line(capsys.readouterr().err, "imix eval:")
 
     policy = read_policy(policy_path(run_dir, 0, "mean"))
-    whole = evaluate.evaluate_policy(policy, 1000)
+    whole = eval_command.evaluate_policy(policy, 1000)
     sizes = []
-    real = evaluate.evaluator_for
+    real = eval_command.evaluator_for
 
     def recording(*args, **kwargs):
         evaluator = real(*args, **kwargs)
@@ -599,16 +599,16 @@ def test_eval_bounds_episodes_and_runs_them_in_batches(copied, capsys, monkeypat
 
         return Recorder()
 
-    monkeypatch.setattr(evaluate, "evaluator_for", recording)
-    monkeypatch.setattr(evaluate, "_MAX_BATCH", 64)
-    batched = evaluate.evaluate_policy(policy, 1000)
+    monkeypatch.setattr(eval_command, "evaluator_for", recording)
+    monkeypatch.setattr(eval_command, "_MAX_BATCH", 64)
+    batched = eval_command.evaluate_policy(policy, 1000)
     assert max(sizes) == 64 and sum(sizes) == 1000
     assert batched["mean"] == pytest.approx(whole["mean"], rel=1e-12) and batched["std"] == pytest.approx(whole["std"], rel=1e-9)
     assert (batched["min"], batched["max"], batched["mean_steps"]) == (whole["min"], whole["max"], whole["mean_steps"])
 
 
 def test_eval_of_a_read_only_results_folder_prints_the_numbers_and_one_line(copied, capsys, monkeypatch):
-    import imix_cli.results as results_module
+    import imix_cli.running.results as results_module
 
     root, run_dir = copied
 
@@ -625,7 +625,7 @@ def test_eval_of_a_read_only_results_folder_prints_the_numbers_and_one_line(copi
 def test_a_seed_csv_holding_another_seeds_rows_is_refused_by_the_reader(two_seeds, tmp_path):
     """The reader run, plot and status share refuses a copy under another seed's name (its seed column
     says whose rows they are), so ``imix run`` does not take seed 1's rows as seed 0's result either."""
-    from imix_cli.results import CorruptResultError, read_run_csv
+    from imix_cli.running.results import CorruptResultError, read_run_csv
 
     run_dir = _copy_experiment(two_seeds, tmp_path)
     (run_dir / "seed_0.csv").write_text((run_dir / "seed_1.csv").read_text())
@@ -638,10 +638,10 @@ def test_a_seed_csv_holding_another_seeds_rows_is_refused_by_the_reader(two_seed
 READ_SPECIAL = """
 import sys
 sys.path[:0] = {paths!r}
-from imix_cli.checkpoints import CheckpointError, read_checkpoint
-from imix_cli.policy_files import PolicyFileError, read_policy
-from imix_cli.results import CorruptResultError, read_run_csv
-from imix_cli.run_folder import RunError, prepare_run_dir
+from imix_cli.running.checkpoints import CheckpointError, read_checkpoint
+from imix_cli.running.policy_files import PolicyFileError, read_policy
+from imix_cli.running.results import CorruptResultError, read_run_csv
+from imix_cli.running.run_folder import RunError, prepare_run_dir
 name, target = {name!r}, {target!r}
 try:
     if name == "seed_0.csv":
@@ -649,7 +649,7 @@ try:
     elif name == "policy_0_mean.npz":
         read_policy(target)
     elif name == "config.yaml":
-        from imix_cli.config import validate_overrides
+        from imix_cli.running.config import validate_overrides
 
         (spec,) = validate_overrides({overrides!r})
         prepare_run_dir(spec)
@@ -692,7 +692,7 @@ def test_a_file_that_is_a_device_or_a_fifo_is_refused_without_reading_it(copied,
         proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, preexec_fn=_limited)
     except subprocess.TimeoutExpired:
         pytest.fail(f"reading a {special} as {name} hangs")
-    # a symlink inside a run folder is refused as a link before anything is opened (imix_cli.run_folder.refuse_links)
+    # a symlink inside a run folder is refused as a link before anything is opened (imix_cli.running.run_folder.refuse_links)
     refused_as = ("not a regular file", "symbolic link")
     assert proc.returncode == 0 and proc.stdout.startswith("refused:") and any(r in proc.stdout for r in refused_as), proc.stdout + proc.stderr[-500:]
 

@@ -36,16 +36,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from imix_cli.checkpoints import CheckpointError, _canonical, _encode, read_checkpoint
-from imix_cli.cli import main
-from imix_cli.config import validate_overrides
+from imix_cli.commands.cli import main
 from imix_cli.evaluation import make_evaluator
-from imix_cli.lockstep import new_seed_state
-from imix_cli.policy_files import PolicyFileError, num_params_of, read_policy
-from imix_cli.results import COLUMNS, CorruptResultError, read_run_csv
-from imix_cli.resume import checkpoint_byte_limit, validate_seed_state
-from imix_cli.run_folder import RunError, prepare_run_dir
-from imix_cli.run_spec import resume_identity
+from imix_cli.running.checkpoints import CheckpointError, _canonical, _encode, read_checkpoint
+from imix_cli.running.config import validate_overrides
+from imix_cli.running.lockstep import new_seed_state
+from imix_cli.running.policy_files import PolicyFileError, num_params_of, read_policy
+from imix_cli.running.results import COLUMNS, CorruptResultError, read_run_csv
+from imix_cli.running.resume import checkpoint_byte_limit, validate_seed_state
+from imix_cli.running.run_folder import RunError, prepare_run_dir
+from imix_cli.running.run_spec import resume_identity
 
 MUTATIONS = 1000
 INT_COLUMNS = (
@@ -250,7 +250,7 @@ def test_fuzz_checkpoint_reader(run):
 
 def recompute_checksum(data: bytes) -> bytes:
     """The checkpoint ``data`` with its checksum made to match its (forged) content, if its header still parses."""
-    from imix_cli.checkpoints import _checksum
+    from imix_cli.running.checkpoints import _checksum
 
     members = npz_members(data)
     arrays = {name[:-4]: np.load(io.BytesIO(raw), allow_pickle=False) for name, raw in members.items()}
@@ -377,7 +377,7 @@ def test_fuzz_config_yaml_reader(run, tmp_path):
         return yaml.safe_load(text)
 
     def accepted_ok(config):
-        from imix_cli.run_spec import identity_of
+        from imix_cli.running.run_spec import identity_of
 
         # imix compares identities key by key with None for a missing key (run_spec.differing_keys), so a
         # key whose value is null is the same as no key: compare what imix compares

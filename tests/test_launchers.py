@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from imix_cli.cli import main
-from imix_cli.results import read_run_csv
+from imix_cli.commands.cli import main
+from imix_cli.running.results import read_run_csv
 
 IMIX = str(Path(sys.executable).parent / "imix")
 SWEEP = ["algo=cem", "generations=3", "seeds=2", "popsize=8,10", "progress=false"]

@@ -1,7 +1,7 @@
 """Import layering: ``import imix_cli`` stays light, and no module imports a layer above its own.
 
 Made to fail by putting ``from imix_cli import envs`` back into ``imix_cli/__init__.py`` (gymnasium
-loads) and by importing :mod:`imix_cli.config` from :mod:`imix_cli.parallel_evaluation`."""
+loads) and by importing :mod:`imix_cli.running.config` from :mod:`imix_cli.parallel_evaluation`."""
 
 import ast
 import subprocess
@@ -10,26 +10,32 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "imix_cli"
 
-#: Lowest first; a module may import its own layer and those before it (names are module prefixes).
+#: Lowest first; a module may import its own layer and those before it. An entry names a module or a
+#: subpackage by its dotted path below ``imix_cli``; a module's layer is that of the longest entry its
+#: dotted path starts with. The library is the top-level modules (``imix_cli.mixing``, ...);
+#: ``running`` (what ``imix run`` does) and ``ddpg`` (the DDPG baseline) span several layers module by
+#: module, and their own entries (their ``__init__``, and any module not listed yet) are the lowest.
 LAYERS = [
     [
         "registry",
-        "config_keys",
         "messages",
         "processes",
-        "keyvalue",
         "stats",
-        "safe_npz",
         "linalg_kernels",
         "distributions",
         "mixing",
         "mixing_kernels",
-        "results",
+        "running",
+        "running.config_keys",
+        "running.safe_npz",
+        "running.results",
+        "ddpg",
+        "ddpg.settings",
     ],
     [
         "generation",
+        "mirrored",
         "ask_tell",
-        "tracking",
         "algorithms",
         "divergence",
         "envs",
@@ -37,12 +43,26 @@ LAYERS = [
         "policies",
         "evaluation",
         "parallel_evaluation",
-        "checkpoints",
-        "policy_files",
+        "running.tracking",
+        "running.checkpoints",
+        "running.policy_files",
+        "ddpg.agent",
     ],
-    ["config_checks", "run_spec", "es_config", "ddpg_config", "config"],
-    ["lockstep", "warmup", "trainers", "resume", "run_folder", "es_seeds", "ddpg_seeds", "pool", "summary", "runner"],
-    ["evaluate", "render", "status", "plotting", "bench", "experiment", "cli"],
+    ["running.config_checks", "running.run_spec", "running.es_config", "ddpg.config", "running.config"],
+    [
+        "running.lockstep",
+        "running.compiled_loop",
+        "running.warmup",
+        "running.trainers",
+        "running.resume",
+        "running.run_folder",
+        "running.es_seeds",
+        "ddpg.seeds",
+        "running.pool",
+        "running.summary",
+        "running.runner",
+    ],
+    ["commands", "plotting", "bench", "experiment"],
 ]
 
 
@@ -52,28 +72,43 @@ DEFERRED_ONLY = {"imix_cli.registry": ("imix_cli.algorithms.", "imix_cli.evaluat
 
 
 def _layer(module: str) -> int | None:
-    top = module.split(".")[1] if module.count(".") else None
-    return next((k for k, names in enumerate(LAYERS) if top in names), None)
+    """The layer of ``imix_cli.<dotted path>`` (a module, or a name imported from one), None outside LAYERS."""
+    parts = module.split(".")[1:]
+    for n in range(len(parts), 0, -1):
+        layer = next((k for k, names in enumerate(LAYERS) if ".".join(parts[:n]) in names), None)
+        if layer is not None:
+            return layer
+    return None
 
 
 def _imports(path: Path, top_level: bool = False) -> set[str]:
-    """The imix_cli modules ``path`` imports (``top_level``: those its body imports when it loads)."""
+    """What ``path`` imports of imix_cli, as ``imix_cli.<module>.<name>`` (``top_level``: what its body
+    imports when it loads). ``from imix_cli.running import config`` is ``imix_cli.running.config``: the
+    name imported may be a module, so it is part of the path whose layer counts."""
     tree = ast.parse(path.read_text())
     found = set()
     for node in tree.body if top_level else ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("imix_cli."):
-            found.add(node.module)
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module == "imix_cli":
-            found.update(f"imix_cli.{a.name}" for a in node.names)
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "imix_cli":
+            found.update(f"{node.module}.{a.name}" for a in node.names)
         elif isinstance(node, ast.Import):
             found.update(a.name for a in node.names if a.name.startswith("imix_cli."))
     return found
 
 
+def _modules():
+    """(dotted name, path) of every module of the package; a subpackage's ``__init__`` is the subpackage."""
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(PACKAGE).with_suffix("").parts
+        yield ".".join(("imix_cli", *(parts[:-1] if parts[-1] == "__init__" else parts))), path
+
+
+def test_every_module_has_a_layer():
+    assert [module for module, _ in _modules() if module != "imix_cli" and _layer(module) is None] == []
+
+
 def test_no_module_imports_a_layer_above_its_own():
     upward = []
-    for path in sorted(PACKAGE.rglob("*.py")):
-        module = ".".join(("imix_cli", *path.relative_to(PACKAGE).with_suffix("").parts))
+    for module, path in _modules():
         mine = _layer(module)
         if mine is None:
             continue

@@ -162,10 +162,10 @@ def test_the_backend_is_chosen_by_argument_or_environment_variable(monkeypatch):
 
 
 def test_a_bad_backend_variable_stops_imix_run_in_one_line(tmp_path, capsys, monkeypatch):
-    from imix_cli.cli import main
+    from imix_cli.commands.cli import main
 
     monkeypatch.setenv("IMIX_MUJOCO_BACKEND", "fast")
-    monkeypatch.setattr("imix_cli.es_config._EVALUATOR_SHAPES", {})  # the config check caches its probe's error per process
+    monkeypatch.setattr("imix_cli.running.es_config._EVALUATOR_SHAPES", {})  # the config check caches its probe's error per process
     code = main(["run", "algo=snes", "env=hopper", "policy.hidden=[]", "generations=1", "popsize=4", "seeds=1", "workers=1", "progress=false",
                  f"results_dir={tmp_path}"])  # fmt: skip
     err = capsys.readouterr().err.strip()
@@ -177,8 +177,8 @@ def test_an_imix_run_on_hopper_is_the_same_on_both_backends(tmp_path, monkeypatc
     """End to end: SNES + EIM on Hopper with a linear policy and frozen observation
     normalisation: every CSV column but the wall time is identical whichever backend ran the
     episodes (the direct one in the pool evaluator's worker process)."""
-    from imix_cli.cli import main
-    from imix_cli.results import read_run_csv
+    from imix_cli.commands.cli import main
+    from imix_cli.running.results import read_run_csv
 
     common = ["algo=snes", "env=hopper", "eim=true", "policy.hidden=[]", "policy.obs_norm=true", "policy.obs_norm_warmup=1", "generations=4",
               "popsize=8", "seeds=1", "progress=false", "checkpoint_every=0"]  # fmt: skip

@@ -4,8 +4,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
-from imix_cli.cli import main
-from imix_cli.results import read_run_csv
+from imix_cli.commands.cli import main
+from imix_cli.running.results import read_run_csv
 
 
 class FaultyRewardCartPole(CartPoleEnv):

@@ -10,11 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from imix_cli.cli import main
-from imix_cli.evaluate import EVAL_STREAM, eval_episode_seeds
+from imix_cli.commands.cli import main
+from imix_cli.commands.eval_command import EVAL_STREAM, eval_episode_seeds
 from imix_cli.evaluation import make_evaluator
-from imix_cli.policy_files import HEADER_FIELDS, PolicyFileError, policy_path, read_policy
-from imix_cli.results import read_run_csv
+from imix_cli.running.policy_files import HEADER_FIELDS, PolicyFileError, policy_path, read_policy
+from imix_cli.running.results import read_run_csv
 
 RUN = "snes-cartpole-eim-popsize=8"
 TINY = ["algo=snes", "env=cartpole", "eim=true", "generations=5", "seeds=2", "popsize=8", "progress=false", "workers=1"]
@@ -154,8 +154,8 @@ class _DecliningEvaluator:
 
 
 def test_runner_tracks_the_best_ever_member_not_the_last_generations():
-    from imix_cli.config import validate_overrides
-    from imix_cli.lockstep import advance_lockstep, new_seed_state
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.lockstep import advance_lockstep, new_seed_state
 
     spec = validate_overrides(["algo=snes", "env=cartpole", "popsize=6", "seeds=1", "generations=4", "workers=1"])[0]
     evaluator = _DecliningEvaluator()

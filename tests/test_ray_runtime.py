@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from process_tree import alive, cmdline, descendants
 
-from imix_cli.config import ConfigError, validate_overrides
+from imix_cli.running.config import ConfigError, validate_overrides
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason='needs pip install "imix-cli[cluster]"')
 

@@ -17,9 +17,9 @@ import yaml
 
 import imix_cli.algorithms.base as base
 from imix_cli.algorithms import ALGORITHMS, CEM, MIRRORED_ALGORITHMS, SNES, EvolutionStrategy, OpenES, Params, make_es
-from imix_cli.config import PAPER_DEFAULTS, config_dir
 from imix_cli.evaluation import make_evaluator
 from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS, ES_NAMES, MIX_VARIANTS, MIXING_SPECS
+from imix_cli.running.config import PAPER_DEFAULTS, config_dir
 
 
 def conf(*parts):
@@ -31,7 +31,7 @@ def test_the_registry_and_the_trainers_hold_objects_not_names():
     """An ES class, a built-in's evaluator and a trainer's functions are reached through function objects a
     reader can follow, not "module:attribute" strings given to import_module (only the public API's lazy names,
     imix_cli/__init__.py, and the user's own env module, env_ids.py, are imported by name)."""
-    from imix_cli.trainers import DDPG, EVOLUTION_STRATEGY
+    from imix_cli.running.trainers import DDPG, EVOLUTION_STRATEGY
 
     package = Path(__file__).resolve().parents[1] / "imix_cli"
     by_name = sorted(str(p.relative_to(package)) for p in package.rglob("*.py") if "import_module" in p.read_text())
@@ -144,7 +144,7 @@ def test_fitness_shaping_and_weight_decay_forms_are_pluggable(monkeypatch):
 
 def test_algo_options_come_from_the_es_params():
     """``algo.style`` of CEM: default, choices and the folder name come from ``CEM.Params``."""
-    from imix_cli.config import ConfigError, validate_overrides
+    from imix_cli.running.config import ConfigError, validate_overrides
 
     (default,) = validate_overrides(["algo=cem"])
     assert default.algo_options == {"style": "imix"} and default.run_name == "cem-cartpole-none"

@@ -19,12 +19,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from imix_cli.cli import main
-from imix_cli.config import validate_overrides
-from imix_cli.results import read_run_csv
-from imix_cli.resume import checkpoint_path
-from imix_cli.run_folder import prepare_run_dir
-from imix_cli.runner import run_seeds
+from imix_cli.commands.cli import main
+from imix_cli.running.config import validate_overrides
+from imix_cli.running.results import read_run_csv
+from imix_cli.running.resume import checkpoint_path
+from imix_cli.running.run_folder import prepare_run_dir
+from imix_cli.running.runner import run_seeds
 
 IMIX = str(Path(sys.executable).parent / "imix")
 GENERATIONS = 1200  # long enough (~10 s of work here) that the kills below land before the run ends

@@ -23,9 +23,9 @@ import pytest
 import imix_cli.algorithms.base as base
 from imix_cli.algorithms import make_es
 from imix_cli.algorithms.base import member_keys
-from imix_cli.config import ConfigError, validate_overrides
 from imix_cli.generation import PAIR_MIN, Archive, MixingSettings, calibration, finish_generation, plan_generation
 from imix_cli.mixing import DiagonalGaussian, FullGaussian, Generation, _whitened, mix
+from imix_cli.running.config import ConfigError, validate_overrides
 
 _spec = importlib.util.spec_from_file_location("reuse_bias", Path(__file__).parent.parent / "benchmarks" / "reuse_bias.py")
 reuse_bias = importlib.util.module_from_spec(_spec)

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from imix_cli.cli import main
-from imix_cli.config import validate_overrides
-from imix_cli.results import partial_csv_path, read_run_csv
-from imix_cli.runner import run_seeds
+from imix_cli.commands.cli import main
+from imix_cli.running.config import validate_overrides
+from imix_cli.running.results import partial_csv_path, read_run_csv
+from imix_cli.running.runner import run_seeds
 
 TINY = ["algo=cem", "env=cartpole", "generations=4", "popsize=8", "progress=false", "workers=1"]
 

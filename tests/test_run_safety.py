@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 from process_tree import alive, descendants
 
-from imix_cli.cli import main
-from imix_cli.config import ConfigError, validate_overrides
-from imix_cli.results import read_run_csv
-from imix_cli.run_folder import run_dir_lock
+from imix_cli.commands.cli import main
+from imix_cli.running.config import ConfigError, validate_overrides
+from imix_cli.running.results import read_run_csv
+from imix_cli.running.run_folder import run_dir_lock
 
 IMIX = str(Path(sys.executable).parent / "imix")
 SMALL = ["algo=cem", "seeds=1", "generations=3", "popsize=8", "workers=1", "progress=false"]
@@ -61,7 +61,7 @@ def test_a_refused_run_writes_nothing_not_even_its_lock(tmp_path, capsys):
 
 
 def test_the_lock_never_follows_a_link_planted_after_the_folder_was_checked(tmp_path):
-    from imix_cli.run_folder import RunError
+    from imix_cli.running.run_folder import RunError
 
     victim = tmp_path / "victim"
     victim.write_text("precious\n")
@@ -75,8 +75,8 @@ def test_the_lock_never_follows_a_link_planted_after_the_folder_was_checked(tmp_
 
 
 def test_the_library_run_checks_the_folder_before_taking_its_lock(tmp_path):
-    from imix_cli.run_folder import RunError
-    from imix_cli.runner import run
+    from imix_cli.running.run_folder import RunError
+    from imix_cli.running.runner import run
 
     (spec,) = validate_overrides([*SMALL, f"results_dir={tmp_path}"])
     spec.run_dir.mkdir(parents=True)

@@ -8,9 +8,9 @@ import json
 import numpy as np
 import yaml
 
-from imix_cli.cli import main
-from imix_cli.results import partial_csv_path, rows_to_frame, seed_csv_path, write_run_csv
-from imix_cli.status import run_status
+from imix_cli.commands.cli import main
+from imix_cli.commands.status import run_status
+from imix_cli.running.results import partial_csv_path, rows_to_frame, seed_csv_path, write_run_csv
 
 
 def rows(seed, scores, popsize=10):

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import imix_cli
-from imix_cli.results import read_run_csv
-from imix_cli.tracking import TRACKED_COLUMNS, tensorboard_dir
+from imix_cli.running.results import read_run_csv
+from imix_cli.running.tracking import TRACKED_COLUMNS, tensorboard_dir
 
 pytest.importorskip("tensorboard")
 
@@ -74,7 +74,9 @@ def test_logger_is_not_part_of_a_runs_identity(tmp_path):
 
 def test_a_bad_or_missing_logger_is_one_line_before_anything_runs(tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(os.path.dirname(os.path.dirname(__file__))), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, "-m", "imix_cli.cli", "run", "logger=comet", f"results_dir={tmp_path}"], capture_output=True, text=True, env=env)
+    proc = subprocess.run(
+        [sys.executable, "-m", "imix_cli.commands.cli", "run", "logger=comet", f"results_dir={tmp_path}"], capture_output=True, text=True, env=env
+    )
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "logger=" in proc.stderr and "tensorboard" in proc.stderr
     assert not any(tmp_path.iterdir())
 

@@ -14,7 +14,7 @@ import pytest
 COUNT_COMPILES = """
 import sys, tempfile
 from numba.core import event
-from imix_cli.cli import main
+from imix_cli.commands.cli import main
 with event.install_recorder("numba:compile") as rec:
     assert main(["run", *sys.argv[1:], "results_dir=" + tempfile.mkdtemp(), "progress=false", "workers=1"]) == 0
 print(sorted({e.data["dispatcher"].py_func.__qualname__ for _, e in rec.buffer if e.is_start}))
@@ -22,8 +22,8 @@ print(sorted({e.data["dispatcher"].py_func.__qualname__ for _, e in rec.buffer i
 
 WARM_UP = """
 import sys
-from imix_cli.config import validate_overrides
-from imix_cli.warmup import warm_up
+from imix_cli.running.config import validate_overrides
+from imix_cli.running.warmup import warm_up
 (spec,) = validate_overrides(sys.argv[1:])
 print(warm_up(spec, 2))
 """
@@ -53,7 +53,7 @@ def test_after_the_warm_up_a_run_compiles_nothing(tmp_path, args, groups):
 def test_the_install_warm_up_covers_every_built_in_kernel(tmp_path):
     cache = tmp_path / "numba_cache"
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
-    out = subprocess.run([sys.executable, "-m", "imix_cli.warmup"], env=env, capture_output=True, text=True, timeout=900)
+    out = subprocess.run([sys.executable, "-m", "imix_cli.running.warmup"], env=env, capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
     for args in (
         ["algo=cem", "env=acrobot", "eim=true"],

@@ -91,7 +91,7 @@ _HASH_MULTIPLIERS: dict[int, np.ndarray] = {}
 
 def hash_multipliers(dim: int) -> np.ndarray:
     """:func:`member_keys`' fixed random odd multiplier per coordinate, for rows of ``dim`` numbers
-    (drawn once per dimension and kept; :mod:`imix_cli.compiled_loop` hashes with the same array)."""
+    (drawn once per dimension and kept; :mod:`imix_cli.running.compiled_loop` hashes with the same array)."""
     mult = _HASH_MULTIPLIERS.get(dim)
     if mult is None:
         mult = np.random.default_rng(0x5EED).integers(0, 2**64, size=dim, dtype=np.uint64, endpoint=False) | np.uint64(1)
@@ -241,7 +241,7 @@ class Params:
     """The hyper-parameters every ES shares; the defaults are the paper's (section 4.1).
 
     This record is the one place those defaults are written down: ``imix run``'s
-    ``PAPER_DEFAULTS`` (:mod:`imix_cli.run_spec`) are read from it (``conf/config.yaml`` repeats
+    ``PAPER_DEFAULTS`` (:mod:`imix_cli.running.run_spec`) are read from it (``conf/config.yaml`` repeats
     them for Hydra; a test checks they agree). Each ES extends it with its own options
     (``OpenES.Params``, ``CEM.Params``, ...): build one with ``CEM.Params(popsize=20,
     style="cemrl")``, or pass the fields to the ES or to ``make_es`` as keywords. Values are

@@ -13,13 +13,13 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
                eim=true seeds=25` in a subprocess: its main process and its worker processes.
     breakdown  where a run's time goes: evaluation, mixing (or plain sampling) and ES update
                of a lockstep run in this process (seeds of one worker, paper dimensions).
-    loop       the compiled generation loop (imix_cli.compiled_loop) against the Python loop it
+    loop       the compiled generation loop (imix_cli.running.compiled_loop) against the Python loop it
                reproduces: the same seeds of SNES + EIM, OpenES + EIM and SNES without mixing on
                CartPole, in this process; time per seed-generation, ratio, and whether the rows
                are the same (13 seeds x 300 generations unless --seeds/--generations).
     grid       wall time and total env steps of the paper's main grid (4 ES x CartPole,
                Acrobot x 25 seeds at the paper's generation counts), with EIM and without
-               mixing, through imix_cli.runner.run into a temporary folder. Takes minutes.
+               mixing, through imix_cli.running.runner.run into a temporary folder. Takes minutes.
     peers      the same task in a peer library, in this run: evosax SNES and OpenES + gymnax
                CartPole-v1 / Acrobot-v1 (both capped at 200 steps), the same 8-8 tanh MLP, pop 50,
                no mixing, the whole loop jitted with the seeds vmapped (JAX on CPU); next to

@@ -118,7 +118,7 @@ def main(argv=None) -> int:
         parser.error(f"sb3-contrib is not installed: {INSTALL}")
     import pandas as pd
 
-    from imix_cli.results import atomic_write_bytes
+    from imix_cli.running.results import atomic_write_bytes
 
     for env_name in args.envs:
         for seed in range(args.seeds) if args.seed is None else [args.seed]:

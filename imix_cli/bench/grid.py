@@ -1,4 +1,4 @@
-"""``imix bench grid``: the paper's main grid, without mixing and with EIM, through :func:`imix_cli.runner.run`."""
+"""``imix bench grid``: the paper's main grid, without mixing and with EIM, through :func:`imix_cli.running.runner.run`."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ PAPER_GRID = [f"algo={','.join(PAPER_ES_NAMES)}", f"env={','.join(MAIN_GRID_ENVS
 
 
 def grid_rows(seeds: int | None, generations: int | None, algos, envs, extra: list[str], echo=None) -> list[dict]:
-    """The paper's main grid, without mixing and with EIM, through imix_cli.runner.run."""
-    from imix_cli.config import validate_overrides
-    from imix_cli.runner import run
+    """The paper's main grid, without mixing and with EIM, through imix_cli.running.runner.run."""
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.runner import run
 
     rows = []
     with tempfile.TemporaryDirectory(prefix="imix-bench-grid-") as tmp:

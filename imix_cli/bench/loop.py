@@ -1,8 +1,8 @@
 """``imix bench loop``: the compiled generation loop against the Python loop, in this process.
 
-The same seeds of the same run advance through :func:`imix_cli.lockstep.advance_lockstep` (the
-reference: one generation of all seeds per call) and through :func:`imix_cli.compiled_loop.advance`
-(chunks of :data:`imix_cli.es_seeds.CHUNK` generations per seed); the table gives each one's time
+The same seeds of the same run advance through :func:`imix_cli.running.lockstep.advance_lockstep` (the
+reference: one generation of all seeds per call) and through :func:`imix_cli.running.compiled_loop.advance`
+(chunks of :data:`imix_cli.running.es_seeds.CHUNK` generations per seed); the table gives each one's time
 per seed-generation, their ratio, and whether their rows are the same (wall times aside).
 """
 
@@ -26,11 +26,11 @@ def _rows_without_times(states) -> str:
 
 
 def loop_rows(configs, seeds: int, generations: int) -> list[dict]:
-    from imix_cli import compiled_loop
-    from imix_cli.config import validate_overrides
-    from imix_cli.es_seeds import CHUNK
-    from imix_cli.lockstep import advance_lockstep, new_seed_state
     from imix_cli.parallel_evaluation import build_evaluator
+    from imix_cli.running import compiled_loop
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.es_seeds import CHUNK
+    from imix_cli.running.lockstep import advance_lockstep, new_seed_state
 
     rows = []
     for overrides in configs:

@@ -42,7 +42,7 @@ def main(args: list[str]) -> int:
             done.wait(0.05)
 
     threading.Thread(target=poll, daemon=True).start()
-    from imix_cli.cli import main as imix_main
+    from imix_cli.commands.cli import main as imix_main
 
     code = imix_main(["run", *args])
     done.set()

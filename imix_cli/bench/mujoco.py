@@ -80,8 +80,8 @@ def _imix_run(env: str, generations: int, popsize: int) -> tuple[float, int]:
     import tempfile
     from pathlib import Path
 
-    from imix_cli.cli import main
-    from imix_cli.results import read_run_csv
+    from imix_cli.commands.cli import main
+    from imix_cli.running.results import read_run_csv
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-mujoco-") as tmp:
         args = ["run", "algo=snes", f"env={env}", "policy.hidden=[]", "evaluator=pool", "evaluator_workers=1", "seeds=1",

@@ -116,8 +116,8 @@ def _imix_overrides(env: str, eim: bool, seeds: int, generations: int, results_d
 
 def _imix_run(env: str, eim: bool, seeds: int, generations: int) -> dict:
     """``imix run algo=snes env=<env> eim=<eim>`` in this process (its worker pool, all cores)."""
-    from imix_cli.config import validate_overrides
-    from imix_cli.runner import run
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.runner import run
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
         (spec,) = validate_overrides(_imix_overrides(env, eim, seeds, generations, tmp))
@@ -131,17 +131,17 @@ def _imix_run(env: str, eim: bool, seeds: int, generations: int) -> dict:
 
 def _imix_first_run(env: str, seeds: int, generations: int) -> dict:
     """``imix run algo=snes env=<env> eim=true`` as a user's first run: a new process (``python -m
-    imix_cli.cli``) with an empty numba cache (``NUMBA_CACHE_DIR``), so every kernel it needs is
+    imix_cli.commands.cli``) with an empty numba cache (``NUMBA_CACHE_DIR``), so every kernel it needs is
     compiled, in each worker, before it runs. Its ``compile`` is filled in by :func:`peer_rows`:
     this wall time minus the same run's with the cache warm (process start-up included)."""
-    from imix_cli.config import validate_overrides
-    from imix_cli.summary import summarize
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.summary import summarize
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
         overrides = _imix_overrides(env, True, seeds, generations, os.path.join(tmp, "results"))
         environ = {**os.environ, "NUMBA_CACHE_DIR": os.path.join(tmp, "numba-cache")}
         started = time.perf_counter()
-        done = subprocess.run([sys.executable, "-m", "imix_cli.cli", "run", *overrides], env=environ, capture_output=True, text=True)
+        done = subprocess.run([sys.executable, "-m", "imix_cli.commands.cli", "run", *overrides], env=environ, capture_output=True, text=True)
         wall = time.perf_counter() - started
         if done.returncode != 0:
             raise RuntimeError(f"imix run (first run) failed: {(done.stderr or done.stdout).strip().splitlines()[-1:]}")

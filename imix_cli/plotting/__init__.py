@@ -1,7 +1,7 @@
 """`imix plot`: figures and tables of the paper from the run CSVs of one experiment.
 
 Reads ``<results_dir>/<experiment>/<run>/seed_<k>.csv`` through the CSV
-contract (:mod:`imix_cli.results`; the runner is never imported) and writes
+contract (:mod:`imix_cli.running.results`; the runner is never imported) and writes
 ``<results_dir>/<experiment>/figures/``. What is drawn is listed in two
 registries: :data:`.figures.FIGURES` and :data:`.tables.TABLES`.
 """
@@ -12,7 +12,7 @@ import re
 import sys
 from pathlib import Path
 
-from imix_cli.keyvalue import UsageError, finite_number, help_requested, parse_key_values
+from imix_cli.commands.keyvalue import UsageError, finite_number, help_requested, parse_key_values
 
 HELP = """\
 usage: imix plot [key=value ...]
@@ -70,7 +70,7 @@ def _help_text() -> str:
     return HELP.format(names=", ".join(_registry_names()))
 
 
-# ----------------------------------------------------------------------------- keys (imix_cli.keyvalue)
+# ----------------------------------------------------------------------------- keys (imix_cli.commands.keyvalue)
 def _results_dir(key: str, value: str) -> str:
     if not value:
         raise UsageError("bad value for results_dir: empty path")

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.keyvalue import UsageError, at_least, help_requested, parse_key_values
+from imix_cli.commands.keyvalue import UsageError, at_least, help_requested, parse_key_values
 from imix_cli.plotting.mujoco import bootstrap_ci, hold_on_grid
 
 #: The ARS paper's thresholds (Mania et al. 2018, on the -v1 envs), by gymnasium id of the v5 env.

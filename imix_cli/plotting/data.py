@@ -1,7 +1,7 @@
 """Load run CSVs into groups, and the statistics every figure and table shares.
 
-Only :mod:`imix_cli.results` touches result files; this module goes through
-:func:`~imix_cli.results.read_run_csv` and never imports the runner (the CSV
+Only :mod:`imix_cli.running.results` touches result files; this module goes through
+:func:`~imix_cli.running.results.read_run_csv` and never imports the runner (the CSV
 contract is the seam between running and plotting).
 
 Grouping
@@ -65,7 +65,7 @@ import numpy as np
 import pandas as pd
 
 from imix_cli.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
-from imix_cli.results import CorruptResultError, read_run_csv, read_small_text, run_dir_name, seed_csv_path
+from imix_cli.running.results import CorruptResultError, read_run_csv, read_small_text, run_dir_name, seed_csv_path
 from imix_cli.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 
 __all__ = [

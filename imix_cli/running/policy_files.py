@@ -14,7 +14,7 @@ File layout (``np.load(path, allow_pickle=False)`` reads it)::
     params   float64 (d,)   the flat MLP parameter vector (layout: imix_cli.policies)
     header   str scalar     JSON, the fields of HEADER_FIELDS below
 
-A file is written atomically (temporary file + rename, :func:`imix_cli.results.atomic_write_bytes`),
+A file is written atomically (temporary file + rename, :func:`imix_cli.running.results.atomic_write_bytes`),
 so a reader never sees half a policy.
 """
 
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.results import atomic_write_bytes, regular_file_size
+from imix_cli.running.results import atomic_write_bytes, regular_file_size
 
 FORMAT = "imix-policy/1"
 WHICH = ("mean", "best")
@@ -131,7 +131,7 @@ MAX_PARAMS = 1 << 24
 MAX_LAYERS = 16
 MAX_WIDTH = 1 << 16
 #: The longest episode a policy header may ask for; the run's config.yaml or the env's cap
-#: bounds it further in ``imix eval`` (:mod:`imix_cli.evaluate`).
+#: bounds it further in ``imix eval`` (:mod:`imix_cli.commands.eval_command`).
 MAX_STEPS = 10_000_000
 
 
@@ -215,12 +215,12 @@ def num_params_of(header: dict) -> int:
 def read_policy(path) -> PolicyFile:
     """Read a policy file; raises :class:`PolicyFileError` (one line naming the file) if it is not a valid one.
 
-    Memory is bounded whatever the file holds (:func:`imix_cli.safe_npz.read_npz`): the header is read
+    Memory is bounded whatever the file holds (:func:`imix_cli.running.safe_npz.read_npz`): the header is read
     first (at most :data:`MAX_HEADER_CHARS`), then the parameters only if their declared shape is the
     one the header's network needs. The header's fields are checked (:func:`validate_header`) and the
     parameters must be finite: a NaN or infinite weight is refused, not scored.
     """
-    from imix_cli.safe_npz import NpzLimitError, read_npz
+    from imix_cli.running.safe_npz import NpzLimitError, read_npz
 
     path = Path(path)
     header_bytes = 4 * MAX_HEADER_CHARS + 1024  # a '<U' scalar: 4 bytes a character
@@ -265,7 +265,7 @@ def _policy_member_check(path):
 def write_seed_policies(spec, seed: int, evaluator, mean, best, best_return: float, generation: int) -> list[Path]:
     """Write ``policy_<seed>_mean.npz`` and ``policy_<seed>_best.npz`` of a finished ES seed.
 
-    ``spec`` is the run's :class:`imix_cli.run_spec.RunSpec`; ``mean`` the final distribution mean,
+    ``spec`` is the run's :class:`imix_cli.running.run_spec.RunSpec`; ``mean`` the final distribution mean,
     ``best``/``best_return`` the best-ever member and its return (``best`` None: not written).
     """
     from imix_cli import __version__

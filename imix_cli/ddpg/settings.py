@@ -1,6 +1,6 @@
 """The paper's DDPG settings (section 4.3), in a module light enough for the config layer.
 
-``imix_cli.ddpg_config`` validates ``algo=ddpg`` runs against these and ``imix_cli.algorithms.ddpg``
+``imix_cli.ddpg.config`` validates ``algo=ddpg`` runs against these and ``imix_cli.ddpg.agent``
 builds the agent from them; ``conf/algo/ddpg.yaml`` ships the same values (tests/test_ddpg.py
 keeps the three equal).
 """

@@ -2,7 +2,7 @@
 
 This module knows SB3 and torch, not files: :func:`make_ddpg` builds the agent,
 :func:`train_ddpg` runs it for a budget of environment steps and reports every finished
-episode; DDPG's trainer (:func:`imix_cli.ddpg_seeds.run_ddpg_seeds`) turns those into CSV
+episode; DDPG's trainer (:func:`imix_cli.ddpg.seeds.run_ddpg_seeds`) turns those into CSV
 rows.
 Importing it imports torch and SB3 (``pip install torch==2.13.0 stable-baselines3``); nothing
 else in imix does.
@@ -45,7 +45,7 @@ from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.utils import FloatSchedule, update_learning_rate
 
 import imix_cli.envs  # noqa: F401  (registers the imix/ gymnasium ids in spawned workers too)
-from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
+from imix_cli.ddpg.settings import PAPER_SETTINGS
 
 __all__ = ["TwoRateDDPG", "Episode", "make_ddpg", "train_ddpg", "PAPER_SETTINGS"]
 

@@ -11,7 +11,10 @@ import math
 
 from imix_cli.algorithms import cmaes
 from imix_cli.algorithms.base import WEIGHT_DECAY_FORMS
-from imix_cli.config_checks import (
+from imix_cli.mixing import variant_spec
+from imix_cli.processes import default_workers
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS
+from imix_cli.running.config_checks import (
     ConfigError,
     as_bool,
     as_choice,
@@ -27,10 +30,7 @@ from imix_cli.config_checks import (
     seeds_of,
     workers_and_experiment,
 )
-from imix_cli.mixing import variant_spec
-from imix_cli.processes import default_workers
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS
-from imix_cli.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields
+from imix_cli.running.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields
 
 
 def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
@@ -130,8 +130,8 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
 
 
 def _logger(cfg: dict) -> str:
-    """``logger``: a tracker whose package is installed (imix_cli.tracking)."""
-    from imix_cli.tracking import LOGGERS, missing_logger_package
+    """``logger``: a tracker whose package is installed (imix_cli.running.tracking)."""
+    from imix_cli.running.tracking import LOGGERS, missing_logger_package
 
     logger = as_choice(cfg.get("logger", "none"), "logger", tuple(LOGGERS))
     missing = missing_logger_package(logger)

@@ -1,7 +1,7 @@
 """The evolution strategies' trainer: seeds of one run, in lockstep, with checkpoints and resume.
 
-Files (see :mod:`imix_cli.results`): ``seed_<k>.csv`` is written atomically when seed ``k``
-finishes; its state is checkpointed every ``checkpoint_every`` generations (:mod:`imix_cli.resume`),
+Files (see :mod:`imix_cli.running.results`): ``seed_<k>.csv`` is written atomically when seed ``k``
+finishes; its state is checkpointed every ``checkpoint_every`` generations (:mod:`imix_cli.running.resume`),
 with ``seed_<k>.partial.csv`` as a live view. Re-running the same command resumes each seed from
 its checkpoint, saying so on stderr (``seed k resumes at generation G``).
 """
@@ -12,20 +12,20 @@ import sys
 import time
 from pathlib import Path
 
-from imix_cli.lockstep import SeedState, advance_lockstep, new_seed_state, policy_params, search_dim
 from imix_cli.messages import warn
 from imix_cli.parallel_evaluation import build_evaluator
-from imix_cli.policy_files import write_seed_policies
-from imix_cli.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
-from imix_cli.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
-from imix_cli.run_folder import RunError
-from imix_cli.run_spec import resume_identity
-from imix_cli.tracking import make_tracker
+from imix_cli.running.lockstep import SeedState, advance_lockstep, new_seed_state, policy_params, search_dim
+from imix_cli.running.policy_files import write_seed_policies
+from imix_cli.running.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
+from imix_cli.running.resume import can_checkpoint, checkpoint_path, load_checkpoint, remove_checkpoints, save_checkpoint
+from imix_cli.running.run_folder import RunError
+from imix_cli.running.run_spec import resume_identity
+from imix_cli.running.tracking import make_tracker
 
 
 def run_es_seeds(spec, seeds: list[int], progress) -> dict:
     """Run ``seeds`` of ``spec`` to completion in this process, in lockstep; ``progress(n)`` gets the
-    number of seed-generations just completed. Returns seed -> :func:`imix_cli.results.seed_summary`."""
+    number of seed-generations just completed. Returns seed -> :func:`imix_cli.running.results.seed_summary`."""
     evaluator = build_evaluator(spec)
     try:  # the evaluator's processes (pool, Ray) end with the seeds, a Ctrl-C or SIGTERM included
         return _run_es_seeds(spec, seeds, progress, evaluator)
@@ -71,7 +71,7 @@ def _run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
     return summaries
 
 
-#: Most generations a seed runs in one compiled call (:mod:`imix_cli.compiled_loop`): the progress bar
+#: Most generations a seed runs in one compiled call (:mod:`imix_cli.running.compiled_loop`): the progress bar
 #: and the rows' wall times move by this step (about a tenth of a second on the main job).
 CHUNK = 25
 
@@ -79,10 +79,10 @@ CHUNK = 25
 def _run_active(spec, states, active, evaluator, identity, checkpoint_every, started, summaries, progress, tracker) -> None:
     """The lockstep loop of :func:`run_es_seeds`: generations of the ``active`` seeds until each is done.
 
-    Seeds the compiled loop applies to (:mod:`imix_cli.compiled_loop`: the same rows, bit for bit)
+    Seeds the compiled loop applies to (:mod:`imix_cli.running.compiled_loop`: the same rows, bit for bit)
     advance by chunks of up to :data:`CHUNK` generations, a chunk ending where the loop below would
     checkpoint or finish; the other seeds advance one generation at a time, together."""
-    from imix_cli import compiled_loop  # numba's kernels: loaded by the processes that run seeds only
+    from imix_cli.running import compiled_loop  # numba's kernels: loaded by the processes that run seeds only
 
     ended = _SeedEnd(spec, evaluator, identity, checkpoint_every, started, summaries, tracker)
     compiles = compiled_loop.applies_to_run(spec, evaluator)  # the run's part of the check, once
@@ -121,7 +121,7 @@ class _SeedEnd:
         self.spec, self.evaluator, self.identity, self.checkpoint_every = spec, evaluator, identity, checkpoint_every
         self.started, self.summaries, self.tracker = started, summaries, tracker
         self.partial: dict[int, tuple[int, str]] = {}  # seed -> (rows in its live CSV, their text)
-        self.tables: dict[int, dict] = {}  # seed -> its rows' encoding at its last checkpoint (imix_cli.checkpoints.TableCache)
+        self.tables: dict[int, dict] = {}  # seed -> its rows' encoding at its last checkpoint (imix_cli.running.checkpoints.TableCache)
 
     def __call__(self, st: SeedState, first: int, began: float | None = None) -> None:
         """``st.rows[first:]`` are new; ``began``: when the compiled chunk that made them began."""

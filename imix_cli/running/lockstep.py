@@ -22,13 +22,13 @@ from imix_cli.algorithms import make_es
 from imix_cli.divergence import GuardedES
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.policies import ObsNormalizer, weight_columns, with_zero_biases
-from imix_cli.results import generation_row
+from imix_cli.running.results import generation_row
 
 
 @dataclass
 class SeedState:
     """Everything seed ``seed`` needs to continue; saved whole as its checkpoint (field by field,
-    by type: see :mod:`imix_cli.checkpoints`, which needs no change when a field is added)."""
+    by type: see :mod:`imix_cli.running.checkpoints`, which needs no change when a field is added)."""
 
     seed: int
     es: object
@@ -60,7 +60,7 @@ MEAN_EVAL_STREAM = 0x6D65616E
 
 
 def new_seed_state(spec, seed: int, dim: int) -> SeedState:
-    """Seed ``seed`` of run ``spec`` (a :class:`imix_cli.run_spec.RunSpec`) at generation 0, for ``dim`` parameters."""
+    """Seed ``seed`` of run ``spec`` (a :class:`imix_cli.running.run_spec.RunSpec`) at generation 0, for ``dim`` parameters."""
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
     es = GuardedES(make_es(
         spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,

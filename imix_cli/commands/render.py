@@ -3,7 +3,7 @@
 Why: a learning curve says how much a policy scores, not what it does; watching it is how one
 spots a policy that exploits the time limit or balances by luck. Frames come from gymnasium's
 ``render_mode="rgb_array"`` of the policy's env (``env_id`` and episode cap from the policy file's
-header), on the first of the seed's evaluation episodes (:func:`imix_cli.evaluate.eval_episode_seeds`),
+header), on the first of the seed's evaluation episodes (:func:`imix_cli.commands.eval_command.eval_episode_seeds`),
 so the rendered episode is one that ``imix eval`` counts.
 
 Backends (what to install):
@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.evaluate import POLICY_KEY_CHECKS, POLICY_KEYS, eval_episode_seeds, run_folders
-from imix_cli.keyvalue import UsageError, at_least, help_requested, parse_key_values
+from imix_cli.commands.eval_command import POLICY_KEY_CHECKS, POLICY_KEYS, eval_episode_seeds, run_folders
+from imix_cli.commands.keyvalue import UsageError, at_least, help_requested, parse_key_values
 
 HELP = """\
 usage: imix render [key=value ...]
@@ -79,7 +79,7 @@ def _is_mujoco(env_id: str) -> bool:
 
 def make_render_env(header: dict, env_id: str):
     """``gym.make`` of the policy's env ``env_id`` (a registered id, resolved from the header by
-    :func:`imix_cli.evaluate.policy_env`: never a ``module:`` one) with ``render_mode="rgb_array"``;
+    :func:`imix_cli.commands.eval_command.policy_env`: never a ``module:`` one) with ``render_mode="rgb_array"``;
     UsageError (1) naming what to install."""
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # pygame draws to a surface, no display
     import gymnasium as gym
@@ -102,8 +102,8 @@ def make_render_env(header: dict, env_id: str):
 
 def render_env_id(policy, allowed_modules=(), run_dir=None, where: str = "policy file") -> str:
     """The registered gymnasium id to render the policy in, its header checked as ``imix eval`` checks it."""
+    from imix_cli.commands.eval_command import evaluator_for
     from imix_cli.env_ids import plain_env_id
-    from imix_cli.evaluate import evaluator_for
     from imix_cli.registry import BUILTIN_ENVS
 
     evaluator_for(policy.header, None, allowed_modules, run_dir, where)  # the same checks as eval: env, cap, shapes
@@ -169,7 +169,7 @@ def write_gif(path, frames: list, fps: float, scale: float = 1.0) -> None:
 
     from PIL import Image
 
-    from imix_cli.results import atomic_write_bytes
+    from imix_cli.running.results import atomic_write_bytes
 
     images = [im.convert("P", palette=Image.Palette.ADAPTIVE, colors=256) for im in _scaled(frames, scale)]
     buffer = io.BytesIO()
@@ -210,7 +210,7 @@ def main(argv: list | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if help_requested(argv, HELP):
         return 0
-    from imix_cli.policy_files import PolicyFileError, policy_path, read_policy
+    from imix_cli.running.policy_files import PolicyFileError, policy_path, read_policy
 
     try:
         s = parse_key_values(

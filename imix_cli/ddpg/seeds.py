@@ -1,8 +1,8 @@
 """The DDPG baseline's trainer (the paper's section 4.3): its seed loop, one CSV row per episode.
 
-stable-baselines3 runs through :mod:`imix_cli.algorithms.ddpg`, which knows SB3 and not files.
+stable-baselines3 runs through :mod:`imix_cli.ddpg.agent`, which knows SB3 and not files.
 Seed k is SB3's seed=k; a worker runs its seeds one after another with one torch thread. Each
-finished training episode is one CSV row (:func:`imix_cli.results.episode_row`: on
+finished training episode is one CSV row (:func:`imix_cli.running.results.episode_row`: on
 ContinuousCartPoleHard the sparse sum, which equals the dense return; sigma_mean = the OU
 noise's sigma). An episode still running when total_steps is spent is not a row.
 
@@ -16,12 +16,12 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from imix_cli.results import episode_row, seed_csv_path, write_run_csv
-from imix_cli.run_folder import RunError
+from imix_cli.running.results import episode_row, seed_csv_path, write_run_csv
+from imix_cli.running.run_folder import RunError
 
 
 def ddpg_row(spec, seed: int, episode, wall_time: float) -> dict:
-    """The CSV row of one finished DDPG episode (an :class:`imix_cli.algorithms.ddpg.Episode`)."""
+    """The CSV row of one finished DDPG episode (an :class:`imix_cli.ddpg.agent.Episode`)."""
     return episode_row(
         algo=spec.algo, env=spec.env_name, mixing=spec.mixing, seed=seed, index=episode.index,
         env_steps=episode.env_steps, ret=episode.ret, sigma_mean=float(spec.ddpg["ou_sigma"]), wall_time=wall_time,
@@ -30,8 +30,8 @@ def ddpg_row(spec, seed: int, episode, wall_time: float) -> dict:
 
 def run_ddpg_seeds(spec, seeds: list[int], progress) -> dict:
     """Train DDPG for each of ``seeds`` in turn and write its CSV; ``progress(n)`` gets env steps.
-    Returns seed -> :func:`imix_cli.results.seed_summary`."""
-    from imix_cli.algorithms.ddpg import make_ddpg, train_ddpg
+    Returns seed -> :func:`imix_cli.running.results.seed_summary`."""
+    from imix_cli.ddpg.agent import make_ddpg, train_ddpg
 
     summaries = {}
     for seed in seeds:

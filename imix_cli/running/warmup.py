@@ -16,7 +16,7 @@ moved), it assumes the cache is warm, i.e. the workers compile as they go, as be
 Nothing here changes a result: the groups run the kernels on throw-away inputs of the run's
 own types, with their own random numbers, and write no file but numba's cache.
 
-``python -m imix_cli.warmup`` (``make install`` runs it) compiles, the same way, the kernels of
+``python -m imix_cli.running.warmup`` (``make install`` runs it) compiles, the same way, the kernels of
 every built-in environment, mixing variant and ES, so that even a user's first run loads them.
 A kernel's machine code depends on its argument types only (not on dimensions or population
 sizes), so a few configurations cover all runs on the built-in environments.
@@ -49,7 +49,7 @@ def _mixing_group(spec) -> None:
     """A few generations of the run's ES with the run's mixing, on made-up returns: compiles the ES
     update and the mixing step (the run's variant), with the run's dimension and population."""
     from imix_cli.generation import Archive, finish_generation, plan_generation
-    from imix_cli.lockstep import mixing_settings, new_seed_state
+    from imix_cli.running.lockstep import mixing_settings, new_seed_state
 
     st = new_seed_state(spec, 0, _num_params(spec))
     settings = mixing_settings(spec)
@@ -77,11 +77,11 @@ def _episodes_group(spec) -> None:
 
 
 def _compiled_loop_group(spec) -> None:
-    """One generation of one seed through the compiled loop (:mod:`imix_cli.compiled_loop`): compiles
+    """One generation of one seed through the compiled loop (:mod:`imix_cli.running.compiled_loop`): compiles
     its entry point, which holds its own copy of the mixing, episode and update kernels."""
-    from imix_cli import compiled_loop
-    from imix_cli.lockstep import new_seed_state
     from imix_cli.parallel_evaluation import build_evaluator
+    from imix_cli.running import compiled_loop
+    from imix_cli.running.lockstep import new_seed_state
 
     evaluator = build_evaluator(spec)
     compiled_loop.advance(new_seed_state(spec, 0, evaluator.num_params), spec, evaluator, 1)
@@ -111,7 +111,7 @@ def compile_groups(spec) -> list:
         evaluator = build_evaluator(spec)
         if isinstance(evaluator, (CartPoleEvaluator, ContinuousCartPoleEvaluator)):
             groups.append((_episodes_group, [kernels.cartpole_episodes]))
-            from imix_cli import compiled_loop
+            from imix_cli.running import compiled_loop
 
             if compiled_loop.applies_to_run(spec, evaluator):
                 groups.append((_compiled_loop_group, [compiled_loop.entry()]))
@@ -147,7 +147,7 @@ def warm_up(spec, workers: int) -> int:
 def _run_groups(jobs, workers: int) -> None:
     """``group(spec)`` for each job, in up to ``workers`` spawn processes; on Ctrl-C or an error the
     processes are stopped at once (a compile can take tens of seconds) and the exception re-raised."""
-    from imix_cli.pool import _terminate_workers
+    from imix_cli.running.pool import _terminate_workers
 
     pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"))
     try:
@@ -164,7 +164,7 @@ def warm_all(workers: int | None = None) -> int:
     """Compile every kernel of :data:`INSTALL_CONFIGS` not yet in numba's cache, over ``workers``
     processes (default: all cores); return the number of groups compiled."""
     from imix_cli import linalg_kernels
-    from imix_cli.config import validate_overrides
+    from imix_cli.running.config import validate_overrides
 
     jobs, seen = [(_policy_group, None)] if not _cached(linalg_kernels._tanh_inplace) else [], set()
     for overrides in INSTALL_CONFIGS:

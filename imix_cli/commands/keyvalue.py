@@ -1,6 +1,6 @@
 """The one command-line style of ``imix plot | eval | render | status``: ``key=value`` arguments.
 
-(``imix run`` takes Hydra overrides, also ``key=value``, validated by :mod:`imix_cli.config`;
+(``imix run`` takes Hydra overrides, also ``key=value``, validated by :mod:`imix_cli.running.config`;
 ``imix bench`` takes ``key=value`` too, each the argparse option it names, ``--key value`` still working.) Each command declares its keys -- a default and,
 when the value is not a plain string, a converter that checks it -- and gets a settings dict
 back; a bad argument is one :class:`UsageError` naming the key, reported in one line.

@@ -7,7 +7,7 @@ turn into a wrong CSV. A checkpoint therefore either loads *exactly* what was sa
 refused with one warning line naming the file and the reason, and the seed restarts from
 scratch (that only costs recomputation).
 
-Format (``FORMAT_VERSION`` 1), written atomically (:func:`imix_cli.results.atomic_write_bytes`):
+Format (``FORMAT_VERSION`` 1), written atomically (:func:`imix_cli.running.results.atomic_write_bytes`):
 an uncompressed NumPy ``.npz`` (a zip of ``.npy`` files, read back with
 ``np.load(allow_pickle=False)``, so no object array can be loaded) holding
 
@@ -23,7 +23,7 @@ array in name order, its name, dtype, shape and bytes. Any difference between wh
 and what is read -- a bit flip anywhere, a truncation, an array swapped in -- is caught by it
 or by the zip's own structure.
 
-The state tree is a dataclass (``imix_cli.lockstep.SeedState``) encoded field by field, by type,
+The state tree is a dataclass (``imix_cli.running.lockstep.SeedState``) encoded field by field, by type,
 so new fields need no change here: JSON scalars stay as they are (floats round-trip exactly,
 NaN included); an ndarray becomes ``{"array": name}``; a list ``{"list": [...]}``; a dict
 ``{"dict": {...}}``; a numpy Generator ``{"rng": bit_generator.state}`` (PCG64 only); an ES
@@ -47,7 +47,7 @@ from imix_cli import messages
 from imix_cli.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.mixing import Generation
 from imix_cli.policies import ObsNormalizer
-from imix_cli.results import atomic_write_bytes, regular_file_size
+from imix_cli.running.results import atomic_write_bytes, regular_file_size
 
 FORMAT = "imix-checkpoint"
 FORMAT_VERSION = 1
@@ -103,7 +103,7 @@ def read_checkpoint(path, template, *, identity: dict, seed: int, max_bytes: int
     if it is damaged, of another format/version/seed/config, does not fit ``template``, or
     declares more than ``max_bytes`` of arrays (checked before inflating them: a zip bomb costs
     nothing). A checksum only proves the file is what *some* writer wrote: what the state's values
-    may be is checked by the caller (:func:`imix_cli.resume.validate_seed_state`).
+    may be is checked by the caller (:func:`imix_cli.running.resume.validate_seed_state`).
     """
     from imix_cli import __version__
 
@@ -156,8 +156,8 @@ def load_or_warn(path, template, *, identity: dict, seed: int, warn=None, max_by
 
 # ----------------------------------------------------------------------------- file level
 def _read_npz(path: Path, max_bytes: int) -> tuple[dict, dict]:
-    """The header (a dict) and the arrays of a checkpoint, memory bounded (:func:`imix_cli.safe_npz.read_npz`)."""
-    from imix_cli.safe_npz import NpzLimitError, read_npz
+    """The header (a dict) and the arrays of a checkpoint, memory bounded (:func:`imix_cli.running.safe_npz.read_npz`)."""
+    from imix_cli.running.safe_npz import NpzLimitError, read_npz
 
     def check(name, shape, dtype):
         if name == _HEADER and (dtype != np.uint8 or len(shape) != 1):

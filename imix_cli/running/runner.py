@@ -1,16 +1,16 @@
 """The runner: one run = one config (algo, env, mixing, hyper-parameters) x ``seeds`` seeds.
 
 It wires the other modules together and does nothing else: the run folder is locked and
-checked (:mod:`imix_cli.run_folder`), the seeds still to run are split over ``workers``
-processes (:mod:`imix_cli.pool`, spawn-safe), each process trains its share with the run's
-trainer (:mod:`imix_cli.trainers`: the evolution strategies in lockstep with checkpoints,
-:mod:`imix_cli.es_seeds`; the DDPG baseline, :mod:`imix_cli.ddpg_seeds`), and the summary is
-printed (:mod:`imix_cli.summary`) from what the seeds returned and the CSVs of seeds finished
+checked (:mod:`imix_cli.running.run_folder`), the seeds still to run are split over ``workers``
+processes (:mod:`imix_cli.running.pool`, spawn-safe), each process trains its share with the run's
+trainer (:mod:`imix_cli.running.trainers`: the evolution strategies in lockstep with checkpoints,
+:mod:`imix_cli.running.es_seeds`; the DDPG baseline, :mod:`imix_cli.ddpg.seeds`), and the summary is
+printed (:mod:`imix_cli.running.summary`) from what the seeds returned and the CSVs of seeds finished
 earlier.
 
 Re-running the same command skips finished seeds and resumes the others from their
-checkpoints (:mod:`imix_cli.resume`); a seed's CSV is identical whatever the worker count, the
-other seeds sharing its batch, or whether it was resumed (:mod:`imix_cli.lockstep`).
+checkpoints (:mod:`imix_cli.running.resume`); a seed's CSV is identical whatever the worker count, the
+other seeds sharing its batch, or whether it was resumed (:mod:`imix_cli.running.lockstep`).
 """
 
 from __future__ import annotations
@@ -19,21 +19,21 @@ import time
 
 import numpy as np
 
-from imix_cli.pool import progress_bar, report_progress, run_pool
-from imix_cli.run_folder import RunError, check_run_dir, prepare_run_dir, run_dir_lock
-from imix_cli.summary import format_summary, prepare_summary, summarize
-from imix_cli.trainers import trainer_for
-from imix_cli.warmup import warm_up
+from imix_cli.running.pool import progress_bar, report_progress, run_pool
+from imix_cli.running.run_folder import RunError, check_run_dir, prepare_run_dir, run_dir_lock
+from imix_cli.running.summary import format_summary, prepare_summary, summarize
+from imix_cli.running.trainers import trainer_for
+from imix_cli.running.warmup import warm_up
 
 __all__ = ["RunError", "run", "run_seeds"]
 
 
 def run(spec, echo=print) -> dict:
-    """Run every unfinished seed of ``spec`` (a :class:`imix_cli.run_spec.RunSpec`); print and return the summary.
+    """Run every unfinished seed of ``spec`` (a :class:`imix_cli.running.run_spec.RunSpec`); print and return the summary.
 
-    The run folder is checked first (:func:`imix_cli.run_folder.check_run_dir`: a refused run
+    The run folder is checked first (:func:`imix_cli.running.run_folder.check_run_dir`: a refused run
     writes nothing, not even its lock), then locked for the whole run
-    (:func:`imix_cli.run_folder.run_dir_lock`): a second run on it is refused with RunError
+    (:func:`imix_cli.running.run_folder.run_dir_lock`): a second run on it is refused with RunError
     before it touches anything.
     """
     check_run_dir(spec)

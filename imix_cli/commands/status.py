@@ -32,10 +32,10 @@ import re
 import sys
 from pathlib import Path
 
-from imix_cli.evaluate import run_folders
-from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key_values
-from imix_cli.results import MAX_CONFIG_BYTES, read_small_text, regular_file_size
-from imix_cli.trainers import trainer_named
+from imix_cli.commands.eval_command import run_folders
+from imix_cli.commands.keyvalue import UsageError, folder_name, help_requested, parse_key_values
+from imix_cli.running.results import MAX_CONFIG_BYTES, read_small_text, regular_file_size
+from imix_cli.running.trainers import trainer_named
 
 HELP = """\
 usage: imix status [key=value ...]
@@ -55,7 +55,7 @@ _SEED_FILE = re.compile(r"^seed_(\d+)(\.partial)?\.csv$")
 def _read_rows(path: Path, corrupt: dict | None = None):
     """The rows of a seed's CSV, or None (absent, being replaced); a file that does not follow the
     CSV contract is noted in ``corrupt`` (name -> reason) when given."""
-    from imix_cli.results import CorruptResultError, read_run_csv
+    from imix_cli.running.results import CorruptResultError, read_run_csv
 
     try:
         return read_run_csv(path)

@@ -1,6 +1,6 @@
 """The run's specification: :class:`RunSpec`, the keys it is built from, and a run's identity.
 
-:func:`imix_cli.config.spec_from_config` builds a RunSpec from a validated config; the run
+:func:`imix_cli.running.config.spec_from_config` builds a RunSpec from a validated config; the run
 folder, the checkpoints and the summary compare runs by their identity (:func:`identity_of`:
 the result-determining keys of config.yaml) and decide what may be resumed or continued
 (:data:`CONTINUABLE_KEYS`, :func:`resume_identity`).
@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from imix_cli.algorithms.base import Params
-from imix_cli.algorithms.ddpg_settings import PAPER_SETTINGS
+from imix_cli.ddpg.settings import PAPER_SETTINGS
 from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, MIXING_DEFAULTS
 
 #: The top-level keys that set an ES's :class:`~imix_cli.algorithms.base.Params`.
@@ -70,7 +70,7 @@ POLICY_DEFAULTS = {"hidden": (8, 8), "obs_norm": False, "obs_norm_warmup": 5, "b
 
 @dataclass(frozen=True, kw_only=True)
 class RunSpec:
-    """Everything a run needs, validated. Built by :func:`imix_cli.config.spec_from_config` (keyword arguments only)."""
+    """Everything a run needs, validated. Built by :func:`imix_cli.running.config.spec_from_config` (keyword arguments only)."""
 
     algo: str
     env_name: str  # config name ("cartpole", "acrobot") or the gymnasium id of a generic env
@@ -102,7 +102,7 @@ class RunSpec:
     # algo=ddpg only:
     total_steps: int | None = None  # environment steps of each seed
     ddpg: dict | None = field(default=None, compare=False)  # validated conf/algo/ddpg.yaml settings
-    # The ES policy and where its episodes run (see imix_cli.es_config):
+    # The ES policy and where its episodes run (see imix_cli.running.es_config):
     hidden: tuple = (8, 8)  # policy.hidden: tanh hidden layer sizes, () = linear
     obs_norm: bool = False  # policy.obs_norm: observation normalisation, frozen after the warm-up
     obs_norm_warmup: int = 0  # policy.obs_norm_warmup: generations of statistics (mixing off) before it freezes
@@ -116,7 +116,7 @@ class RunSpec:
     # are counted apart (CSV column mean_policy_episodes), never in evaluations or env_steps.
     eval_mean_every: int = 0
     eval_mean_episodes: int = 5
-    logger: str = "none"  # none | tensorboard | mlflow | wandb: a copy of the CSV's rows (imix_cli.tracking)
+    logger: str = "none"  # none | tensorboard | mlflow | wandb: a copy of the CSV's rows (imix_cli.running.tracking)
 
     @property
     def evaluator_key(self) -> str:
@@ -166,7 +166,7 @@ class RunSpec:
 
     @property
     def run_name(self) -> str:
-        from imix_cli.results import run_dir_name
+        from imix_cli.running.results import run_dir_name
 
         return run_dir_name(self.algo, self.env_name, self.mixing, self.overrides_suffix)
 

@@ -11,7 +11,7 @@ A block in a Markdown file::
     <!-- /output -->
 
 (the README's main job: ``<!-- main-job-output -->`` ... ``<!-- /main-job-output -->``).
-``python -m imix_cli.docs_numbers check [name ...]`` re-runs the commands of :data:`BLOCKS` (default:
+``python -m imix_cli.commands.docs_numbers check [name ...]`` re-runs the commands of :data:`BLOCKS` (default:
 the cheap ones, a few seconds each) in a temporary results folder and fails, naming the block, if
 the docs no longer show what the code prints; ``write [name ...]`` regenerates the blocks (``write
 main-job`` runs the README's main job: 25 seeds x 1000 generations). Wall times are the one part
@@ -28,7 +28,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ _WALL_TIME = re.compile(r"\d+(\.\d+)? s\)")
 
 def _imix() -> list[str]:
     script = Path(sys.executable).parent / "imix"
-    return [str(script)] if script.exists() else [sys.executable, "-m", "imix_cli.cli"]
+    return [str(script)] if script.exists() else [sys.executable, "-m", "imix_cli.commands.cli"]
 
 
 def printed(name: str) -> str:
@@ -87,7 +87,7 @@ def _provenance(name: str) -> str:
     command = "imix run " + " ".join(BLOCKS[name].command)
     return (
         f"*Printed by `{command}` (imix {__version__}, commit {commit}, Python {platform.python_version()}, numpy {numpy.__version__}, "
-        f"numba {numba.__version__}, {platform.machine()}); regenerate with `python -m imix_cli.docs_numbers write {name}`.*"
+        f"numba {numba.__version__}, {platform.machine()}); regenerate with `python -m imix_cli.commands.docs_numbers write {name}`.*"
     )
 
 
@@ -138,7 +138,7 @@ def write(names=None) -> list[Path]:
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in ("check", "write") or any(n not in BLOCKS for n in argv[1:]):
-        print(f"usage: python -m imix_cli.docs_numbers check|write [{'|'.join(BLOCKS)} ...]", file=sys.stderr)
+        print(f"usage: python -m imix_cli.commands.docs_numbers check|write [{'|'.join(BLOCKS)} ...]", file=sys.stderr)
         return 2
     if argv[0] == "write":
         for path in write(argv[1:]):

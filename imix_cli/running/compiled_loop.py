@@ -1,6 +1,6 @@
 """The generation loop compiled: mixing, episodes and ES update of one seed, many generations per call.
 
-Why. On the main job (SNES + EIM, CartPole) the Python loop -- :func:`imix_cli.lockstep.advance_lockstep`
+Why. On the main job (SNES + EIM, CartPole) the Python loop -- :func:`imix_cli.running.lockstep.advance_lockstep`
 -> :mod:`imix_cli.generation` -> mixing, evaluator, ES -- spends ~0.8 ms per seed-generation, while
 the numbers themselves (a mixing step, two or three episodes, one update over 50 x 130 numbers) need
 about a tenth of that: the rest is some sixty small numpy calls and Python dispatch per generation
@@ -66,10 +66,9 @@ _SEED_HIGH = np.iinfo(np.int64).max  # episode seeds: integers(0, int64 max), as
 
 def _dependency_digest() -> int:
     """A 63-bit digest of the sources this module's compiled entry calls into (module docstring)."""
-    here = Path(__file__).resolve().parent
     h = hashlib.sha256()
-    for name in ("compiled_loop.py", "mixing_kernels.py", "linalg_kernels.py", "envs/kernels.py"):
-        h.update((here / name).read_bytes())
+    for source in (__file__, mk.__file__, lk.__file__, ek.__file__):  # named by their modules: right wherever they live
+        h.update(Path(source).read_bytes())
     return int.from_bytes(h.digest()[:8], "little") >> 1
 
 
@@ -445,7 +444,7 @@ def enabled() -> bool:
 def applies_to_run(spec, evaluator) -> bool:
     """Whether the seeds of run ``spec`` evaluated by ``evaluator`` can take the compiled loop (module docstring)."""
     from imix_cli.evaluation import CartPoleEvaluator, ContinuousCartPoleEvaluator
-    from imix_cli.lockstep import mixing_settings
+    from imix_cli.running.lockstep import mixing_settings
 
     if not enabled() or type(evaluator) not in (CartPoleEvaluator, ContinuousCartPoleEvaluator) or spec.algo not in ("openes", "snes"):
         return False
@@ -458,7 +457,7 @@ def applies_to_run(spec, evaluator) -> bool:
 
 def applies(spec, evaluator, st) -> bool:
     """Whether seed ``st`` of run ``spec`` can take the compiled loop now (module docstring)."""
-    from imix_cli.lockstep import mixing_settings
+    from imix_cli.running.lockstep import mixing_settings
 
     if not applies_to_run(spec, evaluator) or st.obs_norm is not None or getattr(st.es, "diverged", None) is not None:
         return False
@@ -484,10 +483,10 @@ def applies(spec, evaluator, st) -> bool:
 
 
 def advance(st, spec, evaluator, generations: int) -> bool:
-    """Run ``generations`` generations of seed ``st`` (a :class:`imix_cli.lockstep.SeedState` for which
+    """Run ``generations`` generations of seed ``st`` (a :class:`imix_cli.running.lockstep.SeedState` for which
     :func:`applies`) in one compiled call, appending their rows as the Python path does. Returns
     False, having changed nothing, when a generation needs the Python path (module docstring)."""
-    from imix_cli.lockstep import mixing_settings
+    from imix_cli.running.lockstep import mixing_settings
 
     settings = mixing_settings(spec)
     es = getattr(st.es, "es", st.es)

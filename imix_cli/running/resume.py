@@ -1,8 +1,8 @@
 """Where a seed's state waits between processes: its checkpoint files in a run folder.
 
-A checkpoint of a seed's whole state (:class:`imix_cli.lockstep.SeedState`: ES, archive, RNG
+A checkpoint of a seed's whole state (:class:`imix_cli.running.lockstep.SeedState`: ES, archive, RNG
 states, rows so far) is written atomically to ``.checkpoints/seed_<k>.npz`` (plain data, see
-:mod:`imix_cli.checkpoints`) and deleted once the seed's CSV exists -- but for the final state,
+:mod:`imix_cli.running.checkpoints`) and deleted once the seed's CSV exists -- but for the final state,
 from which a larger ``generations=`` continues the seed. A checkpoint that is damaged, of
 another seed or config, or not a checkpoint at all is refused with one warning line naming
 the file and why, and its seed restarts from scratch.
@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.checkpoints import DEFAULT_MAX_BYTES, CheckpointError, load_or_warn, write_checkpoint
 from imix_cli.messages import warn as _warn
 from imix_cli.mixing import variant_spec
-from imix_cli.results import COLUMNS, partial_csv_path
+from imix_cli.running.checkpoints import DEFAULT_MAX_BYTES, CheckpointError, load_or_warn, write_checkpoint
+from imix_cli.running.results import COLUMNS, partial_csv_path
 
 
 def checkpoint_path(run_dir: Path, seed: int) -> Path:
@@ -26,7 +26,7 @@ def checkpoint_path(run_dir: Path, seed: int) -> Path:
 
 
 def save_checkpoint(run_dir: Path, st, identity: dict, tables: dict | None = None) -> None:
-    """``tables``: kept by the caller between the checkpoints of seed ``st`` (:func:`imix_cli.checkpoints.write_checkpoint`)."""
+    """``tables``: kept by the caller between the checkpoints of seed ``st`` (:func:`imix_cli.running.checkpoints.write_checkpoint`)."""
     write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation, tables=tables)
 
 

@@ -16,9 +16,9 @@ import os
 import reprlib
 import stat
 
-from imix_cli.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
-from imix_cli.run_spec import differing_keys, identity_of, resume_identity
-from imix_cli.trainers import trainer_for
+from imix_cli.running.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
+from imix_cli.running.run_spec import differing_keys, identity_of, resume_identity
+from imix_cli.running.trainers import trainer_for
 
 
 class RunError(RuntimeError):
@@ -103,7 +103,7 @@ def prepare_run_dir(spec) -> list[int]:
     return todo
 
 
-#: Where a run's checkpoints live (imix_cli.resume.checkpoint_path).
+#: Where a run's checkpoints live (imix_cli.running.resume.checkpoint_path).
 CHECKPOINT_AREA = ".checkpoints"
 
 

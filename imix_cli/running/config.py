@@ -2,17 +2,17 @@
 
 ``imix run`` composes ``conf/config.yaml`` (+ the ``algo`` and ``env`` groups) with Hydra;
 :func:`spec_from_config` then checks every value and returns an immutable
-:class:`~imix_cli.run_spec.RunSpec` that the runner consumes. Errors are
-:class:`~imix_cli.config_checks.ConfigError` with a one-line message that names the offending
+:class:`~imix_cli.running.run_spec.RunSpec` that the runner consumes. Errors are
+:class:`~imix_cli.running.config_checks.ConfigError` with a one-line message that names the offending
 key; the CLI prints it and exits with status 2 before anything is written.
 
 :func:`validate_overrides` does the same for a whole command line -- every point of a
 ``-m`` sweep, however many -- before Hydra starts, so a bad value in the 10th sweep point is
 reported before the first point runs.
 
-The checks live by concern: :mod:`imix_cli.config_checks` (typed keys, seeds, workers, the
-env), :mod:`imix_cli.es_config` (an evolution strategy's keys, policy and evaluator),
-:mod:`imix_cli.ddpg_config` (algo=ddpg), :mod:`imix_cli.run_spec` (the RunSpec, the keys and
+The checks live by concern: :mod:`imix_cli.running.config_checks` (typed keys, seeds, workers, the
+env), :mod:`imix_cli.running.es_config` (an evolution strategy's keys, policy and evaluator),
+:mod:`imix_cli.ddpg.config` (algo=ddpg), :mod:`imix_cli.running.run_spec` (the RunSpec, the keys and
 a run's identity). The names other modules import from here are re-exported.
 """
 
@@ -24,11 +24,11 @@ import json
 import re
 from pathlib import Path
 
-from imix_cli.config_checks import ConfigError, as_choice, first_line
-from imix_cli.ddpg_config import ddpg_spec
-from imix_cli.es_config import es_spec
+from imix_cli.ddpg.config import ddpg_spec
 from imix_cli.registry import ALGO_NAMES, ALGORITHM_SPECS, BUILTIN_ENVS
-from imix_cli.run_spec import DDPG_DEFAULTS, PAPER_DEFAULTS, TOP_LEVEL_KEYS, RunSpec, differing_keys
+from imix_cli.running.config_checks import ConfigError, as_choice, first_line
+from imix_cli.running.es_config import es_spec
+from imix_cli.running.run_spec import DDPG_DEFAULTS, PAPER_DEFAULTS, TOP_LEVEL_KEYS, RunSpec, differing_keys
 
 __all__ = [
     "BUILTIN_ENVS",
@@ -83,7 +83,7 @@ def config_dir() -> str:
     spec = importlib.util.find_spec("imix_cli.conf")
     if spec is not None and spec.submodule_search_locations:
         return str(Path(list(spec.submodule_search_locations)[0]).resolve())
-    return str((Path(__file__).resolve().parent.parent / "conf").resolve())
+    return str((Path(__file__).resolve().parents[2] / "conf").resolve())
 
 
 def group_options(group: str) -> list[str]:

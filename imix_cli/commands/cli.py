@@ -78,15 +78,15 @@ def main(argv: list[str] | None = None) -> int:
 
         return bench_main(rest)
     if command == "eval":
-        from imix_cli.evaluate import main as eval_main
+        from imix_cli.commands.eval_command import main as eval_main
 
         return eval_main(rest)
     if command == "render":
-        from imix_cli.render import main as render_main
+        from imix_cli.commands.render import main as render_main
 
         return render_main(rest)
     if command == "status":
-        from imix_cli.status import main as status_main
+        from imix_cli.commands.status import main as status_main
 
         return status_main(rest)
     print(f"imix: unknown command {command!r}; valid commands: {', '.join(COMMANDS)} (see imix --help)", file=sys.stderr)
@@ -114,7 +114,7 @@ def _interrupted_before_anything_is_written(signum, frame) -> None:
 #: Sweep points of this process's ``imix run -m`` refused by their run folder (in use by another run,
 #: say): the others still run, and these are reported at the end, one line each, with exit status 1.
 _SKIPPED_POINTS: list[str] = []
-#: The RunSpecs that :func:`run_command` validated up front, by :func:`imix_cli.config.point_key`: the Hydra task
+#: The RunSpecs that :func:`run_command` validated up front, by :func:`imix_cli.running.config.point_key`: the Hydra task
 #: takes its point's from here, so each point is validated once. A task run in another process (a launcher such
 #: as joblib) finds none there and validates its point itself.
 _VALIDATED: dict = {}
@@ -128,8 +128,8 @@ def _error(message: str, code: int) -> int:
 
 def run_command(args: list[str]) -> int:
     """``imix run [hydra flags] [overrides]``."""
-    from imix_cli.config import ConfigError, validate_overrides
-    from imix_cli.run_folder import RunError
+    from imix_cli.running.config import ConfigError, validate_overrides
+    from imix_cli.running.run_folder import RunError
 
     info_only = any(a in _HYDRA_INFO_FLAGS or a.startswith("--cfg=") for a in args)
     if not info_only:
@@ -167,7 +167,7 @@ def run_command(args: list[str]) -> int:
     finally:
         _VALIDATED.clear()
     if not info_only and ("-m" in args or "--multirun" in args):  # a sweep: every point in one table at the end
-        from imix_cli.summary import format_sweep_table
+        from imix_cli.running.summary import format_sweep_table
 
         table = format_sweep_table(specs)
         if table:
@@ -178,9 +178,9 @@ def run_command(args: list[str]) -> int:
 
 
 def _check_run_folders(specs) -> None:
-    """Every point's run folder, read only (:func:`imix_cli.run_folder.check_run_dir`), before any point runs:
+    """Every point's run folder, read only (:func:`imix_cli.running.run_folder.check_run_dir`), before any point runs:
     a folder holding another config, a corrupt CSV or a link stops the sweep before its first point."""
-    from imix_cli.run_folder import check_run_dir
+    from imix_cli.running.run_folder import check_run_dir
 
     for spec in specs:
         check_run_dir(spec)
@@ -201,7 +201,7 @@ def _own_sweep_folder(args: list[str]) -> list[str]:
 def _hydra_run() -> None:
     import hydra
 
-    from imix_cli.config import config_dir
+    from imix_cli.running.config import config_dir
 
     hydra.main(version_base="1.3", config_path=config_dir(), config_name="config")(_task)()
 
@@ -211,7 +211,7 @@ def _task(cfg) -> None:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
-    from imix_cli.config import ConfigError, point_key, spec_from_config
+    from imix_cli.running.config import ConfigError, point_key, spec_from_config
 
     try:
         launcher = OmegaConf.select(HydraConfig.get(), "launcher._target_")
@@ -222,7 +222,7 @@ def _task(cfg) -> None:
     from hydra.types import RunMode
 
     from imix_cli.parallel_evaluation import EvaluatorError
-    from imix_cli.runner import RunError, run
+    from imix_cli.running.runner import RunError, run
 
     try:
         run(spec)
@@ -245,7 +245,7 @@ def _task(cfg) -> None:
         sys.exit(_error("interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)", 130))
 
 
-if __name__ == "__main__":  # python -m imix_cli.cli: imix's own process, as the `imix` script (imix_cli/__init__.py)
+if __name__ == "__main__":  # python -m imix_cli.commands.cli: imix's own process, as the `imix` script (imix_cli/__init__.py)
     from imix_cli.processes import set_one_blas_thread
 
     set_one_blas_thread()

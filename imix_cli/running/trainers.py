@@ -2,7 +2,7 @@
 
 The runner, the run folder's validation and the summary ask the run's :class:`Trainer`
 (:func:`trainer_for`) instead of testing the algorithm's name: the evolution strategies
-(:mod:`imix_cli.es_seeds`) and the DDPG baseline (:mod:`imix_cli.ddpg_seeds`) share the run
+(:mod:`imix_cli.running.es_seeds`) and the DDPG baseline (:mod:`imix_cli.ddpg.seeds`) share the run
 folder, process pool and CSV contract, and differ only in what is declared here.
 """
 
@@ -22,7 +22,7 @@ class Trainer:
     is to be run further (RunError if that CSV does not fit the config). Both are the functions
     below, which import their trainer's module when called: ``imix status`` and the run folder's
     checks load neither numba nor the envs, and SB3 loads only for DDPG (and the trainer modules
-    import :mod:`imix_cli.run_folder`, which imports this one).
+    import :mod:`imix_cli.running.run_folder`, which imports this one).
     """
 
     run_seeds: Callable[..., dict]
@@ -37,25 +37,25 @@ class Trainer:
 
 
 def _run_es_seeds(spec, seeds: list[int], progress) -> dict:
-    from imix_cli.es_seeds import run_es_seeds
+    from imix_cli.running.es_seeds import run_es_seeds
 
     return run_es_seeds(spec, seeds, progress)
 
 
 def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
-    from imix_cli.es_seeds import needs_running
+    from imix_cli.running.es_seeds import needs_running
 
     return needs_running(spec, seed, path, frame)
 
 
 def _run_ddpg_seeds(spec, seeds: list[int], progress) -> dict:
-    from imix_cli.ddpg_seeds import run_ddpg_seeds
+    from imix_cli.ddpg.seeds import run_ddpg_seeds
 
     return run_ddpg_seeds(spec, seeds, progress)
 
 
 def _ddpg_needs_running(spec, seed: int, path: Path, frame) -> bool:
-    from imix_cli.ddpg_seeds import needs_running
+    from imix_cli.ddpg.seeds import needs_running
 
     return needs_running(spec, seed, path, frame)
 

@@ -2,7 +2,7 @@
 
 Why: training scores are the population's on the episodes it was trained on; the number to
 report for a learned policy is its return on episodes it never saw. This reads the policy files
-of each run (:mod:`imix_cli.policy_files`), runs ``episodes`` episodes per seed with the batched
+of each run (:mod:`imix_cli.running.policy_files`), runs ``episodes`` episodes per seed with the batched
 evaluator the run trained with, prints mean ± 95 % CI over seeds per run and writes
 ``<run>/eval.csv`` (one row per seed and ``which``).
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.keyvalue import UsageError, at_least, folder_name, help_requested, one_of, parse_key_values
+from imix_cli.commands.keyvalue import UsageError, at_least, folder_name, help_requested, one_of, parse_key_values
 
 HELP = """\
 usage: imix eval [key=value ...]
@@ -111,8 +111,8 @@ def policy_env(header: dict, allowed_modules=(), where: str = "policy file") -> 
     name, or a registered gymnasium id (plain, without ``module:``). A ``module:Id`` in the file is
     refused unless the user named that module (``import=``): files never import code."""
     from imix_cli.env_ids import EnvIdError, file_env_id
-    from imix_cli.policy_files import PolicyFileError
     from imix_cli.registry import BUILTIN_ENVS
+    from imix_cli.running.policy_files import PolicyFileError
 
     name = header["env_name"]
     if ":" in header["env_id"] or name not in BUILTIN_ENVS:  # a module named in the file: refused unless the user named it
@@ -139,7 +139,7 @@ def episode_cap(header: dict, env: str, run_dir=None) -> int:
         return ENV_SPECS[env].max_steps
     import gymnasium as gym
 
-    from imix_cli.policy_files import MAX_STEPS
+    from imix_cli.running.policy_files import MAX_STEPS
 
     return gym.spec(env).max_episode_steps or MAX_STEPS
 
@@ -163,7 +163,7 @@ def _config_max_steps(run_dir) -> int | None:
 def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), run_dir=None, where: str = "policy file"):
     """The batched evaluator a policy was trained with (from its header, checked against the env)."""
     from imix_cli.evaluation import make_evaluator
-    from imix_cli.policy_files import PolicyFileError
+    from imix_cli.running.policy_files import PolicyFileError
 
     if header.get("obs_normalizer") is not None:
         raise UsageError(
@@ -193,7 +193,7 @@ def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), r
 
 
 def evaluate_policy(policy, episodes: int, cache: dict | None = None, allowed_modules=(), run_dir=None, where: str = "policy file") -> dict:
-    """Statistics of ``episodes`` fresh episodes of a :class:`~imix_cli.policy_files.PolicyFile`:
+    """Statistics of ``episodes`` fresh episodes of a :class:`~imix_cli.running.policy_files.PolicyFile`:
     ``mean``, ``std`` (ddof 1, NaN for one episode), ``min``, ``max`` of the returns, ``mean_steps``.
 
     Episodes run in batches (at most ~64 MB of parameter copies), so memory does not grow with
@@ -223,7 +223,7 @@ def evaluate_policy(policy, episodes: int, cache: dict | None = None, allowed_mo
 
 def evaluate_run(run_dir: Path, which: str, episodes: int, cache: dict | None = None, allowed_modules=()):
     """Rows (dicts with :data:`EVAL_COLUMNS`) of every seed of one run folder, or [] without policy files."""
-    from imix_cli.policy_files import PolicyFileError, read_policy
+    from imix_cli.running.policy_files import PolicyFileError, read_policy
 
     rows = []
     for seed, path in policy_files(run_dir, which).items():
@@ -247,13 +247,13 @@ def write_eval_csv(run_dir: Path, rows: list) -> Path:
     """Write ``<run_dir>/eval.csv`` atomically, keeping the rows of the other ``which`` already there."""
     import pandas as pd
 
-    from imix_cli.results import atomic_write_text
+    from imix_cli.running.results import atomic_write_text
 
     path = Path(run_dir) / "eval.csv"
     frame = pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
     if path.exists():
         try:
-            from imix_cli.results import regular_file_size
+            from imix_cli.running.results import regular_file_size
 
             if regular_file_size(path) > 64 << 20:  # an eval.csv is a few rows a seed; /dev/zero or a huge file is replaced, not read
                 raise ValueError("not an eval.csv")
@@ -284,7 +284,7 @@ def main(argv: list | None = None) -> int:
         if s["episodes"] > MAX_EPISODES:
             raise UsageError(f"bad value for episodes: {s['episodes']} (at most {MAX_EPISODES:,} per seed: they run in batches, but more would take days)")
         folders = run_folders(s["results_dir"], s["experiment"], s["run"])
-        from imix_cli.policy_files import PolicyFileError
+        from imix_cli.running.policy_files import PolicyFileError
 
         cache, results = {}, []
         for run_dir in folders:

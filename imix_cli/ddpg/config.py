@@ -1,15 +1,15 @@
 """algo=ddpg's config: its settings (conf/algo/ddpg.yaml), its budget ``total_steps`` and a continuous-action env.
 
-The evolution strategies' top-level keys (:data:`imix_cli.run_spec.ES_ONLY_KEYS`) are ignored
+The evolution strategies' top-level keys (:data:`imix_cli.running.run_spec.ES_ONLY_KEYS`) are ignored
 and left out of its config.yaml; the RunSpec's ES fields keep their defaults.
 """
 
 from __future__ import annotations
 
-from imix_cli.config_checks import ConfigError, as_bool, as_float, as_int, as_name, env_of, first_line, is_number, seeds_of, workers_and_experiment
 from imix_cli.env_ids import plain_env_id
 from imix_cli.registry import BUILTIN_ENVS, CONTINUOUS_BUILTIN_ENVS, ENV_SPECS
-from imix_cli.run_spec import ES_ONLY_KEYS, RunSpec
+from imix_cli.running.config_checks import ConfigError, as_bool, as_float, as_int, as_name, env_of, first_line, is_number, seeds_of, workers_and_experiment
+from imix_cli.running.run_spec import ES_ONLY_KEYS, RunSpec
 
 
 def ddpg_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
