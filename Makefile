@@ -134,8 +134,8 @@ reuse-bias:  ## the reuse-bias table (docs/research/bias.md) into results/reuse_
 # generations x 2N episodes (N = 1, 8, 32 directions). The mean policy is measured on fresh
 # episodes every ARS_EVAL_* generations (not counted as training episodes). Finished seeds are
 # skipped. The defaults are rl-zoo3's budgets (2e6, ~7e6, ~1.25e7 env steps): many hours here.
-# docs/ars.md's reduced study used these budgets (its commands ran side by side):
-#   make reproduce-ars ARS_SWIMMER_GENERATIONS=300 ARS_HOPPER_GENERATIONS=10 ARS_HALFCHEETAH_GENERATIONS=2
+# docs/ars.md's reduced study used these budgets (Swimmer with 20 seeds, 10 with EIM; its commands are there):
+#   make reproduce-ars ARS_SWIMMER_GENERATIONS=300 ARS_HOPPER_GENERATIONS=100 ARS_HALFCHEETAH_GENERATIONS=10
 ARS_SEEDS                   ?= 3
 ARS_SWIMMER_GENERATIONS     ?= 1000
 ARS_HOPPER_GENERATIONS      ?= 450
