@@ -83,7 +83,7 @@ HIDDEN: tuple[int, ...] = (8, 8)
 OUTPUTS = ("tanh", "clip")
 
 __all__ = [
-    "HIDDEN", "OUTPUTS", "num_params", "weight_columns", "with_zero_biases", "unpack", "BatchPolicy", "forward", "act",
+    "HIDDEN", "OUTPUTS", "num_params", "weight_columns", "searched_params", "with_zero_biases", "unpack", "BatchPolicy", "forward", "act",
     "policy_output", "policy_action", "ObsNormalizer", "fold_normalizer",
 ]  # fmt: skip
 
@@ -102,6 +102,11 @@ def weight_columns(obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -
         columns.append(np.arange(k, k + a * b))
         k += a * b + b
     return np.concatenate(columns)
+
+
+def searched_params(obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN, bias: bool = True) -> int:
+    """How many parameters an ES searches for this MLP: all of them, or (``bias=False``) its weights only."""
+    return num_params(obs_dim, out_dim, hidden) if bias else weight_columns(obs_dim, out_dim, hidden).size
 
 
 def with_zero_biases(weights: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequence[int] = HIDDEN) -> np.ndarray:

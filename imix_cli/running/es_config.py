@@ -246,13 +246,10 @@ def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_
 def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple, bias: bool = True, output: str = "tanh") -> int:
     """Number of parameters the ES searches on this env: the policy's, or its weights' with
     ``policy.bias=false`` (a gymnasium env is made once to read its spaces)."""
-    from imix_cli.policies import num_params, weight_columns
-
-    def dim(obs_dim: int, out_dim: int) -> int:
-        return num_params(obs_dim, out_dim, hidden) if bias else weight_columns(obs_dim, out_dim, hidden).size
+    from imix_cli.policies import searched_params
 
     if env_name in BUILTIN_ENVS:  # their observation and output sizes are known without making the env
-        return dim(*ENV_SPECS[env_name].policy_dims)
+        return searched_params(*ENV_SPECS[env_name].policy_dims, hidden, bias)
     import gymnasium as gym
 
     try:
@@ -267,4 +264,4 @@ def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple, bias: bool
     if discrete and output != "tanh":
         raise ConfigError(f"policy.output={output}: {env_id} has discrete actions (the argmax of the outputs); only continuous actions are clipped")
     out = int(act_space.n) if discrete else math.prod(act_space.shape or (1,))
-    return dim(math.prod(obs_space.shape or (1,)), out)
+    return searched_params(math.prod(obs_space.shape or (1,)), out, hidden, bias)

@@ -21,7 +21,7 @@ import numpy as np
 from imix_cli.algorithms import make_es
 from imix_cli.divergence import GuardedES
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
-from imix_cli.policies import ObsNormalizer, weight_columns, with_zero_biases
+from imix_cli.policies import ObsNormalizer, searched_params, with_zero_biases
 from imix_cli.running.results import generation_row
 
 
@@ -151,9 +151,7 @@ def measure_distribution_means(states: list[SeedState], spec, evaluator) -> None
 
 def search_dim(spec, evaluator) -> int:
     """The number of parameters the ES searches: the policy's, or its weights' with ``policy.bias=false``."""
-    if spec.policy_bias:
-        return evaluator.num_params
-    return weight_columns(evaluator.obs_dim, evaluator.out_dim, evaluator.hidden).size
+    return searched_params(evaluator.obs_dim, evaluator.out_dim, evaluator.hidden, spec.policy_bias)
 
 
 def policy_params(spec, st: SeedState, params: np.ndarray, evaluator) -> np.ndarray:

@@ -93,16 +93,17 @@ def _number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def return_bounds(spec, max_steps: int | None) -> tuple[float, float]:
-    """The returns run ``spec`` can produce: a built-in's ``max_steps`` x its step rewards (plus ARS's
-    ``algo.alive_bonus_offset`` per step, which training returns include); else unbounded."""
+def return_bounds(spec, max_steps: int | None, training: bool = True) -> tuple[float, float]:
+    """The returns run ``spec`` can produce: a built-in's ``max_steps`` x its step rewards (``training``:
+    plus ARS's ``algo.alive_bonus_offset`` per step, which the members' returns include and the
+    distribution mean's measurements do not); else unbounded."""
     from imix_cli.registry import ENV_SPECS
 
     env = ENV_SPECS.get(spec.env_name)
     cap = max_steps or spec.env_max_steps or (env.max_steps if env else None)
     if env is None or env.step_reward is None or cap is None:
         return -math.inf, math.inf
-    offset = float(spec.algo_options.get("alive_bonus_offset", 0.0))
+    offset = float(spec.algo_options.get("alive_bonus_offset", 0.0)) if training else 0.0
     return (env.step_reward[0] + min(offset, 0.0)) * cap, (env.step_reward[1] + max(offset, 0.0)) * cap
 
 
@@ -118,10 +119,11 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None, policy
     rows), the ES (finite, d parameters, its generation count) and the archive (at most the run's
     depth, (popsize, d) finite samples, sources and indices in range).
     """
-    low, high = return_bounds(spec, max_steps)
+    bounds = {training: return_bounds(spec, max_steps, training) for training in (True, False)}
     cap = max_steps or spec.env_max_steps
 
-    def score_ok(value) -> bool:
+    def score_ok(value, training: bool = True) -> bool:  # training: a member's return; else the distribution mean's
+        low, high = bounds[training]
         return _number(value) and (math.isnan(value) or low - 1e-9 <= value <= high + 1e-9)
 
     rows, popsize = st.rows, spec.popsize
@@ -151,7 +153,9 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None, policy
             _fail(f"row {i}: mean_policy_episodes decreases")
         evaluations, env_steps, mean_episodes = row["evaluations"], row["env_steps"], row["mean_policy_episodes"]
         for column in ("mean_score", "best_score", "mean_policy_score"):
-            if not score_ok(row[column]) or (column != "mean_policy_score" and math.isnan(row[column]) and row["nonfinite"] < popsize):
+            if not score_ok(row[column], training=column != "mean_policy_score") or (
+                column != "mean_policy_score" and math.isnan(row[column]) and row["nonfinite"] < popsize
+            ):
                 _fail(f"row {i}: {column}={row[column]!r} is not a return of {spec.env_name}")
         if row["mean_score"] > row["best_score"] + 1e-9 * max(1.0, abs(row["best_score"])):
             _fail(f"row {i}: mean_score above best_score")
