@@ -106,3 +106,16 @@ def test_wandb_offline_gets_one_run_per_seed(tmp_path, monkeypatch):
     frame = _run(tmp_path, 2, logger="wandb")
     offline = sorted((tmp_path / "tb" / frame["run"].iloc[0] / "wandb").glob("offline-run-*"))
     assert len(offline) == 2 and all(any(d.glob("*.wandb")) for d in offline)
+
+
+def test_a_tracker_gets_each_float_as_the_csv_writes_it():
+    """The CSV keeps 10 significant digits; a tracker that got the unrounded value could store another
+    float32 than the CSV's (this value is one: it rounds to different float32s with and without)."""
+    from imix_cli.running.results import FLOAT_FORMAT
+    from imix_cli.running.tracking import scalars
+
+    value = 0.0016486371752648665
+    written = float(FLOAT_FORMAT % value)
+    assert np.float32(value) != np.float32(written)
+    got = scalars({"wall_time": value, "evaluations": 7, "mean_policy_score": float("nan")})
+    assert got["wall_time"] == written and got["evaluations"] == 7.0 and "mean_policy_score" not in got

@@ -238,6 +238,15 @@ def rows_csv_text(rows: list, header: bool = True) -> str:
     return csv_text(rows_to_frame(rows), header) if text is None else text
 
 
+#: How a seed CSV writes a float: 10 significant digits.
+FLOAT_FORMAT = "%.10g"
+
+
+def as_written(value: float) -> float:
+    """``value`` as the seed CSV holds it (:data:`FLOAT_FORMAT`): what a reader of the CSV gets back."""
+    return float(FLOAT_FORMAT % value)
+
+
 def _plain_csv_text(rows: list, header: bool) -> str | None:
     """:func:`rows_csv_text`'s text of rows of plain values; None where a value needs pandas to decide."""
     lines = [",".join(COLUMNS)] if header else []
@@ -247,7 +256,7 @@ def _plain_csv_text(rows: list, header: bool) -> str | None:
             return None
         for i in _PLAIN_FLOATS:
             value = cells[i]
-            cells[i] = "" if value != value else f"{value:.10g}"
+            cells[i] = "" if value != value else FLOAT_FORMAT % value
         if not all(map(_QUOTED.isdisjoint, (cells[i] for i in _PLAIN_STRINGS))):  # a string pandas quotes
             return None
         lines.append(",".join(map(str, cells)))
@@ -268,7 +277,7 @@ def csv_text(frame: pd.DataFrame, header: bool = True) -> str:
     """The text of a seed CSV of ``frame`` (:func:`rows_to_frame`'s); without ``header``, its rows only.
     Each value is formatted on its own (its column's type), so the text of consecutive frames
     concatenated is the text of the frame of all their rows."""
-    return frame.to_csv(index=False, header=header, float_format="%.10g", lineterminator="\n")
+    return frame.to_csv(index=False, header=header, float_format=FLOAT_FORMAT, lineterminator="\n")
 
 
 #: The largest seed CSV read back (a row is ~300 bytes: ~1 million generations or episodes). pandas

@@ -49,13 +49,15 @@ def missing_logger_package(logger: str) -> str | None:
 
 
 def scalars(row: dict) -> dict:
-    """The tracked numbers of a CSV row: finite values of :data:`TRACKED_COLUMNS` (``mean_policy_score``
-    is NaN on generations where theta is not measured; no tracker wants those)."""
+    """The tracked numbers of a CSV row, as the CSV writes them: finite values of :data:`TRACKED_COLUMNS`
+    (``mean_policy_score`` is NaN on generations where theta is not measured; no tracker wants those)."""
+    from imix_cli.running.results import as_written
+
     out = {}
     for column in TRACKED_COLUMNS:
         value = row.get(column, 0 if column == "diverged" else None)  # the CSV's diverged is 0 unless set
         if value is not None and math.isfinite(float(value)):
-            out[column] = float(value)
+            out[column] = as_written(value) if isinstance(value, float) else float(value)
     return out
 
 
