@@ -21,7 +21,7 @@ import pandas as pd
 
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import new_seed_state, search_dim
+from imix_cli.running.lockstep import loop_settings, new_seed_state
 from imix_cli.running.resume import load_checkpoint
 from imix_cli.running.run_spec import resume_identity
 
@@ -41,7 +41,7 @@ def main(results_dir: str = "results") -> None:
             mixing = frame[frame["generation"] >= warmup]
             members = float(mixing["reused"].sum() / mixing["popsize"].sum())
             evaluator = build_evaluator(spec)
-            fresh = new_seed_state(spec, 0, search_dim(spec, evaluator))
+            fresh = new_seed_state(loop_settings(spec, evaluator), 0)
             st = load_checkpoint(
                 spec.run_dir, 0, resume_identity(spec.identity()), fresh, spec=spec, max_steps=int(evaluator.max_steps), policy_dim=evaluator.num_params
             )

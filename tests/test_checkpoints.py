@@ -22,7 +22,7 @@ from imix_cli.commands.cli import main
 from imix_cli.evaluation import make_evaluator
 from imix_cli.running import checkpoints
 from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import advance_lockstep, new_seed_state
+from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
 from imix_cli.running.resume import checkpoint_path, load_checkpoint, save_checkpoint
 from imix_cli.running.run_folder import prepare_run_dir
 from imix_cli.running.runner import run_seeds
@@ -35,9 +35,10 @@ def spec_and_states(tmp_path, overrides=(), generations=5):
     (spec,) = validate_overrides([*COMMON, *overrides, f"results_dir={tmp_path}"])
     prepare_run_dir(spec)
     evaluator = make_evaluator(spec.evaluator_key, spec.env_max_steps)
-    states = [new_seed_state(spec, seed, evaluator.num_params) for seed in (0, 1)]
+    settings = loop_settings(spec, evaluator)
+    states = [new_seed_state(settings, seed) for seed in (0, 1)]
     for _ in range(generations):
-        advance_lockstep(states, spec, evaluator)
+        advance_lockstep(states, settings, evaluator)
     return spec, states, evaluator
 
 
@@ -49,7 +50,7 @@ def encoded(st) -> tuple[str, dict]:
 
 
 def fresh(spec, evaluator, seed=0):
-    return new_seed_state(spec, seed, evaluator.num_params)
+    return new_seed_state(loop_settings(spec, evaluator), seed)
 
 
 def load(spec, evaluator, seed=0):
@@ -69,9 +70,9 @@ def test_round_trip_restores_everything_and_continues_bit_identically(tmp_path):
     # Continuing both: the next generations (rows, ES, RNG states) are identical.
     other = fresh(spec, evaluator, 1)
     for _ in range(4):
-        advance_lockstep([states[0], other], spec, evaluator)
+        advance_lockstep([states[0], other], loop_settings(spec, evaluator), evaluator)
     for _ in range(4):
-        advance_lockstep([loaded], spec, evaluator)
+        advance_lockstep([loaded], loop_settings(spec, evaluator), evaluator)
     assert encoded(loaded) == encoded(states[0])
 
 
@@ -286,7 +287,7 @@ def test_the_rows_encoding_kept_between_checkpoints_gives_the_encoding_of_all_ro
 
     same_as_whole("first")
     for _ in range(2):
-        advance_lockstep([st], spec, evaluator)
+        advance_lockstep([st], loop_settings(spec, evaluator), evaluator)
     same_as_whole("rows added")
     same_as_whole("no row added")
     st.rows[1]["mean_score"] += 1.0

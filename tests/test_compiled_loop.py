@@ -20,7 +20,7 @@ from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.running import compiled_loop
 from imix_cli.running.checkpoints import _encode, _read_npz
 from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import advance_lockstep, new_seed_state, search_dim
+from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
 
 CASES = [
     ["algo=snes", "env=cartpole", "eim=true"],  # the main job
@@ -35,7 +35,8 @@ CASES = [
 def _seed_state(overrides, seed=3):
     (spec,) = validate_overrides([*overrides, "eval_mean_every=7", "eval_mean_episodes=3"])
     evaluator = build_evaluator(spec)
-    return spec, evaluator, new_seed_state(spec, seed, search_dim(spec, evaluator))
+    settings = loop_settings(spec, evaluator)
+    return settings, evaluator, new_seed_state(settings, seed)
 
 
 def _snapshot(st) -> dict:
@@ -54,13 +55,13 @@ def _same(a: dict, b: dict) -> None:
 
 @pytest.mark.parametrize("overrides", CASES, ids=lambda o: " ".join(o))
 def test_compiled_chunks_give_the_python_loops_state_bit_for_bit(overrides):
-    spec, evaluator, python = _seed_state(overrides)
+    settings, evaluator, python = _seed_state(overrides)
     _, _, compiled = _seed_state(overrides)
-    assert compiled_loop.applies(spec, evaluator, compiled)
+    assert compiled_loop.applies(settings, evaluator, compiled)
     for chunk in (1, 4, 25, 30):  # chunks of several lengths, the archive carried from one to the next
         for _ in range(chunk):
-            advance_lockstep([python], spec, evaluator)
-        assert compiled_loop.advance(compiled, spec, evaluator, chunk)
+            advance_lockstep([python], settings, evaluator)
+        assert compiled_loop.advance(compiled, settings, evaluator, chunk)
         for row in python.rows + compiled.rows:
             row["wall_time"] = 0.0
         _same(_snapshot(python), _snapshot(compiled))
@@ -71,9 +72,9 @@ def test_compiled_chunks_give_the_python_loops_state_bit_for_bit(overrides):
 
 def test_a_chunk_that_diverges_changes_nothing_and_is_left_to_the_python_loop():
     # lr=100: SNES's log sigma overflows within a few generations (imix_cli.divergence)
-    spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "lr=100", "weight_decay=0"])
+    settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "lr=100", "weight_decay=0"])
     before = _snapshot(st)
-    assert not compiled_loop.advance(st, spec, evaluator, 200)
+    assert not compiled_loop.advance(st, settings, evaluator, 200)
     _same(before, _snapshot(st))
 
 
@@ -88,12 +89,12 @@ def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
         ["algo=snes", "env=cartpole", "eim=true", "evaluator=pool"],
         ["algo=snes", "env=cartpole", "eim=true", "policy.bias=false"],  # ES points are not the policy's parameters
     ):
-        spec, evaluator, st = _seed_state(overrides)
-        assert not compiled_loop.applies(spec, evaluator, st), overrides
-    spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true"])
+        settings, evaluator, st = _seed_state(overrides)
+        assert not compiled_loop.applies(settings, evaluator, st), overrides
+    settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true"])
     os.environ[compiled_loop.ENV_VARIABLE] = "0"
     try:
-        assert not compiled_loop.applies(spec, evaluator, st)
+        assert not compiled_loop.applies(settings, evaluator, st)
     finally:
         del os.environ[compiled_loop.ENV_VARIABLE]
 
@@ -167,8 +168,8 @@ def test_runs_are_identical_with_the_python_loop_continued_runs_included(tmp_pat
 def test_the_live_csv_text_is_pandas_text_in_pieces():
     from imix_cli.running.results import csv_text, rows_csv_text, rows_to_frame
 
-    spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10"])
-    compiled_loop.advance(st, spec, evaluator, 40)
+    settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10"])
+    compiled_loop.advance(st, settings, evaluator, 40)
     rows = [dict(r) for r in st.rows]
     for r, value in zip(rows, [np.inf, -np.inf, -0.0, 1e-300, 123456789.123456, float("nan"), 2.0**60, 0.1]):
         r["wall_time"] = value  # awkward floats
@@ -184,8 +185,8 @@ def test_the_live_csv_text_is_pandas_text_in_pieces():
 def test_a_seed_csv_of_plain_rows_is_written_and_summed_up_as_pandas_does(tmp_path):
     from imix_cli.running.results import csv_text, rows_to_frame, seed_summary, write_run_csv
 
-    spec, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10", "eval_mean_every=7"])
-    compiled_loop.advance(st, spec, evaluator, 40)
+    settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10", "eval_mean_every=7"])
+    compiled_loop.advance(st, settings, evaluator, 40)
     diverged = [dict(r) for r in st.rows]
     diverged[-1]["diverged"] = 1
     never_measured = [{k: v for k, v in r.items() if not k.startswith("mean_policy")} for r in st.rows]

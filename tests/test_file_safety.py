@@ -282,10 +282,10 @@ def test_a_checkpoint_zip_bomb_is_refused_before_inflating(tmp_path):
         f"""
         from imix_cli.running.config import validate_overrides
         from imix_cli.evaluation import make_evaluator
-        from imix_cli.running.lockstep import new_seed_state
+        from imix_cli.running.lockstep import loop_settings, new_seed_state
         from imix_cli.running.resume import load_checkpoint
         (spec,) = validate_overrides({[*args[1:], "generations=6", f"results_dir={root}"]!r})
-        fresh = new_seed_state(spec, 0, make_evaluator("cartpole").num_params)
+        fresh = new_seed_state(loop_settings(spec, make_evaluator("cartpole")), 0)
         from imix_cli.running.run_spec import resume_identity
         st = load_checkpoint(spec.run_dir, 0, resume_identity(spec.identity()), fresh, warn=lambda m: print("refused:", m), spec=spec)
         assert st is None

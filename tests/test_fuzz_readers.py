@@ -40,7 +40,7 @@ from imix_cli.commands.cli import main
 from imix_cli.evaluation import make_evaluator
 from imix_cli.running.checkpoints import CheckpointError, _canonical, _encode, read_checkpoint
 from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import new_seed_state
+from imix_cli.running.lockstep import loop_settings, new_seed_state
 from imix_cli.running.policy_files import PolicyFileError, num_params_of, read_policy
 from imix_cli.running.results import COLUMNS, CorruptResultError, read_run_csv
 from imix_cli.running.resume import checkpoint_byte_limit, validate_seed_state
@@ -219,7 +219,7 @@ def test_fuzz_checkpoint_reader(run):
     dim = evaluator.num_params
 
     def fresh():
-        return new_seed_state(spec, 0, dim)
+        return new_seed_state(loop_settings(spec, evaluator), 0)
 
     def encoded(st):
         arrays = {}

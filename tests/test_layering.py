@@ -56,6 +56,7 @@ LAYERS = [
         "running.trainers",
         "running.resume",
         "running.run_folder",
+        "running.run_writer",
         "running.es_seeds",
         "ddpg.seeds",
         "running.pool",

@@ -21,7 +21,7 @@ from imix_cli.evaluation import MUJOCO_EXTRA_HINT, make_evaluator
 from imix_cli.policies import BatchPolicy, ObsNormalizer, fold_normalizer, num_params
 from imix_cli.registry import MUJOCO_ENVS
 from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import advance_lockstep, new_seed_state
+from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
 from imix_cli.running.results import read_run_csv
 
 needs_mujoco = pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason='needs pip install "imix-cli[mujoco]"')
@@ -172,10 +172,11 @@ def test_reused_returns_were_measured_under_the_current_normaliser():
          "policy.hidden=[4]", "policy.obs_norm=true", "policy.obs_norm_warmup=3", "seeds=1"]
     )  # fmt: skip
     ev = RecordingEvaluator(make_evaluator(spec.evaluator_key, spec.env_max_steps, hidden=spec.hidden))
-    st = new_seed_state(spec, 0, ev.num_params)
+    settings = loop_settings(spec, ev)
+    st = new_seed_state(settings, 0)
     reused_total = 0
     for generation in range(10):
-        advance_lockstep([st], spec, ev)
+        advance_lockstep([st], settings, ev)
         row = st.rows[-1]
         if generation < spec.obs_norm_warmup:
             assert row["reused"] == 0 and not st.archive.generations

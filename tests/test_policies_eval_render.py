@@ -141,7 +141,7 @@ def test_continuous_cartpole_passes_check_env_with_render(env_id):
 class _DecliningEvaluator:
     """Returns sum(params) - 100 * call: the best member is in the first generation, never the last."""
 
-    num_params = 130
+    obs_dim, out_dim, hidden, num_params = 4, 2, (8, 8), 130  # CartPole's policy
 
     def __init__(self):
         self.calls, self.seen = 0, []
@@ -155,13 +155,14 @@ class _DecliningEvaluator:
 
 def test_runner_tracks_the_best_ever_member_not_the_last_generations():
     from imix_cli.running.config import validate_overrides
-    from imix_cli.running.lockstep import advance_lockstep, new_seed_state
+    from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
 
     spec = validate_overrides(["algo=snes", "env=cartpole", "popsize=6", "seeds=1", "generations=4", "workers=1"])[0]
     evaluator = _DecliningEvaluator()
-    st = new_seed_state(spec, 0, evaluator.num_params)
+    settings = loop_settings(spec, evaluator)
+    st = new_seed_state(settings, 0)
     for _ in range(4):
-        advance_lockstep([st], spec, evaluator)
+        advance_lockstep([st], settings, evaluator)
     params, ret = max(evaluator.seen, key=lambda pr: pr[1])
     assert st.best_return == ret and np.array_equal(st.best_params, params)
     assert isinstance(st.best_params, np.ndarray) and st.best_params.dtype == np.float64 and isinstance(st.best_return, float)

@@ -40,7 +40,7 @@ def breakdown_rows(configs, seeds: int, generations: int | None) -> list[dict]:
     from imix_cli.evaluation import make_evaluator
     from imix_cli.generation import plan_generation
     from imix_cli.running.config import validate_overrides
-    from imix_cli.running.lockstep import advance_lockstep, new_seed_state
+    from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
 
     rows = []
     for overrides in configs:
@@ -48,13 +48,14 @@ def breakdown_rows(configs, seeds: int, generations: int | None) -> list[dict]:
         spec = validate_overrides([*overrides, f"seeds={seeds}", "workers=1", *gens])[0]
         clock = {"evaluate": 0.0, "mix": 0.0, "tell": 0.0}  # mix: the planning step, mixing or plain sampling
         ev = make_evaluator(spec.evaluator_key, spec.env_max_steps)
-        states = [new_seed_state(spec, s, ev.num_params) for s in range(seeds)]
+        settings = loop_settings(spec, ev)
+        states = [new_seed_state(settings, s) for s in range(seeds)]
         for st in states:
             st.es.tell = _timed(st.es.tell, clock, "tell")
         timed_ev, timed_plan = _TimedEvaluator(ev, clock), _timed(plan_generation, clock, "mix")
         started = time.perf_counter()
         for _ in range(spec.generations):
-            advance_lockstep(states, spec, timed_ev, plan=timed_plan)
+            advance_lockstep(states, settings, timed_ev, plan=timed_plan)
         total = time.perf_counter() - started
         rows.append({
             "run": spec.run_name, "seeds": seeds, "generations": spec.generations, "dim": ev.num_params, "total": total,

@@ -30,26 +30,27 @@ def loop_rows(configs, seeds: int, generations: int) -> list[dict]:
     from imix_cli.running import compiled_loop
     from imix_cli.running.config import validate_overrides
     from imix_cli.running.es_seeds import CHUNK
-    from imix_cli.running.lockstep import advance_lockstep, new_seed_state
+    from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
 
     rows = []
     for overrides in configs:
         (spec,) = validate_overrides(list(overrides))
         evaluator = build_evaluator(spec)
-        warm = new_seed_state(spec, 10_000, evaluator.num_params)
-        compiled_loop.advance(warm, spec, evaluator, 2)  # loads (or compiles) the kernels of both loops
-        advance_lockstep([warm], spec, evaluator)
-        python = [new_seed_state(spec, s, evaluator.num_params) for s in range(seeds)]
+        settings = loop_settings(spec, evaluator)
+        warm = new_seed_state(settings, 10_000)
+        compiled_loop.advance(warm, settings, evaluator, 2)  # loads (or compiles) the kernels of both loops
+        advance_lockstep([warm], settings, evaluator)
+        python = [new_seed_state(settings, s) for s in range(seeds)]
         started = time.perf_counter()
         for _ in range(generations):
-            advance_lockstep(python, spec, evaluator)
+            advance_lockstep(python, settings, evaluator)
         python_s = time.perf_counter() - started
-        compiled = [new_seed_state(spec, s, evaluator.num_params) for s in range(seeds)]
+        compiled = [new_seed_state(settings, s) for s in range(seeds)]
         started = time.perf_counter()
         for st in compiled:
             while st.generation < generations:
-                if not compiled_loop.advance(st, spec, evaluator, min(CHUNK, generations - st.generation)):
-                    advance_lockstep([st], spec, evaluator)
+                if not compiled_loop.advance(st, settings, evaluator, min(CHUNK, generations - st.generation)):
+                    advance_lockstep([st], settings, evaluator)
         compiled_s = time.perf_counter() - started
         per = 1e6 / (seeds * generations)
         rows.append({

@@ -441,40 +441,38 @@ def enabled() -> bool:
     return os.environ.get(ENV_VARIABLE, "1").strip() != "0"
 
 
-def applies_to_run(spec, evaluator) -> bool:
-    """Whether the seeds of run ``spec`` evaluated by ``evaluator`` can take the compiled loop (module docstring)."""
+def applies_to_run(settings, evaluator) -> bool:
+    """Whether the seeds of a run (its :class:`imix_cli.running.lockstep.LoopSettings`) evaluated by ``evaluator``
+    can take the compiled loop (module docstring)."""
     from imix_cli.evaluation import CartPoleEvaluator, ContinuousCartPoleEvaluator
-    from imix_cli.running.lockstep import mixing_settings
 
-    if not enabled() or type(evaluator) not in (CartPoleEvaluator, ContinuousCartPoleEvaluator) or spec.algo not in ("openes", "snes"):
+    if not enabled() or type(evaluator) not in (CartPoleEvaluator, ContinuousCartPoleEvaluator) or settings.algo not in ("openes", "snes"):
         return False
-    settings = mixing_settings(spec)
-    if settings.variant not in _VARIANTS or settings.reeval_age is not None or settings.reeval_prob > 0.0 or settings.reeval_count > 0:
+    mixing = settings.mixing
+    if mixing.variant not in _VARIANTS or mixing.reeval_age is not None or mixing.reeval_prob > 0.0 or mixing.reeval_count > 0:
         return False
     # policy.bias=false: the ES's points are not the evaluator's parameter vectors (lockstep.policy_params)
-    return not spec.obs_norm and spec.policy_bias and spec.weight_decay_form == "estool"
+    return settings.obs_norm_warmup is None and settings.policy_bias and settings.es_options["weight_decay_form"] == "estool"
 
 
-def applies(spec, evaluator, st) -> bool:
-    """Whether seed ``st`` of run ``spec`` can take the compiled loop now (module docstring)."""
-    from imix_cli.running.lockstep import mixing_settings
-
-    if not applies_to_run(spec, evaluator) or st.obs_norm is not None or getattr(st.es, "diverged", None) is not None:
+def applies(settings, evaluator, st) -> bool:
+    """Whether seed ``st`` of a run can take the compiled loop now (module docstring)."""
+    if not applies_to_run(settings, evaluator) or st.obs_norm is not None or getattr(st.es, "diverged", None) is not None:
         return False
-    settings = mixing_settings(spec)
+    depth = settings.mixing.depth
     es = getattr(st.es, "es", st.es)
     if type(es) not in _ALGOS or type(es.distribution) is not DiagonalGaussian or es.distribution.dtype != np.float64:
         return False
     params = es.params
     if params.weight_decay_form != "estool" or params.fitness_shaping != "centered_ranks" or es._shaping is not centered_ranks:
         return False
-    if type(es._weight_decay) is not EstoolWeightDecay or es.popsize < 2 or es.popsize * es.dim * max(settings.depth, 1) > _COMPILED_MAX_ELEMENTS:
+    if type(es._weight_decay) is not EstoolWeightDecay or es.popsize < 2 or es.popsize * es.dim * max(depth, 1) > _COMPILED_MAX_ELEMENTS:
         return False
     optimizers = [es.optimizer] if type(es) is OpenES else [es.mu_optimizer, es.sigma_optimizer]
     if any(o.epsilon != 1e-8 or o.beta1 != params.beta1 or o.beta2 != params.beta2 for o in optimizers):
         return False
     archive = st.archive
-    if len(archive.generations) > settings.depth or np.any(archive.pairs != 0.0):
+    if len(archive.generations) > depth or np.any(archive.pairs != 0.0):
         return False
     for g in archive.generations:
         if type(g.dist) is not DiagonalGaussian or g.samples.shape != (es.popsize, es.dim) or g.samples.dtype != np.float64 or g.mean_weights is None:
@@ -482,16 +480,14 @@ def applies(spec, evaluator, st) -> bool:
     return True
 
 
-def advance(st, spec, evaluator, generations: int) -> bool:
+def advance(st, settings, evaluator, generations: int) -> bool:
     """Run ``generations`` generations of seed ``st`` (a :class:`imix_cli.running.lockstep.SeedState` for which
     :func:`applies`) in one compiled call, appending their rows as the Python path does. Returns
     False, having changed nothing, when a generation needs the Python path (module docstring)."""
-    from imix_cli.running.lockstep import mixing_settings
-
-    settings = mixing_settings(spec)
+    mixing = settings.mixing
     es = getattr(st.es, "es", st.es)
     snes = type(es) is SNES
-    d, popsize, depth = es.dim, es.popsize, settings.depth
+    d, popsize, depth = es.dim, es.popsize, mixing.depth
     slots = max(depth, 1)
     archive = st.archive
     n_arch = len(archive.generations)
@@ -533,14 +529,14 @@ def advance(st, spec, evaluator, generations: int) -> bool:
     rngs = (st.sample_rng, st.episode_rng, st.mean_eval_rng)
     snapshot = [r.bit_generator.state for r in rngs]
     with np.errstate(divide="ignore"):
-        log_keep = float(np.log1p(-settings.alpha))
+        log_keep = float(np.log1p(-mixing.alpha))
     done = entry()(
-        generations, _ALGOS[type(es)], _VARIANTS[settings.variant], depth, float(settings.alpha), log_keep,
+        generations, _ALGOS[type(es)], _VARIANTS[mixing.variant], depth, float(mixing.alpha), log_keep,
         float(es.weight_decay), hash_multipliers(d), es_generation,
         mu, log_sigma, std, float(es.sigma), opt_m, opt_v, opt_t, lrs, float(es.params.beta1), float(es.params.beta2),
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
         st.sample_rng, st.episode_rng, st.mean_eval_rng, evaluator._sizes(), type(evaluator).__name__ != "CartPoleEvaluator",
-        bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps), int(spec.eval_mean_every), int(spec.eval_mean_episodes),
+        bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps), int(settings.eval_mean_every), int(settings.eval_mean_episodes),
         st.generation, best, best_return, last_u,
         out_scores, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
     )  # fmt: skip
@@ -570,7 +566,7 @@ def advance(st, spec, evaluator, generations: int) -> bool:
         archive.ages = [a_age[k].copy() for k in range(int(a_n[0]))]
     if best_return[0] > st.best_return:
         st.best_params, st.best_return = best, float(best_return[0])
-    every, episodes = spec.eval_mean_every, int(spec.eval_mean_episodes)
+    every, episodes = settings.eval_mean_every, int(settings.eval_mean_episodes)
     numbers = (out_scores, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
     for scores, counts, n, steps, sigma_mean, theta in zip(*(a.tolist() for a in numbers)):
         st.evaluations += n
@@ -579,10 +575,10 @@ def advance(st, spec, evaluator, generations: int) -> bool:
             st.mean_policy_episodes += episodes
         # results.generation_row's row, key for key, from the numbers the kernel computed as it does
         st.rows.append({
-            "algo": spec.algo, "env": spec.env_name, "mixing": spec.mixing, "seed": st.seed, "generation": st.generation,
+            "algo": settings.algo, "env": settings.env, "mixing": settings.mixing_name, "seed": st.seed, "generation": st.generation,
             "evaluations": st.evaluations, "env_steps": st.env_steps, "mean_score": scores[0], "best_score": scores[1],
             "reused": counts[0], "reused_im": counts[1], "reused_eim": counts[2], "reevaluated": 0,
-            "popsize": spec.popsize, "sigma_mean": sigma_mean, "nonfinite": 0, "wall_time": 0.0,
+            "popsize": settings.popsize, "sigma_mean": sigma_mean, "nonfinite": 0, "wall_time": 0.0,
             "mean_policy_score": theta, "mean_policy_episodes": st.mean_policy_episodes,
         })  # fmt: skip
     return True

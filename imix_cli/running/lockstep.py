@@ -1,5 +1,10 @@
 """The lockstep step: one generation of several seeds of one run, with one batched rollout -- no files.
 
+What the step reads of the run is resolved once, up front, into :class:`LoopSettings` (:func:`loop_settings`);
+a step changes the seeds' states (:class:`SeedState`) and each seed's step ends in a plain
+:class:`SeedRecord`: its new rows, and what of its files falls due -- for the run's writer
+(:mod:`imix_cli.running.run_writer`) to write.
+
 Every seed advances one generation at a time *in lockstep*, and the members that need an
 episode -- of all the seeds given -- are rolled out as one batch: with mixing on, only a few
 members per seed are fresh, and sharing one rollout is what keeps the per-step overhead low.
@@ -54,52 +59,103 @@ class SeedState:
         return len(self.rows)
 
 
+@dataclass(frozen=True)
+class LoopSettings:
+    """What the loop reads of a run (a :class:`imix_cli.running.run_spec.RunSpec` and its evaluator), once."""
+
+    algo: str  # the rows' algo, env and mixing labels
+    env: str
+    mixing_name: str
+    popsize: int
+    generations: int
+    dim: int  # the parameters the ES searches (:func:`search_dim`)
+    obs_dim: int  # the policy's inputs
+    es_options: dict  # make_es's keyword arguments but the dimension: popsize, sigma, lr, weight decay, algo options
+    mixing: MixingSettings
+    obs_norm_warmup: int | None  # policy.obs_norm's warm-up; None: no observation normaliser
+    policy_bias: bool
+    eval_mean_every: int
+    eval_mean_episodes: int
+    checkpoint_every: int  # 0: no checkpoints (as for an ES that has no state dict)
+
+
+def loop_settings(spec, evaluator) -> LoopSettings:
+    """What the loop needs of run ``spec``, resolved once; the evaluator gives the policy's dimension."""
+    es_options = dict(
+        popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr, weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form,
+        **spec.algo_options,
+    )  # fmt: skip
+    mixing = mixing_settings(spec)
+    return LoopSettings(
+        spec.algo, spec.env_name, spec.mixing, spec.popsize, spec.generations, search_dim(spec, evaluator), evaluator.obs_dim, es_options, mixing,
+        spec.obs_norm_warmup if spec.obs_norm else None, spec.policy_bias, spec.eval_mean_every, spec.eval_mean_episodes, spec.checkpoint_every,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SeedRecord:
+    """What a seed's step did, for the writer: ``st.rows[first:]`` are new, and what falls due at the last."""
+
+    first: int
+    diverged: str | None  # why the search diverged at the last row (marked ``diverged``): the seed ends there
+    finished: bool  # the run's last generation: the seed's CSV and policy files are due
+    checkpoint: bool  # a checkpoint is due: at the seed's end (its final state) or every checkpoint_every generations
+    mean_policy: np.ndarray | None  # finished: the distribution mean as the policy it is (policy_<k>_mean.npz)
+
+
+def seed_record(st: SeedState, first: int, settings: LoopSettings, evaluator) -> SeedRecord:
+    """The record of seed ``st``'s rows from ``first`` on; a diverged seed's last row is marked here."""
+    diverged = st.es.diverged
+    if diverged:
+        st.rows[-1]["diverged"] = 1
+    finished = not diverged and st.generation == settings.generations
+    every = settings.checkpoint_every
+    checkpoint = not diverged and bool(every) and (finished or st.generation % every == 0)
+    mean = policy_params(settings, st, st.es.distribution.mean[None, :], evaluator)[0] if finished else None
+    return SeedRecord(first, diverged, finished, checkpoint, mean)
+
+
 #: Spawn key of the episode seeds that measure the distribution mean (training uses the spawn keys 0
 #: and 1 of SeedSequence(seed), ``imix eval`` 0x6576616C "eval"): "mean".
 MEAN_EVAL_STREAM = 0x6D65616E
 
 
-def new_seed_state(spec, seed: int, dim: int) -> SeedState:
-    """Seed ``seed`` of run ``spec`` (a :class:`imix_cli.running.run_spec.RunSpec`) at generation 0, for ``dim`` parameters."""
+def new_seed_state(settings: LoopSettings, seed: int) -> SeedState:
+    """Seed ``seed`` of a run at generation 0."""
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
-    es = GuardedES(make_es(
-        spec.algo, dim, popsize=spec.popsize, sigma=spec.sigma, lr=spec.lr,
-        weight_decay=spec.weight_decay, weight_decay_form=spec.weight_decay_form, **spec.algo_options,
-    ))  # fmt: skip
+    es = GuardedES(make_es(settings.algo, settings.dim, **settings.es_options))
+    obs_norm = None if settings.obs_norm_warmup is None else ObsNormalizer(settings.obs_dim, settings.obs_norm_warmup)
     mean_eval_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(MEAN_EVAL_STREAM,)))
-    return SeedState(seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq), mean_eval_rng=mean_eval_rng)
+    return SeedState(
+        seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq), obs_norm=obs_norm, mean_eval_rng=mean_eval_rng
+    )  # fmt: skip
 
 
 def mixing_settings(spec) -> MixingSettings:
     return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob, spec.reeval_count)
 
 
-def advance_lockstep(states: list[SeedState], spec, evaluator, plan=plan_generation) -> None:
+def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator, plan=plan_generation) -> None:
     """Run one generation of every seed in ``states``, with one batched rollout for all members to evaluate.
 
     ``plan``: the planning half of the generation step (:func:`imix_cli.generation.plan_generation`,
     which mixes); a benchmark passes a timed one instead of patching a module.
     """
-    mixing = mixing_settings(spec)
     # policy.obs_norm: while a seed's statistics still change (its warm-up), stored returns would
     # belong to another policy function, so its generation neither mixes nor enters the archive.
-    warming = []
-    for st in states:
-        if spec.obs_norm and st.obs_norm is None:
-            st.obs_norm = ObsNormalizer(evaluator.obs_dim, spec.obs_norm_warmup)
-        warming.append(st.obs_norm is not None and not st.obs_norm.frozen)
-    settings = [dataclasses.replace(mixing, variant=None) if w else mixing for w in warming]
-    plans = [plan(st.es, st.archive, s, st.sample_rng) for st, s in zip(states, settings)]
+    warming = [st.obs_norm is not None and not st.obs_norm.frozen for st in states]
+    mixing = [dataclasses.replace(settings.mixing, variant=None) if w else settings.mixing for w in warming]
+    plans = [plan(st.es, st.archive, m, st.sample_rng) for st, m in zip(states, mixing)]
     episode_seeds = [st.episode_rng.integers(0, np.iinfo(np.int64).max, size=p.evaluate.size, dtype=np.int64) for st, p in zip(states, plans)]
     returns, steps = evaluator.evaluate(
-        np.concatenate([policy_params(spec, st, p.generation.samples[p.evaluate], evaluator) for st, p in zip(states, plans)]),
+        np.concatenate([policy_params(settings, st, p.generation.samples[p.evaluate], evaluator) for st, p in zip(states, plans)]),
         np.concatenate(episode_seeds),
     )
     offset = 0
-    for st, p, s, warm in zip(states, plans, settings, warming):
+    for st, p, m, warm in zip(states, plans, mixing, warming):
         g, n = p.generation, p.evaluate.size
         dist = st.es.distribution  # the distribution g was drawn from, before tell moves it
-        fitness = finish_generation(st.es, st.archive, s, p, st.es.training_fitness(returns[offset : offset + n], steps[offset : offset + n]))
+        fitness = finish_generation(st.es, st.archive, m, p, st.es.training_fitness(returns[offset : offset + n], steps[offset : offset + n]))
         if warm:  # the warm-up: the statistics absorb this generation's observations (after its best is kept)
             sums, sumsqs = evaluator.last_obs_stats
             observed = (sums[offset : offset + n], sumsqs[offset : offset + n], steps[offset : offset + n])
@@ -107,27 +163,27 @@ def advance_lockstep(states: list[SeedState], spec, evaluator, plan=plan_generat
         st.env_steps += int(steps[offset : offset + n].sum())
         offset += n
         st.rows.append(generation_row(
-            algo=spec.algo, env=spec.env_name, mixing=spec.mixing, seed=st.seed, generation=st.generation,
+            algo=settings.algo, env=settings.env, mixing=settings.mixing_name, seed=st.seed, generation=st.generation,
             evaluations=st.evaluations, env_steps=st.env_steps, fitness=fitness, reused=g.reused,
             reused_im=g.reused_from_previous, reused_eim=g.reused_from_older, reevaluated=p.reevaluated,
-            popsize=spec.popsize, sigma_mean=dist.sigma_mean,
+            popsize=settings.popsize, sigma_mean=dist.sigma_mean,
         ))  # fmt: skip
         finite = np.isfinite(fitness)
         if finite.any() and np.max(fitness[finite]) > st.best_return:  # strictly better: the first best is kept
             top = np.flatnonzero(finite)[np.argmax(fitness[finite])]
             # with policy.obs_norm, as the policy on raw observations it was evaluated as
-            st.best_params, st.best_return = policy_params(spec, st, g.samples[top : top + 1], evaluator)[0], float(fitness[top])
+            st.best_params, st.best_return = policy_params(settings, st, g.samples[top : top + 1], evaluator)[0], float(fitness[top])
         if warm:
             st.obs_norm.add(*observed)
             st.obs_norm.end_generation()
-    measure_distribution_means(states, spec, evaluator)
+    measure_distribution_means(states, settings, evaluator)
 
 
-def measure_distribution_means(states: list[SeedState], spec, evaluator) -> None:
+def measure_distribution_means(states: list[SeedState], settings: LoopSettings, evaluator) -> None:
     """Fill the last row's ``mean_policy_*`` columns; every ``eval_mean_every`` generations, the return of
     each seed's distribution mean on ``eval_mean_episodes`` fresh episodes, all seeds in one batch.
     ES papers report this policy -- the one a user deploys -- rather than the population's mean return. Its episodes are counted apart, never as evaluations."""
-    every, episodes = spec.eval_mean_every, spec.eval_mean_episodes
+    every, episodes = settings.eval_mean_every, settings.eval_mean_episodes
     due = []
     for st in states:
         st.rows[-1]["mean_policy_score"] = float("nan")
@@ -137,7 +193,7 @@ def measure_distribution_means(states: list[SeedState], spec, evaluator) -> None
         if every and st.generation % every == 0 and np.all(np.isfinite(mean)):
             due.append(st)
     if due:
-        params = np.concatenate([np.repeat(policy_params(spec, st, st.es.distribution.mean[None, :], evaluator), episodes, axis=0) for st in due])
+        params = np.concatenate([np.repeat(policy_params(settings, st, st.es.distribution.mean[None, :], evaluator), episodes, axis=0) for st in due])
         seeds = np.concatenate([st.mean_eval_rng.integers(0, np.iinfo(np.int64).max, size=episodes, dtype=np.int64) for st in due])
         returns, _ = evaluator.evaluate(params, seeds)
         for k, st in enumerate(due):
@@ -154,12 +210,12 @@ def search_dim(spec, evaluator) -> int:
     return searched_params(evaluator.obs_dim, evaluator.out_dim, evaluator.hidden, spec.policy_bias)
 
 
-def policy_params(spec, st: SeedState, params: np.ndarray, evaluator) -> np.ndarray:
+def policy_params(settings: LoopSettings, st: SeedState, params: np.ndarray, evaluator) -> np.ndarray:
     """ES points ``params`` (B, search_dim) as the evaluator's policies (B, num_params) on raw
     observations: zero biases put back (``policy.bias=false``), then the seed's normaliser folded
     in, if any (the fold gives the first layer a bias even where the policy had none)."""
     params = np.array(params, dtype=np.float64)
-    if not spec.policy_bias:
+    if not settings.policy_bias:
         params = with_zero_biases(params, evaluator.obs_dim, evaluator.out_dim, evaluator.hidden)
     if st.obs_norm is None:
         return params

@@ -49,15 +49,16 @@ def _mixing_group(spec) -> None:
     """A few generations of the run's ES with the run's mixing, on made-up returns: compiles the ES
     update and the mixing step (the run's variant), with the run's dimension and population."""
     from imix_cli.generation import Archive, finish_generation, plan_generation
-    from imix_cli.running.lockstep import mixing_settings, new_seed_state
+    from imix_cli.parallel_evaluation import build_evaluator
+    from imix_cli.running.lockstep import loop_settings, new_seed_state
 
-    st = new_seed_state(spec, 0, _num_params(spec))
-    settings = mixing_settings(spec)
+    settings = loop_settings(spec, build_evaluator(spec))
+    st = new_seed_state(settings, 0)
     archive = Archive()
     rng = np.random.default_rng(0)
-    for _ in range(settings.depth + 1):
-        plan = plan_generation(st.es, archive, settings, st.sample_rng)
-        finish_generation(st.es, archive, settings, plan, rng.normal(size=plan.evaluate.size))
+    for _ in range(settings.mixing.depth + 1):
+        plan = plan_generation(st.es, archive, settings.mixing, st.sample_rng)
+        finish_generation(st.es, archive, settings.mixing, plan, rng.normal(size=plan.evaluate.size))
 
 
 def _policy_group(spec) -> None:
@@ -81,16 +82,11 @@ def _compiled_loop_group(spec) -> None:
     its entry point, which holds its own copy of the mixing, episode and update kernels."""
     from imix_cli.parallel_evaluation import build_evaluator
     from imix_cli.running import compiled_loop
-    from imix_cli.running.lockstep import new_seed_state
+    from imix_cli.running.lockstep import loop_settings, new_seed_state
 
     evaluator = build_evaluator(spec)
-    compiled_loop.advance(new_seed_state(spec, 0, evaluator.num_params), spec, evaluator, 1)
-
-
-def _num_params(spec) -> int:
-    from imix_cli.parallel_evaluation import build_evaluator
-
-    return build_evaluator(spec).num_params
+    settings = loop_settings(spec, evaluator)
+    compiled_loop.advance(new_seed_state(settings, 0), settings, evaluator, 1)
 
 
 def compile_groups(spec) -> list:
@@ -112,8 +108,9 @@ def compile_groups(spec) -> list:
         if isinstance(evaluator, (CartPoleEvaluator, ContinuousCartPoleEvaluator)):
             groups.append((_episodes_group, [kernels.cartpole_episodes]))
             from imix_cli.running import compiled_loop
+            from imix_cli.running.lockstep import loop_settings
 
-            if compiled_loop.applies_to_run(spec, evaluator):
+            if compiled_loop.applies_to_run(loop_settings(spec, evaluator), evaluator):
                 groups.append((_compiled_loop_group, [compiled_loop.entry()]))
         elif isinstance(evaluator, AcrobotEvaluator):
             groups.append((_episodes_group, [kernels.acrobot_episodes]))

@@ -1,0 +1,69 @@
+"""The writer of an ES run's seeds: every file a seed writes as it trains, and only here.
+
+The loop (:mod:`imix_cli.running.es_seeds`) hands it each step of a seed -- the seed's state and the
+step's :class:`imix_cli.running.lockstep.SeedRecord` -- and it writes what falls due:
+
+* every new row: its wall time, and a copy to the tracker (``logger=``, :mod:`imix_cli.running.tracking`);
+* every ``checkpoint_every`` generations: the seed's checkpoint (:mod:`imix_cli.running.resume`) and
+  ``seed_<k>.partial.csv``, its live view;
+* at a finished seed's end: its policy files (:mod:`imix_cli.running.policy_files`), ``seed_<k>.csv``
+  (:mod:`imix_cli.running.results`) and its final state, from which a larger ``generations=`` continues;
+* at a diverged seed's end: one warning line, and ``seed_<k>.csv`` ending at the diverged row.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+from imix_cli.messages import warn
+from imix_cli.running.policy_files import write_seed_policies
+from imix_cli.running.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
+from imix_cli.running.resume import remove_checkpoints, save_checkpoint
+from imix_cli.running.tracking import make_tracker
+
+
+class RunWriter:
+    """The files of run ``spec``'s seeds in this process; ``identity``: what their checkpoints are of.
+    ``summaries``: seed -> :func:`imix_cli.running.results.seed_summary`, of each seed whose CSV it wrote."""
+
+    def __init__(self, spec, evaluator, identity: dict):
+        self.spec, self.evaluator, self.identity, self.run_dir = spec, evaluator, identity, spec.run_dir
+        self.tracker = make_tracker(spec)  # logger=: a copy of each row, as it is made
+        self.started = time.perf_counter()
+        self.summaries: dict[int, dict] = {}
+        self.partial: dict[int, tuple[int, str]] = {}  # seed -> (rows in its live CSV, their text)
+        self.tables: dict[int, dict] = {}  # seed -> its rows' encoding at its last checkpoint (imix_cli.running.checkpoints.TableCache)
+
+    def write(self, st, record, began: float | None = None) -> None:
+        """Seed ``st``'s step ``record``: its new rows, then what falls due. ``began``: when the compiled
+        chunk that made the rows began (``time.perf_counter()``): their wall times spread evenly over it."""
+        now = time.perf_counter() - self.started
+        start = now if began is None else began - self.started
+        rows = st.rows[record.first :]
+        for i, row in enumerate(rows, start=1):  # a compiled chunk's rows: times spread evenly over it
+            row["wall_time"] = st.elapsed + start + (now - start) * i / len(rows)
+        if self.tracker is not None:
+            for row in rows:
+                self.tracker.log(st.seed, row)
+        ended = bool(record.finished or record.diverged)
+        if record.diverged:
+            warn(f"seed {st.seed} diverged at generation {st.generation - 1} ({record.diverged}); its CSV ends there")
+        if record.finished:
+            write_seed_policies(self.spec, st.seed, self.evaluator, record.mean_policy, st.best_params, st.best_return, st.generation)
+        if ended:
+            self.summaries[st.seed] = write_run_csv(seed_csv_path(self.run_dir, st.seed), st.rows)
+        if record.checkpoint:  # with the wall time the seed has spent so far, ``now`` seconds into this process's share
+            save_checkpoint(self.run_dir, dataclasses.replace(st, elapsed=st.elapsed + now), self.identity, self.tables.setdefault(st.seed, {}))
+        if record.checkpoint and not ended:  # the live view, rewritten whole with only its new rows formatted: earlier rows never change
+            done, text = self.partial.get(st.seed, (0, ""))
+            text += rows_csv_text(st.rows[done:], header=not done)
+            self.partial[st.seed] = (len(st.rows), text)
+            atomic_write_text(partial_csv_path(self.run_dir, st.seed), text)
+        if ended:  # its checkpoints but the final state, and its live view, are no longer needed
+            self.tables.pop(st.seed, None)
+            remove_checkpoints(self.run_dir, st.seed, keep_final=record.checkpoint)
+
+    def close(self) -> None:
+        if self.tracker is not None:
+            self.tracker.close()
