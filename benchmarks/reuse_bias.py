@@ -16,6 +16,7 @@ rule), and stored noisy returns told again (``reeval_count``). Each section isol
               and nothing else.
 ``noisy``     a sphere whose evaluations carry noise the size of the population's spread of
               true values: the true f(mean) at the end (lower is better).
+``sphere``    the same sphere without noise: what reuse does to a search whose returns are exact.
 ``tasks``     reads an experiment of ``imix run`` CSVs (CartPole, Acrobot, MuJoCo: see
               ``make reuse-bias``) and prints, per run: the population's mean return at the
               end (reused returns included), the mean policy theta on fresh episodes at the end
@@ -24,7 +25,7 @@ rule), and stored noisy returns told again (``reeval_count``). Each section isol
 
 Usage::
 
-    python benchmarks/reuse_bias.py constant|neutral|noisy [--seeds 5] [--generations 400] [--workers 2]
+    python benchmarks/reuse_bias.py constant|neutral|noisy|sphere [--seeds 5] [--generations 400] [--workers 2]
     python benchmarks/reuse_bias.py tasks [--experiment results/paper --experiment results/reuse_rules]
 
 d = 130 (the CartPole policy's size), N = 50, sigma0 0.25, lr 0.01, no weight decay in the
@@ -64,7 +65,7 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
     """One run of ``algo`` with ``rule`` on a synthetic objective; the statistics of the module docstring."""
     rng = np.random.default_rng(seed)
     noise_rng = np.random.default_rng(seed + 10_000)
-    mean0 = np.full(dim, 0.5) if objective == "noisy" else None
+    mean0 = np.full(dim, 0.5) if objective in ("noisy", "sphere") else None
     es = make_es(algo, dim, popsize=popsize, sigma=SIGMA0, lr=0.01, weight_decay=0.0, mean=mean0)
     settings, archive = RULES[rule], Archive()
     start, sigma0 = es.mean.copy(), es.distribution.sigma_mean
@@ -87,6 +88,8 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
             returns = np.zeros(todo.shape[0])
         elif objective == "neutral":
             returns = noise_rng.standard_normal(todo.shape[0])
+        elif objective == "sphere":
+            returns = -np.sum(todo * todo, axis=1)
         else:  # true f spread across a population ~ sigma^2 sqrt(2d); noise of that size
             returns = -np.sum(todo * todo, axis=1) + SIGMA0**2 * np.sqrt(2 * dim) * noise_rng.standard_normal(todo.shape[0])
         finish_generation(es, archive, settings, plan, returns)
@@ -117,6 +120,7 @@ def synthetic_table(objective: str, seeds: int, generations: int, workers: int, 
         "constant": ("E[z^2]", "offset", "sigma/sigma0", "displacement", "reuse"),
         "neutral": ("sigma/sigma0", "displacement", "reuse", "episodes"),
         "noisy": ("true f(mean)", "sigma/sigma0", "reuse", "episodes"),
+        "sphere": ("true f(mean)", "sigma/sigma0", "reuse", "episodes"),
     }[objective]
     print(f"objective={objective}, d={DIM}, N={POPSIZE}, {generations} generations, {seeds} seeds: mean over seeds (± s.e.)")
     print("| ES | rule | " + " | ".join(columns) + " | vs none: " + ", ".join(c for c in columns if c in ("sigma/sigma0", "displacement")) + " |")
@@ -179,7 +183,7 @@ def tasks_table(experiments: list[str]) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("constant", "neutral", "noisy", "tasks"))
+    parser.add_argument("section", choices=("constant", "neutral", "noisy", "sphere", "tasks"))
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--generations", type=int, default=400)
     parser.add_argument("--workers", type=int, default=2)
