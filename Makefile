@@ -124,7 +124,9 @@ reuse-bias:  ## the reuse-bias table (docs/research/bias.md) into results/reuse_
 	$(IMIX) run -m $(REUSE_MUJOCO) eim=false,true experiment=mujoco
 	$(IMIX) run -m $(REUSE_MUJOCO) eim=true reeval_count=2 experiment=mujoco_rules
 	mkdir -p results/reuse_bias
-	for s in constant neutral noisy; do $(PY) benchmarks/reuse_bias.py $$s --seeds 3 --generations 200 > results/reuse_bias/$$s.md; done
+	for s in constant neutral noisy sphere; do $(PY) benchmarks/reuse_bias.py $$s --seeds 3 --generations 200 > results/reuse_bias/$$s.md; done
+	$(PY) benchmarks/cma_step_size.py > results/reuse_bias/cma_step_size.md
+	$(PY) benchmarks/cma_step_size.py --tasks cartpole,acrobot --task-seeds 25 > results/reuse_bias/cma_step_size_tasks.md
 	$(PY) benchmarks/reuse_bias.py tasks --experiment results/paper --experiment results/reuse_rules > results/reuse_bias/tasks.md
 	$(PY) benchmarks/reuse_bias.py tasks --experiment results/mujoco --experiment results/mujoco_rules > results/reuse_bias/mujoco.md
 
