@@ -17,13 +17,14 @@ set_one_blas_thread()
 
 @pytest.fixture
 def csv_disk_full(monkeypatch):
-    """Every fsync of a seed CSV being written (its ``.seed_*`` temporary) fails with ENOSPC, as on a full disk."""
+    """Every fsync of a seed CSV being written (its ``.seed_*.csv.*`` temporary; not a checkpoint's) fails with ENOSPC, as on a full disk."""
     import imix_cli.running.results as results_module
 
     real_fsync = results_module.os.fsync
 
     def fsync_fails_for_csvs(fd):
-        if Path(f"/proc/self/fd/{fd}").resolve().name.startswith(".seed_"):
+        name = Path(f"/proc/self/fd/{fd}").resolve().name
+        if name.startswith(".seed_") and ".csv." in name:
             raise OSError(errno.ENOSPC, "No space left on device")
         return real_fsync(fd)
 

@@ -140,4 +140,5 @@ def test_full_disk_while_writing(results, capsys, csv_disk_full):
     assert len(err.splitlines()) == 1 and "No space left on device" in err, err
     after = snapshot(results)
     assert {k: v for k, v in after.items() if k in before} == before  # nothing existing changed
-    assert not [p for p in after if p.name.startswith("seed_1") or p.suffix == ".tmp"]  # nothing partial
+    # nothing partial; the seed's final state, saved before its CSV, may wait in its checkpoint for a re-run to write its CSV from
+    assert not [p for p in after if (p.name.startswith("seed_1") and ".checkpoints" not in p.parts) or p.suffix == ".tmp"]

@@ -21,9 +21,10 @@ import pytest
 from imix_cli.commands.cli import main
 from imix_cli.evaluation import make_evaluator
 from imix_cli.running import checkpoints
+from imix_cli.running.checkpoints import checkpoint_path, save_checkpoint
 from imix_cli.running.config import validate_overrides
 from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
-from imix_cli.running.resume import checkpoint_path, load_checkpoint, save_checkpoint
+from imix_cli.running.resume import load_checkpoint
 from imix_cli.running.run_folder import prepare_run_dir
 from imix_cli.running.runner import run_seeds
 

@@ -293,7 +293,7 @@ def test_resume_mid_warm_up_equals_not_stopping(tmp_path):
     at generation 2 of 3) and resumed, a run writes the same CSV as one that never stopped."""
     import pandas as pd
 
-    from imix_cli.running.resume import checkpoint_path
+    from imix_cli.running.checkpoints import checkpoint_path
     from imix_cli.running.run_folder import prepare_run_dir
     from imix_cli.running.runner import run_seeds
 

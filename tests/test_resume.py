@@ -7,6 +7,7 @@ final name must be a complete, valid CSV; at the end every CSV must equal (but f
 the CSV of an uninterrupted run.
 """
 
+import io
 import os
 import random
 import re
@@ -20,9 +21,9 @@ import pandas as pd
 import pytest
 
 from imix_cli.commands.cli import main
+from imix_cli.running.checkpoints import checkpoint_path
 from imix_cli.running.config import validate_overrides
 from imix_cli.running.results import read_run_csv
-from imix_cli.running.resume import checkpoint_path
 from imix_cli.running.run_folder import prepare_run_dir
 from imix_cli.running.runner import run_seeds
 
@@ -228,3 +229,21 @@ def test_a_finished_run_continues_to_more_generations_as_if_run_at_once(tmp_path
     assert main(["run", *common, "generations=5", f"results_dir={tmp_path / 'twice'}"]) == 1
     assert "not shortened" in capfd.readouterr().err
     assert {p: p.read_bytes() for p in run_dir.glob("seed_*.csv")} == before
+
+
+def test_a_kill_between_a_seeds_final_state_and_its_csv_writes_only_its_files(tmp_path, capfd):
+    """The writer saves a finished seed's final state before its CSV: a run killed in between resumes
+    the seed at its last generation and writes its policy files and CSV, as the run would have."""
+    common = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=6", "popsize=10", "checkpoint_every=4", "workers=1", "progress=false"]
+    assert main(["run", *common, f"results_dir={tmp_path}"]) == 0
+    (run_dir,) = [p.parent for p in tmp_path.rglob("config.yaml")]
+    files = ("seed_0.csv", "policy_0_mean.npz", "policy_0_best.npz")
+    before = {name: (run_dir / name).read_bytes() for name in files}
+    for name in files:
+        (run_dir / name).unlink()
+    capfd.readouterr()
+    assert main(["run", *common, f"results_dir={tmp_path}"]) == 0
+    assert "seed 0 resumes at generation 6" in capfd.readouterr().err
+    assert {name: (run_dir / name).read_bytes() for name in files[1:]} == {name: before[name] for name in files[1:]}
+    csv_now, csv_before = (pd.read_csv(source).drop(columns=["wall_time"]) for source in (run_dir / files[0], io.BytesIO(before[files[0]])))
+    pd.testing.assert_frame_equal(csv_now, csv_before)

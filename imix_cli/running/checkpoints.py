@@ -7,6 +7,10 @@ turn into a wrong CSV. A checkpoint therefore either loads *exactly* what was sa
 refused with one warning line naming the file and the reason, and the seed restarts from
 scratch (that only costs recomputation).
 
+A seed's checkpoint is ``.checkpoints/seed_<k>.npz`` in its run folder (:func:`checkpoint_path`), saved by
+the run's writer (:mod:`imix_cli.running.run_writer`) and read back, and checked against the run, by
+:mod:`imix_cli.running.resume`.
+
 Format (``FORMAT_VERSION`` 1), written atomically (:func:`imix_cli.running.results.atomic_write_bytes`):
 an uncompressed NumPy ``.npz`` (a zip of ``.npy`` files, read back with
 ``np.load(allow_pickle=False)``, so no object array can be loaded) holding
@@ -67,6 +71,21 @@ class CheckpointError(ValueError):
 def config_hash(identity: dict) -> str:
     """SHA-256 of a run's identity (the result-determining config), as canonical JSON."""
     return hashlib.sha256(_canonical(identity).encode()).hexdigest()
+
+
+def checkpoint_path(run_dir, seed: int) -> Path:
+    """``.checkpoints/seed_<k>.npz`` of run folder ``run_dir``: where seed ``seed``'s state waits between processes."""
+    return Path(run_dir) / ".checkpoints" / f"seed_{seed}.npz"
+
+
+def save_checkpoint(run_dir, st, identity: dict, tables: dict | None = None) -> None:
+    """Seed state ``st`` (:class:`imix_cli.running.lockstep.SeedState`) as its seed's checkpoint in ``run_dir``;
+    ``tables``: kept by the caller between the checkpoints of that seed (:func:`write_checkpoint`)."""
+    write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation, tables=tables)
+
+
+def remove_checkpoint(run_dir, seed: int) -> None:
+    checkpoint_path(run_dir, seed).unlink(missing_ok=True)
 
 
 def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int, tables: dict | None = None) -> None:

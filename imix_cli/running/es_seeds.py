@@ -18,45 +18,33 @@ import time
 from pathlib import Path
 
 from imix_cli.messages import warn
-from imix_cli.parallel_evaluation import build_evaluator
+from imix_cli.running.checkpoints import checkpoint_path
 from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state, seed_record
-from imix_cli.running.resume import can_checkpoint, checkpoint_path, load_checkpoint
+from imix_cli.running.resume import can_checkpoint, load_checkpoint
 from imix_cli.running.run_folder import RunError
 from imix_cli.running.run_spec import resume_identity
 from imix_cli.running.run_writer import RunWriter
 
 
-def run_es_seeds(spec, seeds: list[int], progress) -> dict:
-    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep; ``progress(n)`` gets the
-    number of seed-generations just completed. Returns seed -> :func:`imix_cli.running.results.seed_summary`."""
-    evaluator = build_evaluator(spec)
-    try:  # the evaluator's processes (pool, Ray) end with the seeds, a Ctrl-C or SIGTERM included
-        return _run_es_seeds(spec, seeds, progress, evaluator)
-    finally:
-        close = getattr(evaluator, "close", None)
-        if close is not None:
-            close()
-
-
-def _run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
-    """The run's settings and seeds, resolved once; the loop; and its one writer."""
+def run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
+    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep, on the run's ``evaluator``
+    (:func:`imix_cli.parallel_evaluation.build_evaluator`, built and closed by the caller); ``progress(n)`` gets
+    the number of seed-generations just completed. Returns seed -> :func:`imix_cli.running.results.seed_summary`."""
     identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
     settings = loop_settings(spec, evaluator)
     states = []
     for seed in seeds:
         fresh = new_seed_state(settings, seed)
+        path = checkpoint_path(spec.run_dir, seed)
         # A refused checkpoint may have been half loaded into the state it was given: a copy of the fresh one.
         st = load_checkpoint(
             spec.run_dir, seed, identity, copy.deepcopy(fresh), spec=spec, max_steps=int(evaluator.max_steps), policy_dim=evaluator.num_params
         )  # fmt: skip
         if st is not None and st.generation > settings.generations:  # a longer continuation's, killed before it finished
-            warn(
-                f"{checkpoint_path(spec.run_dir, seed)}: checkpoint at generation {st.generation} is past generations={settings.generations}; "
-                f"seed {seed} restarts from generation 0"
-            )
+            warn(f"{path}: checkpoint at generation {st.generation} is past generations={settings.generations}; seed {seed} restarts from generation 0")
             st = None
         if st is not None:
-            print(f"imix: seed {seed} resumes at generation {st.generation} from {checkpoint_path(spec.run_dir, seed)}", file=sys.stderr, flush=True)
+            print(f"imix: seed {seed} resumes at generation {st.generation} from {path}", file=sys.stderr, flush=True)
             progress(st.generation)
         states.append(fresh if st is None else st)
     if states and not can_checkpoint(states[0].es):

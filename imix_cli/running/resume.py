@@ -1,11 +1,10 @@
-"""Where a seed's state waits between processes: its checkpoint files in a run folder.
+"""Resuming a seed: its checkpoint read back, and checked against the run it is to continue.
 
-A checkpoint of a seed's whole state (:class:`imix_cli.running.lockstep.SeedState`: ES, archive, RNG
-states, rows so far) is written atomically to ``.checkpoints/seed_<k>.npz`` (plain data, see
-:mod:`imix_cli.running.checkpoints`) and deleted once the seed's CSV exists -- but for the final state,
-from which a larger ``generations=`` continues the seed. A checkpoint that is damaged, of
-another seed or config, or not a checkpoint at all is refused with one warning line naming
-the file and why, and its seed restarts from scratch.
+A checkpoint (:mod:`imix_cli.running.checkpoints`: the file, its format, where it lives, and writing it)
+holds a seed's whole state (:class:`imix_cli.running.lockstep.SeedState`: ES, archive, RNG states, rows so
+far). One that is damaged, of another seed or config, not a checkpoint at all, or holding a value the
+run could not have produced is refused with one warning line naming the file and why, and its seed
+restarts from scratch.
 """
 
 from __future__ import annotations
@@ -17,17 +16,8 @@ import numpy as np
 
 from imix_cli.messages import warn as _warn
 from imix_cli.mixing import variant_spec
-from imix_cli.running.checkpoints import DEFAULT_MAX_BYTES, CheckpointError, load_or_warn, write_checkpoint
-from imix_cli.running.results import COLUMNS, partial_csv_path
-
-
-def checkpoint_path(run_dir: Path, seed: int) -> Path:
-    return Path(run_dir) / ".checkpoints" / f"seed_{seed}.npz"
-
-
-def save_checkpoint(run_dir: Path, st, identity: dict, tables: dict | None = None) -> None:
-    """``tables``: kept by the caller between the checkpoints of seed ``st`` (:func:`imix_cli.running.checkpoints.write_checkpoint`)."""
-    write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation, tables=tables)
+from imix_cli.running.checkpoints import DEFAULT_MAX_BYTES, CheckpointError, checkpoint_path, load_or_warn
+from imix_cli.running.results import COLUMNS
 
 
 def load_checkpoint(run_dir: Path, seed: int, identity: dict, fresh, warn=None, spec=None, max_steps: int | None = None, policy_dim: int | None = None):
@@ -252,11 +242,3 @@ def can_checkpoint(es) -> bool:
         _warn(f"algo={es.name} cannot be checkpointed yet: a killed run restarts its unfinished seeds")
         return False
     return True
-
-
-def remove_checkpoints(run_dir: Path, seed: int, keep_final: bool = False) -> None:
-    """A finished seed's checkpoints (and its live-view partial CSV) are no longer needed -- but for
-    its final state (``keep_final``), from which a larger ``generations=`` continues the seed."""
-    if not keep_final:
-        checkpoint_path(run_dir, seed).unlink(missing_ok=True)
-    partial_csv_path(run_dir, seed).unlink(missing_ok=True)

@@ -103,7 +103,7 @@ def prepare_run_dir(spec) -> list[int]:
     return todo
 
 
-#: Where a run's checkpoints live (imix_cli.running.resume.checkpoint_path).
+#: Where a run's checkpoints live (imix_cli.running.checkpoints.checkpoint_path).
 CHECKPOINT_AREA = ".checkpoints"
 
 

@@ -4,11 +4,17 @@ The loop (:mod:`imix_cli.running.es_seeds`) hands it each step of a seed -- the 
 step's :class:`imix_cli.running.lockstep.SeedRecord` -- and it writes what falls due:
 
 * every new row: its wall time, and a copy to the tracker (``logger=``, :mod:`imix_cli.running.tracking`);
-* every ``checkpoint_every`` generations: the seed's checkpoint (:mod:`imix_cli.running.resume`) and
-  ``seed_<k>.partial.csv``, its live view;
-* at a finished seed's end: its policy files (:mod:`imix_cli.running.policy_files`), ``seed_<k>.csv``
-  (:mod:`imix_cli.running.results`) and its final state, from which a larger ``generations=`` continues;
-* at a diverged seed's end: one warning line, and ``seed_<k>.csv`` ending at the diverged row.
+* every ``checkpoint_every`` generations: the seed's checkpoint (:mod:`imix_cli.running.checkpoints`) and
+  ``seed_<k>.partial.csv``, its live view (:mod:`imix_cli.running.results`);
+* at a finished seed's end: its policy files (:mod:`imix_cli.running.policy_files`), its final state, from
+  which a larger ``generations=`` continues, then ``seed_<k>.csv``;
+* at a diverged seed's end: one warning line, ``seed_<k>.csv`` ending at the diverged row, and its
+  checkpoint removed.
+
+The file formats are the modules named, which know nothing of the loop; what falls due when, and in
+which order, is here: a seed's CSV, which marks it done, comes after its policy files and final state,
+and its older files go after its CSV (a run killed in between redoes the seed's last steps, or only
+its files).
 """
 
 from __future__ import annotations
@@ -17,9 +23,9 @@ import dataclasses
 import time
 
 from imix_cli.messages import warn
+from imix_cli.running.checkpoints import remove_checkpoint, save_checkpoint
 from imix_cli.running.policy_files import write_seed_policies
 from imix_cli.running.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
-from imix_cli.running.resume import remove_checkpoints, save_checkpoint
 from imix_cli.running.tracking import make_tracker
 
 
@@ -51,18 +57,21 @@ class RunWriter:
             warn(f"seed {st.seed} diverged at generation {st.generation - 1} ({record.diverged}); its CSV ends there")
         if record.finished:
             write_seed_policies(self.spec, st.seed, self.evaluator, record.mean_policy, st.best_params, st.best_return, st.generation)
-        if ended:
-            self.summaries[st.seed] = write_run_csv(seed_csv_path(self.run_dir, st.seed), st.rows)
         if record.checkpoint:  # with the wall time the seed has spent so far, ``now`` seconds into this process's share
             save_checkpoint(self.run_dir, dataclasses.replace(st, elapsed=st.elapsed + now), self.identity, self.tables.setdefault(st.seed, {}))
-        if record.checkpoint and not ended:  # the live view, rewritten whole with only its new rows formatted: earlier rows never change
+        if ended:  # its CSV; its live view is no longer needed
+            self.summaries[st.seed] = write_run_csv(seed_csv_path(self.run_dir, st.seed), st.rows)
+            partial_csv_path(self.run_dir, st.seed).unlink(missing_ok=True)
+            self.partial.pop(st.seed, None)
+        elif record.checkpoint:  # the live view, rewritten whole with only its new rows formatted: earlier rows never change
             done, text = self.partial.get(st.seed, (0, ""))
             text += rows_csv_text(st.rows[done:], header=not done)
             self.partial[st.seed] = (len(st.rows), text)
             atomic_write_text(partial_csv_path(self.run_dir, st.seed), text)
-        if ended:  # its checkpoints but the final state, and its live view, are no longer needed
+        if ended:  # its checkpoint is no longer needed -- but for a final state, from which a larger ``generations=`` continues
             self.tables.pop(st.seed, None)
-            remove_checkpoints(self.run_dir, st.seed, keep_final=record.checkpoint)
+            if not record.checkpoint:
+                remove_checkpoint(self.run_dir, st.seed)
 
     def close(self) -> None:
         if self.tracker is not None:

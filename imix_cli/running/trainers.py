@@ -20,7 +20,8 @@ class Trainer:
     ``run_seeds(spec, seeds, progress) -> {seed: summary}`` runs seeds to completion in this process
     and ``needs_running(spec, seed, path, frame) -> bool`` says whether a seed whose CSV exists
     is to be run further (RunError if that CSV does not fit the config). Both are the functions
-    below, which import their trainer's module when called: ``imix status`` and the run folder's
+    below (the ES's ``run_seeds`` also builds the run's evaluator, and closes it), which import
+    their trainer's module when called: ``imix status`` and the run folder's
     checks load neither numba nor the envs, and SB3 loads only for DDPG (and the trainer modules
     import :mod:`imix_cli.running.run_folder`, which imports this one).
     """
@@ -37,9 +38,18 @@ class Trainer:
 
 
 def _run_es_seeds(spec, seeds: list[int], progress) -> dict:
+    """The run's evaluator, then its seeds on it: the evaluator's processes (pool, Ray) end with the
+    seeds, a Ctrl-C or SIGTERM included."""
+    from imix_cli.parallel_evaluation import build_evaluator
     from imix_cli.running.es_seeds import run_es_seeds
 
-    return run_es_seeds(spec, seeds, progress)
+    evaluator = build_evaluator(spec)
+    try:
+        return run_es_seeds(spec, seeds, progress, evaluator)
+    finally:
+        close = getattr(evaluator, "close", None)  # a user's evaluator may have nothing to close
+        if close is not None:
+            close()
 
 
 def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
