@@ -69,13 +69,14 @@ class MixingES:
 
     def ask(self, rng: np.random.Generator | None = None) -> np.ndarray:
         """The members of the next generation that need an evaluation, one row each (fresh ones, and
-        reused ones that ``reeval_age``/``reeval_prob`` measure again). ``rng``: this call's stream
-        instead of the one given at construction."""
+        reused ones that ``reeval_age``/``reeval_prob`` measure again), then any points the ES asks
+        for besides its members (CMA-ES with ``step_size_control="tpa"``: two). ``rng``: this call's
+        stream instead of the one given at construction."""
         if self.plan is not None:
             raise RuntimeError("ask() twice without tell(): tell the returns of the members asked first")
         self.plan = plan_generation(self.es, self.archive, self.settings, self.rng if rng is None else rng)
         self._last = self.plan.generation
-        return self.plan.generation.samples[self.plan.evaluate]
+        return self.plan.points
 
     def tell(self, samples_or_returns, returns=None) -> np.ndarray:
         """Tell the returns of the members :meth:`ask` returned, as ``tell(returns)`` or, like a plain ES,
@@ -83,7 +84,7 @@ class MixingES:
         generation, reused members with their stored returns; returns the fitness of every member."""
         if self.plan is None:
             raise RuntimeError("tell() before ask(): ask for the members to evaluate first")
-        asked = self.plan.generation.samples[self.plan.evaluate]
+        asked = self.plan.points
         if returns is None:
             returns = samples_or_returns
         elif not np.array_equal(np.asarray(samples_or_returns), asked):
@@ -93,7 +94,7 @@ class MixingES:
             raise ValueError(f"tell(): {returns.shape[0]} returns for the {asked.shape[0]} members ask() returned")
         plan, self.plan = self.plan, None
         fitness = finish_generation(self.es, self.archive, self.settings, plan, returns)
-        self.evaluations += plan.evaluate.size
+        self.evaluations += asked.shape[0]
         self.reused += plan.generation.reused
         self.members += plan.generation.samples.shape[0]
         return fitness

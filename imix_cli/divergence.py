@@ -36,15 +36,16 @@ class GuardedES:
         self.__dict__["es"] = es
         self.__dict__["diverged"] = None
 
-    def tell(self, samples, fitness) -> None:
+    def tell(self, samples, fitness, **probes) -> None:
+        """``probes``: CMA-ES's ``probe_fitness`` (two-point step-size adaptation), passed on."""
         if self.diverged is not None:
             return
         samples, fitness = np.asarray(samples), np.asarray(fitness)
         if samples.ndim != 2 or samples.shape[1] != self.es.dim or samples.shape[0] != fitness.reshape(-1).shape[0]:
-            self.es.tell(samples, fitness)  # the ES's own one-line ValueError: a caller's bug, not divergence
+            self.es.tell(samples, fitness, **probes)  # the ES's own one-line ValueError: a caller's bug, not divergence
         with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
             try:
-                self.es.tell(samples, fitness)
+                self.es.tell(samples, fitness, **probes)
             except _NUMERICAL_ERRORS as err:
                 # The inputs were well-formed, so the update itself overflowed.
                 reason = nonfinite_parameters(self.es) or "overflow in the update"

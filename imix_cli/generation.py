@@ -4,7 +4,7 @@ This is the step the runner takes for every seed (in lockstep, with one batched 
 all of them), the README's library example takes, and the tests take::
 
     plan = plan_generation(es, archive, settings, rng)          # mix: which members, which to evaluate
-    returns = evaluate(plan.generation.samples[plan.evaluate])  # episodes for those only
+    returns = evaluate(plan.points)                             # episodes for those only (and CMA-ES's TPA points)
     fitness = finish_generation(es, archive, settings, plan, returns)  # stored + new returns -> tell
 
 Why the two halves: between them the runner evaluates the members of every seed of a
@@ -119,6 +119,14 @@ class Plan:
     generation: Generation
     evaluate: np.ndarray  # indices of the members that need an episode
     age: np.ndarray  # age of every member's return once the generation is evaluated
+    probes: np.ndarray | None = None  # points the ES asks to have evaluated besides its members (CMA-ES's TPA)
+
+    @property
+    def points(self) -> np.ndarray:
+        """What to evaluate, in order: the members of ``evaluate``, then the probes; :func:`finish_generation`
+        takes their returns in this order."""
+        members = self.generation.samples[self.evaluate]
+        return members if self.probes is None else np.vstack([members, self.probes])
 
     @property
     def reevaluated(self) -> int:
@@ -151,17 +159,22 @@ def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.rand
         waiting = reused[~evaluate[reused]]
         evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
     age[evaluate] = 0
-    return Plan(g, np.flatnonzero(evaluate), age)
+    probes = es.probes(rng)  # never mixed, never archived: not members
+    return Plan(g, np.flatnonzero(evaluate), age, probes)
 
 
 def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:
     """Assemble the generation's fitness (stored returns + ``returns`` of ``plan.evaluate``), tell
-    the ES, archive the generation; return the fitness (one per member)."""
+    the ES, archive the generation; return the fitness (one per member). ``returns`` are those of
+    ``plan.points``: the members' first, then the probes' (told to the ES apart)."""
     if getattr(es, "mirrored", False):
         from imix_cli.mirrored import finish_mirrored
 
         return finish_mirrored(es, archive, settings, plan, returns)
     g = plan.generation
+    returns = np.asarray(returns, dtype=np.float64).reshape(-1)
+    probe = {} if plan.probes is None else {"probe_fitness": returns[plan.evaluate.size :]}
+    returns = returns[: plan.evaluate.size]
     fitness = np.empty(g.samples.shape[0])
     for k, stored in enumerate(archive.returns, start=1):  # reused members keep their stored return
         from_k = g.source == k
@@ -184,7 +197,7 @@ def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan
             told_fitness = fitness.copy()
             told_fitness[kept] = line[0] + line[1] * fitness[kept]
     told = getattr(es, "generation", None)
-    es.tell(g.samples, told_fitness)
+    es.tell(g.samples, told_fitness, **probe)
     if told is not None and es.generation > told:  # the weights of this generation's members in the move ("conditional" mixing)
         g.mean_weights = getattr(es, "mean_weights", None)
     depth = settings.depth

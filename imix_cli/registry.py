@@ -125,7 +125,7 @@ ALGORITHM_SPECS: dict[str, AlgorithmSpec] = {
         AlgorithmSpec("openes", "OpenES", OKABE_ITO["blue"], _openes, 1000, uses_lr=True),
         AlgorithmSpec("snes", "SNES", OKABE_ITO["vermillion"], _snes, 1000, uses_lr=True),
         AlgorithmSpec("cem", "CEM", OKABE_ITO["bluish_green"], _cem, 400, options=("style",)),
-        AlgorithmSpec("cmaes", "CMA-ES", OKABE_ITO["reddish_purple"], _cmaes, 400),
+        AlgorithmSpec("cmaes", "CMA-ES", OKABE_ITO["reddish_purple"], _cmaes, 400, options=("step_size_control",)),
         # Augmented Random Search (Mania et al. 2018): mirrored pairs, popsize = 2 x directions, lr = its
         # step size alpha, sigma = its noise nu; per-env presets of its paper: +ars=<env> (conf/ars/)
         AlgorithmSpec("ars", "ARS", OKABE_ITO["orange"], _ars, 1000, uses_lr=True, options=("top", "alive_bonus_offset")),

@@ -345,6 +345,12 @@ class EvolutionStrategy(ABC):
         """Draw a fresh generation of ``popsize`` independent samples (no antithetic pairs)."""
         return self.distribution.sample(self.popsize, rng)
 
+    def probes(self, rng: np.random.Generator) -> np.ndarray | None:
+        """Points to evaluate afresh with the next generation besides its members -- never members,
+        never reused -- whose returns :meth:`tell` then takes as ``probe_fitness`` (CMA-ES's
+        two-point step-size adaptation). None: none (every ES but CMA-ES with TPA)."""
+        return None
+
     def training_fitness(self, returns: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """The fitness the runner tells (and archives) for episodes of these ``returns`` and lengths
         ``steps``: the return itself, unless an ES trains on a reshaped reward (ARS's survival-bonus

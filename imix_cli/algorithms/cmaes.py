@@ -34,8 +34,32 @@ Where we differ from pycma, on purpose:
   the member's Mahalanobis rescaling d / ||C^-1/2 y||^2 -- so each member gets the mean
   positive part and the mean negative part of its group's positions: the expectation of
   pycma's update over all orders of the tied members. Without ties this is pycma's update.
-* Step-size control is CSA at every d (pycma switches to TPA for d >= 300, which needs
-  samples injected by its own ``ask``).
+* Step-size control is CSA at every d (pycma switches to TPA for d >= 300), unless
+  ``step_size_control="tpa"`` (below).
+* Two-point step-size adaptation (``step_size_control="tpa"``; ``imix run``'s ``auto`` picks it
+  when the run mixes, CSA otherwise). Why: CSA compares the mean's step with the step of
+  *fresh* randomly ranked members. Under importance mixing a third of CMA-ES's members are
+  reused, and given the loop they are not fresh draws of the current distribution (they sit
+  nearer its mean and ahead along the last move: constant fitness, d = 130, N = 50, E[z^2] 0.977,
+  offset +0.05 spreads), so CSA misreads their steps: sigma shrank to 0.57x the run without
+  mixing under constant fitness, collapsed on Acrobot (median final sigma 2.4e-4 against 0.18),
+  and stayed 2.9x too large on the noise-free sphere, where the reused elites that pulled the
+  mean keep pulling it. Normalising CSA's step by its length under random ranks of the same
+  members fixed constant fitness and failed the sphere even without mixing
+  (benchmarks/cma_step_size.py; docs/research/bias.md, "CMA-ES's step size"). TPA's signal
+  does not come from the members at all: each generation two extra points m +- sigma r u are
+  evaluated afresh, u the last move of the mean (unit length in sigma^2 C's metric) and r the
+  length of a fresh N(0, I) draw, and sigma grows when the point ahead ranks better than the
+  one behind, shrinks otherwise (Hansen 2008, "CMA-ES with two-point step-size adaptation";
+  the constants, c = 0.3, |z|^0.5 and damp = 0.7 + 2 ln d + 2 ln max(1, lambda - d), are pycma
+  4.5's ``CMAAdaptSigmaTPA``). Under random ranks the two points are exchangeable, so log sigma
+  does not drift, whatever the members; under constant fitness they tie and sigma stays. The
+  price: 2 episodes per generation. Measured on the paper's tasks (25 seeds,
+  benchmarks/cma_step_size.py --tasks): docs/research/bias.md. Unlike pycma, the two points are
+  not members of the generation: they take no part in the mean or covariance update and are
+  never reused, so the generation stays a draw of the distribution. The z of a generation is
+  computed on the raw fitness (stored returns for reused members), not on the weight-decayed
+  utilities, whose decay term the points do not have.
 * No termination criteria, no logging, no bounds, no integer variables, no elitism.
 * Linear algebra: products, the eigendecomposition (EISPACK's tred2 + tql2 instead of LAPACK's
   dsyevd) and the sampler's Cholesky factor are :mod:`imix_cli.linalg_kernels`' compiled loops,
@@ -46,7 +70,7 @@ Where we differ from pycma, on purpose:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -74,6 +98,15 @@ SUPPORTED_OPTIONS = {
     # CMAES._alleviate_conditioning); a false value switches it off
     "conditioncov_alleviate": (1e8, 1e12),
 }
+
+#: Values of :attr:`CMAESParams.step_size_control` (``"auto"``: resolved by the runner, see the field).
+STEP_SIZE_CONTROLS = ("csa", "tpa", "auto")
+
+
+def step_size_control_for(mixing: bool) -> str:
+    """What ``algo.step_size_control=auto`` means: TPA when members are reused (module docstring), CSA (pycma's) otherwise."""
+    return "tpa" if mixing else "csa"
+
 
 # pycma's GaussFullSampler raises when an eigenvalue is <= 0 and retries after adding the
 # smallest previous eigenvalue to the diagonal; it recurses without limit, we give up here.
@@ -171,6 +204,12 @@ class CMAESParams(Params):
     #: other key is refused. None: pycma's defaults.
     cma_options: dict | None = None
 
+    #: Step-size control: ``"csa"`` (pycma's cumulative step-size adaptation) or ``"tpa"``
+    #: (two-point adaptation: two extra fresh evaluations per generation, :meth:`CMAES.probes`;
+    #: module docstring). ``imix run``'s ``algo.step_size_control=auto`` resolves to ``"tpa"``
+    #: when the run mixes and to ``"csa"`` otherwise (:func:`step_size_control_for`).
+    step_size_control: str = field(default="csa", metadata={"choices": STEP_SIZE_CONTROLS, "auto": lambda mixing: step_size_control_for(mixing)})
+
 
 class CMAES(EvolutionStrategy):
     """CMA-ES: N(mean, sigma^2 C) with full C, pycma's update (see the module docstring).
@@ -226,6 +265,14 @@ class CMAES(EvolutionStrategy):
         self.transform = None  # T and T^-1 once pycma's alleviate_conditioning has fired
         self.transform_inverse = None
         self.countiter = 0  # pycma's countiter: number of updates
+        if self.params.step_size_control not in ("csa", "tpa"):
+            raise ValueError(f"step_size_control={self.params.step_size_control!r}: must be 'csa' or 'tpa' ('auto' is resolved by imix run)")
+        # TPA (pycma's CMAAdaptSigmaTPA constants): the damping, the smoothing c, the state s and
+        # the last move of the mean (genotype), from which the next two test points are made
+        self.tpa_damp = 0.7 + 2 * math.log(d) + 2 * math.log(max(1, self.popsize - d))
+        self.tpa_s = 0.0
+        self.tpa_move = np.zeros(d)
+        self._probe_fitness = None
         self._set_distribution()
 
     # ------------------------------------------------------------ distribution
@@ -241,6 +288,43 @@ class CMAES(EvolutionStrategy):
             mean = lk.mat_vec(self.transform, mean)
             cov = lk.mat_mat(lk.mat_mat(self.transform, cov), self.transform.T)
         self._dist = FullGaussian(mean, cov)
+
+    # ------------------------------------------------------------------ TPA
+    def probes(self, rng: np.random.Generator) -> np.ndarray | None:
+        """With ``step_size_control="tpa"``: the two test points m +- sigma r u (u the last move of
+        the mean, of unit length in sigma^2 C's metric; r the length of a fresh N(0, I) draw) to
+        evaluate afresh with this generation and pass to :meth:`tell` as ``probe_fitness``. None
+        with CSA, and before the mean has moved."""
+        if self.params.step_size_control != "tpa" or not np.any(self.tpa_move):
+            return None
+        whitened = lk.vec_mat(self.tpa_move / self.scaling, self.eigenvectors) / self.eigenvalues_sqrt / self.step_size
+        y = self.tpa_move * (float(np.linalg.norm(rng.standard_normal(self.dim))) / float(np.linalg.norm(whitened)))
+        points = np.vstack([self.mean_geno + y, self.mean_geno - y])
+        return points if self.transform is None else lk.mat_mat(points, self.transform.T)
+
+    def tell(self, samples, fitness, probe_fitness=None) -> None:
+        """:meth:`EvolutionStrategy.tell`; with TPA, ``probe_fitness`` holds the returns of the two
+        points :meth:`probes` gave for this generation (ahead, behind); without it sigma stays."""
+        if probe_fitness is not None:
+            probe_fitness = np.asarray(probe_fitness, dtype=np.float64).reshape(-1)
+            if self.params.step_size_control != "tpa" or probe_fitness.size != 2:
+                raise ValueError("probe_fitness: the 2 returns of the points probes() gave (step_size_control='tpa' only)")
+            self._probe_fitness = (probe_fitness, np.asarray(fitness, dtype=np.float64).reshape(-1))
+        try:
+            super().tell(samples, fitness)
+        finally:
+            self._probe_fitness = None
+
+    def _tpa_step(self) -> float:
+        """log sigma's change from the two points' fitness (pycma's CMAAdaptSigmaTPA.update2, maximising):
+        z = (#{f > f_behind} - #{f > f_ahead}) / (n - 1) over the points and the generation."""
+        if self._probe_fitness is None:
+            return 0.0
+        points, members = self._probe_fitness
+        f = np.where(np.isfinite(np.concatenate([points, members])), np.concatenate([points, members]), -np.inf)
+        z = (np.count_nonzero(f > f[1]) - np.count_nonzero(f > f[0])) / (f.size - 1)
+        self.tpa_s = (1 - 0.3) * self.tpa_s + 0.3 * math.copysign(abs(z) ** 0.5, z)
+        return self.tpa_s / self.tpa_damp
 
     # ------------------------------------------------------------------ update
     def _parameters(self, n: int) -> tuple[_Parameters, list]:
@@ -309,8 +393,12 @@ class CMAES(EvolutionStrategy):
 
         # [T] (44): sigma <- sigma exp(cs / damps (||p_sigma|| / E||N(0, I)|| - 1)), change of
         # log sigma clipped to +-1 (pycma's max_delta_log_sigma)
-        s = np.sqrt(np.sum(np.square(self.p_sigma))) / self.chi_d - 1
-        s *= cs / self.damps
+        if self.params.step_size_control == "tpa":  # from the two points, not the path (module docstring)
+            s = self._tpa_step()
+            self.tpa_move = self.mean_geno - mean_old
+        else:
+            s = np.sqrt(np.sum(np.square(self.p_sigma))) / self.chi_d - 1
+            s *= cs / self.damps
         self.step_size *= math.exp(min(max(float(s), -1), 1))
         # pycma moves a huge sigma into C (_redistribute_sigma_above = 1e9), same distribution
         if self.step_size > 1e9 * self.sigma:
@@ -402,14 +490,16 @@ class CMAES(EvolutionStrategy):
 
         Arrays: ``mean_geno``, ``C``, ``eigenvalues_sqrt`` and ``eigenvectors`` (the last
         decomposition, which the next update uses), ``scaling``, ``p_sigma``, ``p_c``, and
-        ``transform``/``transform_inverse`` once the condition alleviation has set them.
-        Scalars: ``step_size``, ``countiter`` and the base class's ``generation`` and
+        ``transform``/``transform_inverse`` once the condition alleviation has set them, and with
+        TPA ``tpa_move`` (the last move of the mean) and the scalar ``tpa_s``. Scalars: ``step_size``, ``countiter`` and the base class's ``generation`` and
         ``nonfinite_fitness_count``. Constructor arguments (the config) are not included.
         """
         state = {name: getattr(self, name).copy() for name in self._ARRAYS}
         if self.transform is not None:
             state["transform"] = self.transform.copy()
             state["transform_inverse"] = self.transform_inverse.copy()
+        if self.params.step_size_control == "tpa":
+            state.update(tpa_move=self.tpa_move.copy(), tpa_s=float(self.tpa_s))
         state.update(
             step_size=float(self.step_size),
             countiter=int(self.countiter),
@@ -435,6 +525,13 @@ class CMAES(EvolutionStrategy):
         missing = [k for k in ("step_size", "countiter", "generation", "nonfinite_fitness_count") if k not in state]
         if missing:
             raise ValueError(f"CMAES state: missing {missing}")
+        if self.params.step_size_control == "tpa":
+            if "tpa_move" not in state or "tpa_s" not in state:
+                raise ValueError("CMAES state: missing 'tpa_move'/'tpa_s' (a state saved with step_size_control='csa'?)")
+            move = np.array(state["tpa_move"], dtype=np.float64)
+            if move.shape != (d,):
+                raise ValueError(f"CMAES state: tpa_move has shape {move.shape}, expected {(d,)}")
+            self.tpa_move, self.tpa_s = move, float(state["tpa_s"])
         self.step_size = float(state["step_size"])
         self.countiter = int(state["countiter"])
         self.generation = int(state["generation"])

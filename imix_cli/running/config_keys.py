@@ -40,6 +40,10 @@ KEYS = (
     Key("algo.style", "imix", "algo=cem only: imix | cemrl",
         "`algo=cem` only: `imix` (maximum-likelihood variance + decaying extra variance) or `cemrl` (the authors' sepCEM: log "
         "weights, variance about the old mean scaled by 1/K)", "what to run"),
+    Key("algo.step_size_control", "auto", "algo=cmaes only: csa | tpa | auto (tpa with im/eim, csa without)",
+        "`algo=cmaes` only: `csa` (pycma's cumulative step-size adaptation), `tpa` (two-point adaptation: two extra "
+        "fresh episodes per generation along the last move of the mean; its signal does not come from reused members), "
+        "`auto` (`tpa` with `im`/`eim`, `csa` without); docs/research/bias.md", "what to run"),
     Key("algo.top", "null", "algo=ars only: b, the best directions a step uses (null: all)",
         "`algo=ars` only: b, the number of best directions a step uses (ARS V1-t/V2-t); `null` = all N = popsize/2", "what to run"),
     Key("algo.alive_bonus_offset", "0.0", "algo=ars only: added to each step's reward in training",

@@ -30,7 +30,7 @@ from imix_cli.running.config_checks import (
     seeds_of,
     workers_and_experiment,
 )
-from imix_cli.running.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields
+from imix_cli.running.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, algo_option_fields, resolve_auto_options
 
 
 def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
@@ -49,6 +49,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     if eim and im_variant != PAPER_DEFAULTS["im_variant"]:
         raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(EIM_VARIANTS)}")
     mixing = "eim" if eim else ("im" if im else "none")
+    algo_options = resolve_auto_options(algo, algo_options, mixing != "none")
     variant = EIM_VARIANTS[eim_variant] if eim else (im_variant if im else None)
     if im_alpha != 0.0 and not (variant is not None and variant_spec(variant).uses_alpha):
         raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")

@@ -146,14 +146,15 @@ def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator,
     warming = [st.obs_norm is not None and not st.obs_norm.frozen for st in states]
     mixing = [dataclasses.replace(settings.mixing, variant=None) if w else settings.mixing for w in warming]
     plans = [plan(st.es, st.archive, m, st.sample_rng) for st, m in zip(states, mixing)]
-    episode_seeds = [st.episode_rng.integers(0, np.iinfo(np.int64).max, size=p.evaluate.size, dtype=np.int64) for st, p in zip(states, plans)]
+    points = [p.points for p in plans]  # the members to evaluate, then any probes (CMA-ES's TPA): all are episodes
+    episode_seeds = [st.episode_rng.integers(0, np.iinfo(np.int64).max, size=len(x), dtype=np.int64) for st, x in zip(states, points)]
     returns, steps = evaluator.evaluate(
-        np.concatenate([policy_params(settings, st, p.generation.samples[p.evaluate], evaluator) for st, p in zip(states, plans)]),
+        np.concatenate([policy_params(settings, st, x, evaluator) for st, x in zip(states, points)]),
         np.concatenate(episode_seeds),
     )
     offset = 0
-    for st, p, m, warm in zip(states, plans, mixing, warming):
-        g, n = p.generation, p.evaluate.size
+    for st, p, x, m, warm in zip(states, plans, points, mixing, warming):
+        g, n = p.generation, len(x)
         dist = st.es.distribution  # the distribution g was drawn from, before tell moves it
         fitness = finish_generation(st.es, st.archive, m, p, st.es.training_fitness(returns[offset : offset + n], steps[offset : offset + n]))
         if warm:  # the warm-up: the statistics absorb this generation's observations (after its best is kept)

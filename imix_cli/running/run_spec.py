@@ -35,6 +35,13 @@ def algo_option_fields(algo: str) -> dict:
     return {key: by_name[key] for key in spec.options}
 
 
+def resolve_auto_options(algo: str, options: dict, mixing: bool) -> dict:
+    """``options`` with each ``"auto"`` value replaced by what its field's ``metadata["auto"]`` picks for a
+    run that mixes or not (CMA-ES's ``step_size_control``)."""
+    fields = algo_option_fields(algo)
+    return {k: fields[k].metadata["auto"](mixing) if v == "auto" and "auto" in fields[k].metadata else v for k, v in options.items()}
+
+
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
 #: carries, as ``-key=value,...``, the ones that differ from these.
 DDPG_DEFAULTS = PAPER_SETTINGS
@@ -152,7 +159,8 @@ class RunSpec:
             values["reeval_prob"] = self.reeval_prob
             values["reeval_count"] = self.reeval_count
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
-        defaults = {k: f.default for k, f in algo_option_fields(self.algo).items()}
+        fields = algo_option_fields(self.algo)  # an "auto" option's default is what auto picks for this run
+        defaults = resolve_auto_options(self.algo, {k: "auto" if "auto" in f.metadata else f.default for k, f in fields.items()}, self.mixing != "none")
         changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != defaults.get(k)})
         if self.hidden != POLICY_DEFAULTS["hidden"]:
             changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"

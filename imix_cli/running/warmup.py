@@ -58,7 +58,7 @@ def _mixing_group(spec) -> None:
     rng = np.random.default_rng(0)
     for _ in range(settings.mixing.depth + 1):
         plan = plan_generation(st.es, archive, settings.mixing, st.sample_rng)
-        finish_generation(st.es, archive, settings.mixing, plan, rng.normal(size=plan.evaluate.size))
+        finish_generation(st.es, archive, settings.mixing, plan, rng.normal(size=len(plan.points)))
 
 
 def _policy_group(spec) -> None:
