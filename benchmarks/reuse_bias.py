@@ -31,7 +31,8 @@ Usage::
 d = 130 (the CartPole policy's size), N = 50, sigma0 0.25, lr 0.01, no weight decay in the
 synthetic sections. Rows: ``none`` (no mixing), ``exact`` (``eim=true eim_variant=exact``),
 ``conditional`` (``eim=true eim_variant=conditional``), ``exact + reeval 2`` (``eim=true
-reeval_count=2``).
+reeval_count=2``); CMA-ES with mixing uses two-point step-size adaptation, as ``imix run``'s
+``algo.step_size_control=auto`` does, and ``exact + CSA`` is CMA-ES with mixing and pycma's CSA.
 """
 
 from __future__ import annotations
@@ -56,7 +57,18 @@ RULES = {
     "exact": MixingSettings("eim"),
     "conditional": MixingSettings("conditional"),
     "exact + reeval 2": MixingSettings("eim", reeval_count=2),
+    "exact + CSA": MixingSettings("eim"),  # CMA-ES only: mixing with pycma's step-size control
 }
+#: Rows that only apply to CMA-ES.
+CMAES_ONLY = ("exact + CSA",)
+
+
+def es_options(algo: str, rule: str) -> dict:
+    """CMA-ES's step-size control as ``imix run``'s ``auto`` picks it (TPA when mixing), except on the
+    row that asks for pycma's CSA with mixing."""
+    if algo != "cmaes":
+        return {}
+    return {"step_size_control": "csa" if rule in ("none", *CMAES_ONLY) else "tpa"}
 DIM, POPSIZE, SIGMA0 = 130, 50, 0.25
 WARMUP = 20  # generations before E[z^2] and the offset are averaged
 
@@ -66,7 +78,7 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
     rng = np.random.default_rng(seed)
     noise_rng = np.random.default_rng(seed + 10_000)
     mean0 = np.full(dim, 0.5) if objective in ("noisy", "sphere") else None
-    es = make_es(algo, dim, popsize=popsize, sigma=SIGMA0, lr=0.01, weight_decay=0.0, mean=mean0)
+    es = make_es(algo, dim, popsize=popsize, sigma=SIGMA0, lr=0.01, weight_decay=0.0, mean=mean0, **es_options(algo, rule))
     settings, archive = RULES[rule], Archive()
     start, sigma0 = es.mean.copy(), es.distribution.sigma_mean
     z2, offset, previous_mean = [], [], None
@@ -83,7 +95,7 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
             if norm > 0:
                 offset.append(float(np.mean(z @ (move / norm))))
         previous_mean = dist.mean.copy()
-        todo = x[plan.evaluate]
+        todo = plan.points  # the members to evaluate, then CMA-ES's two TPA points
         if objective == "constant":
             returns = np.zeros(todo.shape[0])
         elif objective == "neutral":
@@ -94,7 +106,7 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
             returns = -np.sum(todo * todo, axis=1) + SIGMA0**2 * np.sqrt(2 * dim) * noise_rng.standard_normal(todo.shape[0])
         finish_generation(es, archive, settings, plan, returns)
         reused += plan.generation.reused
-        evaluated += plan.evaluate.size
+        evaluated += todo.shape[0]
     return {
         "E[z^2]": np.mean(z2),
         "offset": np.mean(offset),
@@ -111,7 +123,7 @@ def _one(job):
 
 
 def synthetic_table(objective: str, seeds: int, generations: int, workers: int, algos, rules) -> None:
-    jobs = [(objective, a, r, s, generations) for a, r, s in itertools.product(algos, rules, range(seeds))]
+    jobs = [(objective, a, r, s, generations) for a, r, s in itertools.product(algos, rules, range(seeds)) if a == "cmaes" or r not in CMAES_ONLY]
     results = {}
     with ProcessPoolExecutor(workers) as pool:
         for job, out in pool.map(_one, jobs):
@@ -128,6 +140,8 @@ def synthetic_table(objective: str, seeds: int, generations: int, workers: int, 
     for algo in algos:
         base = {c: np.mean([o[c] for o in results.get((algo, "none"), [])] or [np.nan]) for c in columns}
         for rule in rules:
+            if (algo, rule) not in results:
+                continue
             outs = results[(algo, rule)]
             cells = []
             for c in columns:

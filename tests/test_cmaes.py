@@ -16,6 +16,7 @@ The generic ES tests (API contract, optimisation) are in tests/test_algorithms.p
 from __future__ import annotations
 
 import io
+import math
 import json
 import warnings
 
@@ -331,3 +332,86 @@ def test_indefinite_covariance_is_repaired_as_pycma_does():
     np.testing.assert_allclose(ours.C, sampler.C, rtol=1e-14)
     np.testing.assert_allclose(ours.eigenvalues_sqrt, sampler.D, rtol=1e-13)
     assert ours.eigenvalues_sqrt.min() > 0
+
+
+# --------------------------------------------------------------- two-point step-size adaptation
+def _tpa_run(es, f, generations, rng):
+    """The loop imix runs: the probes drawn with the generation, their fresh returns told with it."""
+    for _ in range(generations):
+        x = es.ask(rng)
+        probes = es.probes(rng)
+        es.tell(x, f(x), probe_fitness=None if probes is None else f(probes))
+
+
+def test_tpa_probes_lie_on_the_last_move_of_the_mean_at_a_fresh_draws_length():
+    es = CMAES(6, popsize=10, step_size_control="tpa", weight_decay=0.0)
+    rng = np.random.default_rng(0)
+    assert es.probes(rng) is None  # the mean has not moved yet
+    x = es.ask(rng)
+    es.tell(x, -np.sum(x**2, axis=1))
+    assert es.step_size == es.sigma  # no points were told: sigma stays
+    move, mean, cov = es.tpa_move.copy(), es.mean.copy(), es.distribution.cov
+    length = np.linalg.norm(np.random.default_rng(5).standard_normal(6))  # the draw probes() makes
+    ahead, behind = es.probes(np.random.default_rng(5))
+    np.testing.assert_allclose(ahead + behind, 2 * mean, rtol=0, atol=1e-12)
+    np.testing.assert_allclose((ahead - mean) / np.linalg.norm(ahead - mean), move / np.linalg.norm(move), atol=1e-12)
+    assert math.isclose(float(np.sqrt((ahead - mean) @ np.linalg.solve(cov, ahead - mean))), length, rel_tol=1e-9)
+
+
+def test_tpa_grows_sigma_on_a_slope_and_shrinks_it_at_an_optimum():
+    slope = CMAES(10, popsize=12, step_size_control="tpa", weight_decay=0.0)
+    _tpa_run(slope, lambda x: x[:, 0], 60, np.random.default_rng(1))
+    assert slope.step_size > 3 * slope.sigma, slope.step_size
+    bowl = CMAES(10, popsize=12, sigma=1.0, step_size_control="tpa", weight_decay=0.0)
+    _tpa_run(bowl, lambda x: -np.sum(x**2, axis=1), 100, np.random.default_rng(2))
+    assert bowl.step_size < 0.05 * bowl.sigma, bowl.step_size
+
+
+def test_tpa_keeps_sigma_when_the_points_tie():
+    """Constant fitness: the two points tie with every member, z = 0 and sigma never moves."""
+    es = CMAES(10, popsize=12, step_size_control="tpa", weight_decay=0.0)
+    _tpa_run(es, lambda x: np.zeros(len(x)), 50, np.random.default_rng(3))
+    assert es.step_size == es.sigma
+
+
+def test_tpa_does_not_care_about_the_order_of_the_generation():
+    rng = np.random.default_rng(4)
+    es = CMAES(8, popsize=10, step_size_control="tpa", weight_decay=0.01)
+    _tpa_run(es, lambda x: -np.sum(x**2, axis=1), 5, rng)
+    other = CMAES(8, popsize=10, step_size_control="tpa", weight_decay=0.01)
+    other.load_state_dict(es.state_dict())
+    x = es.ask(rng)
+    probes = es.probes(rng)
+    f, fp = -np.sum(x**2, axis=1), -np.sum(probes**2, axis=1)
+    order = rng.permutation(len(x))
+    es.tell(x, f, probe_fitness=fp)
+    other.tell(x[order], f[order], probe_fitness=fp)
+    for key, value in es.state_dict().items():
+        np.testing.assert_array_equal(other.state_dict()[key], value, err_msg=key)
+
+
+def test_tpa_state_resume_is_bit_identical():
+    def build():
+        return CMAES(8, popsize=12, step_size_control="tpa", weight_decay=0.01, mean=np.ones(8))
+
+    f = RotatedEllipsoid(8, cond=1e3, seed=1)
+    es = build()
+    _tpa_run(es, lambda x: -f(x), 30, np.random.default_rng(0))
+    clone = build()
+    clone.load_state_dict(_to_checkpoint_and_back(es.state_dict()))
+    _tpa_run(es, lambda x: -f(x), 20, np.random.default_rng(1))
+    _tpa_run(clone, lambda x: -f(x), 20, np.random.default_rng(1))
+    for key, value in es.state_dict().items():
+        np.testing.assert_array_equal(clone.state_dict()[key], value, err_msg=key)
+    with pytest.raises(ValueError, match="tpa_move"):
+        build().load_state_dict(CMAES(8, popsize=12).state_dict())  # a CSA state has no TPA state
+
+
+def test_probe_returns_are_checked():
+    x = np.zeros((12, 8))
+    with pytest.raises(ValueError, match="probe_fitness"):
+        CMAES(8, popsize=12).tell(x, np.zeros(12), probe_fitness=[0.0, 1.0])  # CSA takes no probes
+    with pytest.raises(ValueError, match="probe_fitness"):
+        CMAES(8, popsize=12, step_size_control="tpa").tell(x, np.zeros(12), probe_fitness=[0.0])
+    with pytest.raises(ValueError, match="step_size_control"):
+        CMAES(8, step_size_control="auto")  # resolved by imix run, not by the class

@@ -7,7 +7,9 @@ imix_cli/generation.py, "Calibrating stored returns"):
 
 * tie ranks that follow a reused member (fixed by per-generation tie keys, the default),
 * the members' own pull on the move they are then reused after (``variant="conditional"``),
-* stored noisy returns told again (``reeval_count``).
+* stored noisy returns told again (``reeval_count``),
+* CMA-ES's step size read from members that are not fresh draws (two-point adaptation: the
+  default with mixing).
 
 The statistics are those of ``benchmarks/reuse_bias.py`` (its ``synthetic`` function is what
 is run here), at a smaller d and N so that chains of hundreds of generations stay cheap; each
@@ -66,6 +68,48 @@ def test_under_constant_fitness_openes_with_mixing_walks_as_far_as_without():
     none, _ = mean_over_seeds(*args, "none", 6, 300, 30, 20, "displacement")
     mixed, _ = mean_over_seeds(*args, "exact", 6, 300, 30, 20, "displacement")
     assert mixed / none < 1.4, f"displacement with mixing {mixed:.3f} vs {none:.3f} without"
+
+
+# ------------------------------------------------------------------- CMA-ES's step size
+def test_cma_es_step_size_under_neutral_selection_with_mixing_drifts_as_without():
+    """Every episode an independent N(0, 1) draw (CMA-ES + EIM, d = 20, N = 12, 200 generations, 8
+    seeds): nothing to find, so log(sigma / sigma0) must drift as without mixing. With pycma's CSA
+    the reused members (fewer steps' worth of spread, lucky stored returns) make sigma collapse:
+    mean log ratio -17.0 against -0.30 without mixing; with two-point adaptation (the default with
+    mixing) -0.89 (s.e. 0.91, 0.20, 0.32). The bound 2 on the difference sits > 3 s.e. from both."""
+    def mean_log_sigma(rule):
+        return float(np.mean(np.log([reuse_bias.synthetic("neutral", "cmaes", rule, s, 200, 20, 12)["sigma/sigma0"] for s in range(8)])))
+
+    none, tpa, csa = mean_log_sigma("none"), mean_log_sigma("exact"), mean_log_sigma("exact + CSA")
+    assert abs(tpa - none) < 2.0, f"mean log sigma/sigma0 with mixing (TPA) {tpa:.3f} vs {none:.3f} without"
+    assert csa - none < -5.0, f"CSA with mixing no longer collapses ({csa:.3f} vs {none:.3f}): the test lost its power"
+
+
+def test_the_runner_gives_cma_es_two_point_adaptation_only_when_it_mixes():
+    specs = {eim: validate_overrides(["algo=cmaes", f"eim={eim}"])[0] for eim in ("true", "false")}
+    assert specs["true"].algo_options["step_size_control"] == "tpa"
+    assert specs["false"].algo_options["step_size_control"] == "csa"
+    assert specs["true"].run_name == "cmaes-cartpole-eim"  # auto's choice is not a change of setting
+    chosen = validate_overrides(["algo=cmaes", "eim=true", "algo.step_size_control=csa"])[0]
+    assert chosen.algo_options["step_size_control"] == "csa"
+    assert chosen.run_name == "cmaes-cartpole-eim-algo.step_size_control=csa"
+    with pytest.raises(ConfigError, match="algo.step_size_control"):
+        validate_overrides(["algo=cmaes", "algo.step_size_control=fast"])
+
+
+def test_the_runner_evaluates_and_counts_the_two_points(tmp_path):
+    """Every generation after the first: its fresh members plus the two TPA points are episodes."""
+    import pandas as pd
+
+    from imix_cli.commands.cli import main
+
+    assert main(["run", "algo=cmaes", "env=cartpole", "eim=true", "seeds=1", "generations=6", "popsize=10",
+                 "workers=1", "progress=false", f"results_dir={tmp_path}", "experiment=t"]) == 0  # fmt: skip
+    rows = pd.read_csv(tmp_path / "t" / "cmaes-cartpole-eim-popsize=10" / "seed_0.csv")
+    fresh = rows["popsize"] - rows["reused"]
+    episodes = rows["evaluations"].diff().fillna(rows["evaluations"].iloc[0])
+    assert episodes.iloc[0] == fresh.iloc[0]  # the mean has not moved: no points yet
+    assert (episodes.iloc[1:] == fresh.iloc[1:] + 2).all(), rows[["evaluations", "reused"]]
 
 
 # ---------------------------------------------------------------------------- conditional rule
