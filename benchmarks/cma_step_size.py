@@ -15,25 +15,24 @@ mixing, under constant fitness (where any drift of sigma is the loop's own) and 
                  permutation of these very members (:func:`permutation_increment`). Under random
                  ranks each increment then has conditional mean 0 and E||.||^2 = d whatever the
                  members, so the path is unbiased under constant fitness by construction.
-``tpa``          two-point step-size adaptation (Hansen 2008; pycma 4.5's ``CMAAdaptSigmaTPA``
-                 constants: c = 0.3, |z|^0.5, damp = 0.7 + 2 ln d + 2 ln max(1, lambda - d)):
-                 two extra fresh episodes per generation at m' +- sigma r u, u the last move of the
-                 mean (unit length in sigma^2 C's metric), r the length of a fresh N(0, I) draw;
-                 s <- (1 - c) s + c sign(z) |z|^0.5, z the rank difference of the two points among
-                 the generation, sigma <- sigma exp(s / damp). Its signal comes from two fresh
-                 evaluations only. Unlike pycma the two points are not members of the update.
+``tpa``          CMAES with ``step_size_control="tpa"``: two-point step-size adaptation (Hansen
+                 2008; pycma 4.5's constants), two extra fresh episodes per generation along the
+                 last move of the mean; its signal comes from those two evaluations only
+                 (imix_cli/algorithms/cmaes.py). ``imix run`` uses it when it mixes.
 
-What it showed (docs/research/bias.md, "CMA-ES's step size"): neither is a remedy.
-``permutation`` removes the constant-fitness drift but fails the sphere even without mixing
-(centring on the generation's mean dilutes CSA's main signal for shrinking sigma: that the
-selected members are the short ones); ``tpa`` converges on the sphere without mixing but with
-mixing its sigma stays far above -- the mean's own moves are changed by reuse (the elites that
-pulled the mean are kept, ahead of it), and no step-size rule sees past that.
+What it showed (docs/research/bias.md, "CMA-ES's step size"): ``permutation`` removes the
+constant-fitness drift but fails the sphere even without mixing (centring on the generation's
+mean dilutes CSA's main signal for shrinking sigma: that the selected members are the short
+ones), so it is not offered as an option; ``tpa`` neither drifts under constant fitness nor
+collapses under neutral selection, and on the paper's tasks keeps CMA-ES + EIM's sigma near the
+run without mixing -- it is the default with mixing. On the sphere no rule makes mixing free:
+the mean's own moves change with reuse (the elites that pulled the mean are kept, ahead of it).
 
     python benchmarks/cma_step_size.py [--seeds-constant 10] [--seeds-sphere 4] [--generations 200] [--workers 2]
     python benchmarks/cma_step_size.py --tasks cartpole,acrobot [--task-seeds 10]   # the paper's tasks and settings
 
-d = 130, N = 50, sigma0 0.25 (benchmarks/reuse_bias.py's settings); mixing = EIM's ``exact`` rule.
+d = 130, N = 50, sigma0 0.25 (benchmarks/reuse_bias.py's settings); mixing = EIM's ``exact`` rule;
+``--tasks``: CartPole/Acrobot with the paper's settings (``imix run``'s), the loop written out.
 """
 
 from __future__ import annotations
@@ -91,50 +90,30 @@ class PermutationCMAES(CMAES):
         self._set_distribution()
 
 
-class TwoPointAdaptation:
-    """TPA's state and its two test points for a CMAES (module docstring)."""
+def make_cmaes(control: str, dim: int, popsize: int, **options) -> CMAES:
+    if control == "permutation":
+        return PermutationCMAES(dim, popsize=popsize, **options)
+    return CMAES(dim, popsize=popsize, step_size_control=control, **options)
 
-    def __init__(self, dim: int, popsize: int):
-        self.damp = 0.7 + 2 * math.log(dim) + 2 * math.log(max(1, popsize - dim))
-        self.c, self.s, self.move = 0.3, 0.0, None
 
-    def points(self, es: CMAES, rng: np.random.Generator):
-        if self.move is None:
-            return None
-        whitened = lk.vec_mat(self.move / es.scaling, es.eigenvectors) / es.eigenvalues_sqrt / es.step_size
-        y = self.move * (np.linalg.norm(rng.standard_normal(es.dim)) / np.linalg.norm(whitened))
-        return np.vstack([es.mean_geno + y, es.mean_geno - y])
-
-    def multiplier(self, point_fitness, fitness) -> float:
-        f = np.concatenate([point_fitness, fitness])  # higher is better
-        z = (np.sum(f > f[1]) - np.sum(f > f[0])) / (f.size - 1)
-        self.s = (1 - self.c) * self.s + self.c * np.sign(z) * abs(z) ** 0.5
-        return math.exp(self.s / self.damp)
+def generation_step(es, archive, settings, rng, f) -> tuple[np.ndarray, int]:
+    """One generation as imix runs it: mix, evaluate the members to evaluate and TPA's two points, tell."""
+    plan = plan_generation(es, archive, settings, rng)
+    points = plan.points
+    return finish_generation(es, archive, settings, plan, f(points)), len(points)
 
 
 def run(objective: str, control: str, mixing: str, seed: int, generations: int, dim: int = DIM, popsize: int = POPSIZE) -> dict:
     rng = np.random.default_rng(seed)
     mean0 = np.full(dim, 0.5) if objective == "sphere" else None
-    es = (PermutationCMAES if control == "permutation" else CMAES)(dim, popsize=popsize, sigma=SIGMA0, weight_decay=0.0, mean=mean0)
-    settings, archive = MIXING[mixing], Archive()
-    tpa = TwoPointAdaptation(dim, popsize) if control == "tpa" else None
-    sigma0, episodes = es.distribution.sigma_mean, 0
+    es = make_cmaes(control, dim, popsize, sigma=SIGMA0, weight_decay=0.0, mean=mean0)
+    archive, sigma0, episodes = Archive(), es.distribution.sigma_mean, 0
 
     def f(x):
         return np.zeros(len(x)) if objective == "constant" else -np.sum(x * x, axis=1)
 
     for _ in range(generations):
-        plan = plan_generation(es, archive, settings, rng)
-        points = tpa.points(es, rng) if tpa else None
-        mean_old, sigma_old = es.mean_geno.copy(), es.step_size
-        episodes += plan.evaluate.size
-        fitness = finish_generation(es, archive, settings, plan, f(plan.generation.samples[plan.evaluate]))
-        if tpa:
-            tpa.move = es.mean_geno - mean_old
-            if points is not None:
-                episodes += 2
-                es.step_size = sigma_old * tpa.multiplier(f(points), fitness)  # in place of CSA's change
-                es._set_distribution()
+        episodes += generation_step(es, archive, MIXING[mixing], rng, f)[1]
     return {"log sigma/sigma0": math.log(es.distribution.sigma_mean / sigma0), "f(mean)": float(np.sum(es.mean**2)), "episodes": episodes}
 
 
@@ -145,7 +124,6 @@ def _one(job):
 def run_task(env: str, control: str, mixing: str, seed: int, generations: int | None = None) -> dict:
     """One seed of ``imix run algo=cmaes env=<env> [eim=true]`` with the run's own settings (the paper's), the
     loop written out here so that TPA's two points can be evaluated; theta: the mean on 5 fresh episodes."""
-    from imix_cli.algorithms import make_es
     from imix_cli.evaluation import make_evaluator
     from imix_cli.running.config import validate_overrides
     from imix_cli.running.lockstep import loop_settings
@@ -153,25 +131,17 @@ def run_task(env: str, control: str, mixing: str, seed: int, generations: int | 
     spec = validate_overrides(["algo=cmaes", f"env={env}", f"eim={mixing != 'none'}"])[0]
     evaluator = make_evaluator(spec.env_name, spec.env_max_steps)
     settings = loop_settings(spec, evaluator)
-    es = make_es("cmaes", settings.dim, **settings.es_options)
+    options = {k: v for k, v in settings.es_options.items() if k not in ("popsize", "step_size_control")}
+    es = make_cmaes(control, settings.dim, spec.popsize, **options)
     sample_rng, episode_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
-    archive, tpa, episodes = Archive(), TwoPointAdaptation(settings.dim, spec.popsize) if control == "tpa" else None, 0
+    archive, episodes = Archive(), 0
 
     def f(x):
         return evaluator.evaluate(x, episode_rng.integers(0, 2**62, size=len(x)))[0]
 
     for _ in range(generations or spec.generations):
-        plan = plan_generation(es, archive, settings.mixing, sample_rng)
-        points = tpa.points(es, sample_rng) if tpa else None
-        mean_old, sigma_old = es.mean_geno.copy(), es.step_size
-        episodes += plan.evaluate.size
-        fitness = finish_generation(es, archive, settings.mixing, plan, f(plan.generation.samples[plan.evaluate]))
-        if tpa:
-            tpa.move = es.mean_geno - mean_old
-            if points is not None:
-                episodes += 2
-                es.step_size = sigma_old * tpa.multiplier(f(points), fitness)
-                es._set_distribution()
+        fitness, n = generation_step(es, archive, settings.mixing, sample_rng, f)
+        episodes += n
     theta = float(np.mean(f(np.repeat(es.mean[None, :], 5, axis=0))))
     return {"population": float(np.mean(fitness)), "theta": theta, "sigma": es.distribution.sigma_mean, "episodes": episodes}
 
