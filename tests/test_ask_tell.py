@@ -25,7 +25,8 @@ def test_the_wrapper_gives_the_runners_rows_for_every_es(algo, cartpole, tmp_pat
     # The runner's streams for seed 0 (imix_cli.running.lockstep.new_seed_state): one for mixing, one for episode seeds.
     sample_seq, episode_seq = np.random.SeedSequence(0).spawn(2)
     episode_rng = np.random.default_rng(episode_seq)
-    es = imix_cli.MixingES(imix_cli.make_es(algo, cartpole.num_params), "eim", rng=np.random.default_rng(sample_seq))
+    options = {"step_size_control": "tpa"} if algo == "cmaes" else {}  # what imix run's algo.step_size_control=auto picks with mixing
+    es = imix_cli.MixingES(imix_cli.make_es(algo, cartpole.num_params, **options), "eim", rng=np.random.default_rng(sample_seq))
     for g in range(GENERATIONS):
         row = frame.iloc[g]
         assert es.distribution.sigma_mean == pytest.approx(row["sigma_mean"], rel=1e-9)  # the same updates so far (the CSV keeps 10 digits)
