@@ -1,7 +1,10 @@
 """Where does imix's ARS part from sb3-contrib's on Swimmer? The checks behind docs/ars.md's study.
 
-imix's ARS and sb3-contrib's are the same method with the same policy, yet sb3-contrib reaches the
-ARS paper's threshold on more Swimmer seeds. Each check runs one half of the pipeline both ways:
+imix's ARS and sb3-contrib's are the same method with the same policy -- driven on one candidate
+sequence (``step``) they give the same returns and steps until float rounding parts them -- yet
+sb3-contrib reaches the ARS paper's threshold on more Swimmer seeds, and its loop on its env's own
+reset stream learns faster than the same loop on seeded resets (``resets``). Each check runs one half
+of the pipeline both ways:
 
 * ``hybrid``: sb3-contrib's own ``ARS`` class (its update, its float32 weights, its RNG), with its
   candidates' episodes and the mean policy's measurements made by imix's evaluator -- 300
@@ -24,13 +27,16 @@ ARS paper's threshold on more Swimmer seeds. Each check runs one half of the pip
   state its reset drew (float32 torch policy on a plain gymnasium env);
 * ``resets``: sb3-contrib's ARS (its update, its directions) for a number of iterations on four
   rollouts -- native, seeded, seeded with a float64 policy, imix's evaluator (the last three on the
-  same seeds) -- and each seed's mean-policy return afterwards (10 episodes, imix's evaluator).
+  same seeds) -- and each seed's mean-policy return afterwards (10 episodes, imix's evaluator);
+* ``starts``: Swimmer's start states from an env's reset stream (as sb3-contrib trains) and from
+  ``reset(seed=s)``: both uniform on +-0.1?
 
     python benchmarks/ars_sb3_gap.py hybrid [first_seed last_seed]
     python benchmarks/ars_sb3_gap.py policy
     python benchmarks/ars_sb3_gap.py pairs [policy_<k>_mean.npz]
     python benchmarks/ars_sb3_gap.py step [seed iterations]              # default 0 30
     python benchmarks/ars_sb3_gap.py resets [first_seed last_seed iterations]  # default 0 10 50
+    python benchmarks/ars_sb3_gap.py starts [count]                       # default 4000
 
 Needs the ars and mujoco extras (sb3-contrib, torch, mujoco).
 """
@@ -355,6 +361,35 @@ def resets(first: int = 0, last: int = 10, iterations: int = 50) -> None:
     print(f"after {2 * iterations} episodes: {summary}")
 
 
+def starts(count: int = 4000) -> None:
+    """Swimmer-v5's start states (qpos, qvel) two ways: ``count`` explicit resets of one env's reset
+    stream as sb3-contrib trains on it (every other reset: the ``DummyVecEnv``'s auto-reset comes
+    between), and ``count`` ``reset(seed=s)`` on fresh seeds; per coordinate the mean and the variance
+    over 0.1^2 / 3 (uniform on +-0.1: 1), and the stream's largest lag-1 correlation."""
+    import gymnasium as gym
+
+    env = gym.make(SWIMMER)
+    sim = env.unwrapped
+
+    def state() -> np.ndarray:
+        return np.concatenate([sim.data.qpos, sim.data.qvel])
+
+    env.reset(seed=3)
+    stream = []
+    for _ in range(2 * count):
+        env.reset()
+        stream.append(state())
+    stream = np.array(stream)[1::2]
+    seeded = []
+    for s in np.random.default_rng(3).integers(0, 2**62, size=count):
+        env.reset(seed=int(s))
+        seeded.append(state())
+    for name, x in (("reset stream", stream), ("reset(seed=s)", np.array(seeded))):
+        print(f"{name}: |mean| <= {np.abs(x.mean(0)).max():.4f}, variance / (0.1^2 / 3) in [{(x.var(0) * 300).min():.3f}, {(x.var(0) * 300).max():.3f}]")
+    lag = max(abs(np.corrcoef(stream[:-1, j], stream[1:, j])[0, 1]) for j in range(stream.shape[1]))
+    print(f"reset stream: largest lag-1 correlation {lag:.3f}")
+
+
 if __name__ == "__main__":
     what, args = (sys.argv[1] if len(sys.argv) > 1 else "policy"), sys.argv[2:]
     {
@@ -363,4 +398,5 @@ if __name__ == "__main__":
         "pairs": lambda: pairs(*args),
         "step": lambda: step(*map(int, args)),
         "resets": lambda: resets(*map(int, args)),
+        "starts": lambda: starts(*map(int, args)),
     }[what]()
