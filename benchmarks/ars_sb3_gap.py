@@ -237,17 +237,16 @@ def _imix_lockstep(seed: int, lr: float):
     """One seed of ``imix run env=swimmer +ars=swimmer algo=ars lr=<lr>``, a generation per call of the
     returned function (:func:`imix_cli.running.lockstep.advance_lockstep`: plan the mirrored pairs, roll
     them out, tell); returns ``(generation, feed)``, the generation giving the pair's returns [r+, r-]."""
-    from types import SimpleNamespace
+    from imix_cli.generation import MixingSettings
+    from imix_cli.running.lockstep import LoopSettings, advance_lockstep, new_seed_state
 
-    from imix_cli.running.lockstep import advance_lockstep, new_seed_state
-
-    spec = SimpleNamespace(
-        algo="ars", env_name=SWIMMER, mixing="none", variant=None, im_alpha=0.0, eim_generations=3, reeval_age=None, reeval_prob=0.0,
-        reeval_count=0, popsize=2, sigma=0.01, lr=lr, weight_decay=0.0, weight_decay_form="estool", algo_options={"top": 1},
-        obs_norm=False, obs_norm_warmup=0, policy_bias=False, eval_mean_every=0, eval_mean_episodes=3,
+    es_options = dict(popsize=2, sigma=0.01, lr=lr, weight_decay=0.0, weight_decay_form="estool", top=1)
+    settings = LoopSettings(
+        algo="ars", env=SWIMMER, mixing_name="none", popsize=2, generations=10**6, dim=OBS * ACT, obs_dim=OBS, es_options=es_options,
+        mixing=MixingSettings(None), obs_norm_warmup=None, policy_bias=False, eval_mean_every=0, eval_mean_episodes=3, checkpoint_every=0,
     )  # fmt: skip
     feed = _Feed()
-    feed.state = state = new_seed_state(spec, seed, OBS * ACT)
+    feed.state = state = new_seed_state(settings, seed)
     state.sample_rng = state.episode_rng = feed
 
     evaluator = _imix_evaluator()
@@ -261,7 +260,7 @@ def _imix_lockstep(seed: int, lr: float):
     evaluator.evaluate = recording
 
     def generation() -> np.ndarray:
-        advance_lockstep([state], spec, evaluator)
+        advance_lockstep([state], settings, evaluator)
         return feed.last
 
     return generation, feed

@@ -69,6 +69,8 @@ def es_options(algo: str, rule: str) -> dict:
     if algo != "cmaes":
         return {}
     return {"step_size_control": "csa" if rule in ("none", *CMAES_ONLY) else "tpa"}
+
+
 DIM, POPSIZE, SIGMA0 = 130, 50, 0.25
 WARMUP = 20  # generations before E[z^2] and the offset are averaged
 

@@ -160,7 +160,7 @@ def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.rand
         evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
     age[evaluate] = 0
     probes = es.probes(rng)  # never mixed, never archived: not members
-    return Plan(g, np.flatnonzero(evaluate), age, probes)
+    return Plan(g, np.flatnonzero(evaluate), age, probes=probes)
 
 
 def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:

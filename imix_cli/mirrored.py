@@ -85,7 +85,7 @@ def plan_mirrored(es, archive: Archive, settings: MixingSettings, rng: np.random
     if settings.reeval_prob > 0.0:
         evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
     age[evaluate] = 0
-    return MirroredPlan(generation, np.flatnonzero(evaluate), age, anchors)
+    return MirroredPlan(generation, np.flatnonzero(evaluate), age, anchors=anchors)
 
 
 def finish_mirrored(es, archive: Archive, settings: MixingSettings, plan: MirroredPlan, returns) -> np.ndarray:

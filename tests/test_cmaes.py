@@ -16,8 +16,8 @@ The generic ES tests (API contract, optimisation) are in tests/test_algorithms.p
 from __future__ import annotations
 
 import io
-import math
 import json
+import math
 import warnings
 
 import cma

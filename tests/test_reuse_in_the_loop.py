@@ -77,6 +77,7 @@ def test_cma_es_step_size_under_neutral_selection_with_mixing_drifts_as_without(
     the reused members (fewer steps' worth of spread, lucky stored returns) make sigma collapse:
     mean log ratio -17.0 against -0.30 without mixing; with two-point adaptation (the default with
     mixing) -0.89 (s.e. 0.91, 0.20, 0.32). The bound 2 on the difference sits > 3 s.e. from both."""
+
     def mean_log_sigma(rule):
         return float(np.mean(np.log([reuse_bias.synthetic("neutral", "cmaes", rule, s, 200, 20, 12)["sigma/sigma0"] for s in range(8)])))
 

@@ -42,7 +42,7 @@ Where we differ from pycma, on purpose:
   reused, and given the loop they are not fresh draws of the current distribution (they sit
   nearer its mean and ahead along the last move: constant fitness, d = 130, N = 50, E[z^2] 0.977,
   offset +0.05 spreads), so CSA misreads their steps: sigma shrank to 0.57x the run without
-  mixing under constant fitness, collapsed on Acrobot (median final sigma 2.4e-4 against 0.18),
+  mixing under constant fitness, collapsed on Acrobot (median final sigma 2.3e-4 against 0.19),
   and stayed 2.9x too large on the noise-free sphere, where the reused elites that pulled the
   mean keep pulling it. Normalising CSA's step by its length under random ranks of the same
   members fixed constant fitness and failed the sphere even without mixing
