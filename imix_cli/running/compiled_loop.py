@@ -573,7 +573,7 @@ def advance(st, settings, evaluator, generations: int) -> bool:
         st.env_steps += steps
         if every and (st.generation + 1) % every == 0:
             st.mean_policy_episodes += episodes
-        # results.generation_row's row, key for key, from the numbers the kernel computed as it does
+        # lockstep.generation_row's row, key for key, from the numbers the kernel computed as it does
         st.rows.append({
             "algo": settings.algo, "env": settings.env, "mixing": settings.mixing_name, "seed": st.seed, "generation": st.generation,
             "evaluations": st.evaluations, "env_steps": st.env_steps, "mean_score": scores[0], "best_score": scores[1],

@@ -27,7 +27,6 @@ from imix_cli.algorithms import make_es
 from imix_cli.divergence import GuardedES
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.policies import ObsNormalizer, searched_params, with_zero_biases
-from imix_cli.running.results import generation_row
 
 
 @dataclass
@@ -133,6 +132,24 @@ def new_seed_state(settings: LoopSettings, seed: int) -> SeedState:
 
 def mixing_settings(spec) -> MixingSettings:
     return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob, spec.reeval_count)
+
+
+def generation_row(*, algo: str, env: str, mixing: str, seed: int, generation: int, evaluations: int, env_steps: int,
+                   fitness: np.ndarray, reused: int, reused_im: int, reused_eim: int, reevaluated: int, popsize: int,
+                   sigma_mean: float) -> dict:  # fmt: skip
+    """The CSV row of one ES generation (its columns: :data:`imix_cli.running.results.COLUMNS`). ``fitness``: one return per member, stored or new; non-finite
+    returns (a user's env may produce them) are left out of the mean and best, and counted.
+    ``wall_time`` is 0.0, for the caller, which owns the clock, to fill in; the ``mean_policy_*``
+    columns are added by whoever measures the distribution mean."""
+    finite = np.isfinite(fitness)
+    return {
+        "algo": algo, "env": env, "mixing": mixing, "seed": seed, "generation": generation,
+        "evaluations": evaluations, "env_steps": env_steps,
+        "mean_score": float(np.mean(fitness[finite])) if finite.any() else float("nan"),
+        "best_score": float(np.max(fitness[finite])) if finite.any() else float("nan"),
+        "reused": reused, "reused_im": reused_im, "reused_eim": reused_eim, "reevaluated": reevaluated,
+        "popsize": popsize, "sigma_mean": sigma_mean, "nonfinite": int(np.count_nonzero(~finite)), "wall_time": 0.0,
+    }  # fmt: skip
 
 
 def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator, plan=plan_generation) -> None:

@@ -49,7 +49,7 @@ COLUMNS = (
     "diverged",  # 1 on the last row of a seed whose search distribution became non-finite (the seed ends there), else 0
 )
 
-#: Columns a row may leave out (:func:`rows_to_frame` fills them in): ``generation_row`` leaves the distribution
+#: Columns a row may leave out (:func:`rows_to_frame` fills them in): ``lockstep.generation_row`` leaves the distribution
 #: mean's columns to whoever measures it, and ``diverged`` is set only on a diverged seed's last row.
 _ROW_DEFAULTS = {"reevaluated": 0, "mean_policy_score": float("nan"), "mean_policy_episodes": 0, "diverged": 0}
 
@@ -143,24 +143,6 @@ def rows_to_frame(rows) -> pd.DataFrame:
 
 
 # ----------------------------------------------------------------------------- rows and their summary
-def generation_row(*, algo: str, env: str, mixing: str, seed: int, generation: int, evaluations: int, env_steps: int,
-                   fitness: np.ndarray, reused: int, reused_im: int, reused_eim: int, reevaluated: int, popsize: int,
-                   sigma_mean: float) -> dict:  # fmt: skip
-    """The row of one ES generation. ``fitness``: one return per member, stored or new; non-finite
-    returns (a user's env may produce them) are left out of the mean and best, and counted.
-    ``wall_time`` is 0.0, for the caller, which owns the clock, to fill in; the ``mean_policy_*``
-    columns are added by whoever measures the distribution mean."""
-    finite = np.isfinite(fitness)
-    return {
-        "algo": algo, "env": env, "mixing": mixing, "seed": seed, "generation": generation,
-        "evaluations": evaluations, "env_steps": env_steps,
-        "mean_score": float(np.mean(fitness[finite])) if finite.any() else float("nan"),
-        "best_score": float(np.max(fitness[finite])) if finite.any() else float("nan"),
-        "reused": reused, "reused_im": reused_im, "reused_eim": reused_eim, "reevaluated": reevaluated,
-        "popsize": popsize, "sigma_mean": sigma_mean, "nonfinite": int(np.count_nonzero(~finite)), "wall_time": 0.0,
-    }  # fmt: skip
-
-
 def episode_row(*, algo: str, env: str, mixing: str, seed: int, index: int, env_steps: int, ret: float,
                 sigma_mean: float, wall_time: float) -> dict:  # fmt: skip
     """The row of one finished training episode of a one-member learner (DDPG): generation = episode
