@@ -345,6 +345,9 @@ class EvolutionStrategy(ABC):
         """Draw a fresh generation of ``popsize`` independent samples (no antithetic pairs)."""
         return self.distribution.sample(self.popsize, rng)
 
+    #: Points :meth:`probes` gives per generation (once it gives any): episodes besides the members.
+    probe_count = 0
+
     def probes(self, rng: np.random.Generator) -> np.ndarray | None:
         """Points to evaluate afresh with the next generation besides its members -- never members,
         never reused -- whose returns :meth:`tell` then takes as ``probe_fitness`` (CMA-ES's

@@ -208,7 +208,7 @@ class CMAESParams(Params):
     #: (two-point adaptation: two extra fresh evaluations per generation, :meth:`CMAES.probes`;
     #: module docstring). ``imix run``'s ``algo.step_size_control=auto`` resolves to ``"tpa"``
     #: when the run mixes and to ``"csa"`` otherwise (:func:`step_size_control_for`).
-    step_size_control: str = field(default="csa", metadata={"choices": STEP_SIZE_CONTROLS, "auto": lambda mixing: step_size_control_for(mixing)})
+    step_size_control: str = field(default="csa", metadata={"choices": STEP_SIZE_CONTROLS, "auto": step_size_control_for})
 
 
 class CMAES(EvolutionStrategy):
@@ -290,6 +290,11 @@ class CMAES(EvolutionStrategy):
         self._dist = FullGaussian(mean, cov)
 
     # ------------------------------------------------------------------ TPA
+    @property
+    def probe_count(self) -> int:
+        """TPA's two points per generation (once the mean has moved); none with CSA."""
+        return 2 if self.params.step_size_control == "tpa" else 0
+
     def probes(self, rng: np.random.Generator) -> np.ndarray | None:
         """With ``step_size_control="tpa"``: the two test points m +- sigma r u (u the last move of
         the mean, of unit length in sigma^2 C's metric; r the length of a fresh N(0, I) draw) to
@@ -307,7 +312,7 @@ class CMAES(EvolutionStrategy):
         points :meth:`probes` gave for this generation (ahead, behind); without it sigma stays."""
         if probe_fitness is not None:
             probe_fitness = np.asarray(probe_fitness, dtype=np.float64).reshape(-1)
-            if self.params.step_size_control != "tpa" or probe_fitness.size != 2:
+            if not self.probe_count or probe_fitness.size != self.probe_count:
                 raise ValueError("probe_fitness: the 2 returns of the points probes() gave (step_size_control='tpa' only)")
             self._probe_fitness = (probe_fitness, np.asarray(fitness, dtype=np.float64).reshape(-1))
         try:
@@ -320,8 +325,8 @@ class CMAES(EvolutionStrategy):
         z = (#{f > f_behind} - #{f > f_ahead}) / (n - 1) over the points and the generation."""
         if self._probe_fitness is None:
             return 0.0
-        points, members = self._probe_fitness
-        f = np.where(np.isfinite(np.concatenate([points, members])), np.concatenate([points, members]), -np.inf)
+        f = np.concatenate(self._probe_fitness)  # the two points first, then the members
+        f = np.where(np.isfinite(f), f, -np.inf)
         z = (np.count_nonzero(f > f[1]) - np.count_nonzero(f > f[0])) / (f.size - 1)
         self.tpa_s = (1 - 0.3) * self.tpa_s + 0.3 * math.copysign(abs(z) ** 0.5, z)
         return self.tpa_s / self.tpa_damp

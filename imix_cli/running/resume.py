@@ -117,7 +117,7 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None, policy
         return _number(value) and (math.isnan(value) or low - 1e-9 <= value <= high + 1e-9)
 
     rows, popsize = st.rows, spec.popsize
-    probes = 2 if spec.algo_options.get("step_size_control") == "tpa" else 0  # episodes besides the members (CMA-ES's TPA)
+    probes = st.es.probe_count  # episodes besides the members (CMA-ES's TPA points)
     if not isinstance(rows, list) or len(rows) > max(spec.generations, 1) * 4:
         _fail(f"{len(rows) if isinstance(rows, list) else 'no'} rows for a run of {spec.generations} generations")
     required = set(COLUMNS) - {"diverged"}
@@ -133,7 +133,7 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None, policy
         if bad or row.get("diverged", 0) not in (0, 1) or row["popsize"] != popsize:
             _fail(f"row {i}: {bad or 'popsize'}={row[bad or 'popsize']!r} is not a count of this run")
         fresh = popsize - row["reused"] + row["reevaluated"]
-        if i > 0 and row["evaluations"] - evaluations == fresh + probes:  # CMA-ES's two TPA points, once the mean has moved
+        if i > 0 and row["evaluations"] - evaluations == fresh + probes:  # the ES's probe points, once the mean has moved
             fresh += probes
         if not (row["reused"] == row["reused_im"] + row["reused_eim"] <= popsize and row["reevaluated"] <= row["reused"] and row["nonfinite"] <= popsize):
             _fail(f"row {i}: reused/reevaluated/nonfinite counts out of range")

@@ -159,8 +159,8 @@ class RunSpec:
             values["reeval_prob"] = self.reeval_prob
             values["reeval_count"] = self.reeval_count
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
-        fields = algo_option_fields(self.algo)  # an "auto" option's default is what auto picks for this run
-        defaults = resolve_auto_options(self.algo, {k: "auto" if "auto" in f.metadata else f.default for k, f in fields.items()}, self.mixing != "none")
+        mixes = self.mixing != "none"  # an "auto" option's default is what auto picks for this run
+        defaults = {k: f.metadata["auto"](mixes) if "auto" in f.metadata else f.default for k, f in algo_option_fields(self.algo).items()}
         changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != defaults.get(k)})
         if self.hidden != POLICY_DEFAULTS["hidden"]:
             changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"
