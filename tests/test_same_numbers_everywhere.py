@@ -99,3 +99,30 @@ def test_cmaes_is_bit_identical_under_every_blas_kernel(tmp_path):
 def test_mujoco_linear_run_is_bit_identical_under_every_blas_kernel(tmp_path):
     args = ["algo=snes", "env=swimmer", "eim=true", "policy.hidden=[]", "env.max_steps=100", "seeds=1", "generations=8", "popsize=10", "workers=1"]
     _assert_same_everywhere(args, tmp_path)
+
+
+_TPA_PROBES = """
+import hashlib, numpy as np
+from imix_cli.algorithms.cmaes import CMAES
+es, rng, seen = CMAES(130, popsize=50, step_size_control="tpa"), np.random.default_rng(0), hashlib.sha256()
+for _ in range(30):
+    x = es.ask(rng)
+    probes = es.probes(rng)
+    f = lambda y: -np.sum(y * y, axis=1)
+    es.tell(x, f(x), probe_fitness=None if probes is None else f(probes))
+    seen.update(b"" if probes is None else probes.tobytes())
+print(seen.hexdigest())
+"""
+
+
+def test_cmaes_tpa_points_are_bit_identical_under_every_blas_kernel():
+    """CMA-ES's two TPA points scale the last move by two vector lengths; through numpy's BLAS dot
+    (``np.linalg.norm``) those differ in the last bits from one kernel to the next. A run's CSVs
+    rarely show it (only the points' ranks matter), so the points themselves are compared."""
+    digests = {}
+    for coretype in CORETYPES:
+        env = {**os.environ, "OPENBLAS_CORETYPE": coretype}
+        proc = subprocess.run([sys.executable, "-c", _TPA_PROBES], env=env, capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        digests[coretype] = proc.stdout.strip()
+    assert len(set(digests.values())) == 1, digests

@@ -303,7 +303,9 @@ class CMAES(EvolutionStrategy):
         if self.params.step_size_control != "tpa" or not np.any(self.tpa_move):
             return None
         whitened = lk.vec_mat(self.tpa_move / self.scaling, self.eigenvectors) / self.eigenvalues_sqrt / self.step_size
-        y = self.tpa_move * (float(np.linalg.norm(rng.standard_normal(self.dim))) / float(np.linalg.norm(whitened)))
+        draw = rng.standard_normal(self.dim)
+        # lengths by the fixed-order kernel, not numpy's BLAS dot: the same bits under every CPU kernel
+        y = self.tpa_move * math.sqrt(lk.dot(draw, draw) / lk.dot(whitened, whitened))
         points = np.vstack([self.mean_geno + y, self.mean_geno - y])
         return points if self.transform is None else lk.mat_mat(points, self.transform.T)
 
