@@ -69,7 +69,7 @@ def main(argv=None) -> int:
     ]
     print("| ES | mean moved by | variant | E[z^2] (z-score) | members reused |")
     print("|---|---|---|---|---|")
-    for variant in ("sun2009", "eim"):
+    for variant in ("sun2009", "exact"):
         for label, motion, make in cases:
             r = chains(make, variant, motion, args.chains)
             moved = {"walk": "random walk 0.25 nu/gen", "drift": "drift 0.2 nu/gen"}.get(motion, "its own steps")

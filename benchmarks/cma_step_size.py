@@ -50,7 +50,7 @@ from imix_cli.generation import Archive, MixingSettings, finish_generation, plan
 
 DIM, POPSIZE, SIGMA0 = 130, 50, 0.25
 CONTROLS = ("csa", "permutation", "tpa")
-MIXING = {"none": MixingSettings(None), "exact": MixingSettings("eim")}
+MIXING = {"none": MixingSettings(None), "exact": MixingSettings("exact")}
 
 
 def permutation_increment(x, mean, dm, scale, B, D, weights) -> np.ndarray:

@@ -34,11 +34,11 @@ def main():
         exact = new.sample(400000, rng)
         region_exact = np.mean(new.log_prob(exact) > old.log_prob(exact))
         overlap = np.mean(np.minimum(1.0, np.exp(old.log_prob(exact) - new.log_prob(exact))))
-        for variant in ("paper", "eim", "sun2009"):
+        for variant in ("paper", "exact", "sun2009"):
             pooled, reused = [], 0
             for _ in range(args.repeats):
                 archive = [(old, old.sample(args.popsize, rng))]
-                if variant == "eim":  # a second, older generation drawn from the same old density
+                if variant == "exact":  # a second, older generation drawn from the same old density
                     archive.append((old, old.sample(args.popsize, rng)))
                 g = mix(new, archive, args.popsize, rng, variant=variant)
                 pooled.append(g.samples[:, 0])

@@ -21,7 +21,7 @@ import argparse
 import numpy as np
 from scipy import stats
 
-from imix_cli.mixing import VARIANTS, DiagonalGaussian, mix
+from imix_cli.mixing import VARIANTS, DiagonalGaussian, mix, variant_spec
 
 
 def chains(variant, drift, chains=100, generations=200, popsize=50, k=3, step=0.125, seed=0, burn_in=20):
@@ -36,7 +36,7 @@ def chains(variant, drift, chains=100, generations=200, popsize=50, k=3, step=0.
             if t >= burn_in:
                 zs.append(z)
                 reused, older = reused + g.reused, older + g.reused_from_older
-            archive = [g, *archive][: k if variant.startswith("eim") else 1]
+            archive = [g, *archive][: variant_spec(variant).depth(k)]
             mean += np.exp(log_std) * (drift + step * rng.standard_normal())
             log_std += 0.02 * rng.standard_normal()
         zs = np.concatenate(zs)

@@ -34,7 +34,7 @@ from imix_cli.algorithms import make_es
 from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
 
 ALGOS = ("openes", "snes", "cem", "cmaes")
-VARIANTS = (None, "paper", "sun2009", "eim", "eim_paper")
+VARIANTS = (None, "paper", "sun2009", "exact", "eim_paper")
 REMEDIES = {"none": {}, "age 5": {"reeval_age": 5}, "age 20": {"reeval_age": 20}, "prob 0.1": {"reeval_prob": 0.1}}
 
 

@@ -54,10 +54,10 @@ from imix_cli.mixing import _whitened
 ALGOS = ("openes", "snes", "cem", "cmaes")
 RULES = {
     "none": MixingSettings(None),
-    "exact": MixingSettings("eim"),
+    "exact": MixingSettings("exact"),
     "conditional": MixingSettings("conditional"),
-    "exact + reeval 2": MixingSettings("eim", reeval_count=2),
-    "exact + CSA": MixingSettings("eim"),  # CMA-ES only: mixing with pycma's step-size control
+    "exact + reeval 2": MixingSettings("exact", reeval_count=2),
+    "exact + CSA": MixingSettings("exact"),  # CMA-ES only: mixing with pycma's step-size control
 }
 #: Rows that only apply to CMA-ES.
 CMAES_ONLY = ("exact + CSA",)

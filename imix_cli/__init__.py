@@ -3,7 +3,7 @@
 The public API (:data:`__all__`), loaded on first use::
 
     import imix_cli
-    es = imix_cli.MixingES(imix_cli.make_es("cem", dim=10, popsize=20), "eim", rng=0)  # ask/tell with mixing
+    es = imix_cli.MixingES(imix_cli.make_es("cem", dim=10, popsize=20), "exact", rng=0)  # ask/tell with mixing
     df = imix_cli.run(algo="snes", env="cartpole", eim=True, seeds=3, generations=50)    # imix run -> DataFrame
 
 Importing ``imix_cli`` loads nothing heavy (no numpy, no gymnasium) and changes nothing in the

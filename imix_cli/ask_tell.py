@@ -9,7 +9,7 @@ very functions the runner uses for every seed (:func:`imix_cli.generation.plan_g
 ``ask()`` returns the members to evaluate, ``tell()`` takes their returns. A plain ask/tell loop
 becomes a mixing one by wrapping the ES::
 
-    es = MixingES(make_es("cem", dim=10, popsize=20), "eim", rng=0)   # the one new line
+    es = MixingES(make_es("cem", dim=10, popsize=20), "exact", rng=0)   # the one new line
     for generation in range(100):
         x = es.ask()                 # only the members that need an evaluation
         es.tell(x, fitness(x))       # their returns (es.tell(fitness(x)) works too)
@@ -35,16 +35,16 @@ class MixingES:
     es
         Any ES of :mod:`imix_cli.algorithms` (or an object with ``ask(rng)``, ``tell(samples,
         fitness)``, ``distribution`` and ``popsize``).
-    variant : {"eim", "sun2009", "paper", "eim_paper", None}
-        The :func:`~imix_cli.mixing.mix` variant (``"eim"``: ``imix run eim=true``; ``"paper"``:
-        ``im=true``); None draws every generation fresh, i.e. the plain ES.
+    variant : {"exact", "sun2009", "paper", "conditional", "eim_paper", None}
+        The :func:`~imix_cli.mixing.mix` variant (``"exact"``: ``imix run eim=true``; ``"paper"``:
+        ``im=true``; :data:`~imix_cli.mixing.VARIANT_SPECS`); None draws every generation fresh, i.e. the plain ES.
     rng : numpy Generator, int or None
         The stream that draws and mixes the generations (an int seeds a new Generator).
     eim_generations, alpha, reeval_age, reeval_prob
         As the config keys of the same names (:class:`~imix_cli.generation.MixingSettings`).
     """
 
-    def __init__(self, es, variant: str | None = "eim", *, rng=None, eim_generations: int = 3, alpha: float = 0.0,
+    def __init__(self, es, variant: str | None = "exact", *, rng=None, eim_generations: int = 3, alpha: float = 0.0,
                  reeval_age: int | None = None, reeval_prob: float = 0.0):  # fmt: skip
         self.es = es
         self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob)

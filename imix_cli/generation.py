@@ -51,11 +51,11 @@ class MixingSettings:
 
     Attributes
     ----------
-    variant : {None, "paper", "sun2009", "conditional", "eim", "eim_paper"}
+    variant : {None, "paper", "sun2009", "exact", "conditional", "eim_paper"}
         The :func:`~imix_cli.mixing.mix` variant (:data:`~imix_cli.mixing.VARIANT_SPECS`); None draws
         every generation fresh.
     eim_generations : int
-        K, the archived generations ``"eim"``/``"eim_paper"`` reuse from.
+        K, the archived generations ``"exact"``/``"eim_paper"`` reuse from.
     alpha : float
         ``"sun2009"``'s minimal refresh rate.
     reeval_age : int or None

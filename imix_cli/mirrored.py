@@ -18,7 +18,7 @@ anchor and the mean. The anchors of a generation are N independent draws from N(
 So a generation is built as:
 
 1. anchors: ``mix(N(m', nu^2 I), archive of earlier anchors, N)`` -- any exact variant
-   ("sun2009", "eim"): the anchors are N independent draws from N(m', nu^2 I), some of them
+   ("sun2009", "exact"): the anchors are N independent draws from N(m', nu^2 I), some of them
    members of earlier generations whose returns are known;
 2. mirrors: 2m' - theta for every anchor, always evaluated (a reused anchor's old mirror was
    taken around the old mean, and 2m - theta = 2m' - theta only if m = m').

@@ -30,6 +30,11 @@ question, answered per variant below.
 
 Variants (``mix(..., variant=...)``)
 ------------------------------------
+Each is one :class:`Variant` of :data:`VARIANT_SPECS`, which also says which config key selects it
+and by what value (``im_variant=`` with ``im=true``, ``eim_variant=`` with ``eim=true``): the value is
+the variant's name, except ``eim_variant=paper``, which is ``"eim_paper"`` (Algorithm 3) because
+``"paper"`` is already Algorithm 2 (``im_variant=paper``).
+
 ``"paper"``     Algorithm 2: alternate rule 1 on the previous generation (in a
                 random order) and rule 2 on a fresh draw; stop as soon as the
                 generation is full; if the last step overfilled it, drop one
@@ -43,7 +48,8 @@ Variants (``mix(..., variant=...)``)
                 alpha is the minimal refresh rate. With alpha = 0 it takes a
                 Binomial(N, lambda) number of members from the overlap and the rest
                 from the leftover: exactly the law of N independent draws.
-``"eim"``       imix's multi-generation rule (``eim=true``): ``"sun2009"``'s step
+``"exact"``     imix's multi-generation rule (``eim=true``, ``eim_variant=exact``, the
+                default): ``"sun2009"``'s step
                 from the previous generation, then rule-2 draws that land in an older
                 generation's exclusive region are swapped for unused old members of
                 that region (below). Exact over chains; reuses more than
@@ -54,7 +60,7 @@ Variants (``mix(..., variant=...)``)
                 itself under neutral fitness, where the other variants are exact only
                 along a path that does not depend on the members. A named option
                 (``eim_variant=conditional``), not the default: see below why.
-``"eim_paper"`` the paper's Algorithm 3: Algorithm 2's alternation over the K most
+``"eim_paper"`` the paper's Algorithm 3 (``eim_variant=paper``): Algorithm 2's alternation over the K most
                 recent generations in turn, newest first, each tested against the
                 density of its own generation, until full; a point present in several
                 archive entries is taken at most once (a departure from the paper and
@@ -64,8 +70,8 @@ Variants (``mix(..., variant=...)``)
                 (lambda ~ 0.95, K = 3) their variance is 1.14 times the target, and in a
                 drift their mean runs ahead (tests/test_mixing.py).
 
-Multi-generation mixing: why Algorithm 3 drifts and what ``"eim"`` does instead
-------------------------------------------------------------------------------
+Multi-generation mixing: why Algorithm 3 drifts and what ``"exact"`` does instead
+--------------------------------------------------------------------------------
 Testing each archived generation against its own density treats it as a fresh,
 independent sample. It is not: generations share members, and a member of generation
 t-2 that is *not* in generation t-1 carries the information that rule 1 rejected it --
@@ -103,7 +109,7 @@ it lies. Rule 1, which treats it as a draw from p_t, then keeps the members that
 mean -- they sit ahead along the move -- and the next generation is not distributed as p_t+1.
 Measured under constant fitness (every return equal, so every move is neutral and every
 deviation is the loop's own; d = 130, N = 50, ``benchmarks/reuse_bias.py constant``): with
-``"eim"`` CMA-ES's members sit ahead along the last mean step and are too concentrated
+``"exact"`` CMA-ES's members sit ahead along the last mean step and are too concentrated
 (E[z^2] ~ 0.98), which shortens CSA's path and halves its step size.
 
 The law of a member given the move. Write the generation in the coordinates whitened by
@@ -125,7 +131,7 @@ whose own move is then conditioned on in turn -- the construction needs nothing 
 the previous generation (hence no multi-generation swaps: an older member's law given
 several moves and rejections has no closed form here).
 
-What it does not cover, and what it costs -- why ``"eim"`` stays the default. (1) It
+What it does not cover, and what it costs -- why ``"exact"`` stays the default. (1) It
 conditions on the mean's move only; CMA-ES's covariance and CEM's variance also depend on
 the members (their outer products), which this rule ignores (CEM's variance is the elites'
 own, hence CEM's residual). (2) Reuse drops: little for CMA-ES and CEM, whose weights are
@@ -135,7 +141,7 @@ common offset of the population cancels from the gradient). (3) Under real fitne
 *do* depend on where the members lie: the elites sit ahead along the move because they are
 good, not only because they pulled it, and the rule, which takes all of that for the loop's
 own pull, pushes the next generation back along a good move (CMA-ES on CartPole: 181 with
-four seeds stuck below 120, against 199.6 with ``"eim"``). Measured in the README
+four seeds stuck below 120, against 199.6 with ``"exact"``). Measured in the README
 ("Reused returns and the search").
 
 Everything is computed in log space: a Gaussian density underflows at d = 10^4
@@ -163,7 +169,7 @@ import numpy as np
 from imix_cli import linalg_kernels as lk
 from imix_cli.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
 
-__all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "Variant", "VARIANT_SPECS", "VARIANTS", "mix", "variant_spec"]
+__all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "Variant", "VARIANT_SPECS", "VARIANTS", "config_variants", "mix", "variant_spec"]
 
 # Sun et al.'s rule-2 loop accepts a fresh draw with probability ~(1 - lambda); when the two
 # distributions nearly coincide that can take very many draws. After this many candidate
@@ -197,7 +203,7 @@ class Generation:
         Number of rule-1/rule-2 steps taken (old samples tried).
     log_u : (popsize,) float array or None
         Each member's *height* under the graph of ``dist``, as log(y / p_dist(x)), a number in
-        (-inf, 0] (``"eim"`` only; see "Multi-generation mixing"). None until the generation
+        (-inf, 0] (``"exact"`` only; see "Multi-generation mixing"). None until the generation
         is first mixed from; drawn then and kept, because the older-generation steps of later
         mixes must see the heights that decided which members went on.
     mean_weights : (popsize,) float array or None
@@ -437,7 +443,7 @@ def _heights(entry, rng) -> np.ndarray:
 
 
 def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> int:
-    """The ``"eim"`` rule: Sun et al.'s step from the previous generation, then the leftover filled by
+    """The ``"exact"`` rule: Sun et al.'s step from the previous generation, then the leftover filled by
     rule 2, with rule-2 draws that land in an older generation's exclusive region swapped for an
     unused old member of the same region (module docstring, "Multi-generation mixing").
     Returns the number of rule-2 candidates drawn.
@@ -574,7 +580,7 @@ def _step_conditional(builder: _Builder, new_dist, archive, entries, depth: int,
     return _conditional(builder, new_dist, archive[0], rng)
 
 
-def _step_eim(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+def _step_exact(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
     return _multi_generation(builder, new_dist, list(archive), depth, rng)
 
 
@@ -585,8 +591,7 @@ class Variant:
     Attributes
     ----------
     name : str
-        What :func:`mix`, :class:`~imix_cli.generation.MixingSettings` and a RunSpec's ``variant`` call it
-        (``im_variant``/``eim_variant`` select it: :data:`imix_cli.registry.MIXING_SPECS`).
+        What :func:`mix`, :class:`~imix_cli.generation.MixingSettings` and a RunSpec's ``variant`` call it.
     looks_back : bool
         Draws from up to ``eim_generations`` archived generations; else from the previous one only
         (:meth:`depth`, the archive a search keeps).
@@ -598,6 +603,11 @@ class Variant:
         Takes ``alpha``, the minimal refresh rate (``im_alpha``).
     step : callable
         Its numpy step.
+    selected_by : tuple of str
+        The mixing schemes (``"im"``, ``"eim"``: :data:`imix_cli.registry.MIXING_SPECS`) whose config key
+        ``<scheme>_variant`` offers it (:func:`config_variants`).
+    config_name : str
+        Its value there; its ``name`` unless given (only ``"eim_paper"`` differs: ``eim_variant=paper``).
     """
 
     name: str
@@ -606,25 +616,41 @@ class Variant:
     heights: bool
     uses_alpha: bool
     step: Callable[..., int]
+    selected_by: tuple[str, ...] = ()
+    config_name: str = ""
+
+    def __post_init__(self):
+        if not self.config_name:
+            object.__setattr__(self, "config_name", self.name)
 
     def depth(self, eim_generations: int) -> int:
         """The archived generations it reads, and so a search with it keeps."""
         return eim_generations if self.looks_back else 1
 
 
-#: Every variant, by name, in the order of the module docstring.
+#: Every variant, by name, in the order of the module docstring; the first a mixing scheme offers is
+#: its default (``im_variant=paper``, ``eim_variant=exact``: conf/config.yaml).
 VARIANT_SPECS: dict[str, Variant] = {
     v.name: v
     for v in (
-        Variant("paper", looks_back=False, compiled=True, heights=False, uses_alpha=False, step=_step_alternate),
-        Variant("sun2009", looks_back=False, compiled=True, heights=False, uses_alpha=True, step=_step_sun2009),
-        Variant("conditional", looks_back=False, compiled=False, heights=False, uses_alpha=False, step=_step_conditional),
-        Variant("eim", looks_back=True, compiled=True, heights=True, uses_alpha=False, step=_step_eim),
-        Variant("eim_paper", looks_back=True, compiled=False, heights=False, uses_alpha=False, step=_step_alternate),
+        Variant("paper", looks_back=False, compiled=True, heights=False, uses_alpha=False, step=_step_alternate, selected_by=("im",)),
+        Variant("sun2009", looks_back=False, compiled=True, heights=False, uses_alpha=True, step=_step_sun2009, selected_by=("im",)),
+        Variant("exact", looks_back=True, compiled=True, heights=True, uses_alpha=False, step=_step_exact, selected_by=("eim",)),
+        Variant("conditional", looks_back=False, compiled=False, heights=False, uses_alpha=False, step=_step_conditional,
+                selected_by=("im", "eim")),
+        # Algorithm 3; "paper" is Algorithm 2's name, so eim_variant=paper selects it under another name
+        Variant("eim_paper", looks_back=True, compiled=False, heights=False, uses_alpha=False, step=_step_alternate,
+                selected_by=("eim",), config_name="paper"),
     )
-}
-#: The variants' names (what ``im_variant`` / ``eim_variant`` select: :data:`imix_cli.registry.MIXING_SPECS`).
+}  # fmt: skip
+#: The variants' names.
 VARIANTS = tuple(VARIANT_SPECS)
+
+
+def config_variants(scheme: str) -> dict[str, Variant]:
+    """The values of ``<scheme>_variant`` (``scheme``: ``"im"`` or ``"eim"``) -> the :class:`Variant` each selects,
+    the default first."""
+    return {v.config_name: v for v in VARIANT_SPECS.values() if scheme in v.selected_by}
 
 
 def variant_spec(name: str) -> Variant:
@@ -671,19 +697,19 @@ def mix(
         Size N of the new generation.
     rng : numpy.random.Generator
         Source of all randomness (acceptance tests, fresh draws, orderings).
-    variant : {"paper", "sun2009", "conditional", "eim", "eim_paper"}
+    variant : {"paper", "sun2009", "exact", "conditional", "eim_paper"}
         See the module docstring. ``"paper"``, ``"sun2009"`` and ``"conditional"`` use ``archive[0]`` only
         (``"conditional"`` reads its ``mean_weights`` if it is a Generation),
-        ``"eim"`` and ``"eim_paper"`` up to ``eim_generations`` entries. ``"eim"`` keeps each
+        ``"exact"`` and ``"eim_paper"`` up to ``eim_generations`` entries. ``"exact"`` keeps each
         Generation's heights in it (``log_u``): pass the same Generation objects again; a
         plain ``(dist, samples)`` pair is taken as a fresh independent sample at every call.
     alpha : float in [0, 1)
         Minimal refresh rate of ``"sun2009"`` (ignored by the other variants).
     eim_generations : int >= 1
-        K, the number of archived generations ``"eim"`` may draw from.
+        K, the number of archived generations ``"exact"`` and ``"eim_paper"`` may draw from.
     compiled : bool or None
         None (default): take the compiled step (:mod:`imix_cli.mixing_kernels`) where it
-        applies -- ``"paper"``, ``"sun2009"``, ``"eim"`` between float64 DiagonalGaussians,
+        applies -- ``"paper"``, ``"sun2009"``, ``"exact"`` between float64 DiagonalGaussians,
         archived generations of at most ``popsize`` members, up to 2^20 archived numbers --
         and the numpy step otherwise. Both give the same generation from the same ``rng``
         (to round-off in the log-ratios). False: always numpy; True: compiled or ValueError.

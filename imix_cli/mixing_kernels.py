@@ -1,8 +1,8 @@
-"""Compiled importance mixing between diagonal Gaussians: the ``paper``, ``sun2009`` and ``eim`` rules.
+"""Compiled importance mixing between diagonal Gaussians: the ``paper``, ``sun2009`` and ``exact`` rules.
 
 Why compiled: OpenES, SNES and CEM mix every generation of every seed, and at the paper's
 scale (d = 130, N = 50, K = 3) a mixing step in numpy is a few hundred small array calls:
-``eim`` cost 12x drawing the generation plainly, and mixing was 63 % of a SNES + EIM run's
+``exact`` cost 12x drawing the generation plainly, and mixing was 63 % of a SNES + EIM run's
 generation loop (cProfile, ``imix bench breakdown``). Here one call does a whole step with
 scalar loops over the few thousand numbers involved.
 
@@ -35,7 +35,7 @@ from numba import njit
 try:
     # The bounded integer draw of NumPy's Generator.shuffle (masked rejection on 32- or 64-bit
     # words). numba's own ``Generator.permutation`` uses it too, but through an N-d shuffle that
-    # took ~5 s of a cold run's ~7 s compile of the ``eim`` entry point; :func:`_permutation` is
+    # took ~5 s of a cold run's ~7 s compile of the ``exact`` entry point; :func:`_permutation` is
     # its 1-d loop. It is numba's internal API: should a numba release move it, the fallback
     # below is numba's permutation itself (the same draws, only slower to compile).
     from numba.np.random.random_methods import random_interval
@@ -246,7 +246,7 @@ def _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize
 
 
 @njit(cache=True)
-def _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index):
+def _exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index):
     """mixing._multi_generation; returns (size, rule-2 draws)."""
     n_entries, d = means.shape
     q, lin, c = _row_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
@@ -344,14 +344,14 @@ def _mix_sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, 
 
 
 @njit(cache=True)
-def _mix_eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
+def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
     out, source, index = _output(popsize, mean.shape[0])
-    size, trials = _eim(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index)
+    size, trials = _exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index)
     _fill_plain(rng, mean, std, out, size, popsize)
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
 
 
-_ENTRY = {"paper": _mix_paper, "sun2009": _mix_sun2009, "eim": _mix_eim}
+_ENTRY = {"paper": _mix_paper, "sun2009": _mix_sun2009, "exact": _mix_exact}
 
 
 def _stacked(arrays, rows: int) -> np.ndarray:
@@ -368,7 +368,7 @@ def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random
     """One mixing step, as :func:`imix_cli.mixing.mix` with float64 DiagonalGaussians.
 
     ``dists``/``samples``/``heights``: the archive entries used (newest first), their (n_k, d)
-    samples with n_k <= popsize, and (``"eim"`` only) their log-heights. Returns
+    samples with n_k <= popsize, and (``"exact"`` only) their log-heights. Returns
     ``(samples, source, index, trials)``.
     """
     rows = max(x.shape[0] for x in samples)

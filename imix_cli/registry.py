@@ -1,11 +1,13 @@
 """One record per algorithm, per environment and per mixing scheme: what config, runner, plotting and bench read.
 
-Every name imix knows -- ``algo=``, ``env=``, ``im``/``eim`` and their variants -- is declared
-here once, with what the rest of the code needs to know about it (display label, the paper's
-generation count, the plot threshold, the batched evaluator, ...). Nothing else keeps a list
-of names: :mod:`imix_cli.running.config` validates against these records, :mod:`imix_cli.algorithms`
-builds an ES from :data:`ALGORITHM_SPECS`, :mod:`imix_cli.evaluation` builds a built-in
-evaluator from :data:`ENV_SPECS`, and the figures and tables take their labels from here.
+Every name imix knows -- ``algo=``, ``env=``, ``im``/``eim`` -- is declared here once, with what
+the rest of the code needs to know about it (display label, the paper's generation count, the
+plot threshold, the batched evaluator, ...); the mixing variants (``im_variant``/``eim_variant``) are
+the :class:`imix_cli.mixing.Variant` objects of :data:`imix_cli.mixing.VARIANT_SPECS`, each naming the
+scheme that offers it and its value there. Nothing else keeps a list of names:
+:mod:`imix_cli.running.config` validates against these records, :mod:`imix_cli.algorithms` builds an
+ES from :data:`ALGORITHM_SPECS`, :mod:`imix_cli.evaluation` builds a built-in evaluator from
+:data:`ENV_SPECS`, and the figures and tables take their labels from here.
 
 This module imports nothing heavy (no numpy, no gymnasium): each ES class and each built-in
 evaluator is reached through a small loader function below (``_openes``, ``_cartpole_evaluator``,
@@ -281,43 +283,33 @@ def mujoco_thresholds() -> dict:
 class MixingSpec:
     """A mixing scheme (the CSVs' and run folders' ``mixing``: none | im | eim).
 
+    Its variants (``im_variant=``/``eim_variant=``) are the :class:`imix_cli.mixing.Variant` objects that
+    name the scheme in their ``selected_by`` (:func:`imix_cli.mixing.config_variants`).
+
     Attributes
     ----------
     name : str
-        The name in CSVs and run folder names.
+        The name in CSVs and run folder names (and the config key that turns it on: ``im=true``).
     title : str
         A figure panel's title ("with IM").
     short : str
         Its suffix to an algorithm's label in legends ("OpenES + IM"), "" for none.
     label : str
         Its table cell.
-    variants : dict
-        Config value of ``im_variant``/``eim_variant`` -> the name of the
-        :class:`imix_cli.mixing.Variant` it selects (its step, look-back rule, compiled kernel:
-        :data:`imix_cli.mixing.VARIANT_SPECS`); the first is the default.
     """
 
     name: str
     title: str
     short: str
     label: str
-    variants: dict = field(default_factory=dict)
 
 
 MIXING_SPECS: dict[str, MixingSpec] = {
     spec.name: spec
     for spec in (
         MixingSpec("none", "without mixing", "", "none"),
-        # im=true, im_variant: paper (Algorithm 2) | sun2009 (Sun et al. 2009) | conditional
-        # (Sun et al.'s rule given the ES's own move: mixing.py, "Reuse inside the loop")
-        MixingSpec("im", "with IM", " + IM", "IM", {"paper": "paper", "sun2009": "sun2009", "conditional": "conditional"}),
-        # eim=true, eim_variant: "exact" is imix's multi-generation rule, unbiased over chains
-        # along a path that does not depend on the members (mixing.py); "conditional" conditions
-        # each member on the ES's move it took part in (mixing.py, "Reuse inside the loop": exact
-        # for the loop under neutral fitness, worse than "exact" for CMA-ES on CartPole); "paper"
-        # the paper's Algorithm 3, kept for reproduction: its generations drift from their
-        # distribution over chains of generations (README, "Correctness of importance mixing").
-        MixingSpec("eim", "with EIM", " + EIM", "EIM", {"exact": "eim", "conditional": "conditional", "paper": "eim_paper"}),
+        MixingSpec("im", "with IM", " + IM", "IM"),
+        MixingSpec("eim", "with EIM", " + EIM", "EIM"),
     )
 }
 
@@ -345,19 +337,3 @@ def mixing_label(name: str) -> str:
 
 #: The ``mixing`` values, in the order figures and tables list them.
 MIXING_NAMES = tuple(MIXING_SPECS)
-#: ``im_variant`` choices, and ``eim_variant`` choices -> :func:`~imix_cli.mixing.mix` variant.
-IM_VARIANTS = tuple(MIXING_SPECS["im"].variants)
-EIM_VARIANTS = dict(MIXING_SPECS["eim"].variants)
-#: Every variant the config selects: those of :data:`imix_cli.mixing.VARIANT_SPECS` (tests/test_registry.py).
-MIX_VARIANTS = tuple(dict.fromkeys(v for spec in MIXING_SPECS.values() for v in spec.variants.values()))
-
-#: The paper's mixing settings (section 4.1), the defaults of conf/config.yaml.
-MIXING_DEFAULTS = {
-    "im_variant": IM_VARIANTS[0],
-    "eim_variant": next(iter(EIM_VARIANTS)),
-    "im_alpha": 0.0,
-    "eim_generations": 3,
-    "reeval_age": None,
-    "reeval_prob": 0.0,
-    "reeval_count": 0,
-}

@@ -81,7 +81,7 @@ def _old_anchors(old, n, rng):
     return mix_pairs(old, [], n, rng, None)[0]
 
 
-@pytest.mark.parametrize("variant", ["sun2009", "eim"])
+@pytest.mark.parametrize("variant", ["sun2009", "exact"])
 @pytest.mark.parametrize("shift", [0.3, 1.5])
 def test_one_mixed_generation_is_n_exact_ars_pairs_around_the_new_mean(variant, shift):
     """3-D, nu = 0.5, N = 8 directions, the mean moved by ``shift`` nu along the first axis; 2000
@@ -97,7 +97,7 @@ def test_one_mixed_generation_is_n_exact_ars_pairs_around_the_new_mean(variant, 
     plus, minus, reused = [], [], 0
     for _ in range(2000):
         archive = [_old_anchors(old, n, rng)]
-        if variant == "eim":
+        if variant == "exact":
             archive.append(_old_anchors(DiagonalGaussian(np.array([-shift * nu, 0.0, 0.0]), nu), n, rng))
         anchors, members = mix_pairs(new, archive, n, rng, variant)
         np.testing.assert_array_equal(members[:n], anchors.samples)
@@ -167,7 +167,7 @@ def pair_chain_statistics(variant, motion, seed, dim=2, n=10, nu=1.0):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("motion", ["walk", "drift"])
-@pytest.mark.parametrize("variant", ["sun2009", "eim"])
+@pytest.mark.parametrize("variant", ["sun2009", "exact"])
 def test_chains_of_mixed_pair_generations_stay_ars_pairs(variant, motion):
     r = pair_chain_statistics(variant, motion, seed=2026)
     assert abs(r["z_mean"]) < 4 and abs(r["z_var"]) < 4, r
@@ -181,7 +181,7 @@ def test_every_member_is_told_the_return_of_its_own_parameters():
     along a chain that reuses (small ARS steps), and the reused ones come from the archive."""
     rng = np.random.default_rng(3)
     es = ARS(3, popsize=12, sigma=1.0, lr=0.05)
-    archive, settings, reused = Archive(), MixingSettings("eim", 3), 0
+    archive, settings, reused = Archive(), MixingSettings("exact", 3), 0
 
     def f(x):
         return -np.sum((x - 2.0) ** 2, axis=1) + np.sin(7 * x[:, 0])

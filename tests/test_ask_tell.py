@@ -26,7 +26,7 @@ def test_the_wrapper_gives_the_runners_rows_for_every_es(algo, cartpole, tmp_pat
     sample_seq, episode_seq = np.random.SeedSequence(0).spawn(2)
     episode_rng = np.random.default_rng(episode_seq)
     options = {"step_size_control": "tpa"} if algo == "cmaes" else {}  # what imix run's algo.step_size_control=auto picks with mixing
-    es = imix_cli.MixingES(imix_cli.make_es(algo, cartpole.num_params, **options), "eim", rng=np.random.default_rng(sample_seq))
+    es = imix_cli.MixingES(imix_cli.make_es(algo, cartpole.num_params, **options), "exact", rng=np.random.default_rng(sample_seq))
     for g in range(GENERATIONS):
         row = frame.iloc[g]
         assert es.distribution.sigma_mean == pytest.approx(row["sigma_mean"], rel=1e-9)  # the same updates so far (the CSV keeps 10 digits)
@@ -47,14 +47,14 @@ def test_one_line_adds_mixing_to_a_plain_loop(algo):
     """The plain loop and the mixing loop differ in the line that builds the ES; mixing reaches the
     same neighbourhood of the optimum with fewer evaluations on a smooth objective."""
     results = {}
-    for mixing in (None, "eim"):
+    for mixing in (None, "exact"):
         es = imix_cli.make_es(algo, 5, popsize=20, sigma=0.5, lr=0.1, weight_decay=0.0)
         es = imix_cli.MixingES(es, mixing, rng=1)  # the one line that adds mixing (None: the plain ES)
         for _ in range(30):
             x = es.ask()
             es.tell(x, quadratic(x))
         results[mixing] = (es.evaluations, float(quadratic(es.distribution.mean[None])[0]))
-    plain, mixed = results[None], results["eim"]
+    plain, mixed = results[None], results["exact"]
     assert plain[0] == 30 * 20  # no mixing: every member evaluated
     assert mixed[0] < plain[0]  # mixing evaluated fewer members
     assert mixed[1] > -4.0 * 5 / 2  # and still moved from the origin (fitness -20) towards the optimum

@@ -43,7 +43,7 @@ def test_rollouts_and_mixing_rows_and_columns(capsys):
         assert all(cell for cell in r) and float(r[2]) >= 1 and float(r[6]) > 0 and float(r[7]) > 0
     header, rows = _table(tables, "One importance-mixing step")
     assert header == ["d", "plain sample (ms)", "variant", "mix (ms)", "mix / sample", "reuse"]
-    assert [(r[0], r[2]) for r in rows] == [("20", "paper"), ("20", "eim"), ("20", "sun2009")]
+    assert [(r[0], r[2]) for r in rows] == [("20", "paper"), ("20", "exact"), ("20", "sun2009")]
     assert all(0.0 <= float(r[5]) <= 1.0 for r in rows)
 
 

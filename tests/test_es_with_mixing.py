@@ -29,7 +29,7 @@ def fresh_evaluations_to_target(algo, eim, seed):
     es = make_es(algo, 10, popsize=20, sigma=sigma, lr=lr, weight_decay=0.0, mean=np.ones(10))
     archive, fitness_of, evaluations = [], [], 0
     for _ in range(budget):
-        g = mix(es.distribution, archive if eim else [], 20, rng, variant="eim")
+        g = mix(es.distribution, archive if eim else [], 20, rng, variant="exact")
         fitness = np.empty(20)
         fresh = g.source == 0
         fitness[fresh] = -sphere(g.samples[fresh])

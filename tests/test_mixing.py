@@ -100,7 +100,7 @@ def test_reused_members_are_archive_rows_never_duplicated(variant):
     # Build a realistic archive: each generation mixed from the previous ones, so entries share rows.
     archive = []
     for dist in dists[:3]:
-        archive.insert(0, mix(dist, archive, 30, rng, variant="eim"))
+        archive.insert(0, mix(dist, archive, 30, rng, variant="exact"))
     shared = sum(int(np.count_nonzero(g.source > 0)) for g in archive)
     assert shared > 0, "the archive should contain rows reused across entries"
     for _ in range(50):
@@ -122,9 +122,9 @@ def test_eim_draws_from_older_generations_when_previous_is_far():
     archive = [(far, far.sample(5, rng)), (new, new.sample(20, rng))]
     g = mix(new, archive, 20, rng, variant="eim_paper")
     assert g.reused_from_previous == 0 and g.reused_from_older == 15
-    # "eim": every rule-2 draw lands under the older generation's graph (its density is the
+    # "exact": every rule-2 draw lands under the older generation's graph (its density is the
     # new one) and under no newer one, so each is swapped for one of its members: all 20.
-    g = mix(new, archive, 20, rng, variant="eim")
+    g = mix(new, archive, 20, rng, variant="exact")
     assert g.reused_from_previous == 0 and g.reused_from_older == 20
     g = mix(new, archive, 20, rng, variant="paper")
     assert g.reused == 0
@@ -160,9 +160,9 @@ def test_high_dimension_near_zero_overlap_is_finite(variant):
 def test_mixing_is_deterministic_and_generation_objects_are_archive_entries():
     old, new = DiagonalGaussian(np.zeros(4), np.ones(4)), DiagonalGaussian(np.full(4, 0.2), np.full(4, 0.9))
     samples = old.sample(30, np.random.default_rng(0))
-    plain = mix(new, [(old, samples)], 30, np.random.default_rng(42), variant="eim")
-    again = mix(new, [(old, samples)], 30, np.random.default_rng(42), variant="eim")
-    as_generation = mix(new, [Generation(samples, np.zeros(30, int), np.full(30, -1), old)], 30, np.random.default_rng(42), variant="eim")
+    plain = mix(new, [(old, samples)], 30, np.random.default_rng(42), variant="exact")
+    again = mix(new, [(old, samples)], 30, np.random.default_rng(42), variant="exact")
+    as_generation = mix(new, [Generation(samples, np.zeros(30, int), np.full(30, -1), old)], 30, np.random.default_rng(42), variant="exact")
     for other in (again, as_generation):
         np.testing.assert_array_equal(plain.samples, other.samples)
         np.testing.assert_array_equal(plain.source, other.source)
@@ -183,7 +183,7 @@ def test_chained_eim_generations_stay_distributed_as_their_distribution():
     for _ in range(1500):
         archive = []
         for m, s in zip(means, stds):
-            archive.insert(0, mix(DiagonalGaussian([m], [s]), archive[:3], 20, rng, variant="eim"))
+            archive.insert(0, mix(DiagonalGaussian([m], [s]), archive[:3], 20, rng, variant="exact"))
         pooled.append(archive[0].samples[:, 0])
     assert stats.kstest(np.concatenate(pooled), "norm", args=(means[-1], stds[-1])).pvalue > KS_P_MIN
 
@@ -191,7 +191,7 @@ def test_chained_eim_generations_stay_distributed_as_their_distribution():
 def test_generation_accounting():
     rng = np.random.default_rng(4)
     old, new = DiagonalGaussian([0.0], [1.0]), DiagonalGaussian([0.2], [1.0])
-    g = mix(new, [(old, old.sample(40, rng)), (old, old.sample(40, rng))], 40, rng, variant="eim")
+    g = mix(new, [(old, old.sample(40, rng)), (old, old.sample(40, rng))], 40, rng, variant="exact")
     assert isinstance(g, Generation)
     assert g.reused == g.reused_from_previous + g.reused_from_older
     assert int(g.fresh.sum()) == 40 - g.reused
@@ -204,7 +204,7 @@ def test_generation_accounting():
     [
         ({"variant": "bogus"}, "variant"),
         ({"alpha": 1.0, "variant": "sun2009"}, "alpha"),
-        ({"eim_generations": 0, "variant": "eim"}, "eim_generations"),
+        ({"eim_generations": 0, "variant": "exact"}, "eim_generations"),
     ],
 )
 def test_bad_arguments_raise(kwargs, message):
@@ -246,7 +246,7 @@ def chain_statistics(variant, drift, seed):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("drift", [0.0, 0.1], ids=["random-walk", "drift"])
-@pytest.mark.parametrize("variant", ["paper", "sun2009", "eim"])
+@pytest.mark.parametrize("variant", ["paper", "sun2009", "exact"])
 def test_chains_of_generations_stay_distributed_as_their_distribution(variant, drift):
     z_mean, z_var, ks_p, second = chain_statistics(variant, drift, seed=2024)
     assert abs(z_mean) < 4 and abs(z_var) < 4, (z_mean, z_var, second)
@@ -267,7 +267,7 @@ def test_paper_algorithm_3_is_biased_over_chains():
 def test_an_oscillating_chain_reuses_older_generations_exactly_and_never_twice():
     """Where multi-generation mixing matters: the distribution alternates between N(0, 1) and
     N(0.6, 1), so generation t-2's distribution is generation t's and rule-2 draws keep landing in
-    its region. "eim" then takes ~21 % of its members from older generations, stays distributed
+    its region. "exact" then takes ~21 % of its members from older generations, stays distributed
     as its distribution (|z| < 4 over 60 chains x 100 generations; Algorithm 3 gives E[z^2] 1.11,
     z ~ +16 here) and never holds a point twice. A version that forgot the heights which decided
     each member's fate (drawing them anew at every mix) put 139,354 duplicate members into these
@@ -278,7 +278,7 @@ def test_an_oscillating_chain_reuses_older_generations_exactly_and_never_twice()
         archive, zs = [], []
         for t in range(100):
             mean = 0.6 * (t % 2)
-            g = mix(DiagonalGaussian([mean], [1.0]), archive, 50, rng, variant="eim", eim_generations=3)
+            g = mix(DiagonalGaussian([mean], [1.0]), archive, 50, rng, variant="exact", eim_generations=3)
             duplicates += 50 - np.unique(g.samples[:, 0]).size
             if t >= 10:
                 zs.append(g.samples[:, 0] - mean)
@@ -304,7 +304,7 @@ def _walk_steps(rng, dim, generations):
         yield DiagonalGaussian(mean, std)
 
 
-@pytest.mark.parametrize("variant", ["paper", "sun2009", "eim"])
+@pytest.mark.parametrize("variant", ["paper", "sun2009", "exact"])
 @pytest.mark.parametrize("dim,popsize", [(1, 50), (130, 50), (2, 3)])
 def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize):
     """imix_cli.mixing_kernels draws the same random numbers in the same order as the numpy step:
@@ -332,13 +332,13 @@ def test_the_compiled_step_takes_smaller_generations_and_refuses_what_it_does_no
     dist = DiagonalGaussian(np.zeros(4), np.ones(4))
     archive = [Generation(dist.sample(n, rng), np.zeros(n, np.int64), np.full(n, -1, np.int64), dist) for n in (30, 40, 20)]
     new = DiagonalGaussian(np.full(4, 0.1), np.ones(4))
-    a = mix(new, archive, 50, np.random.default_rng(1), variant="eim", compiled=True)
+    a = mix(new, archive, 50, np.random.default_rng(1), variant="exact", compiled=True)
     for g in archive:
         g.log_u = None
-    b = mix(new, archive, 50, np.random.default_rng(1), variant="eim", compiled=False)
+    b = mix(new, archive, 50, np.random.default_rng(1), variant="exact", compiled=False)
     assert np.array_equal(a.source, b.source) and np.array_equal(a.index, b.index)
     with pytest.raises(ValueError, match="compiled"):
-        mix(FullGaussian(np.zeros(4), np.eye(4)), [(dist, dist.sample(5, rng))], 5, rng, variant="eim", compiled=True)
+        mix(FullGaussian(np.zeros(4), np.eye(4)), [(dist, dist.sample(5, rng))], 5, rng, variant="exact", compiled=True)
     with pytest.raises(ValueError, match="compiled"):  # a generation larger than popsize
         mix(new, [(dist, dist.sample(60, rng))], 50, rng, variant="sun2009", compiled=True)
 
@@ -392,7 +392,7 @@ class _Laplace:
         return -np.abs(np.atleast_2d(x) - self.loc).sum(axis=1) - self.dim * np.log(2.0)
 
 
-@pytest.mark.parametrize("variant", ["paper", "sun2009", "eim"])
+@pytest.mark.parametrize("variant", ["paper", "sun2009", "exact"])
 def test_any_search_distribution_mixes_through_the_generic_path(variant):
     """mix needs only the SearchDistribution protocol: Laplace generations mixed from a shifted
     Laplace are Laplace(0.3) (KS p > 1e-3 on each coordinate's pooled members) and reuse most."""
@@ -432,6 +432,6 @@ def test_a_registered_variant_is_what_mix_and_the_settings_read(monkeypatch):
     assert depths == [4] and g.samples.shape == (10, 3) and g.reused == 10  # the same distribution: all reused
     assert MixingSettings("probe", eim_generations=4).depth == 4
     for name in VARIANTS:
-        assert MixingSettings(name, eim_generations=5).depth == (5 if name in ("eim", "eim_paper") else 1), name
+        assert MixingSettings(name, eim_generations=5).depth == (5 if name in ("exact", "eim_paper") else 1), name
     with pytest.raises(ValueError, match="unknown mixing variant 'nope'"):
         _ = MixingSettings("nope").depth

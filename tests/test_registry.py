@@ -18,7 +18,7 @@ import yaml
 import imix_cli.algorithms.base as base
 from imix_cli.algorithms import ALGORITHMS, CEM, MIRRORED_ALGORITHMS, SNES, EvolutionStrategy, OpenES, Params, make_es
 from imix_cli.evaluation import make_evaluator
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS, ES_NAMES, MIX_VARIANTS, MIXING_SPECS
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS, ES_NAMES, MIXING_SPECS
 from imix_cli.running.config import PAPER_DEFAULTS, config_dir
 
 
@@ -85,11 +85,28 @@ def test_builtin_envs_match_their_evaluators_and_gymnasium():
             env.close()
 
 
-def test_mixing_variants_are_those_mix_implements():
-    from imix_cli.mixing import VARIANTS
+def test_the_config_selects_variants_by_what_the_variant_objects_say():
+    """im_variant/eim_variant -> variant comes from the Variant objects alone (selected_by, config_name): each
+    value is the variant's own name but eim_variant=paper (Algorithm 3, "eim_paper"); every variant is offered."""
+    from imix_cli.mixing import VARIANT_SPECS, VARIANTS, config_variants
+    from imix_cli.running.config import validate_overrides
 
-    assert VARIANTS == MIX_VARIANTS == ("paper", "sun2009", "conditional", "eim", "eim_paper")
+    assert VARIANTS == ("paper", "sun2009", "exact", "conditional", "eim_paper")
     assert list(MIXING_SPECS) == ["none", "im", "eim"]
+    choices = {scheme: {value: v.name for value, v in config_variants(scheme).items()} for scheme in ("im", "eim")}
+    assert choices == {
+        "im": {"paper": "paper", "sun2009": "sun2009", "conditional": "conditional"},
+        "eim": {"exact": "exact", "conditional": "conditional", "paper": "eim_paper"},
+    }
+    assert {v.name for c in ("im", "eim") for v in config_variants(c).values()} == set(VARIANT_SPECS)
+    assert all(set(v.selected_by) <= set(MIXING_SPECS) - {"none"} for v in VARIANT_SPECS.values())
+    assert (PAPER_DEFAULTS["im_variant"], PAPER_DEFAULTS["eim_variant"]) == ("paper", "exact")
+    for scheme, table in choices.items():
+        for value, name in table.items():
+            (spec,) = validate_overrides([f"{scheme}=true", f"{scheme}_variant={value}"])
+            assert (spec.mixing, spec.variant) == (scheme, name)
+            suffix = "" if value == PAPER_DEFAULTS[f"{scheme}_variant"] else f"-{scheme}_variant={value}"
+            assert spec.run_name == f"snes-cartpole-{scheme}{suffix}"  # the folder names the config value
 
 
 # -------------------------------------------------------------------------- ES parameter records

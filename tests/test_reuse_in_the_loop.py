@@ -221,7 +221,7 @@ def test_calibrated_stored_returns_remove_the_step_size_shrink_of_neutral_select
 def test_reeval_count_evaluates_that_many_reused_members_and_tells_the_others_calibrated(monkeypatch):
     rng = np.random.default_rng(11)
     es = make_es("snes", 4, popsize=12, lr=1e-4)  # a tiny move: nearly everything is reused
-    archive, settings = Archive(), MixingSettings("eim", reeval_count=3)
+    archive, settings = Archive(), MixingSettings("exact", reeval_count=3)
     told, calibrated = [], 0
     real_tell = es.tell
     monkeypatch.setattr(es, "tell", lambda samples, fitness: (told.append(np.array(fitness)), real_tell(samples, fitness)))

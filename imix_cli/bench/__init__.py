@@ -7,7 +7,7 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
                importance mixing leaves fresh per seed; 50: one population), next to a naive loop
                (gymnasium.make + numpy MLP per step, one episode at a time) and gymnasium's
                SyncVectorEnv stepping the same batched numpy policy; ratios of the three.
-    mixing     one importance-mixing step (paper, eim, sun2009) against plain sampling of the
+    mixing     one importance-mixing step (paper, exact, sun2009) against plain sampling of the
                same population (N = 50, K = 3), d = 130 (the paper's CartPole) to 10^6.
     memory     wall time, CPU time and peak RSS (VmHWM) of `imix run algo=snes env=cartpole
                eim=true seeds=25` in a subprocess: its main process and its worker processes.

@@ -8,7 +8,7 @@ from imix_cli.bench.common import median_time, table
 
 
 def mixing_times(dim: int, popsize: int = 50, generations: int = 3, repeats: int = 5, seed: int = 0,
-                 variants=("paper", "eim", "sun2009")):  # fmt: skip
+                 variants=("paper", "exact", "sun2009")):  # fmt: skip
     """Median seconds of one ``mix`` per variant and of ``new_dist.sample(popsize)``, and reuse rates.
 
     The archive holds ``generations`` earlier generations with a realistic small move of the
@@ -24,7 +24,7 @@ def mixing_times(dim: int, popsize: int = 50, generations: int = 3, repeats: int
     dists = [DiagonalGaussian(np.full(dim, step * k), np.full(dim, 0.25 * (1 - 0.001 * k) ** (1 / np.sqrt(dim))), dtype=dtype) for k in range(generations + 1)]
     archive = []
     for dist in dists[:-1]:
-        archive.insert(0, mix(dist, archive, popsize, rng, variant="eim"))
+        archive.insert(0, mix(dist, archive, popsize, rng, variant="exact"))
     new = dists[-1]
     # Small steps (tens of microseconds at d = 130) are timed over batches of calls; the compiled
     # steps (imix_cli.mixing_kernels) are loaded or compiled by a first, untimed call.
@@ -41,7 +41,7 @@ def mixing_times(dim: int, popsize: int = 50, generations: int = 3, repeats: int
     return results, reuse
 
 
-def mixing_rows(dims=(130, 1_000, 10_000, 100_000, 1_000_000), repeats: int = 5, variants=("paper", "eim", "sun2009")) -> list[dict]:
+def mixing_rows(dims=(130, 1_000, 10_000, 100_000, 1_000_000), repeats: int = 5, variants=("paper", "exact", "sun2009")) -> list[dict]:
     rows = []
     for dim in dims:
         results, reuse = mixing_times(dim, repeats=repeats, variants=variants)

@@ -18,7 +18,7 @@ The Python path stays the reference: ``IMIX_COMPILED_LOOP=0`` takes it, and
 ``tests/test_compiled_loop.py`` runs both and compares CSVs, checkpoints and policy files.
 
 Where it applies (:func:`applies`): OpenES and SNES (centred ranks, the estool weight decay), no
-mixing or the ``paper``/``sun2009``/``eim`` rules with no re-evaluation options, no observation
+mixing or the ``paper``/``sun2009``/``exact`` rules with no re-evaluation options, no observation
 normalisation, a built-in CartPole environment (CartPole, ContinuousCartPole, its Hard variant)
 evaluated in the process. Anything else takes the Python path, unchanged. Acrobot is left out on
 purpose: its reset computes the first observation with numpy's float32 ``cos``/``sin`` (SIMD code
@@ -58,7 +58,7 @@ __all__ = ["applies", "applies_to_run", "advance", "entry", "ENV_VARIABLE"]
 #: ``IMIX_COMPILED_LOOP=0``: every run takes the Python path (the reference).
 ENV_VARIABLE = "IMIX_COMPILED_LOOP"
 
-_VARIANTS = {None: 0, "paper": 1, "sun2009": 2, "eim": 3}
+_VARIANTS = {None: 0, "paper": 1, "sun2009": 2, "exact": 3}
 _ALGOS = {OpenES: 0, SNES: 1}
 _LOG_2PI = math.log(2.0 * math.pi)
 _SEED_HIGH = np.iinfo(np.int64).max  # episode seeds: integers(0, int64 max), as lockstep draws them
@@ -312,7 +312,7 @@ def _make_entry(digest: int):
                         a_x[:k_used], a_h[:k_used], counts, popsize, log_keep, alpha,
                     )  # fmt: skip
                 else:
-                    x, source, index, trials = mk._mix_eim(
+                    x, source, index, trials = mk._mix_exact(
                         sample_rng, mu, std, log_norm, a_mean[:k_used], a_std[:k_used], a_lognorm[:k_used],
                         a_x[:k_used], a_h[:k_used], counts, popsize, log_keep, alpha,
                     )  # fmt: skip

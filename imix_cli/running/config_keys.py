@@ -74,7 +74,9 @@ KEYS = (
     Key("eim_variant", "exact", "exact (unbiased over chains) | conditional | paper (Algorithm 3), with eim=true",
         "with `eim=true`: `exact` (imix's rule, unbiased over chains of generations), `conditional` (each member of the "
         "previous generation taken given the ES's move: unbiased inside the loop under neutral fitness, worse for CMA-ES "
-        "on CartPole) or `paper` (the paper's Algorithm 3, biased over chains: for reproduction)", "mixing"),
+        "on CartPole) or `paper` (the paper's Algorithm 3, biased over chains: for reproduction). `exact` and `conditional` "
+        "are the library's variants of the same names (`imix_cli.mixing.VARIANT_SPECS`); `paper` is its `eim_paper`, "
+        "because its `paper` is Algorithm 2 (`im_variant=paper`)", "mixing"),
     Key("im_alpha", "0.0", "sun2009's minimal refresh rate in [0, 1)", "`sun2009`'s minimal refresh rate α ∈ [0, 1)", "mixing"),
     Key("eim_generations", "3", "K, archived generations eim reuses from", "K, the archived generations `eim` reuses from", "mixing"),
     Key("reeval_age", "null", "re-evaluate reused members whose return is older (generations)",

@@ -11,9 +11,9 @@ import math
 
 from imix_cli.algorithms import cmaes
 from imix_cli.algorithms.base import WEIGHT_DECAY_FORMS
-from imix_cli.mixing import variant_spec
+from imix_cli.mixing import config_variants, variant_spec
 from imix_cli.processes import default_workers
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, IM_VARIANTS
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
 from imix_cli.running.config_checks import (
     ConfigError,
     as_bool,
@@ -36,8 +36,9 @@ from imix_cli.running.run_spec import PAPER_DEFAULTS, POLICY_DEFAULTS, RunSpec, 
 def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
     """The RunSpec of an evolution strategy: mixing, the ES's hyper-parameters, its policy and evaluator."""
     im, eim = as_bool(cfg, "im"), as_bool(cfg, "eim")
-    im_variant = as_choice(cfg.get("im_variant"), "im_variant", IM_VARIANTS)
-    eim_variant = as_choice(cfg.get("eim_variant", PAPER_DEFAULTS["eim_variant"]), "eim_variant", tuple(EIM_VARIANTS))
+    im_variants, eim_variants = config_variants("im"), config_variants("eim")
+    im_variant = as_choice(cfg.get("im_variant"), "im_variant", tuple(im_variants))
+    eim_variant = as_choice(cfg.get("eim_variant", PAPER_DEFAULTS["eim_variant"]), "eim_variant", tuple(eim_variants))
     reeval_age = cfg.get("reeval_age")
     if reeval_age is not None:
         reeval_age = as_int(cfg, "reeval_age", 1)
@@ -47,10 +48,10 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     im_alpha = as_float(cfg, "im_alpha", 0.0, True, 1.0, False)
     eim_generations = as_int(cfg, "eim_generations", 1)
     if eim and im_variant != PAPER_DEFAULTS["im_variant"]:
-        raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(EIM_VARIANTS)}")
+        raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(eim_variants)}")
     mixing = "eim" if eim else ("im" if im else "none")
     algo_options = resolve_auto_options(algo, algo_options, mixing != "none")
-    variant = EIM_VARIANTS[eim_variant] if eim else (im_variant if im else None)
+    variant = eim_variants[eim_variant].name if eim else (im_variants[im_variant].name if im else None)
     if im_alpha != 0.0 and not (variant is not None and variant_spec(variant).uses_alpha):
         raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
     if mixing == "none" and (reeval_age is not None or reeval_prob or reeval_count):

@@ -14,15 +14,28 @@ from pathlib import Path
 
 from imix_cli.algorithms.base import Params
 from imix_cli.ddpg.settings import PAPER_SETTINGS
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, EIM_VARIANTS, ENV_SPECS, MIXING_DEFAULTS
+from imix_cli.mixing import config_variants, variant_spec
+from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
 
 #: The top-level keys that set an ES's :class:`~imix_cli.algorithms.base.Params`.
 ES_PARAM_KEYS = ("popsize", "sigma", "lr", "weight_decay", "weight_decay_form")
 
+#: The paper's mixing settings (section 4.1), the defaults of conf/config.yaml; each scheme's default
+#: variant is the first it offers (:func:`imix_cli.mixing.config_variants`).
+MIXING_DEFAULTS = {
+    "im_variant": next(iter(config_variants("im"))),
+    "eim_variant": next(iter(config_variants("eim"))),
+    "im_alpha": 0.0,
+    "eim_generations": 3,
+    "reeval_age": None,
+    "reeval_prob": 0.0,
+    "reeval_count": 0,
+}
+
 #: The paper's setting (section 4.1): the defaults of :class:`~imix_cli.algorithms.base.Params`
-#: and of the mixing schemes (:data:`imix_cli.registry.MIXING_DEFAULTS`). A run folder's name
-#: carries, as ``-key=value,...``, the hyper-parameters that differ from these, so sweep points
-#: get folders of their own.
+#: and of the mixing schemes (:data:`MIXING_DEFAULTS`). A run folder's name carries, as
+#: ``-key=value,...``, the hyper-parameters that differ from these, so sweep points get folders
+#: of their own.
 PAPER_DEFAULTS = {**{key: getattr(Params, key) for key in ES_PARAM_KEYS}, **MIXING_DEFAULTS}
 
 
@@ -91,7 +104,7 @@ class RunSpec:
     # The evolution strategies' keys; an algorithm that is not an ES (DDPG) leaves them at these
     # defaults (the paper's values; no generations, no mixing), which it never reads:
     mixing: str = "none"  # none | im | eim
-    variant: str | None = None  # mix() variant: paper | sun2009 | conditional | eim | eim_paper; None without mixing
+    variant: str | None = None  # mix() variant: paper | sun2009 | exact | conditional | eim_paper; None without mixing
     im_alpha: float = PAPER_DEFAULTS["im_alpha"]
     eim_generations: int = PAPER_DEFAULTS["eim_generations"]
     reeval_age: int | None = None  # re-evaluate a reused member whose return is older than this (None: never)
@@ -148,12 +161,12 @@ class RunSpec:
             "popsize": self.popsize, "sigma": self.sigma, "lr": self.lr, "weight_decay": self.weight_decay,
             "weight_decay_form": self.weight_decay_form,
         }  # fmt: skip
+        if self.mixing in ("im", "eim"):
+            values[f"{self.mixing}_variant"] = variant_spec(self.variant).config_name
         if self.mixing == "im":
-            values["im_variant"] = self.variant
             values["im_alpha"] = self.im_alpha
         if self.mixing == "eim":
             values["eim_generations"] = self.eim_generations
-            values["eim_variant"] = next(k for k, v in EIM_VARIANTS.items() if v == self.variant)
         if self.mixing != "none":
             values["reeval_age"] = self.reeval_age
             values["reeval_prob"] = self.reeval_prob
