@@ -198,7 +198,7 @@ def test_bench_mujoco_prints_its_table(capsys):
     """`imix bench mujoco` on a tiny size: one row per env, every cost positive (no timing is asserted)."""
     from imix_cli.bench import main
 
-    assert main(["mujoco", "--mujoco-envs", "hopper", "--popsize", "3", "--repeats", "1", "--generations", "1"]) == 0
+    assert main(["mujoco", "mujoco_envs=hopper", "popsize=3", "repeats=1", "generations=1"]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("|") and not line.startswith("|---")]
     header, *rows = [[c.strip() for c in line.strip("|").split("|")] for line in lines]
     assert header == ["env", "mean episode (loop / run)", "gymnasium loop (µs/step)", "physics (µs/step)", "imix evaluator (µs/step)",

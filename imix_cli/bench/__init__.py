@@ -16,7 +16,7 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
     loop       the compiled generation loop (imix_cli.running.compiled_loop) against the Python loop it
                reproduces: the same seeds of SNES + EIM, OpenES + EIM and SNES without mixing on
                CartPole, in this process; time per seed-generation, ratio, and whether the rows
-               are the same (13 seeds x 300 generations unless --seeds/--generations).
+               are the same (13 seeds x 300 generations unless seeds=/generations=).
     grid       wall time and total env steps of the paper's main grid (4 ES x CartPole,
                Acrobot x 25 seeds at the paper's generation counts), with EIM and without
                mixing, through imix_cli.running.runner.run into a temporary folder. Takes minutes.
@@ -28,7 +28,7 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
                as a user's first run (a new process with an empty numba cache: every kernel is
                compiled). Wall times (compile included: JAX's shown, and imix's first run's
                extra over the warm run), env steps, final scores and ratios. Default 25 seeds x
-               1000 generations (minutes); --quick: 3 x 100. Needs the `peers` extra (pip
+               1000 generations (minutes); quick=true: 3 x 100. Needs the `peers` extra (pip
                install 'imix-cli[peers]'); without it the section says so and exits 0.
     mujoco     imix's cost per env step on HalfCheetah-v5 and Hopper-v5 (linear policy, no mixing,
                pool evaluator with one worker: the evaluator on fixed policies, and a short
@@ -47,9 +47,9 @@ Timings are medians of repeats; the machine may be shared, so compare the ratios
 in the same run) rather than absolute numbers across runs. Exit status 2 on bad arguments.
 """
 
-# The docstring above is `imix bench --help`. One module per section (rollouts, mixing, memory and
-# its child process memory_child, breakdown, grid, peers), shared helpers in common, the command
-# line in cli; the scripts of benchmarks/ build on these modules.
+# The docstring above is the body of `imix bench --help` (imix_cli.bench.cli.help_text). One module per
+# section (rollouts, mixing, memory and its child process memory_child, breakdown, grid, peers), shared
+# helpers in common, the command line in cli; the scripts of benchmarks/ build on these modules.
 from imix_cli.bench.cli import SECTIONS, main
 from imix_cli.bench.common import median_time
 from imix_cli.bench.mixing import format_mixing, mixing_rows, mixing_times

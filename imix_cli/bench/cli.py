@@ -1,11 +1,15 @@
-"""``imix bench [section ...] [--options]``: the command line of the benchmarks (see :mod:`imix_cli.bench`)."""
+"""``imix bench [section ...] [key=value ...]``: the command line of the benchmarks (see :mod:`imix_cli.bench`).
+
+Sections are words, settings ``key=value`` (lists comma-separated), as every imix command takes them
+(:mod:`imix_cli.commands.keyvalue`); a bad one is one line naming it, exit status 2.
+"""
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -19,123 +23,93 @@ from imix_cli.bench.mixing import format_mixing, mixing_rows
 from imix_cli.bench.mujoco import MUJOCO_BENCH_ENVS, format_mujoco, mujoco_rows
 from imix_cli.bench.peers import QUICK_PEERS, format_peer_ratios, format_peers, peer_rows, peers_available
 from imix_cli.bench.rollouts import format_rollouts, rollout_rows
+from imix_cli.commands.keyvalue import UsageError, at_least, flag, help_requested, parse_key_values
 from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS, MUJOCO_ENVS, PAPER_ES_NAMES
 
 SECTIONS = ("rollouts", "mixing", "memory", "breakdown", "loop", "grid", "peers", "mujoco")
 DEFAULT_SECTIONS = ("rollouts", "mixing", "memory")
 
 
-class BenchError(ValueError):
-    """Bad arguments: one line, exit status 2."""
+def _positive_ints(key: str, value: str) -> list[int]:
+    return [at_least(1)(key, part) for part in value.split(",")]
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit status 2 (argparse would print the usage too)
-        raise BenchError(message)
+def _some_of(*choices: str):
+    def check(key: str, value: str) -> list[str]:
+        names = value.split(",")
+        bad = [name for name in names if name not in choices]
+        if bad:
+            raise UsageError(f"bad value for {key}: {bad[0]!r} (expected a comma-separated list of {', '.join(choices)})")
+        return list(dict.fromkeys(names))
+
+    return check
 
 
-def _positive_int(text: str) -> int:
+def _seconds(key: str, value: str) -> float:
     try:
-        value = int(text)
+        number = float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
-    return value
+        number = float("nan")
+    if not 0.0 <= number < float("inf"):
+        raise UsageError(f"bad value for {key}: {value!r} (expected a number >= 0)")
+    return number
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be >= 0")
-    return value
+#: Every key: its default, its check (what it converts to) and its line in ``--help``.
+KEYS = {
+    "sizes": ([2, 50, 1250], _positive_ints, "rollouts: batch sizes"),
+    "envs": (list(MAIN_GRID_ENVS), _some_of(*sorted(ROLLOUT_ENVS)), "rollouts, grid, breakdown, peers: environments"),
+    "repeats": (3, at_least(1), "timed repeats per measurement"),
+    "min_seconds": (1.0, _seconds, "rollouts: minimum time per batched measurement"),
+    "naive_members": (20, at_least(1), "rollouts: episodes of the naive loop"),
+    "dims": ([130, 1_000, 10_000, 100_000, 1_000_000], _positive_ints, "mixing: dimensions"),
+    "seeds": (None, at_least(1), "seeds per run (default: 25; breakdown and loop: 13, one worker's share)"),
+    "generations": (None, at_least(1), "generations per run (default: the paper's, per algorithm; loop: 300)"),
+    "workers": (None, at_least(1), "memory: the run's worker processes (default: all cores)"),
+    "quick": (False, flag, f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless seeds=/generations= say otherwise"),
+    "algos": (list(PAPER_ES_NAMES), _some_of(*ES_NAMES), f"grid and breakdown: algorithms, any of {', '.join(ES_NAMES)}"),
+    "mujoco_envs": (list(MUJOCO_BENCH_ENVS), _some_of(*sorted(MUJOCO_ENVS)), f"mujoco: environments, any of {', '.join(sorted(MUJOCO_ENVS))}"),
+    "popsize": (50, at_least(1), "mujoco: policies per measurement and the run's popsize"),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(
-        prog="imix bench",
-        description=_package.__doc__.replace("``", "`"),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples (key=value, as every imix command, or --key value):\n  imix bench\n  imix bench rollouts sizes=50,250,1250\n"
-        "  imix bench grid\n  imix bench all seeds=5 generations=50\n  imix bench peers quick=true\n  imix bench loop --seeds 5",
+def _shown(value) -> str:
+    if isinstance(value, list):
+        return ",".join(map(str, value))
+    return "N" if value is None else str(value).lower() if isinstance(value, bool) else str(value)
+
+
+def help_text() -> str:
+    keys = "\n".join(f"  {f'{key}={_shown(default)}':<40} {text}" for key, (default, _, text) in KEYS.items())
+    return (
+        f"usage: imix bench [section ...] [key=value ...]\n\n{_package.__doc__.replace('``', '`')}\n"
+        f"sections: {', '.join(SECTIONS)}, all (default: {' '.join(DEFAULT_SECTIONS)})\n\n"
+        f"keys (lists comma-separated; the defaults shown):\n{keys}\n\n"
+        "examples:\n  imix bench\n  imix bench rollouts sizes=50,250,1250\n  imix bench grid\n"
+        "  imix bench all seeds=5 generations=50\n  imix bench peers envs=cartpole quick=true\n  imix bench loop seeds=5\n"
     )
-    p.add_argument("sections", nargs="*", metavar="section", help=f"any of {', '.join(SECTIONS)}, all (default: {' '.join(DEFAULT_SECTIONS)})")
-    p.add_argument("--grid", action="store_true", help="also run the grid section")
-    g = p.add_argument_group("rollouts")
-    g.add_argument("--sizes", type=_positive_int, nargs="+", default=[2, 50, 1250], metavar="B", help="batch sizes (default: 2 50 1250)")
-    g.add_argument("--envs", nargs="+", choices=sorted(ROLLOUT_ENVS), default=list(MAIN_GRID_ENVS), help="environments (rollouts, grid, breakdown, peers)")
-    g.add_argument("--repeats", type=_positive_int, default=3, help="timed repeats per measurement (default: 3)")
-    g.add_argument("--min-seconds", type=_positive_float, default=1.0, help="minimum time per batched measurement (default: 1)")
-    g.add_argument("--naive-members", type=_positive_int, default=20, help="episodes of the naive loop (default: 20)")
-    g = p.add_argument_group("mixing")
-    g.add_argument(
-        "--dims",
-        type=_positive_int,
-        nargs="+",
-        default=[130, 1_000, 10_000, 100_000, 1_000_000],
-        metavar="D",
-        help="dimensions (default: 130 1000 100000 1000000)",
-    )
-    g = p.add_argument_group("memory, breakdown, grid, peers")
-    g.add_argument("--seeds", type=_positive_int, default=None, help="seeds per run (default: 25; breakdown and loop: 13, one worker's share)")
-    g.add_argument("--generations", type=_positive_int, default=None, help="generations per run (default: the paper's, per algorithm)")
-    g.add_argument("--workers", type=_positive_int, default=None, help="memory run's worker processes (default: all cores)")
-    g.add_argument(
-        "--quick", action="store_true", help=f"peers: {QUICK_PEERS[0]} seeds x {QUICK_PEERS[1]} generations unless --seeds/--generations say otherwise"
-    )
-    g.add_argument("--algos", nargs="+", choices=ES_NAMES, default=list(PAPER_ES_NAMES), help="grid and breakdown algorithms")
-    g = p.add_argument_group("mujoco")
-    g.add_argument("--mujoco-envs", nargs="+", choices=sorted(MUJOCO_ENVS), default=list(MUJOCO_BENCH_ENVS), help="environments (default: halfcheetah hopper)")
-    g.add_argument("--popsize", type=_positive_int, default=50, help="mujoco: policies per measurement and the run's popsize (default: 50)")
-    return p
 
 
-def _options_from_key_values(parser: argparse.ArgumentParser, argv: list[str]) -> list[str]:
-    """``key=value`` arguments (every imix command's style) as the options they name: ``seeds=5`` is
-    ``--seeds 5``, ``envs=cartpole,acrobot`` is ``--envs cartpole acrobot``, ``quick=true`` is
-    ``--quick``; other arguments (sections, ``--options``) are kept. BenchError for an unknown key."""
-    actions = {a.dest: a for a in parser._actions if a.option_strings and a.dest != "help"}
-    out = []
+def parse_args(argv: list[str]) -> SimpleNamespace:
+    """Section words and ``key=value`` settings -> the settings (``sections``: the sections to run, in order).
+    :class:`~imix_cli.commands.keyvalue.UsageError` naming the bad argument."""
+    sections, settings = [], []
     for arg in argv:
-        if arg.startswith("-") or "=" not in arg:
-            out.append(arg)
-            continue
-        key, value = arg.split("=", 1)
-        action = actions.get(key.replace("-", "_"))
-        if action is None:
-            raise BenchError(f"unknown key {key!r}; valid keys: {', '.join(sorted(actions))}")
-        option = action.option_strings[-1]
-        if action.nargs == 0:  # a flag
-            if value.lower() not in ("true", "false"):
-                raise BenchError(f"{key}={value}: must be true or false")
-            out += [option] if value.lower() == "true" else []
-        elif action.nargs == "+":
-            out += [option, *[v for v in value.split(",") if v]]
-        else:
-            out += [option, value]
-    return out
-
-
-def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = build_parser()
-    args = parser.parse_args(_options_from_key_values(parser, argv))
-    sections = []
-    for s in args.sections:
-        if s == "all":
+        if "=" in arg:
+            settings.append(arg)
+        elif arg.startswith("-"):
+            key = arg.lstrip("-").replace("-", "_")
+            hint = f", e.g. {key}=..." if key in KEYS else f"; sections are words, e.g. {key}" if key in SECTIONS else ""
+            raise UsageError(f"unknown argument {arg!r}: settings are key=value{hint} (see imix bench --help)")
+        elif arg == "all":
             sections.extend(SECTIONS)
-        elif s in SECTIONS:
-            sections.append(s)
+        elif arg in SECTIONS:
+            sections.append(arg)
         else:
-            raise BenchError(f"unknown section {s!r}; valid: {', '.join(SECTIONS)}, all")
-    if not sections:
-        sections = list(DEFAULT_SECTIONS)
-    if args.grid:
-        sections.append("grid")
-    args.sections = list(dict.fromkeys(sections))  # unique, in order
-    return args
+            raise UsageError(f"unknown section {arg!r}; valid: {', '.join(SECTIONS)}, all")
+    defaults = {key: default for key, (default, _, _) in KEYS.items()}
+    args = parse_key_values(settings, "bench", defaults, convert={key: check for key, (_, check, _) in KEYS.items()})
+    return SimpleNamespace(sections=list(dict.fromkeys(sections or DEFAULT_SECTIONS)), **args)  # unique, in order
 
 
 def _machine() -> str:
@@ -148,13 +122,13 @@ def _machine() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if help_requested(argv, help_text):
+        return 0
     try:
         args = parse_args(argv)
-    except BenchError as err:
-        print(f"imix bench: error: {err} (see imix bench --help)", file=sys.stderr)
+    except UsageError as err:
+        print(f"imix bench: {err}", file=sys.stderr)
         return 2
-    except SystemExit as exit_:  # --help
-        return exit_.code if isinstance(exit_.code, int) else 0
 
     def echo(text=""):
         print(text, flush=True)

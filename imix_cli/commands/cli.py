@@ -30,6 +30,8 @@ commands:
           `imix plot --help` lists its keys.
   bench   print the speed benchmarks (batched rollouts, mixing, a grid)
             imix bench
+            imix bench loop seeds=5
+          `imix bench --help` lists its sections and keys.
   eval    evaluate the saved policies of every seed on fresh episodes; writes eval.csv per run
             imix eval experiment=try episodes=100 which=mean
   render  write a GIF (or .mp4 with ffmpeg) of one saved policy acting in its env

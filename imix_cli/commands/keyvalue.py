@@ -1,9 +1,9 @@
-"""The one command-line style of ``imix plot | eval | render | status``: ``key=value`` arguments.
+"""The one command-line style of ``imix plot | eval | render | status | bench``: ``key=value`` arguments.
 
 (``imix run`` takes Hydra overrides, also ``key=value``, validated by :mod:`imix_cli.running.config`;
-``imix bench`` takes ``key=value`` too, each the argparse option it names, ``--key value`` still working.) Each command declares its keys -- a default and,
-when the value is not a plain string, a converter that checks it -- and gets a settings dict
-back; a bad argument is one :class:`UsageError` naming the key, reported in one line.
+``imix bench`` adds its section words, :mod:`imix_cli.bench.cli`.) Each command declares its keys -- a
+default and, when the value is not a plain string, a converter that checks it -- and gets a
+settings dict back; a bad argument is one :class:`UsageError` naming the key, reported in one line.
 """
 
 from __future__ import annotations
@@ -59,6 +59,15 @@ def one_of(*values: str):
         return value
 
     return check
+
+
+def flag(key: str, value: str) -> bool:
+    """true or false (yes/no, 1/0)."""
+    if value.lower() in ("true", "yes", "1"):
+        return True
+    if value.lower() in ("false", "no", "0"):
+        return False
+    raise UsageError(f"bad value for {key}: {value!r} (expected true or false)")
 
 
 def at_least(minimum: int):

@@ -12,7 +12,7 @@ import re
 import sys
 from pathlib import Path
 
-from imix_cli.commands.keyvalue import UsageError, finite_number, help_requested, parse_key_values
+from imix_cli.commands.keyvalue import UsageError, finite_number, flag, help_requested, parse_key_values
 
 HELP = """\
 usage: imix plot [key=value ...]
@@ -117,16 +117,8 @@ def _dpi(key: str, value: str) -> int:
     return dpi
 
 
-def _flag(key: str, value: str) -> bool:
-    if value.lower() in ("true", "yes", "1"):
-        return True
-    if value.lower() in ("false", "no", "0"):
-        return False
-    raise UsageError(f"bad value for {key}: {value!r} (expected true or false)")
-
-
 _DEFAULTS = {"results_dir": "results", "experiment": "default", "ci": 0.68, "only": None, "formats": ("png", "pdf"), "dpi": 150, "didactic": False}
-_CONVERT = {"results_dir": _results_dir, "experiment": _experiment, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi, "didactic": _flag}
+_CONVERT = {"results_dir": _results_dir, "experiment": _experiment, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi, "didactic": flag}
 _KNOWN = "results_dir, experiment, threshold.<env>, ci, only, formats, dpi, didactic"
 
 
