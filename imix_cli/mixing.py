@@ -595,8 +595,10 @@ class Variant:
     looks_back : bool
         Draws from up to ``eim_generations`` archived generations; else from the previous one only
         (:meth:`depth`, the archive a search keeps).
-    compiled : bool
-        :mod:`imix_cli.mixing_kernels` has its step (taken between float64 DiagonalGaussians).
+    kernel : int
+        Its step's number in the compiled code: :data:`imix_cli.mixing_kernels.KERNELS` (one step, taken
+        between float64 DiagonalGaussians) and the compiled generation loop
+        (:mod:`imix_cli.running.compiled_loop`, which branches on it); 0: no compiled step, numpy only.
     heights : bool
         Keeps each archived member's height (``Generation.log_u``) from one call to the next.
     uses_alpha : bool
@@ -612,7 +614,7 @@ class Variant:
 
     name: str
     looks_back: bool
-    compiled: bool
+    kernel: int
     heights: bool
     uses_alpha: bool
     step: Callable[..., int]
@@ -633,13 +635,13 @@ class Variant:
 VARIANT_SPECS: dict[str, Variant] = {
     v.name: v
     for v in (
-        Variant("paper", looks_back=False, compiled=True, heights=False, uses_alpha=False, step=_step_alternate, selected_by=("im",)),
-        Variant("sun2009", looks_back=False, compiled=True, heights=False, uses_alpha=True, step=_step_sun2009, selected_by=("im",)),
-        Variant("exact", looks_back=True, compiled=True, heights=True, uses_alpha=False, step=_step_exact, selected_by=("eim",)),
-        Variant("conditional", looks_back=False, compiled=False, heights=False, uses_alpha=False, step=_step_conditional,
+        Variant("paper", looks_back=False, kernel=1, heights=False, uses_alpha=False, step=_step_alternate, selected_by=("im",)),
+        Variant("sun2009", looks_back=False, kernel=2, heights=False, uses_alpha=True, step=_step_sun2009, selected_by=("im",)),
+        Variant("exact", looks_back=True, kernel=3, heights=True, uses_alpha=False, step=_step_exact, selected_by=("eim",)),
+        Variant("conditional", looks_back=False, kernel=0, heights=False, uses_alpha=False, step=_step_conditional,
                 selected_by=("im", "eim")),
         # Algorithm 3; "paper" is Algorithm 2's name, so eim_variant=paper selects it under another name
-        Variant("eim_paper", looks_back=True, compiled=False, heights=False, uses_alpha=False, step=_step_alternate,
+        Variant("eim_paper", looks_back=True, kernel=0, heights=False, uses_alpha=False, step=_step_alternate,
                 selected_by=("eim",), config_name="paper"),
     )
 }  # fmt: skip
@@ -663,7 +665,7 @@ def variant_spec(name: str) -> Variant:
 
 def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool:
     """Whether :mod:`imix_cli.mixing_kernels` computes this step (see ``mix``'s ``compiled``)."""
-    if not variant.compiled or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
+    if not variant.kernel or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
         return False
     archived = 0
     for dist, samples in entries:
@@ -739,7 +741,7 @@ def mix(
         used = list(archive[:depth])
         heights = [_heights(e, rng) for e in used] if spec.heights else None
         dists, samples = zip(*entries[:depth])
-        x, source, index, trials = mix_diagonal(new_dist, dists, samples, heights, popsize, rng, spec.name, alpha)
+        x, source, index, trials = mix_diagonal(new_dist, dists, samples, heights, popsize, rng, spec.kernel, alpha)
         return Generation(x, source, index, new_dist, trials)
     if compiled:
         raise ValueError(f"the compiled mixing step does not apply to variant {variant!r} with {type(new_dist).__name__} and this archive")

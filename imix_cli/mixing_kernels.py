@@ -351,7 +351,9 @@ def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, co
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
 
 
-_ENTRY = {"paper": _mix_paper, "sun2009": _mix_sun2009, "exact": _mix_exact}
+#: Each compiled step by its number, which its :class:`imix_cli.mixing.Variant` carries (``kernel``); the
+#: compiled generation loop (:mod:`imix_cli.running.compiled_loop`) branches on the same numbers.
+KERNELS = {1: _mix_paper, 2: _mix_sun2009, 3: _mix_exact}
 
 
 def _stacked(arrays, rows: int) -> np.ndarray:
@@ -364,8 +366,9 @@ def _stacked(arrays, rows: int) -> np.ndarray:
     return out
 
 
-def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random.Generator, variant: str, alpha: float):
-    """One mixing step, as :func:`imix_cli.mixing.mix` with float64 DiagonalGaussians.
+def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random.Generator, kernel: int, alpha: float):
+    """One mixing step, as :func:`imix_cli.mixing.mix` with float64 DiagonalGaussians; ``kernel``: the
+    variant's step (:data:`KERNELS`, the variant's ``kernel``).
 
     ``dists``/``samples``/``heights``: the archive entries used (newest first), their (n_k, d)
     samples with n_k <= popsize, and (``"exact"`` only) their log-heights. Returns
@@ -380,7 +383,7 @@ def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random
     log_norms = np.array([dist._log_norm for dist in dists])
     with np.errstate(divide="ignore"):
         log_keep = float(np.log1p(-alpha))
-    return _ENTRY[variant](
+    return KERNELS[kernel](
         rng, new_dist.mean, new_dist.std, float(new_dist._log_norm),
         means, stds, log_norms, xs, h, counts, popsize, log_keep, float(alpha),
     )  # fmt: skip

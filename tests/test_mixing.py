@@ -424,7 +424,7 @@ def test_a_registered_variant_is_what_mix_and_the_settings_read(monkeypatch):
         depths.append(depth)
         return mixing._step_alternate(builder, new_dist, archive, entries, depth, alpha, rng)
 
-    monkeypatch.setitem(mixing.VARIANT_SPECS, "probe", mixing.Variant("probe", looks_back=True, compiled=False, heights=False, uses_alpha=False, step=step))
+    monkeypatch.setitem(mixing.VARIANT_SPECS, "probe", mixing.Variant("probe", looks_back=True, kernel=0, heights=False, uses_alpha=False, step=step))
     rng = np.random.default_rng(0)
     dist = DiagonalGaussian(np.zeros(3), np.ones(3))
     archive = [(dist, dist.sample(10, rng)) for _ in range(4)]

@@ -51,14 +51,13 @@ from imix_cli.algorithms.openes import OpenES
 from imix_cli.algorithms.snes import SNES
 from imix_cli.distributions import DiagonalGaussian
 from imix_cli.envs import kernels as ek
-from imix_cli.mixing import _COMPILED_MAX_ELEMENTS, Generation
+from imix_cli.mixing import _COMPILED_MAX_ELEMENTS, Generation, variant_spec
 
 __all__ = ["applies", "applies_to_run", "advance", "entry", "ENV_VARIABLE"]
 
 #: ``IMIX_COMPILED_LOOP=0``: every run takes the Python path (the reference).
 ENV_VARIABLE = "IMIX_COMPILED_LOOP"
 
-_VARIANTS = {None: 0, "paper": 1, "sun2009": 2, "exact": 3}
 _ALGOS = {OpenES: 0, SNES: 1}
 _LOG_2PI = math.log(2.0 * math.pi)
 _SEED_HIGH = np.iinfo(np.int64).max  # episode seeds: integers(0, int64 max), as lockstep draws them
@@ -441,6 +440,14 @@ def enabled() -> bool:
     return os.environ.get(ENV_VARIABLE, "1").strip() != "0"
 
 
+def _kernel(variant: str | None) -> int | None:
+    """The loop's number for mixing ``variant``: 0 without mixing, the variant's compiled step
+    (:class:`imix_cli.mixing.Variant`'s ``kernel``), None if it has none (the loop cannot take it)."""
+    if variant is None:
+        return 0
+    return variant_spec(variant).kernel or None
+
+
 def applies_to_run(settings, evaluator) -> bool:
     """Whether the seeds of a run (its :class:`imix_cli.running.lockstep.LoopSettings`) evaluated by ``evaluator``
     can take the compiled loop (module docstring)."""
@@ -449,7 +456,7 @@ def applies_to_run(settings, evaluator) -> bool:
     if not enabled() or type(evaluator) not in (CartPoleEvaluator, ContinuousCartPoleEvaluator) or settings.algo not in ("openes", "snes"):
         return False
     mixing = settings.mixing
-    if mixing.variant not in _VARIANTS or mixing.reeval_age is not None or mixing.reeval_prob > 0.0 or mixing.reeval_count > 0:
+    if _kernel(mixing.variant) is None or mixing.reeval_age is not None or mixing.reeval_prob > 0.0 or mixing.reeval_count > 0:
         return False
     # policy.bias=false: the ES's points are not the evaluator's parameter vectors (lockstep.policy_params)
     return settings.obs_norm_warmup is None and settings.policy_bias and settings.es_options["weight_decay_form"] == "estool"
@@ -531,7 +538,7 @@ def advance(st, settings, evaluator, generations: int) -> bool:
     with np.errstate(divide="ignore"):
         log_keep = float(np.log1p(-mixing.alpha))
     done = entry()(
-        generations, _ALGOS[type(es)], _VARIANTS[mixing.variant], depth, float(mixing.alpha), log_keep,
+        generations, _ALGOS[type(es)], _kernel(mixing.variant), depth, float(mixing.alpha), log_keep,
         float(es.weight_decay), hash_multipliers(d), es_generation,
         mu, log_sigma, std, float(es.sigma), opt_m, opt_v, opt_t, lrs, float(es.params.beta1), float(es.params.beta2),
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
