@@ -109,24 +109,30 @@ def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
             "env_steps": int(np.asarray(steps, dtype=np.int64).sum()), "final": float(np.mean(final))}  # fmt: skip
 
 
-def _imix_overrides(env: str, eim: bool, seeds: int, generations: int, results_dir: str) -> list[str]:
+def _imix_overrides(env: str, eim: bool, seeds: int, generations: int, results_dir: str, extra: tuple = ()) -> list[str]:
     return ["algo=snes", f"env={env}", f"eim={str(eim).lower()}", f"seeds={seeds}", f"generations={generations}",
-            "progress=false", f"results_dir={results_dir}", "experiment=peers"]  # fmt: skip
+            "progress=false", f"results_dir={results_dir}", "experiment=peers", *extra]  # fmt: skip
 
 
-def _imix_run(env: str, eim: bool, seeds: int, generations: int) -> dict:
-    """``imix run algo=snes env=<env> eim=<eim>`` in this process (its worker pool, all cores)."""
+def _imix_run(env: str, eim: bool, seeds: int, generations: int, extra: tuple = ()) -> dict:
+    """``imix run algo=snes env=<env> eim=<eim> [extra]`` in this process (its worker pool, all cores).
+    With EIM the row is labelled for the ratios: ``imix SNES + EIM``, and with ``checkpoint_every=0``
+    (no checkpoints, so no live CSVs either) ``... without checkpoints``: how much of imix's wall time
+    its resumability costs, measured in the same run."""
     from imix_cli.running.config import validate_overrides
     from imix_cli.running.runner import run
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
-        (spec,) = validate_overrides(_imix_overrides(env, eim, seeds, generations, tmp))
+        (spec,) = validate_overrides(_imix_overrides(env, eim, seeds, generations, tmp, extra))
         started = time.perf_counter()
         summary = run(spec, echo=lambda *_: None)
         wall = time.perf_counter() - started
-    return {"run": f"imix run algo=snes eim={str(eim).lower()}", "env": env, "eim": eim, "seeds": seeds,
-            "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
-            "final": summary["final_mean_score"]}  # fmt: skip
+    row = {"run": " ".join([f"imix run algo=snes eim={str(eim).lower()}", *extra]), "env": env, "eim": eim, "seeds": seeds,
+           "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
+           "final": summary["final_mean_score"]}  # fmt: skip
+    if eim:
+        row["label"] = "imix SNES + EIM" + (" without checkpoints" if "checkpoint_every=0" in extra else "")
+    return row
 
 
 def _imix_first_run(env: str, seeds: int, generations: int) -> dict:
@@ -148,6 +154,7 @@ def _imix_first_run(env: str, seeds: int, generations: int) -> dict:
         (spec,) = validate_overrides(overrides)
         summary = summarize(spec)
     return {"run": "imix run algo=snes eim=true, first run (empty numba cache)", "env": env, "eim": True, "first_run": True,
+            "label": "imix SNES + EIM, first run",
             "seeds": seeds, "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
             "final": summary["final_mean_score"]}  # fmt: skip
 
@@ -155,20 +162,22 @@ def _imix_first_run(env: str, seeds: int, generations: int) -> dict:
 def peer_rows(envs, seeds: int, generations: int, echo=None) -> list[dict]:
     """The peers and imix's SNES with and without EIM on each env, one after the other; on the
     first env also imix's SNES + EIM as a first run (numba compiling), whose extra wall time over
-    the warm run is its ``compile``."""
+    the warm run is its ``compile``, and without checkpoints (``checkpoint_every=0``)."""
     rows = []
     for number, env in enumerate(envs):
-        runs = [(_peer_run, ("snes", env)), (_peer_run, ("openes", env))]
-        runs += [(_imix_first_run, (env,))] if number == 0 else []
-        runs += [(_imix_run, (env, True)), (_imix_run, (env, False))]
-        for fn, args in runs:
-            row = fn(*args, seeds, generations)
+        runs = [(_peer_run, ("snes", env), {}), (_peer_run, ("openes", env), {})]
+        runs += [(_imix_first_run, (env,), {})] if number == 0 else []
+        runs += [(_imix_run, (env, True), {})]
+        runs += [(_imix_run, (env, True), {"extra": ("checkpoint_every=0",)})] if number == 0 else []
+        runs += [(_imix_run, (env, False), {})]
+        for fn, args, options in runs:
+            row = fn(*args, seeds, generations, **options)
             rows.append(row)
             if echo:
                 echo(f"  {row['run']}, {env}: {row['wall']:.1f} s, {row['env_steps']:,} env steps, final {row['final']:.1f}")
         first = [r for r in rows if r.get("first_run") and r["env"] == env]
         if first:
-            warm = next(r for r in rows if r["env"] == env and r["run"].startswith("imix") and r["eim"] and not r.get("first_run"))
+            warm = next(r for r in rows if r["env"] == env and r.get("label") == "imix SNES + EIM")
             first[0]["compile"] = first[0]["wall"] - warm["wall"]
     return rows
 
@@ -188,14 +197,13 @@ def _ratio(x: float) -> str:
 
 
 def format_peer_ratios(rows: list[dict]) -> str:
-    """imix SNES + EIM (cache warm, and a first run where there is one) against every other row of the
-    same env: wall time and env steps ratios."""
+    """imix SNES + EIM (cache warm; and, where there are, a first run and a run without checkpoints) against
+    every other row of the same env: wall time and env steps ratios."""
     body = []
     for env in dict.fromkeys(r["env"] for r in rows):
-        mine = [r for r in rows if r["env"] == env and r["run"].startswith("imix") and r["eim"]]
+        mine = [r for r in rows if r["env"] == env and "label" in r]
         for ours in mine:
-            name = "imix SNES + EIM, first run" if ours.get("first_run") else "imix SNES + EIM"
             for other in (r for r in rows if r["env"] == env and r not in mine):
-                body.append([env, f"{name} vs {other['run']}", _ratio(other["wall"] / ours["wall"]),
+                body.append([env, f"{ours['label']} vs {other['run']}", _ratio(other["wall"] / ours["wall"]),
                              f"{other['env_steps'] / max(ours['env_steps'], 1):.1f}"])  # fmt: skip
     return table(["env", "comparison", "× faster (wall)", "× fewer env steps"], body, "llrr")
