@@ -93,11 +93,13 @@ def compile_groups(spec) -> list:
     """The groups of kernels (functions of ``spec``) whose compile the run can spread over cores, and
     the compiled entry points whose presence in the cache says a group is already compiled."""
     from imix_cli import linalg_kernels, mixing_kernels
+    from imix_cli.mixing import variant_spec
 
     groups = []
     entries = [linalg_kernels._vec_mat] if spec.algo != "cmaes" else [linalg_kernels._eigh, linalg_kernels._cholesky]
-    if spec.variant is not None and spec.algo != "cmaes" and spec.variant in mixing_kernels._ENTRY:
-        entries.append(mixing_kernels._ENTRY[spec.variant])
+    kernel = variant_spec(spec.variant).kernel if spec.variant is not None else 0
+    if kernel and spec.algo != "cmaes":
+        entries.append(mixing_kernels.KERNELS[kernel])
     groups.append((_mixing_group, entries))
     if spec.evaluator == "local":
         from imix_cli.envs import kernels
