@@ -62,3 +62,25 @@ def test_the_install_warm_up_covers_every_built_in_kernel(tmp_path):
         ["algo=snes", "env=gym", "env.id=Pendulum-v1", "env.max_steps=20", "eim=true"],
     ):
         assert _python(COUNT_COMPILES, [*args, "seeds=1", "generations=4", "popsize=10"], cache) == "[]", args
+
+
+def test_make_install_warms_the_package_that_the_imix_command_runs(tmp_path):
+    """The install's warm-up must compile into the cache of the *installed* package: run from the
+    repository, ``python -m imix_cli...`` imports the source tree instead (cwd first on sys.path), so a
+    non-editable install's first run compiled everything again (a first run took 33 s against 7 s)."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    recipe = [line.strip() for line in (root / "Makefile").read_text().splitlines() if "imix_cli.running.warmup" in line and not line.strip().startswith("#")]
+    assert len(recipe) == 1, recipe
+    venv = Path(sys.executable).parents[1]
+    command = recipe[0].split("#")[0].replace("$(VENV)", str(venv)).replace("$(PY)", str(venv / "bin" / "python"))
+    where = "import imix_cli, os; print(os.path.dirname(os.path.realpath(imix_cli.__file__)))"
+    command = re.sub(r"-m imix_cli\.running\.warmup", "-c " + shlex.quote(where), command)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    warmed = subprocess.run(["sh", "-c", command], cwd=root, env=env, capture_output=True, text=True, timeout=120)
+    assert warmed.returncode == 0, warmed.stderr
+    used = subprocess.run([sys.executable, "-c", where], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert warmed.stdout.strip() == used.stdout.strip()
