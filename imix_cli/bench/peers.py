@@ -7,6 +7,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from functools import partial
 
 import numpy as np
 
@@ -114,11 +115,9 @@ def _imix_overrides(env: str, eim: bool, seeds: int, generations: int, results_d
             "progress=false", f"results_dir={results_dir}", "experiment=peers", *extra]  # fmt: skip
 
 
-def _imix_run(env: str, eim: bool, seeds: int, generations: int, extra: tuple = ()) -> dict:
+def _imix_run(env: str, eim: bool, seeds: int, generations: int, extra: tuple = (), label: str | None = None) -> dict:
     """``imix run algo=snes env=<env> eim=<eim> [extra]`` in this process (its worker pool, all cores).
-    With EIM the row is labelled for the ratios: ``imix SNES + EIM``, and with ``checkpoint_every=0``
-    (no checkpoints, so no live CSVs either) ``... without checkpoints``: how much of imix's wall time
-    its resumability costs, measured in the same run."""
+    ``label``: the row's name in the ratios, for the runs compared with the others (imix SNES + EIM)."""
     from imix_cli.running.config import validate_overrides
     from imix_cli.running.runner import run
 
@@ -130,8 +129,8 @@ def _imix_run(env: str, eim: bool, seeds: int, generations: int, extra: tuple = 
     row = {"run": " ".join([f"imix run algo=snes eim={str(eim).lower()}", *extra]), "env": env, "eim": eim, "seeds": seeds,
            "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
            "final": summary["final_mean_score"]}  # fmt: skip
-    if eim:
-        row["label"] = "imix SNES + EIM" + (" without checkpoints" if "checkpoint_every=0" in extra else "")
+    if label is not None:
+        row["label"] = label
     return row
 
 
@@ -165,13 +164,14 @@ def peer_rows(envs, seeds: int, generations: int, echo=None) -> list[dict]:
     the warm run is its ``compile``, and without checkpoints (``checkpoint_every=0``)."""
     rows = []
     for number, env in enumerate(envs):
-        runs = [(_peer_run, ("snes", env), {}), (_peer_run, ("openes", env), {})]
-        runs += [(_imix_first_run, (env,), {})] if number == 0 else []
-        runs += [(_imix_run, (env, True), {})]
-        runs += [(_imix_run, (env, True), {"extra": ("checkpoint_every=0",)})] if number == 0 else []
-        runs += [(_imix_run, (env, False), {})]
-        for fn, args, options in runs:
-            row = fn(*args, seeds, generations, **options)
+        runs = [partial(_peer_run, "snes", env), partial(_peer_run, "openes", env)]
+        runs += [partial(_imix_first_run, env)] if number == 0 else []
+        runs += [partial(_imix_run, env, True, label="imix SNES + EIM")]
+        # without checkpoints (so without live CSVs either): what resumability costs of imix's wall time
+        runs += [partial(_imix_run, env, True, extra=("checkpoint_every=0",), label="imix SNES + EIM without checkpoints")] if number == 0 else []
+        runs += [partial(_imix_run, env, False)]
+        for run in runs:
+            row = run(seeds=seeds, generations=generations)
             rows.append(row)
             if echo:
                 echo(f"  {row['run']}, {env}: {row['wall']:.1f} s, {row['env_steps']:,} env steps, final {row['final']:.1f}")
