@@ -199,7 +199,7 @@ def test_every_member_is_told_the_return_of_its_own_parameters():
 
 # ---------------------------------------------------------------------------------- imix run
 SWIMMER = ["run", "algo=ars", "env=swimmer", "eim=true", "env.max_steps=50", "popsize=8", "sigma=0.1", "lr=0.002", "policy.hidden=[]",
-           "seeds=2", "checkpoint_every=4", "workers=1", "progress=false", "eval_mean_every=5", "eval_mean_episodes=2"]  # fmt: skip
+           "seeds=2", "checkpoint_every=4", "checkpoint_seconds=0", "workers=1", "progress=false", "eval_mean_every=5", "eval_mean_episodes=2"]  # fmt: skip
 
 
 def _csvs(root: Path) -> dict:

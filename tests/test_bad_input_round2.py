@@ -97,7 +97,8 @@ def test_a_sweep_whose_points_would_share_a_folder_is_refused_before_anything_ru
 # ------------------------------------------------------------------ 5. signals
 @pytest.mark.slow
 def test_sigint_to_the_main_process_alone_stops_the_workers_and_keeps_checkpoints(tmp_path):
-    args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "workers=2", "progress=false",
+    args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "checkpoint_seconds=0",
+            "workers=2", "progress=false",
             f"results_dir={tmp_path}"]  # fmt: skip
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:

@@ -28,7 +28,8 @@ from imix_cli.running.resume import load_checkpoint
 from imix_cli.running.run_folder import prepare_run_dir
 from imix_cli.running.runner import run_seeds
 
-COMMON = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=12", "popsize=8", "checkpoint_every=4", "workers=1", "progress=false"]
+COMMON = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=12", "popsize=8", "checkpoint_every=4", "checkpoint_seconds=0",
+          "workers=1", "progress=false"]  # fmt: skip
 
 
 def spec_and_states(tmp_path, overrides=(), generations=5):
@@ -310,3 +311,27 @@ def test_the_rows_encoding_kept_between_checkpoints_gives_the_encoding_of_all_ro
     st.rows.append(dict(st.rows[-1], generation=4, reused=2))
     same_as_whole("a column of mixed kinds")
     assert "rows" not in tables  # ... but for a column of mixed kinds
+
+
+@pytest.mark.parametrize("seconds, periodic", [(0, 2), (3600, 0)])
+def test_a_periodic_checkpoint_waits_for_checkpoint_seconds_and_the_final_state_does_not(tmp_path, monkeypatch, seconds, periodic):
+    """checkpoint_every=4 over 12 generations falls due at generations 4 and 8 (and the final state at 12);
+    with checkpoint_seconds=3600 the periodic ones are skipped (the run takes a second), the final one is not.
+    The final state is written durably (fsync), the periodic ones are not (a kill leaves them whole anyway)."""
+    from imix_cli.running import run_writer
+
+    saved = []
+    real = run_writer.save_checkpoint
+
+    def recording(run_dir, st, *args, durable=True, **kwargs):
+        saved.append((st.seed, st.generation, durable))
+        real(run_dir, st, *args, durable=durable, **kwargs)
+
+    monkeypatch.setattr(run_writer, "save_checkpoint", recording)
+    (spec,) = validate_overrides([*COMMON, f"checkpoint_seconds={seconds}", f"results_dir={tmp_path}"])
+    prepare_run_dir(spec)
+    run_seeds(spec, [0, 1])
+    for seed in (0, 1):
+        mine = [(g, durable) for s, g, durable in saved if s == seed]
+        assert mine == [(4, False), (8, False)][:periodic] + [(12, True)], mine
+        assert checkpoint_path(spec.run_dir, seed).exists()  # the final state, from which more generations continue

@@ -146,7 +146,7 @@ def _files(root: Path) -> dict:
 
 @pytest.mark.slow
 def test_runs_are_identical_with_the_python_loop_continued_runs_included(tmp_path):
-    args = ["algo=snes", "env=cartpole", "eim=true", "seeds=3", "workers=2", "checkpoint_every=20", "experiment=x"]
+    args = ["algo=snes", "env=cartpole", "eim=true", "seeds=3", "workers=2", "checkpoint_every=20", "checkpoint_seconds=0", "experiment=x"]
     for name, env in (("python", {compiled_loop.ENV_VARIABLE: "0"}), ("compiled", {})):
         _run([*args, "generations=45"], tmp_path / name, **env)
         _run([*args, "generations=90"], tmp_path / name, **env)  # continued from the final states

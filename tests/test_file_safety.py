@@ -269,7 +269,8 @@ def test_a_policy_zip_bomb_is_refused_before_inflating(copied, tmp_path):
 @pytest.mark.slow
 def test_a_checkpoint_zip_bomb_is_refused_before_inflating(tmp_path):
     root = tmp_path / "R"
-    args = ["run", "algo=cem", "env=cartpole", "seeds=1", "generations=4", "popsize=6", "checkpoint_every=2", "eim=true", "progress=false", "workers=1"]
+    args = ["run", "algo=cem", "env=cartpole", "seeds=1", "generations=4", "popsize=6", "checkpoint_every=2", "checkpoint_seconds=0",
+            "eim=true", "progress=false", "workers=1"]  # fmt: skip
     assert main([*args, f"results_dir={root}"]) == 0
     (run_dir,) = (root / "default").iterdir()
     path = run_dir / ".checkpoints" / "seed_0.npz"
@@ -297,7 +298,7 @@ def test_a_checkpoint_zip_bomb_is_refused_before_inflating(tmp_path):
 
 
 # ------------------------------------------------------------------ 4. checkpoints forged with a recomputed checksum
-FORGE_RUN = ["run", "algo=cem", "env=cartpole", "seeds=1", "popsize=6", "checkpoint_every=2", "eim=true", "progress=false", "workers=1"]
+FORGE_RUN = ["run", "algo=cem", "env=cartpole", "seeds=1", "popsize=6", "checkpoint_every=2", "checkpoint_seconds=0", "eim=true", "progress=false", "workers=1"]
 
 
 def forge_checkpoint(path, change) -> None:
@@ -416,7 +417,8 @@ def test_a_symlink_in_the_checkpoint_area_is_refused_not_followed(tmp_path, caps
         (run_dir / link).symlink_to(victim / "seed_0.npz")
     before = sorted((p.name, p.read_text()) for p in victim.iterdir())
     capsys.readouterr()
-    assert main(["run", *TINY[:3], "generations=4", "popsize=6", "checkpoint_every=1", "progress=false", "workers=1", f"results_dir={tmp_path / 'R'}"]) == 1
+    assert main(["run", *TINY[:3], "generations=4", "popsize=6", "checkpoint_every=1", "checkpoint_seconds=0",
+                 "progress=false", "workers=1", f"results_dir={tmp_path / 'R'}"]) == 1  # fmt: skip
     line = one_error_line(capsys.readouterr().err)
     assert "link" in line and ".checkpoints" in line
     assert sorted((p.name, p.read_text()) for p in victim.iterdir()) == before

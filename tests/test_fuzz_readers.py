@@ -52,7 +52,8 @@ INT_COLUMNS = (
     "seed", "generation", "evaluations", "env_steps", "reused", "reused_im", "reused_eim", "reevaluated", "popsize", "nonfinite",
     "mean_policy_episodes", "diverged",
 )  # fmt: skip
-ARGS = ["algo=cem", "env=cartpole", "seeds=1", "generations=4", "popsize=6", "checkpoint_every=2", "eim=true", "progress=false", "workers=1"]
+ARGS = ["algo=cem", "env=cartpole", "seeds=1", "generations=4", "popsize=6", "checkpoint_every=2", "checkpoint_seconds=0",
+        "eim=true", "progress=false", "workers=1"]  # fmt: skip
 
 
 class Hang(Exception):

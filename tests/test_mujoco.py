@@ -298,7 +298,7 @@ def test_resume_mid_warm_up_equals_not_stopping(tmp_path):
     from imix_cli.running.runner import run_seeds
 
     common = ["env=gym", "env.id=Pendulum-v1", "algo=snes", "eim=true", "seeds=1", "generations=8", "popsize=6", "policy.hidden=[]",
-              "policy.obs_norm=true", "policy.obs_norm_warmup=3", "checkpoint_every=2", "workers=1", "progress=false"]  # fmt: skip
+              "policy.obs_norm=true", "policy.obs_norm_warmup=3", "checkpoint_every=2", "checkpoint_seconds=0", "workers=1", "progress=false"]  # fmt: skip
     assert main(["run", *common, f"results_dir={tmp_path / 'ref'}"]) == 0
     (spec,) = validate_overrides([*common, f"results_dir={tmp_path / 'stop'}"])
     done = {"n": 0}

@@ -71,7 +71,8 @@ def test_an_actor_lost_for_good_is_one_line(monkeypatch):
 # ------------------------------------------------------------------ nothing left behind
 @pytest.mark.parametrize("stop", ["kill -9", "Ctrl-C", "SIGTERM"])
 def test_no_process_is_left_behind(tmp_path, stop):
-    args = [IMIX, "run", "algo=cem", "seeds=2", "generations=100000", "popsize=8", "checkpoint_every=5", "evaluator=ray", "evaluator_workers=1",
+    args = [IMIX, "run", "algo=cem", "seeds=2", "generations=100000", "popsize=8", "checkpoint_every=5", "checkpoint_seconds=0",
+            "evaluator=ray", "evaluator_workers=1",
             "progress=false", f"results_dir={tmp_path}"]  # fmt: skip
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     seen = set()

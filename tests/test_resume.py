@@ -30,7 +30,8 @@ from imix_cli.running.runner import run_seeds
 IMIX = str(Path(sys.executable).parent / "imix")
 GENERATIONS = 1200  # long enough (~10 s of work here) that the kills below land before the run ends
 # Long enough (~10 s of work on 2 cores) that the first kills always land before completion.
-ARGS = ["run", "algo=snes", "env=acrobot", "eim=true", "seeds=4", f"generations={GENERATIONS}", "popsize=40", "checkpoint_every=5", "workers=2",
+ARGS = ["run", "algo=snes", "env=acrobot", "eim=true", "seeds=4", f"generations={GENERATIONS}", "popsize=40", "checkpoint_every=5", "checkpoint_seconds=0",
+        "workers=2",
         "progress=false"]  # fmt: skip
 
 
@@ -130,7 +131,8 @@ def test_resume_from_checkpoint_equals_not_stopping(tmp_path, algo, capfd):
 
     if algo == "cmaes" and "_state_dict" not in vars(CMAES) and "state_dict" not in vars(CMAES):
         pytest.skip("CMAES has no state_dict in this branch (wired at merge)")
-    common = [f"algo={algo}", "env=acrobot", "eim=true", "seeds=2", "generations=10", "popsize=10", "checkpoint_every=3", "workers=1", "progress=false"]
+    common = [f"algo={algo}", "env=acrobot", "eim=true", "seeds=2", "generations=10", "popsize=10", "checkpoint_every=3", "checkpoint_seconds=0",
+              "workers=1", "progress=false"]  # fmt: skip
     assert main(["run", *common, f"results_dir={tmp_path / 'ref'}"]) == 0
     (spec,) = validate_overrides([*common, f"results_dir={tmp_path / 'stop'}"])
     todo = prepare_run_dir(spec)
@@ -176,7 +178,7 @@ def interrupted_run(common: list[str], results_dir: Path, after: int):
 def test_a_real_checkpoint_of_another_config_is_refused(tmp_path, capfd):
     """A checkpoint of weight_decay=0.05 copied into the folder of weight_decay=0.1: same shapes,
     so only the identity check stands between it and a wrong CSV."""
-    common = ["algo=cem", "seeds=1", "generations=6", "popsize=8", "checkpoint_every=2", "workers=1", "progress=false"]
+    common = ["algo=cem", "seeds=1", "generations=6", "popsize=8", "checkpoint_every=2", "checkpoint_seconds=0", "workers=1", "progress=false"]
     other = interrupted_run([*common, "weight_decay=0.05"], tmp_path / "other", after=3)
     assert checkpoint_path(other.run_dir, 0).exists()
     assert main(["run", *common, "weight_decay=0.1", f"results_dir={tmp_path / 'ref'}"]) == 0
@@ -197,7 +199,7 @@ def test_a_real_checkpoint_of_another_config_is_refused(tmp_path, capfd):
 
 
 def test_an_unreadable_checkpoint_is_recomputed(tmp_path, capfd):
-    common = ["algo=cem", "seeds=1", "generations=6", "popsize=8", "checkpoint_every=2", "workers=1", "progress=false"]
+    common = ["algo=cem", "seeds=1", "generations=6", "popsize=8", "checkpoint_every=2", "checkpoint_seconds=0", "workers=1", "progress=false"]
     (spec,) = validate_overrides([*common, f"results_dir={tmp_path}"])
     todo = prepare_run_dir(spec)
     path = checkpoint_path(spec.run_dir, 0)
@@ -212,7 +214,7 @@ def test_a_finished_run_continues_to_more_generations_as_if_run_at_once(tmp_path
     """generations=6 then generations=11 in the same experiment continues each seed from its final
     state: the CSVs equal those of generations=11 run at once (but for wall_time). Fewer
     generations than done are refused in one line, and nothing is rewritten."""
-    common = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "popsize=10", "checkpoint_every=4", "workers=1", "progress=false"]
+    common = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "popsize=10", "checkpoint_every=4", "checkpoint_seconds=0", "workers=1", "progress=false"]
     assert main(["run", *common, "generations=11", f"results_dir={tmp_path / 'once'}"]) == 0
     assert main(["run", *common, "generations=6", f"results_dir={tmp_path / 'twice'}"]) == 0
     capfd.readouterr()
@@ -234,7 +236,8 @@ def test_a_finished_run_continues_to_more_generations_as_if_run_at_once(tmp_path
 def test_a_kill_between_a_seeds_final_state_and_its_csv_writes_only_its_files(tmp_path, capfd):
     """The writer saves a finished seed's final state before its CSV: a run killed in between resumes
     the seed at its last generation and writes its policy files and CSV, as the run would have."""
-    common = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=6", "popsize=10", "checkpoint_every=4", "workers=1", "progress=false"]
+    common = ["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=6", "popsize=10", "checkpoint_every=4", "checkpoint_seconds=0",
+              "workers=1", "progress=false"]  # fmt: skip
     assert main(["run", *common, f"results_dir={tmp_path}"]) == 0
     (run_dir,) = [p.parent for p in tmp_path.rglob("config.yaml")]
     files = ("seed_0.csv", "policy_0_mean.npz", "policy_0_best.npz")

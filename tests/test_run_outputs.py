@@ -31,7 +31,7 @@ def test_summary_compares_with_and_without_mixing_and_has_no_nan(tmp_path, capsy
 
 
 def test_partial_csv_at_each_checkpoint_then_removed(tmp_path):
-    spec = validate_overrides([*TINY, "seeds=1", "generations=5", "checkpoint_every=2", f"results_dir={tmp_path}"])[0]
+    spec = validate_overrides([*TINY, "seeds=1", "generations=5", "checkpoint_every=2", "checkpoint_seconds=0", f"results_dir={tmp_path}"])[0]
     spec.run_dir.mkdir(parents=True)
     seen = []
 

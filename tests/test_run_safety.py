@@ -202,7 +202,8 @@ def _wait_for_rows(path: Path, rows: int, proc, timeout: float = 120) -> None:
 
 
 def test_a_killed_continuation_neither_locks_the_run_nor_hides_its_rows(tmp_path, capsys):
-    common = ["algo=cem", "seeds=1", "popsize=8", "workers=1", "progress=false", "checkpoint_every=5", "eval_mean_every=0", f"results_dir={tmp_path}"]
+    common = ["algo=cem", "seeds=1", "popsize=8", "workers=1", "progress=false", "checkpoint_every=5", "checkpoint_seconds=0",
+              "eval_mean_every=0", f"results_dir={tmp_path}"]  # fmt: skip
     assert main(["run", *common, "generations=10"]) == 0
     (spec,) = validate_overrides([*common, "generations=10"])
     proc = subprocess.Popen([IMIX, "run", *common, "generations=20000"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
@@ -232,7 +233,7 @@ def test_a_killed_continuation_neither_locks_the_run_nor_hides_its_rows(tmp_path
 
 
 def test_a_run_is_never_shortened_below_a_finished_csv(tmp_path, capsys):
-    common = ["algo=cem", "seeds=1", "popsize=8", "workers=1", "progress=false", "checkpoint_every=5", f"results_dir={tmp_path}"]
+    common = ["algo=cem", "seeds=1", "popsize=8", "workers=1", "progress=false", "checkpoint_every=5", "checkpoint_seconds=0", f"results_dir={tmp_path}"]
     assert main(["run", *common, "generations=10"]) == 0
     capsys.readouterr()
     assert main(["run", *common, "generations=5"]) == 1
@@ -266,7 +267,8 @@ def _stop_when_checkpointed(args, tmp_path, checkpoints: int, send, min_workers:
 
 @pytest.mark.parametrize("to", ["main", "group"])
 def test_sigterm_stops_the_run_with_one_line_and_no_warning(tmp_path, to):
-    args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "workers=2", "progress=false",
+    args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "checkpoint_seconds=0",
+            "workers=2", "progress=false",
             f"results_dir={tmp_path}"]  # fmt: skip
     kill = os.kill if to == "main" else os.killpg
     code, err, left = _stop_when_checkpointed(args, tmp_path, 2, lambda pid: kill(pid, signal.SIGTERM), min_workers=1)
@@ -280,7 +282,8 @@ def test_sigterm_stops_the_run_with_one_line_and_no_warning(tmp_path, to):
 def test_the_evaluation_pool_stops_with_the_run_and_says_nothing(tmp_path, signum):
     """evaluator=pool, the signal sent to the whole process group (a terminal's Ctrl-C, a scheduler):
     the pool's workers printed a line each; now only the main process speaks."""
-    args = [IMIX, "run", "algo=cem", "seeds=2", "generations=100000", "popsize=8", "checkpoint_every=5", "evaluator=pool", "evaluator_workers=2",
+    args = [IMIX, "run", "algo=cem", "seeds=2", "generations=100000", "popsize=8", "checkpoint_every=5", "checkpoint_seconds=0",
+            "evaluator=pool", "evaluator_workers=2",
             "progress=false", f"results_dir={tmp_path}"]  # fmt: skip
     code, err, left = _stop_when_checkpointed(args, tmp_path, 1, lambda pid: os.killpg(pid, signum), min_workers=2)
     assert code == 128 + signum, (code, err)
@@ -301,7 +304,7 @@ def test_sigterm_during_validation_prints_one_line(tmp_path):
 
 # ------------------------------------------------------------------ status, total_steps
 def test_status_calls_a_corrupt_csv_corrupt(tmp_path, capsys):
-    assert main(["run", *SMALL, "checkpoint_every=1", f"results_dir={tmp_path}"]) == 0  # keeps its final checkpoint
+    assert main(["run", *SMALL, "checkpoint_every=1", "checkpoint_seconds=0", f"results_dir={tmp_path}"]) == 0  # keeps its final checkpoint
     (csv,) = tmp_path.rglob("seed_0.csv")
     csv.write_text("algo,env\nthis is not,a run\n")
     capsys.readouterr()

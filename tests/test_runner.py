@@ -36,7 +36,7 @@ def all_files(root: Path):
 @pytest.mark.parametrize("env", ["cartpole", "acrobot"])
 def test_end_to_end_every_algo_and_env(tmp_path, algo, env):
     # checkpoint_every=1: every generation but the last writes a checkpoint that must be gone at the end
-    assert imix(f"algo={algo}", f"env={env}", "eim=true", "checkpoint_every=1", *TINY, results_dir=tmp_path) == 0
+    assert imix(f"algo={algo}", f"env={env}", "eim=true", "checkpoint_every=1", "checkpoint_seconds=0", *TINY, results_dir=tmp_path) == 0
     run_dir = tmp_path / "default" / f"{algo}-{env}-eim-popsize=8"
     for seed in range(2):
         frame = read_run_csv(run_dir / f"seed_{seed}.csv")

@@ -36,7 +36,7 @@ def _assert_same_as_csv(scalars, frame):
 
 def _run(tmp_path, generations, workers=1, **keys):
     return imix_cli.run(algo="cem", env="cartpole", eim=True, seeds=2, generations=generations, workers=workers, popsize=10,
-                        eval_mean_every=2, checkpoint_every=2, results_dir=str(tmp_path), experiment="tb", echo=None, **keys)  # fmt: skip
+                        eval_mean_every=2, checkpoint_every=2, checkpoint_seconds=0, results_dir=str(tmp_path), experiment="tb", echo=None, **keys)  # fmt: skip
 
 
 @pytest.mark.parametrize("workers", [1, 2])  # 2: each seed's events written by its worker process

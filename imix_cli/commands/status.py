@@ -42,7 +42,7 @@ usage: imix status [key=value ...]
 
 For each run folder: seeds done / running / not started, the last generation reached, the best
 member score ever and the current population mean score. Read-only; safe while runs write.
-Rows of running seeds are those of their last checkpoint (checkpoint_every=).
+Rows of running seeds are those of their last checkpoint (checkpoint_every=, checkpoint_seconds=).
 
 keys:
   results_dir=PATH   folder holding the experiments (default: results)

@@ -78,18 +78,19 @@ def checkpoint_path(run_dir, seed: int) -> Path:
     return Path(run_dir) / ".checkpoints" / f"seed_{seed}.npz"
 
 
-def save_checkpoint(run_dir, st, identity: dict, tables: dict | None = None) -> None:
+def save_checkpoint(run_dir, st, identity: dict, tables: dict | None = None, *, durable: bool = True) -> None:
     """Seed state ``st`` (:class:`imix_cli.running.lockstep.SeedState`) as its seed's checkpoint in ``run_dir``;
     ``tables``: kept by the caller between the checkpoints of that seed (:func:`write_checkpoint`)."""
-    write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation, tables=tables)
+    write_checkpoint(checkpoint_path(run_dir, st.seed), st, identity=identity, seed=st.seed, generation=st.generation, tables=tables, durable=durable)
 
 
 def remove_checkpoint(run_dir, seed: int) -> None:
     checkpoint_path(run_dir, seed).unlink(missing_ok=True)
 
 
-def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int, tables: dict | None = None) -> None:
-    """Write dataclass ``state`` (a seed's state at ``generation``) to ``path`` atomically.
+def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int, tables: dict | None = None, durable: bool = True) -> None:
+    """Write dataclass ``state`` (a seed's state at ``generation``) to ``path`` atomically (``durable``:
+    flushed to the disk too, :func:`imix_cli.running.results.atomic_write_bytes`).
 
     ``tables``: a dict the caller keeps between the checkpoints of one seed (empty at first), where
     the encoding of the state's tables (its rows) is kept for the next checkpoint to reuse
@@ -111,7 +112,7 @@ def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int,
     buffer = io.BytesIO()
     np.savez(buffer, **{_HEADER: np.frombuffer(_canonical(header).encode(), dtype=np.uint8)}, **arrays)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, buffer.getvalue())
+    atomic_write_bytes(path, buffer.getvalue(), durable=durable)
 
 
 def read_checkpoint(path, template, *, identity: dict, seed: int, max_bytes: int = DEFAULT_MAX_BYTES):

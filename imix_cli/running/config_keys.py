@@ -121,6 +121,12 @@ KEYS = (
     # ---------------------------------------------------------------- run and output
     Key("checkpoint_every", "50", "generations between checkpoints (0: none)",
         "save each seed's state every N generations (0 = never); a killed run resumes there", "run and output"),
+    Key("checkpoint_seconds", "30", "... and at least this many seconds apart (0: every time)",
+        "a periodic checkpoint falls due every `checkpoint_every` generations once at least this many seconds of the seed's "
+        "wall time have passed since its last one (0 = at every `checkpoint_every`). A killed run loses at most about this "
+        "long, plus `checkpoint_every` generations, per seed; a run of cheap generations (the main job: ~0.2 ms a "
+        "generation) no longer spends a fifth of its time writing checkpoints. A seed's final state is always saved",
+        "run and output"),
     Key("eval_mean_every", "10", "measure the distribution mean's return every N generations (0: never)",
         "every N generations, measure the return of the distribution mean θ (the policy one deploys) on fresh episodes: CSV "
         "`mean_policy_score`, the θ column of the summary, dots in the convergence figures (0 = never)", "run and output"),

@@ -112,6 +112,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         weight_decay_form=as_choice(cfg.get("weight_decay_form"), "weight_decay_form", tuple(WEIGHT_DECAY_FORMS)),
         workers=workers,
         checkpoint_every=as_int(cfg, "checkpoint_every", 0),
+        checkpoint_seconds=as_float(cfg, "checkpoint_seconds", 0.0, True) if "checkpoint_seconds" in cfg else 0.0,
         eval_mean_every=as_int(cfg, "eval_mean_every", 0) if "eval_mean_every" in cfg else 0,
         eval_mean_episodes=as_int(cfg, "eval_mean_episodes", 1) if "eval_mean_episodes" in cfg else 5,
         progress=as_bool(cfg, "progress"),

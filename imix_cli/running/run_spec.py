@@ -64,12 +64,12 @@ DDPG_DEFAULTS = PAPER_SETTINGS
 ES_ONLY_KEYS = (
     "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age", "reeval_prob", "reeval_count",
     "generations", "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "checkpoint_every",
-    "policy", "evaluator", "evaluator_workers", "ray_address", "logger",
+    "checkpoint_seconds", "policy", "evaluator", "evaluator_workers", "ray_address", "logger",
 )  # fmt: skip
 
 #: Keys that do not change a run's results (everything else in config.yaml must match to resume).
 NON_IDENTITY_KEYS = (
-    "seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every",
+    "seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every", "checkpoint_seconds",
     "evaluator", "evaluator_workers", "ray_address",  # where episodes run never changes their results
     "eval_mean_every", "eval_mean_episodes",  # measuring the distribution mean uses its own random stream
     "logger",  # a tracker only copies the CSV's rows
@@ -79,7 +79,7 @@ TOP_LEVEL_KEYS = (
     "algo", "env", "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age",
     "reeval_prob", "reeval_count", "seeds", "generations",
     "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
-    "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
+    "checkpoint_seconds", "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
     "eval_mean_every", "eval_mean_episodes", "logger",
 )  # fmt: skip
 
@@ -117,6 +117,7 @@ class RunSpec:
     weight_decay: float = PAPER_DEFAULTS["weight_decay"]
     weight_decay_form: str = PAPER_DEFAULTS["weight_decay_form"]
     checkpoint_every: int = 0
+    checkpoint_seconds: float = 0.0  # a periodic checkpoint at most this often (RunWriter)
     config: dict = field(repr=False, compare=False)  # the resolved config, written as config.yaml
     algo_options: dict = field(default_factory=dict, compare=False)  # per-ES options (algo.style of cem)
     # algo=ddpg only:

@@ -4,8 +4,11 @@ The loop (:mod:`imix_cli.running.es_seeds`) hands it each step of a seed -- the 
 step's :class:`imix_cli.running.lockstep.SeedRecord` -- and it writes what falls due:
 
 * every new row: its wall time, and a copy to the tracker (``logger=``, :mod:`imix_cli.running.tracking`);
-* every ``checkpoint_every`` generations: the seed's checkpoint (:mod:`imix_cli.running.checkpoints`) and
-  ``seed_<k>.partial.csv``, its live view (:mod:`imix_cli.running.results`);
+* every ``checkpoint_every`` generations, once ``checkpoint_seconds`` have passed since the seed's last one:
+  the seed's checkpoint (:mod:`imix_cli.running.checkpoints`) and ``seed_<k>.partial.csv``, its live view
+  (:mod:`imix_cli.running.results`). Why a time floor: a checkpoint bounds the work a kill loses, and that is
+  a matter of seconds, not generations -- fifty generations are 10 ms of the main job and hours of a large
+  MuJoCo policy; writing one every 50 of the main job's generations cost a fifth of its wall time;
 * at a finished seed's end: its policy files (:mod:`imix_cli.running.policy_files`), its final state, from
   which a larger ``generations=`` continues, then ``seed_<k>.csv``;
 * at a diverged seed's end: one warning line, ``seed_<k>.csv`` ending at the diverged row, and its
@@ -40,6 +43,7 @@ class RunWriter:
         self.summaries: dict[int, dict] = {}
         self.partial: dict[int, tuple[int, str]] = {}  # seed -> (rows in its live CSV, their text)
         self.tables: dict[int, dict] = {}  # seed -> its rows' encoding at its last checkpoint (imix_cli.running.checkpoints.TableCache)
+        self.saved: dict[int, float] = {}  # seed -> when (perf_counter) its last checkpoint was written in this process
 
     def write(self, st, record, began: float | None = None) -> None:
         """Seed ``st``'s step ``record``: its new rows, then what falls due. ``began``: when the compiled
@@ -57,21 +61,30 @@ class RunWriter:
             warn(f"seed {st.seed} diverged at generation {st.generation - 1} ({record.diverged}); its CSV ends there")
         if record.finished:
             write_seed_policies(self.spec, st.seed, self.evaluator, record.mean_policy, st.best_params, st.best_return, st.generation)
-        if record.checkpoint:  # with the wall time the seed has spent so far, ``now`` seconds into this process's share
-            save_checkpoint(self.run_dir, dataclasses.replace(st, elapsed=st.elapsed + now), self.identity, self.tables.setdefault(st.seed, {}))
+        due = record.checkpoint and (ended or self._time_for_checkpoint(st.seed))
+        if due:  # with the wall time the seed has spent so far, ``now`` seconds into this process's share
+            # A periodic checkpoint is a shortcut, not a result: not flushed to the disk (a kill leaves it whole; one a
+            # machine crash damaged is refused and costs recomputation). A finished seed's final state is flushed.
+            state = dataclasses.replace(st, elapsed=st.elapsed + now)
+            save_checkpoint(self.run_dir, state, self.identity, self.tables.setdefault(st.seed, {}), durable=ended)
+            self.saved[st.seed] = time.perf_counter()
         if ended:  # its CSV; its live view is no longer needed
             self.summaries[st.seed] = write_run_csv(seed_csv_path(self.run_dir, st.seed), st.rows)
             partial_csv_path(self.run_dir, st.seed).unlink(missing_ok=True)
             self.partial.pop(st.seed, None)
-        elif record.checkpoint:  # the live view, rewritten whole with only its new rows formatted: earlier rows never change
+        elif due:  # the live view, rewritten whole with only its new rows formatted: earlier rows never change
             done, text = self.partial.get(st.seed, (0, ""))
             text += rows_csv_text(st.rows[done:], header=not done)
             self.partial[st.seed] = (len(st.rows), text)
-            atomic_write_text(partial_csv_path(self.run_dir, st.seed), text)
+            atomic_write_text(partial_csv_path(self.run_dir, st.seed), text, durable=False)  # a live view, not a result
         if ended:  # its checkpoint is no longer needed -- but for a final state, from which a larger ``generations=`` continues
             self.tables.pop(st.seed, None)
-            if not record.checkpoint:
+            if not due:
                 remove_checkpoint(self.run_dir, st.seed)
+
+    def _time_for_checkpoint(self, seed: int) -> bool:
+        """Whether ``checkpoint_seconds`` have passed since seed ``seed``'s last checkpoint (or since this process took it)."""
+        return time.perf_counter() - self.saved.get(seed, self.started) >= self.spec.checkpoint_seconds
 
     def close(self) -> None:
         if self.tracker is not None:
