@@ -24,8 +24,9 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from imix_cli import linalg_kernels as lk
+from imix_cli.elementary import math_log
 
-_LOG_2PI = float(np.log(2.0 * np.pi))
+_LOG_2PI = math_log(2.0 * np.pi)
 # Elements per block in the row-blocked kernels: ~4 MB of float64, small enough
 # to stay in cache, large enough that numpy's per-call overhead is negligible.
 _BLOCK_ELEMENTS = 1 << 19

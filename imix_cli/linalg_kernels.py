@@ -33,6 +33,10 @@ import math
 import numpy as np
 from numba import njit
 
+from imix_cli import elementary as el
+
+# numba cache stamp: imix_cli/elementary.py b02f8fb7d66fabfd (python -m imix_cli.elementary rewrites it)
+
 __all__ = [
     "dot",
     "vec_mat",
@@ -115,7 +119,7 @@ def _row_sq_norms(x):
 def _exp(x):
     out = np.empty_like(x)
     for j in range(x.shape[0]):
-        out[j] = math.exp(x[j])
+        out[j] = el.exp(x[j])
     return out
 
 
@@ -123,21 +127,21 @@ def _exp(x):
 def _log(x):
     out = np.empty_like(x)
     for j in range(x.shape[0]):
-        out[j] = math.log(x[j]) if x[j] > 0.0 else (-math.inf if x[j] == 0.0 else math.nan)
+        out[j] = el.log(x[j]) if x[j] > 0.0 else (-math.inf if x[j] == 0.0 else math.nan)
     return out
 
 
 @njit(cache=True)
 def _tanh_inplace(x):
     for j in range(x.shape[0]):
-        x[j] = math.tanh(x[j])
+        x[j] = el.tanh_lanes(x[j])
 
 
 @njit(cache=True)
 def _expm1(x):
     out = np.empty_like(x)
     for j in range(x.shape[0]):
-        out[j] = math.expm1(x[j])
+        out[j] = el.expm1(x[j])
     return out
 
 
@@ -417,9 +421,10 @@ def row_sq_norms(x) -> np.ndarray:
 
 
 # numpy's float64 exp and log have AVX-512 versions of their own (and expm1 an SVML one) that
-# other CPUs do not run: their last bits differ from libm's. These loops call libm on every CPU.
+# other CPUs do not run, and the C library's differ between CPUs too (glibc's FMA and SSE2 builds):
+# these loops compute them with imix_cli.elementary, the same bits on every CPU.
 def exp(x) -> np.ndarray:
-    """``np.exp`` of a (d,) vector, through libm."""
+    """``np.exp`` of a (d,) vector (:func:`imix_cli.elementary.exp`)."""
     return _exp(_f64(x))
 
 
@@ -429,14 +434,14 @@ def log(x) -> np.ndarray:
 
 
 def expm1(x) -> np.ndarray:
-    """``np.expm1`` of a (d,) vector, through libm."""
+    """``np.expm1`` of a (d,) vector (:func:`imix_cli.elementary.expm1`)."""
     return _expm1(_f64(x))
 
 
 def tanh(x, out=None) -> np.ndarray:
-    """``np.tanh(x, out=out)`` through libm, for float64 arrays of any shape (``out`` C-contiguous, or None).
-
-    numpy's float64 tanh has an AVX2 version and a baseline one that differ in the last bit."""
+    """``np.tanh(x, out=out)`` (:func:`imix_cli.elementary.tanh`), for float64 arrays of any shape (``out``
+    C-contiguous, or None). numpy's float64 tanh has an AVX2 version and a baseline one that differ in the
+    last bit; the C library's FMA and SSE2 builds differ too."""
     if out is None:
         out = np.array(x, dtype=np.float64, order="C")
     elif out is not x:

@@ -168,6 +168,7 @@ import numpy as np
 
 from imix_cli import linalg_kernels as lk
 from imix_cli.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
+from imix_cli.elementary import math_log1p
 
 __all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "Variant", "VARIANT_SPECS", "VARIANTS", "config_variants", "mix", "variant_spec"]
 
@@ -411,7 +412,7 @@ def _sun2009(builder: _Builder, new_dist, old_dist, old_samples, alpha, rng) -> 
     n_old = old_samples.shape[0]
     log_ratio = _log_ratio(new_dist, old_dist)
     with np.errstate(divide="ignore"):
-        log_keep = np.log1p(-alpha)
+        log_keep = math_log1p(-alpha)
     accepted = np.flatnonzero(_log_uniform(rng, n_old) < log_keep + log_ratio.of_rows(old_samples, np.arange(n_old)))
     if accepted.size > builder.popsize:  # only possible if the old generation was larger
         accepted = np.sort(rng.choice(accepted, builder.popsize, replace=False))

@@ -32,6 +32,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from imix_cli import elementary as el
+
+# numba cache stamp: imix_cli/elementary.py b02f8fb7d66fabfd (python -m imix_cli.elementary rewrites it)
+
 try:
     # The bounded integer draw of NumPy's Generator.shuffle (masked rejection on 32- or 64-bit
     # words). numba's own ``Generator.permutation`` uses it too, but through an N-d shuffle that
@@ -138,6 +142,15 @@ def _row_log_ratio(x, shift, q, lin, c):
 
 
 @njit(cache=True)
+def _logs(a):
+    """log of each entry (:func:`imix_cli.elementary.log`: the same bits on every CPU; np.log calls the C library)."""
+    out = np.empty_like(a)
+    for i in range(a.shape[0]):
+        out[i] = el.log(a[i])
+    return out
+
+
+@njit(cache=True)
 def _draw(rng, mean, std, q, lin, c, out):
     """One draw from N(mean, std^2) into ``out`` (NumPy's standard_normal stream); its noise-form log-ratio."""
     acc = 0.0
@@ -162,7 +175,7 @@ def _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsi
     q, lin, c = _row_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     nq, nl, nc = _noise_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     n_old = counts[0]
-    log_u = np.log(rng.random(n_old))
+    log_u = _logs(rng.random(n_old))
     size = 0
     for i in range(n_old):
         if log_u[i] < log_keep + _row_log_ratio(xs[0, i], means[0], q, lin, c):
@@ -180,7 +193,7 @@ def _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsi
             ratio[i] = _draw(rng, mean, std, nq, nl, nc, cand[i])
         u = rng.random(n)
         for i in range(n):
-            if size < popsize and u[i] < max(alpha, -np.expm1(-max(ratio[i], 0.0))):
+            if size < popsize and u[i] < max(alpha, -el.expm1(-max(ratio[i], 0.0))):
                 _put(out, size, cand[i])
                 size += 1
         trials += n
@@ -195,7 +208,7 @@ def _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize
     nq, nl, nc = _noise_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     n_old = counts[0]
     order = _permutation(rng, n_old)
-    log_u1 = np.log(rng.random(n_old))
+    log_u1 = _logs(rng.random(n_old))
     u2 = rng.random(n_old)
     missing = popsize
     max_block = max(1, min(n_old, missing, _SCRATCH_ELEMENTS // max(d, 1)))
@@ -212,7 +225,7 @@ def _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize
             accept_old[b] = log_u1[step + b] < _row_log_ratio(xs[0, row], means[0], q, lin, c)
         for b in range(block):  # the block's fresh draws, all drawn (as numpy draws the block at once)
             r = _draw(rng, mean, std, nq, nl, nc, cand[b])
-            accept_new[b] = u2[step + b] < -np.expm1(-max(r, 0.0))
+            accept_new[b] = u2[step + b] < -el.expm1(-max(r, 0.0))
         filled = 0
         taken = block
         for b in range(block):  # the step at which the generation fills
@@ -296,7 +309,7 @@ def _exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts
         ratio = np.empty(n)
         for i in range(n):
             ratio[i] = _draw(rng, mean, std, nq, nl, nc, cand[i])
-        log_u = np.log(rng.random(n))
+        log_u = _logs(rng.random(n))
         draws += n
         for i in range(n):
             if not (log_u[i] >= -ratio[i]) or size >= popsize:  # rule 2: above the previous graph
@@ -381,8 +394,7 @@ def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random
     means = np.stack([dist.mean for dist in dists])
     stds = np.stack([dist.std for dist in dists])
     log_norms = np.array([dist._log_norm for dist in dists])
-    with np.errstate(divide="ignore"):
-        log_keep = float(np.log1p(-alpha))
+    log_keep = el.math_log1p(-alpha)  # -inf for alpha = 1
     return KERNELS[kernel](
         rng, new_dist.mean, new_dist.std, float(new_dist._log_norm),
         means, stds, log_norms, xs, h, counts, popsize, log_keep, float(alpha),

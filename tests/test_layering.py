@@ -21,6 +21,8 @@ LAYERS = [
         "messages",
         "processes",
         "stats",
+        "elementary",
+        "elementary_tables",
         "linalg_kernels",
         "distributions",
         "mixing",

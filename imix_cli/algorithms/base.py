@@ -39,6 +39,8 @@ from dataclasses import fields as fields_of
 
 import numpy as np
 
+from imix_cli.elementary import math_pow
+
 
 def _tie_groups(values: np.ndarray):
     """``order, starts, ends, group_of``: ``values[order]`` ascending, tied runs ``[starts[g], ends[g])``.
@@ -166,7 +168,7 @@ class Adam:
         self.t += 1
         self.m = self.beta1 * self.m + (1.0 - self.beta1) * grad
         self.v = self.beta2 * self.v + (1.0 - self.beta2) * grad * grad
-        step_size = self.lr * np.sqrt(1.0 - self.beta2**self.t) / (1.0 - self.beta1**self.t)
+        step_size = self.lr * np.sqrt(1.0 - math_pow(self.beta2, float(self.t))) / (1.0 - math_pow(self.beta1, float(self.t)))
         return step_size * self.m / (np.sqrt(self.v) + self.epsilon)
 
     def state_dict(self) -> dict:

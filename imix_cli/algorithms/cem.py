@@ -48,6 +48,7 @@ import numpy as np
 from imix_cli import linalg_kernels as lk
 from imix_cli.algorithms.base import EvolutionStrategy, Params, prefixed, rank_weights, unprefixed
 from imix_cli.distributions import DiagonalGaussian
+from imix_cli.elementary import math_pow
 
 ELITE_WEIGHTS = ("equal", "log")
 STYLES = ("imix", "cemrl")
@@ -110,7 +111,7 @@ class CEM(EvolutionStrategy):
             if extra_variance_init is None:
                 extra_variance_init = 1e-3  # CEM-RL's damp
         if extra_variance_init is None:
-            extra_variance_init = self.sigma**2
+            extra_variance_init = math_pow(self.sigma, 2.0)
         self.elite_fraction = float(p.elite_fraction)
         self.extra_variance_decay = float(p.extra_variance_decay)
         self.extra_variance_floor = float(p.extra_variance_floor)
@@ -125,7 +126,7 @@ class CEM(EvolutionStrategy):
     def _weights(self, k: int) -> np.ndarray:
         if self.elite_weights == "equal":
             return np.full(k, 1.0 / k)
-        w = np.log((k + 1) / np.arange(1, k + 1))
+        w = lk.log((k + 1) / np.arange(1, k + 1))
         return w / w.sum()
 
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:

@@ -77,6 +77,18 @@ import numpy as np
 from imix_cli import linalg_kernels as lk
 from imix_cli.algorithms.base import EvolutionStrategy, Params
 from imix_cli.distributions import FullGaussian
+from imix_cli.elementary import math_exp, math_log, math_pow
+
+
+def _pow(x, y) -> float:
+    """``x ** y`` of Python or numpy scalars as Python and numpy compute it (the C library's pow), but with
+    :func:`imix_cli.elementary.pow`: the same bits on every CPU (pycma's formulas are kept as they are)."""
+    return math_pow(float(x), float(y))
+
+
+def _log(x) -> float:
+    return math_log(float(x))
+
 
 #: Largest dimension CMAES accepts. Each seed keeps four d x d float64 matrices (C, its
 #: eigenvectors, the distribution's covariance and Cholesky factor: 128 MB at d = 2000) and
@@ -123,11 +135,50 @@ def check_dimension(dim: int) -> None:
 
 
 def expected_norm(dim: int) -> float:
-    """E||N(0, I_d)||, as pycma's ``Mh.chiN``: exact for d <= 100 (pycma's table),
+    """E||N(0, I_d)||, as pycma's ``Mh.chiN``: exact for d <= 100 (sqrt(2) Gamma((d+1)/2) / Gamma(d/2)),
     sqrt(d) (1 - 1/(4d) + 1/(32 d^2)) above (pycma's approximation, relative error < 1e-5)."""
     if dim <= 100:
-        return math.sqrt(2.0) * math.gamma((dim + 1) / 2) / math.gamma(dim / 2)
-    return dim**0.5 * (1 - 1.0 / (4 * dim) + 1.0 / (32 * dim**2))
+        return math.sqrt(2.0) * _gamma((dim + 1) / 2) / _gamma(dim / 2)
+    return _pow(dim, 0.5) * (1 - 1.0 / (4 * dim) + 1.0 / (32 * dim**2))
+
+
+# Python's math.gamma for 0 < x <= 200 (CPython's m_tgamma: exact factorials for integers up to 23, else
+# Lanczos' approximation with g = 6.0247, N = 13), with exp and pow from imix_cli.elementary instead of the
+# C library's: the same values here, the same bits on every CPU.
+_LANCZOS_G = 6.024680040776729583740234375
+_LANCZOS_G_MINUS_HALF = 5.524680040776729583740234375
+_LANCZOS_NUM = (
+    23531376880.410759688572007674451636754734846804940, 42919803642.649098768957899047001988850926355848959,
+    35711959237.355668049440185451547166705960488635843, 17921034426.037209699919755754458931112671403265390,
+    6039542586.3520280050642916443072979210699388420708, 1439720407.3117216736632230727949123939715485786772,
+    248874557.86205415651146038641322942321632125127801, 31426415.585400194380614231628318205362874684987640,
+    2876370.6289353724412254090516208496135991145378768, 186056.26539522349504029498971604569928220784236328,
+    8071.6720023658162106380029022722506138218516325024, 210.82427775157934587250973392071336271166969580291,
+    2.5066282746310002701649081771338373386264310793408,
+)  # fmt: skip
+_LANCZOS_DEN = (0.0, 39916800.0, 120543840.0, 150917976.0, 105258076.0, 45995730.0, 13339535.0, 2637558.0, 357423.0, 32670.0, 1925.0, 66.0, 1.0)
+
+
+def _gamma(x: float) -> float:
+    """Gamma(x) for 0 < x <= 200, as Python's ``math.gamma`` computes it."""
+    if x == math.floor(x) and x <= 23:
+        return float(math.factorial(int(x) - 1))
+    num = den = 0.0
+    if x < 5.0:
+        for a, b in zip(reversed(_LANCZOS_NUM), reversed(_LANCZOS_DEN)):
+            num, den = num * x + a, den * x + b
+    else:
+        for a, b in zip(_LANCZOS_NUM, _LANCZOS_DEN):
+            num, den = num / x + a, den / x + b
+    y = x + _LANCZOS_G_MINUS_HALF
+    z = (y - x) - _LANCZOS_G_MINUS_HALF if x > _LANCZOS_G_MINUS_HALF else (y - _LANCZOS_G_MINUS_HALF) - x
+    z = z * _LANCZOS_G / y
+    r = num / den / math_exp(y)
+    r += z * r
+    if x < 140.0:
+        return r * math_pow(y, x - 0.5)
+    half = math_pow(y, x / 2.0 - 0.25)
+    return r * half * half
 
 
 class _Parameters:
@@ -141,20 +192,20 @@ class _Parameters:
         # [T] (49): w'_i = ln((lam + 1) / 2) - ln i; pycma normalises the positive ones to
         # sum 1 and the negative ones to sum -1 (RecombinationWeights.__init__), in Python
         # floats, summed left to right as pycma does.
-        w = [math.log((lam + 1) / 2.0) - math.log(i) for i in range(1, lam + 1)]
+        w = [_log((lam + 1) / 2.0) - _log(i) for i in range(1, lam + 1)]
         mu = sum(x > 0 for x in w)
         spos = sum(w[:mu])
         w = [x / spos for x in w]
-        mueff = 1 / sum(x**2 for x in w[:mu])  # [T] (8): variance effective selection mass
+        mueff = 1 / sum(_pow(x, 2) for x in w[:mu])  # [T] (8): variance effective selection mass
         sneg = sum(w[mu:])
         if sneg != 0:
             w[mu:] = [x / -sneg for x in w[mu:]]
         n = float(dim)
         # learning rates as pycma's sampler gives them (interfaces.parameters), [T] (56), (57)
-        c1 = min((1, lam / 6)) * 2 / ((n + 1.3) ** 2.0 + mueff)
-        cmu = min((1 - c1, 2 * (0.25 + mueff - 2 + 1 / mueff) / ((n + 2) ** 2 + 2 * mueff / 2)))
+        c1 = min((1, lam / 6)) * 2 / (_pow(n + 1.3, 2.0) + mueff)
+        cmu = min((1 - c1, 2 * (0.25 + mueff - 2 + 1 / mueff) / (_pow(n + 2, 2) + 2 * mueff / 2)))
         # [T] (56) with pycma's limit_fac_cc = 4: cc = (4 + mueff/n) / (n + 4 + 2 mueff/n)
-        cc = 1.0 * (4.0 + mueff / n) ** 1.0 / (n**1.0 + (4.0 + 2 * mueff / n) ** 1.0)
+        cc = 1.0 * _pow(4.0 + mueff / n, 1.0) / (_pow(n, 1.0) + _pow(4.0 + 2 * mueff / n, 1.0))
         if w[-1] < 0:
             if active and cmu > 0:
                 # RecombinationWeights.finalize_negative_weights, [T] (53): scale the negative
@@ -163,7 +214,7 @@ class _Parameters:
                 w = self._set_negative_sum(w, mu, 1 + c1 / cmu)
                 w = self._limit_negative_sum(w, mu, (1 - c1 - cmu) / cmu / n)
                 sneg = sum(w[mu:])
-                mueff_minus = 0 if sneg == 0 else sneg**2 / sum(x**2 for x in w[mu:])
+                mueff_minus = 0 if sneg == 0 else _pow(sneg, 2) / sum(_pow(x, 2) for x in w[mu:])
                 w = self._limit_negative_sum(w, mu, 1 + 2 * mueff_minus / (mueff + 2))
             elif not active:
                 w = [x if x >= 0 else 0.0 * x for x in w]  # zero_negative_weights
@@ -247,9 +298,11 @@ class CMAES(EvolutionStrategy):
         # CSA constants (CMAAdaptSigmaCSA.compute_cs / compute_damps; [T] (55)) with no
         # mirrors: cs = min(1/2, (mueff + 2) / (d + mueff + 3)),
         # damps = 1 + 2 max(0, a sqrt((mueff - 1) / (d + 1)) - 1) + cs, a = max(1, 3 (1 - 2^(-d/9)))
-        self.cs = min((0.5, (p.mueff + 2) ** 1.0 / (d**1.0 + (p.mueff + 3) ** 1.0)))
-        damp_in = max((1, 3 * (1 - 0.5 ** (d / 9))))
-        self.damps = 0.5 + min((1, (0 / (0.159 * self.popsize) - 1) ** 2)) ** 1 / 2 + 2 * max((0, damp_in * ((p.mueff - 1) / (d + 1)) ** 0.5 - 1)) + self.cs
+        self.cs = min((0.5, _pow(p.mueff + 2, 1.0) / (_pow(d, 1.0) + _pow(p.mueff + 3, 1.0))))
+        damp_in = max((1, 3 * (1 - _pow(0.5, d / 9))))
+        self.damps = (
+            0.5 + _pow(min((1, _pow(0 / (0.159 * self.popsize) - 1, 2))), 1) / 2 + 2 * max((0, damp_in * _pow((p.mueff - 1) / (d + 1), 0.5) - 1)) + self.cs
+        )
         self.chi_d = expected_norm(d)
 
         # state (everything in state_dict): pycma's genotype coordinates, x = T g; T = I
@@ -269,7 +322,7 @@ class CMAES(EvolutionStrategy):
             raise ValueError(f"step_size_control={self.params.step_size_control!r}: must be 'csa' or 'tpa' ('auto' is resolved by imix run)")
         # TPA (pycma's CMAAdaptSigmaTPA constants): the damping, the smoothing c, the state s and
         # the last move of the mean (genotype), from which the next two test points are made
-        self.tpa_damp = 0.7 + 2 * math.log(d) + 2 * math.log(max(1, self.popsize - d))
+        self.tpa_damp = 0.7 + 2 * _log(d) + 2 * _log(max(1, self.popsize - d))
         self.tpa_s = 0.0
         self.tpa_move = np.zeros(d)
         self._probe_fitness = None
@@ -282,7 +335,7 @@ class CMAES(EvolutionStrategy):
 
     def _set_distribution(self) -> None:
         """x = T (mean + sigma * scaling * B D z): N(T mean, sigma^2 T S C S T^T), S = diag(scaling)."""
-        cov = self.C * (self.step_size**2 * np.outer(self.scaling, self.scaling))
+        cov = self.C * (_pow(self.step_size, 2) * np.outer(self.scaling, self.scaling))
         mean = self.mean_geno
         if self.transform is not None:
             mean = lk.mat_vec(self.transform, mean)
@@ -330,7 +383,7 @@ class CMAES(EvolutionStrategy):
         f = np.concatenate(self._probe_fitness)  # the two points first, then the members
         f = np.where(np.isfinite(f), f, -np.inf)
         z = (np.count_nonzero(f > f[1]) - np.count_nonzero(f > f[0])) / (f.size - 1)
-        self.tpa_s = (1 - 0.3) * self.tpa_s + 0.3 * math.copysign(abs(z) ** 0.5, z)
+        self.tpa_s = (1 - 0.3) * self.tpa_s + 0.3 * math.copysign(_pow(abs(z), 0.5), z)
         return self.tpa_s / self.tpa_damp
 
     # ------------------------------------------------------------------ update
@@ -370,14 +423,14 @@ class CMAES(EvolutionStrategy):
         # [T] (43): p_sigma <- (1 - cs) p_sigma + sqrt(cs (2 - cs) mueff) C^-1/2 (m' - m) / sigma,
         # C^-1/2 = B D^-1 B^T from the decomposition before this update
         z = lk.mat_vec(B, lk.vec_mat(dm / scaling, B) / D)
-        z *= p.mueff**0.5 / sigma / 1.0
+        z *= _pow(p.mueff, 0.5) / sigma / 1.0
         self.p_sigma *= 1 - cs
         self.p_sigma += math.sqrt(cs * (2 - cs)) * z
         # hsig ([T] p. 29; pycma's bias-corrected form): stall p_c when ||p_sigma|| is large
-        squared_sum = np.sum(self.p_sigma**2) / (1 - (1 - cs) ** (2 * self.countiter))
+        squared_sum = np.sum(self.p_sigma**2) / (1 - _pow(1 - cs, 2 * self.countiter))
         hsig = bool(squared_sum / d - 1 < 1 + 4.0 / (d + 1))
         # [T] (45): p_c <- (1 - cc) p_c + hsig sqrt(cc (2 - cc) mueff) (m' - m) / sigma
-        self.p_c = (1 - cc) * self.p_c + hsig * ((cc * (2 - cc) * p.mueff) ** 0.5 / sigma / 1.0) * dm / scaling
+        self.p_c = (1 - cc) * self.p_c + hsig * (_pow(cc * (2 - cc) * p.mueff, 0.5) / sigma / 1.0) * dm / scaling
 
         # [T] (47), (46): C <- (1 + c1 delta(hsig) - c1 - cmu sum w) C + c1 p_c p_c^T
         #                       + cmu sum_i w_i° y_i y_i^T,   y_i = (x_i - m) / sigma,
@@ -394,7 +447,7 @@ class CMAES(EvolutionStrategy):
             whitened = lk.mat_mat(y[negative], B) / D  # B^T y / D, row by row
             norms = np.sqrt(lk.row_sq_norms(whitened))
             coef[negative] += (cmu * w_neg[negative]) * (d / (norms + 1e-9) ** 2)
-        vectors = np.vstack(((c1 / (c1a + 1e-23)) ** 0.5 * self.p_c, y))
+        vectors = np.vstack((_pow(c1 / (c1a + 1e-23), 0.5) * self.p_c, y))
         self.C *= decay
         self.C += lk.weighted_gram(np.concatenate(([c1a], coef)), vectors)
 
@@ -406,14 +459,14 @@ class CMAES(EvolutionStrategy):
         else:
             s = np.sqrt(np.sum(np.square(self.p_sigma))) / self.chi_d - 1
             s *= cs / self.damps
-        self.step_size *= math.exp(min(max(float(s), -1), 1))
+        self.step_size *= math_exp(min(max(float(s), -1), 1))
         # pycma moves a huge sigma into C (_redistribute_sigma_above = 1e9), same distribution
         if self.step_size > 1e9 * self.sigma:
-            alpha = float(self.step_size / np.max(np.diag(self.C)) ** 0.5)
+            alpha = float(self.step_size / _pow(np.max(np.diag(self.C)), 0.5))
             if alpha > 1:
                 self.C *= alpha
-                self.eigenvalues_sqrt = self.eigenvalues_sqrt * alpha**0.5
-                self.step_size /= alpha**0.5
+                self.eigenvalues_sqrt = self.eigenvalues_sqrt * _pow(alpha, 0.5)
+                self.step_size /= _pow(alpha, 0.5)
 
         # what pycma's ask does before it samples: alleviate conditioning, then decompose C
         if not self._alleviate_conditioning():
@@ -437,7 +490,7 @@ class CMAES(EvolutionStrategy):
                 pass
             # pycma: "covariance matrix eigen decomposition failed"; add the smallest
             # previous eigenvalue to the diagonal (and to the previous ones) and try again
-            shift = np.min(previous) ** 2
+            shift = _pow(np.min(previous), 2)
             self.C[np.diag_indices(self.dim)] += shift
             previous = (previous**2 + shift) ** 0.5
         else:
@@ -473,7 +526,7 @@ class CMAES(EvolutionStrategy):
             self.p_c = self.p_c / factors
             decomposed = True
         D = self.eigenvalues_sqrt
-        if self.transform is None and limit and (D[-1] / D[0]) ** 2 >= limit:
+        if self.transform is None and limit and _pow(D[-1] / D[0], 2) >= limit:
             B = self.eigenvectors
             tf_inv = lk.mat_mat(B / D, B.T)
             tf = lk.mat_mat(B * D, B.T)

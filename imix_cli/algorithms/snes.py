@@ -39,6 +39,7 @@ import numpy as np
 from imix_cli import linalg_kernels as lk
 from imix_cli.algorithms.base import Adam, EvolutionStrategy, Params, _array_like, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
+from imix_cli.elementary import math_log
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ class SNES(EvolutionStrategy):
         beta1, beta2 = self.params.beta1, self.params.beta2
         self.sigma_lr = self.lr if self.params.sigma_lr is None else float(self.params.sigma_lr)
         self._mu = self.initial_mean.copy()
-        self._log_sigma = np.full(self.dim, np.log(self.sigma))
+        self._log_sigma = np.full(self.dim, math_log(self.sigma))
         self.mu_optimizer = Adam(self.dim, lr=self.lr, beta1=beta1, beta2=beta2)
         self.sigma_optimizer = Adam(self.dim, lr=self.sigma_lr, beta1=beta1, beta2=beta2)
         self._dist = DiagonalGaussian(self._mu, lk.exp(self._log_sigma))

@@ -29,16 +29,20 @@ and ``tests/test_continuous.py`` test it against gymnasium directly):
   that gymnasium squares with numpy's scalar ``x**2`` (libm ``pow``, not always correctly
   rounded) where this uses ``x * x``: next states differ by a few ulps on ~1 step in 400.
 
-Math functions are libm's (``cos``/``sin`` equal numpy's float64 ones; ``tanh`` is libm's, as
-in ``imix_cli.policies.BatchPolicy``, not numpy's SIMD ``tanh``, which differs from it by an ulp
-on some inputs and between CPUs). No ``fastmath``: IEEE semantics, no reassociation, no FMA
-contraction.
+Math functions (``tanh``, ``cos``, ``sin``) are :mod:`imix_cli.elementary`'s, not the C library's,
+whose last bits depend on the CPU (glibc runs an FMA build on CPUs that have FMA and an SSE2 build
+on the others); they give what glibc's FMA build gives, bit for bit. A hidden layer's ``tanh`` runs
+as a loop of its own over the layer's units, which compiles to vector instructions. No
+``fastmath``: IEEE semantics, no reassociation, no FMA contraction beyond the fused
+multiply-adds written out in :mod:`imix_cli.elementary`.
 
 Compilation: ``@njit(cache=True)``: the machine code is written to numba's on-disk cache on
 first use (``__pycache__`` next to this file, or the user's cache directory when that is not
 writable, e.g. a root-owned site-packages) and loaded from there by every later process,
 spawned workers included. Everything compiled lives in this one file on purpose: numba
-invalidates a cached function when *its* file changes, not when a callee in another file does.
+invalidates a cached function when *its* file changes, not when a callee in another file does --
+hence the stamp below, which names the version of :mod:`imix_cli.elementary` compiled in
+(``tests/test_elementary.py`` fails until it is updated: ``python -m imix_cli.elementary``).
 """
 
 from __future__ import annotations
@@ -50,7 +54,10 @@ from gymnasium.envs.classic_control.acrobot import AcrobotEnv
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from numba import njit
 
+from imix_cli import elementary as el
 from imix_cli.envs.continuous_cartpole import FORCE_MAG
+
+# numba cache stamp: imix_cli/elementary.py b02f8fb7d66fabfd (python -m imix_cli.elementary rewrites it)
 
 __all__ = [
     "uniform_row",
@@ -185,8 +192,10 @@ def mlp_forward(p, sizes, x, y):
             acc = 0.0
             for i in range(n_in):
                 acc += p[k + i * n_out + j] * x[i]
-            acc = acc + p[bias + j]
-            y[j] = math.tanh(acc) if layer < last else acc
+            y[j] = acc + p[bias + j]
+        if layer < last:  # a loop of its own: it compiles to vector instructions (el.tanh_lanes)
+            for j in range(n_out):
+                y[j] = el.tanh_lanes(y[j])
         k = bias + n_out
         x, y = y, x
     return x
@@ -237,8 +246,8 @@ del _CP
 def cartpole_step(s, force):
     """One ``CartPoleEnv.step`` of state ``s`` (4,) float64 in place, with the given force; terminated?"""
     x, x_dot, theta, theta_dot = s[0], s[1], s[2], s[3]
-    costheta = math.cos(theta)
-    sintheta = math.sin(theta)
+    costheta = el.cos(theta)
+    sintheta = el.sin(theta)
     temp = (force + _PML * (theta_dot * theta_dot) * sintheta) / _TOTAL_MASS
     thetaacc = (_GRAVITY * sintheta - costheta * temp) / (_LENGTH * (4.0 / 3.0 - _MASSPOLE * (costheta * costheta) / _TOTAL_MASS))
     xacc = temp - _PML * thetaacc * costheta / _TOTAL_MASS
@@ -297,7 +306,7 @@ def cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, retur
                 x[j] = np.float64(np.float32(s[j]))  # the observation is the state as float32
             out = mlp_forward(p, sizes, x, y)
             if continuous:
-                force = continuous_force(math.tanh(out[0]))
+                force = continuous_force(el.tanh(out[0]))
             else:
                 force = _CP_FORCE_MAG if _argmax(out, 2) == 1 else -_CP_FORCE_MAG
             terminated = cartpole_step(s, force)
@@ -333,11 +342,11 @@ del _E
 @njit(cache=True)
 def acrobot_dsdt(t1, t2, dt1, dt2, a, k):
     """``AcrobotEnv._dsdt`` (book): the four derivatives into ``k`` (4,), gymnasium's expressions."""
-    c2, s2 = math.cos(t2), math.sin(t2)
+    c2, s2 = el.cos(t2), el.sin(t2)
     d1 = _M1 * (_LC1 * _LC1) + _M2 * (_L1 * _L1 + _LC2 * _LC2 + 2 * _L1 * _LC2 * c2) + _I1 + _I2
     d2 = _M2 * (_LC2 * _LC2 + _L1 * _LC2 * c2) + _I2
-    phi2 = _M2 * _LC2 * _G * math.cos(t1 + t2 - _PI / 2.0)
-    phi1 = -_M2 * _L1 * _LC2 * (dt2 * dt2) * s2 - 2 * _M2 * _L1 * _LC2 * dt2 * dt1 * s2 + (_M1 * _LC1 + _M2 * _L1) * _G * math.cos(t1 - _PI / 2) + phi2
+    phi2 = _M2 * _LC2 * _G * el.cos(t1 + t2 - _PI / 2.0)
+    phi1 = -_M2 * _L1 * _LC2 * (dt2 * dt2) * s2 - 2 * _M2 * _L1 * _LC2 * dt2 * dt1 * s2 + (_M1 * _LC1 + _M2 * _L1) * _G * el.cos(t1 - _PI / 2) + phi2
     ddt2 = (a + d2 / d1 * phi1 - _M2 * _L1 * _LC2 * (dt1 * dt1) * s2 - phi2) / (_M2 * (_LC2 * _LC2) + _I2 - (d2 * d2) / d1)
     ddt1 = -(d2 * ddt2 + phi1) / d1
     k[0], k[1], k[2], k[3] = dt1, dt2, ddt1, ddt2
@@ -384,16 +393,16 @@ def acrobot_step(s, torque, k, y):
     s[1] = _wrap(s[1])
     s[2] = _bound(s[2], _MAX_VEL_1)
     s[3] = _bound(s[3], _MAX_VEL_2)
-    return -math.cos(s[0]) - math.cos(s[1] + s[0]) > 1.0
+    return -el.cos(s[0]) - el.cos(s[1] + s[0]) > 1.0
 
 
 @njit(cache=True)
 def _acrobot_observe(s, x):
     """gymnasium's ``_get_ob`` (float32) into ``x[:6]`` as float64."""
-    x[0] = np.float64(np.float32(math.cos(s[0])))
-    x[1] = np.float64(np.float32(math.sin(s[0])))
-    x[2] = np.float64(np.float32(math.cos(s[1])))
-    x[3] = np.float64(np.float32(math.sin(s[1])))
+    x[0] = np.float64(np.float32(el.cos(s[0])))
+    x[1] = np.float64(np.float32(el.sin(s[0])))
+    x[2] = np.float64(np.float32(el.cos(s[1])))
+    x[3] = np.float64(np.float32(el.sin(s[1])))
     x[4] = np.float64(np.float32(s[2]))
     x[5] = np.float64(np.float32(s[3]))
 

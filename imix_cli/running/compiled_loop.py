@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from imix_cli import elementary as el
 from imix_cli import linalg_kernels as lk
 from imix_cli import mixing_kernels as mk
 from imix_cli.algorithms.base import EstoolWeightDecay, centered_ranks, hash_multipliers
@@ -59,14 +60,14 @@ __all__ = ["applies", "applies_to_run", "advance", "entry", "ENV_VARIABLE"]
 ENV_VARIABLE = "IMIX_COMPILED_LOOP"
 
 _ALGOS = {OpenES: 0, SNES: 1}
-_LOG_2PI = math.log(2.0 * math.pi)
+_LOG_2PI = el.math_log(2.0 * math.pi)
 _SEED_HIGH = np.iinfo(np.int64).max  # episode seeds: integers(0, int64 max), as lockstep draws them
 
 
 def _dependency_digest() -> int:
     """A 63-bit digest of the sources this module's compiled entry calls into (module docstring)."""
     h = hashlib.sha256()
-    for source in (__file__, mk.__file__, lk.__file__, ek.__file__):  # named by their modules: right wherever they live
+    for source in (__file__, mk.__file__, lk.__file__, ek.__file__, el.__file__):  # named by their modules: right wherever they live
         h.update(Path(source).read_bytes())
     return int.from_bytes(h.digest()[:8], "little") >> 1
 
@@ -154,7 +155,7 @@ def _log_norm(std):
     d = std.shape[0]
     logs = np.empty(d)
     for j in range(d):
-        logs[j] = math.log(std[j])
+        logs[j] = el.log(std[j])
     return -0.5 * d * _LOG_2PI - _numpy_sum(logs)
 
 
@@ -209,7 +210,7 @@ def _adam(m, v, t, lr, beta1, beta2, grad):
     """:meth:`imix_cli.algorithms.base.Adam.step` in place of its moments; returns the increment."""
     t[0] += 1
     d = grad.shape[0]
-    step_size = lr * math.sqrt(1.0 - math.pow(beta2, float(t[0]))) / (1.0 - math.pow(beta1, float(t[0])))
+    step_size = lr * math.sqrt(1.0 - el.pow(beta2, float(t[0]))) / (1.0 - el.pow(beta1, float(t[0])))
     out = np.empty(d)
     for j in range(d):
         m[j] = beta1 * m[j] + (1.0 - beta1) * grad[j]
@@ -250,7 +251,7 @@ def _tell(algo, x, u, mu, log_sigma, std, sigma0, opt_m, opt_v, opt_t, lrs, beta
         for j in range(d):
             mu[j] = mu[j] + step[j]
             log_sigma[j] = log_sigma[j] + step_ls[j]
-            std[j] = math.exp(log_sigma[j])
+            std[j] = el.exp(log_sigma[j])
     for j in range(d):
         if not (math.isfinite(mu[j]) and math.isfinite(std[j]) and std[j] > 0.0):
             return False
@@ -297,7 +298,7 @@ def _make_entry(digest: int):
                         if not a_hset[k]:
                             for i in range(popsize):
                                 r = sample_rng.random()
-                                a_h[k, i] = math.log(r) if r > 0.0 else -math.inf
+                                a_h[k, i] = el.log(r) if r > 0.0 else -math.inf
                             a_hset[k] = True
                 counts = np.full(k_used, popsize, dtype=np.int64)
                 if variant == 1:
@@ -536,7 +537,7 @@ def advance(st, settings, evaluator, generations: int) -> bool:
     rngs = (st.sample_rng, st.episode_rng, st.mean_eval_rng)
     snapshot = [r.bit_generator.state for r in rngs]
     with np.errstate(divide="ignore"):
-        log_keep = float(np.log1p(-mixing.alpha))
+        log_keep = el.math_log1p(-mixing.alpha)
     done = entry()(
         generations, _ALGOS[type(es)], _kernel(mixing.variant), depth, float(mixing.alpha), log_keep,
         float(es.weight_decay), hash_multipliers(d), es_generation,

@@ -62,11 +62,14 @@ def _mixing_group(spec) -> None:
 
 
 def _policy_group(spec) -> None:
-    """The libm functions of the gymnasium policies and of the numpy mixing path (CMA-ES)."""
+    """The elementary functions (imix_cli.elementary) of the gymnasium policies, of the numpy mixing path
+    (CMA-ES) and of the ES's Python side (CMA-ES's constants, Adam's bias correction)."""
+    from imix_cli import elementary
     from imix_cli import linalg_kernels as lk
 
     lk.tanh(np.zeros((2, 2)))
     lk.expm1(np.zeros(2))
+    elementary.math_exp(0.5), elementary.math_log(0.5), elementary.math_log1p(0.5), elementary.math_pow(0.5, 0.5)
 
 
 def _episodes_group(spec) -> None:
@@ -162,10 +165,11 @@ def _run_groups(jobs, workers: int) -> None:
 def warm_all(workers: int | None = None) -> int:
     """Compile every kernel of :data:`INSTALL_CONFIGS` not yet in numba's cache, over ``workers``
     processes (default: all cores); return the number of groups compiled."""
-    from imix_cli import linalg_kernels
+    from imix_cli import elementary, linalg_kernels
     from imix_cli.running.config import validate_overrides
 
-    jobs, seen = [(_policy_group, None)] if not _cached(linalg_kernels._tanh_inplace) else [], set()
+    policy_entries = [linalg_kernels._tanh_inplace, elementary.math_exp, elementary.math_log, elementary.math_log1p, elementary.math_pow]
+    jobs, seen = [(_policy_group, None)] if not all(_cached(e) for e in policy_entries) else [], set()
     for overrides in INSTALL_CONFIGS:
         (spec,) = validate_overrides(overrides)
         for group, entries in compile_groups(spec):
