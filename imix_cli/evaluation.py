@@ -218,13 +218,10 @@ class AcrobotEvaluator(_CompiledEvaluator):
         super().__init__("acrobot", max_steps)
 
     def _episodes(self, params, seeds, returns, steps, trace):
-        # gymnasium's reset(seed=s): a float32 state and its observation computed in float32
-        # by numpy's cos/sin (not libm's, hence here rather than in the kernel)
+        # gymnasium's reset(seed=s): a float32 state and its observation computed in float32 (the
+        # float32 cos/sin of numpy's vector kernel, which numpy runs on CPUs with FMA3 only: imix_cli.elementary)
         s32 = self._kernels.seeded_uniform_rows(seeds, -0.1, 0.1, 4).astype(np.float32)
-        obs0 = np.empty((len(s32), 6))
-        obs0[:, 0:4:2] = np.cos(s32[:, :2])
-        obs0[:, 1:4:2] = np.sin(s32[:, :2])
-        obs0[:, 4:] = s32[:, 2:]
+        obs0 = self._kernels.acrobot_first_observations(s32)
         self._kernels.acrobot_episodes(params, s32.astype(np.float64), obs0, self._sizes(), self.max_steps, returns, steps, trace)
 
 

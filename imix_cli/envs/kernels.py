@@ -57,7 +57,7 @@ from numba import njit
 from imix_cli import elementary as el
 from imix_cli.envs.continuous_cartpole import FORCE_MAG
 
-# numba cache stamp: imix_cli/elementary.py b02f8fb7d66fabfd (python -m imix_cli.elementary rewrites it)
+# numba cache stamp: imix_cli/elementary.py ed7cf1a709c5820a (python -m imix_cli.elementary rewrites it)
 
 __all__ = [
     "uniform_row",
@@ -422,6 +422,20 @@ def acrobot_steps(states, actions):
         for j in range(6):
             obs[i, j] = np.float32(x[j])
     return out, obs, terminated
+
+
+@njit(cache=True)
+def acrobot_first_observations(states32):
+    """(n, 6) first observations of float32 initial states ``states32`` (n, 4): gymnasium's ``_get_ob``,
+    cos and sin of the angles in float32 as numpy's vector kernel computes them (el.cos32, el.sin32)."""
+    obs = np.empty((states32.shape[0], 6))
+    for i in range(states32.shape[0]):
+        for j in range(2):
+            obs[i, 2 * j] = np.float64(el.cos32(states32[i, j]))
+            obs[i, 2 * j + 1] = np.float64(el.sin32(states32[i, j]))
+        obs[i, 4] = np.float64(states32[i, 2])
+        obs[i, 5] = np.float64(states32[i, 3])
+    return obs
 
 
 @njit(cache=True)
