@@ -180,18 +180,41 @@ def _lower_times_rows(low, e):
     return out
 
 
+#: From this many rows on, :func:`_lower_solve_rows` solves them together (measured: 2.8x at 50 rows, d = 130;
+#: slower below ~12 rows, where the transposed copy costs more than it saves).
+SOLVE_ROWS_TOGETHER = 16
+
+
 @njit(cache=True)
 def _lower_solve_rows(low, y):
-    """z[r] with low @ z[r] = y[r] for each row r (forward substitution, k ascending)."""
+    """z[r] with low @ z[r] = y[r] for each row r (forward substitution, k ascending).
+
+    Each row's operations are the same and in the same order either way; many rows are solved
+    together with the loop over rows innermost, so that it vectorises (the rows are independent),
+    where a row alone is a chain of dependent subtractions (CMA-ES's mixing: ~30 % of its run)."""
     n, d = y.shape
-    z = np.empty((n, d))
-    for r in range(n):
-        for i in range(d):
-            acc = y[r, i]
-            for k in range(i):
-                acc -= low[i, k] * z[r, k]
-            z[r, i] = acc / low[i, i]
-    return z
+    if n < SOLVE_ROWS_TOGETHER:
+        z = np.empty((n, d))
+        for r in range(n):
+            for i in range(d):
+                acc = y[r, i]
+                for k in range(i):
+                    acc -= low[i, k] * z[r, k]
+                z[r, i] = acc / low[i, i]
+        return z
+    zt = np.empty((d, n))  # z transposed: row k of it holds z[:, k], contiguous
+    acc = np.empty(n)
+    for i in range(d):
+        for r in range(n):
+            acc[r] = y[r, i]
+        for k in range(i):
+            lik = low[i, k]
+            for r in range(n):
+                acc[r] -= lik * zt[k, r]
+        lii = low[i, i]
+        for r in range(n):
+            zt[i, r] = acc[r] / lii
+    return np.ascontiguousarray(zt.T)
 
 
 @njit(cache=True)

@@ -380,3 +380,28 @@ def test_kernels_refuse_params_that_do_not_fit_the_layer_sizes():
             kernels.cartpole_episodes(np.zeros((1, d)), np.zeros(1, np.uint64), sizes, False, False, 5, out, steps, np.empty((0, 0, 0)))
     with pytest.raises(ValueError, match="parameter count"):
         kernels.acrobot_episodes(np.zeros((1, 130)), np.zeros((1, 4)), np.zeros((1, 6)), np.array([6, 8, 8, 3]), 5, out, steps, np.empty((0, 0, 0)))
+
+
+@pytest.mark.parametrize("continuous,sparse", [(False, False), (True, False), (True, True)], ids=["CartPole", "Continuous", "ContinuousHard"])
+def test_cartpole_episodes_in_lanes_equal_one_at_a_time(continuous, sparse):
+    """From LANES_FROM members on, CartPole episodes run LANES at a time (a lane whose episode ends takes the next
+    member): every member's return, length and states must be those of its episode run alone, bit for bit. Made
+    to fail by not resetting a reused lane's running total (the sparse return) and by reading the member's
+    parameters from the wrong lane."""
+    from imix_cli.envs import kernels
+
+    rng = np.random.default_rng(12)
+    sizes = np.array([4, 8, 8, 1 if continuous else 2], dtype=np.int64)
+    n = 3 * kernels.LANES_FROM + 5
+    balancer = linear_mlp([0, 0, 1, 1], [1] if continuous else [-1, 1])  # noisy balancers and random members: 8 to 200 steps
+    params = np.vstack([balancer + 0.05 * rng.standard_normal((n // 2, balancer.size)), rng.standard_normal((n - n // 2, balancer.size))])
+    params = params[rng.permutation(n)]
+    seeds = rng.integers(0, 2**63, n).astype(np.int64)
+    returns, steps, trace = np.empty(n), np.empty(n, dtype=np.int64), np.full((n, 201, 4), np.nan)
+    kernels.cartpole_episodes(params, seeds, sizes, continuous, sparse, 200, returns, steps, trace)
+    assert steps.min() < 20 and steps.max() == 200
+    for i in range(n):
+        r1, s1, t1 = np.empty(1), np.empty(1, dtype=np.int64), np.full((1, 201, 4), np.nan)
+        kernels.cartpole_episodes(params[i : i + 1], seeds[i : i + 1], sizes, continuous, sparse, 200, r1, s1, t1)
+        assert (returns[i], steps[i]) == (r1[0], s1[0]), i
+        assert np.array_equal(trace[i], t1[0], equal_nan=True), i

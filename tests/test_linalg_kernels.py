@@ -113,3 +113,17 @@ def test_eigh_refuses_a_non_finite_matrix(bad):
     a[2, 1] = bad
     with pytest.raises(np.linalg.LinAlgError):
         lk.eigh(a)
+
+
+def test_many_rows_are_solved_with_the_same_operations_as_one_row_at_a_time():
+    """From SOLVE_ROWS_TOGETHER rows on, the rows are solved together (the loop over rows innermost); each row's
+    result must be bit for bit what solving it alone gives. Made to fail by starting each row's sum from 0 and
+    adding y[r, i] last."""
+    rng = np.random.default_rng(4)
+    d = 130
+    a = rng.normal(size=(d, d))
+    low = np.linalg.cholesky(a @ a.T / d + np.eye(d))
+    y = rng.normal(size=(3 * lk.SOLVE_ROWS_TOGETHER, d))
+    together = lk.lower_solve_rows(low, y)
+    alone = np.vstack([lk.lower_solve_rows(low, y[r : r + 1]) for r in range(len(y))])
+    assert np.array_equal(together.view(np.int64), alone.view(np.int64))
