@@ -1072,25 +1072,25 @@ def _sincos32(x, quadrant_shift):
 
 
 @njit(inline="always")
-def sin32(x):
-    """``np.sin`` of a float32 as numpy's vector kernel computes it (a float32; ``x`` a float32 value)."""
+def _trig32(x, cosine):
     x = np.float32(x)
     if x != x:
         return _F32_NAN
-    if abs(x) <= _F32_SIN_MAX:
-        return _sincos32(x, np.int32(0))
-    return np.float32(math.sin(x))
+    if abs(x) <= (_F32_COS_MAX if cosine else _F32_SIN_MAX):
+        return _sincos32(x, np.int32(1 if cosine else 0))
+    return np.float32(math.cos(x) if cosine else math.sin(x))  # numpy's kernel hands these to the C library too
+
+
+@njit(inline="always")
+def sin32(x):
+    """``np.sin`` of a float32 as numpy's vector kernel computes it (a float32; ``x`` a float32 value)."""
+    return _trig32(x, False)
 
 
 @njit(inline="always")
 def cos32(x):
     """``np.cos`` of a float32 as numpy's vector kernel computes it."""
-    x = np.float32(x)
-    if x != x:
-        return _F32_NAN
-    if abs(x) <= _F32_COS_MAX:
-        return _sincos32(x, np.int32(1))
-    return np.float32(math.cos(x))
+    return _trig32(x, True)
 
 
 # ----------------------------------------------------------------------------- from Python

@@ -57,39 +57,15 @@ def _elementwise(f):
     return run
 
 
-@njit(inline="always")
-def _libm_exp(x):
-    return math.exp(x)
+def _c_library(name: str):
+    """The C library's function ``name`` as numba calls it (math.<name> in compiled code)."""
+    function = getattr(math, name)
 
+    @njit(inline="always")
+    def call(x):
+        return function(x)
 
-@njit(inline="always")
-def _libm_expm1(x):
-    return math.expm1(x)
-
-
-@njit(inline="always")
-def _libm_tanh(x):
-    return math.tanh(x)
-
-
-@njit(inline="always")
-def _libm_log(x):
-    return math.log(x)
-
-
-@njit(inline="always")
-def _libm_log1p(x):
-    return math.log1p(x)
-
-
-@njit(inline="always")
-def _libm_sin(x):
-    return math.sin(x)
-
-
-@njit(inline="always")
-def _libm_cos(x):
-    return math.cos(x)
+    return call
 
 
 SPECIAL = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, 5e-324, -5e-324, 2.2250738585072014e-308, 1e-300, -1e-300, 1.0, -1.0, 0.5, -0.5, 1e300, -1e300])
@@ -120,10 +96,7 @@ def _inputs(name: str, rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([SPECIAL, *ranges[name]])
 
 
-CASES = {
-    "exp": (el.exp, _libm_exp), "expm1": (el.expm1, _libm_expm1), "log": (el.log, _libm_log), "log1p": (el.log1p, _libm_log1p),
-    "tanh": (el.tanh, _libm_tanh), "sin": (el.sin, _libm_sin), "cos": (el.cos, _libm_cos),
-}  # fmt: skip
+CASES = {name: (getattr(el, name), _c_library(name)) for name in ("exp", "expm1", "log", "log1p", "tanh", "sin", "cos")}
 
 
 def _mismatches(mine: np.ndarray, reference: np.ndarray) -> np.ndarray:
