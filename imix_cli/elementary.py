@@ -20,28 +20,36 @@ published -- so on such a machine nothing changes, bit for bit (``tests/test_ele
 compares each function with the C library's on millions of inputs there, and
 ``tests/test_same_numbers_everywhere.py`` runs whole jobs with glibc's SSE2 variants selected).
 
-The algorithms (each function's docstring says more):
+The algorithms (each section's comment and each function's docstring say more):
 
 * ``exp``: table-driven, exp(x) = 2^(k/128) exp(r), |r| <= ln2/256, a degree-5 polynomial for
   exp(r) - 1 and a 128-entry table of 2^(k/128) split into a double and a correction (Szabolcs
-  Nagy's algorithm in ARM's optimized-routines, which glibc uses since 2.28). The table is
-  computed below from its definition.
-* ``expm1``, ``tanh``: fdlibm's (Sun, 1993): x = k ln2 + r, a rational approximation of
+  Nagy's algorithm in ARM's optimized-routines, which glibc uses since 2.28).
+* ``log``, ``pow``: the same library's: log through a 128-entry table of 1/c and log c and a
+  polynomial for log1p(r); pow as exp(y log x) with log x carried to ~68 bits and exp's table.
+* ``expm1``, ``tanh``, ``log1p``: fdlibm's (Sun, 1993): x = k ln2 + r, a rational approximation of
   expm1(r) on |r| <= ln2/2, scaled back; tanh(x) = 1 - 2/(expm1(2|x|) + 2) for |x| >= 1 and
-  -expm1(-2|x|)/(expm1(-2|x|) + 2) below.
+  -expm1(-2|x|)/(expm1(-2|x|) + 2) below; log1p through 1 + x = 2^k (1 + f) and a series in f/(2 + f).
+* ``sin``, ``cos``: IBM's Accurate Mathematical Library (glibc's s_sin.c): a table of sin and cos
+  at k/128 and short polynomials, after a reduction by pi/2 (exact, to ~1800 bits, for huge x).
+* ``sin32``, ``cos32``: numpy 2.4.6's float32 vector kernel (what gymnasium's Acrobot observation uses).
 
-How fast: the functions are inlined into the compiled loops that call them (no call into a
-shared library). ``tanh_lanes`` computes every path of ``tanh`` and selects the right one, with
-no branch, so that a loop over a layer's units compiles to vector instructions: a hidden layer's
-eight ``tanh`` cost less than two libm calls (``benchmarks/elementary_speed.py``).
+Every table is computed from its definition by ``tools/elementary_tables.py`` into
+``imix_cli/elementary_tables.py`` (the tests recompute it and compare).
+
+How fast: the functions are compiled into the loops that call them (no call into a shared
+library). ``tanh_lanes`` computes every path of ``tanh`` and selects the right one, with no
+branch, so that a loop over a layer's units compiles to vector instructions. One CartPole episode
+at a time, the compiled episodes run 4.86M steps/s against 4.30M with the C library's functions,
+Acrobot's 2.77M against 2.01M (``imix bench rollouts``, batch 2, both versions back to back).
 
 Compilation: ``exp``, ``log`` and ``tanh_lanes`` are inlined into their callers (they sit in the hot
 loops, and ``tanh_lanes`` must be inlined to be vectorised); the larger functions are compiled once
 and called (inlining ``sin``, ``cos`` and ``pow`` at every call site multiplied the compile time).
 Either way a cached kernel holds these functions' code, so numba's disk cache of a kernel does not
-see a change made here. Each file that
-compiles them therefore names :data:`SOURCE_DIGEST` in a comment (``tests/test_elementary.py``
-fails until it is updated), and editing that comment invalidates that file's cache.
+see a change made here: each file that compiles them therefore names :data:`SOURCE_DIGEST` in a
+comment (``tests/test_elementary.py`` fails until it is updated, ``python -m imix_cli.elementary``
+updates it), and editing that comment invalidates that file's cache.
 """
 
 from __future__ import annotations

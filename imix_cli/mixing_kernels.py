@@ -34,7 +34,7 @@ from numba import njit
 
 from imix_cli import elementary as el
 
-# numba cache stamp: imix_cli/elementary.py 46031ffdd2909edc (python -m imix_cli.elementary rewrites it)
+# numba cache stamp: imix_cli/elementary.py 139c5148f7bf817e (python -m imix_cli.elementary rewrites it)
 
 try:
     # The bounded integer draw of NumPy's Generator.shuffle (masked rejection on 32- or 64-bit

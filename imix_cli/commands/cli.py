@@ -260,9 +260,9 @@ def _task(cfg) -> None:
     except KeyboardInterrupt:
         sys.exit(_error("interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)", 130))
     finally:
-        # between two points (Hydra preparing the next) and after the last, nothing is half-written
-        signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)
-        signal.signal(signal.SIGTERM, _interrupted_before_anything_is_written)
+        if str(launcher or "").endswith("BasicLauncher"):  # this process: between two points (Hydra preparing
+            signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)  # the next) and after the last,
+            signal.signal(signal.SIGTERM, _interrupted_before_anything_is_written)  # nothing is half-written
 
 
 if __name__ == "__main__":  # python -m imix_cli.commands.cli: imix's own process, as the `imix` script (imix_cli/__init__.py)

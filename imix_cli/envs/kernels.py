@@ -57,7 +57,7 @@ from numba import njit
 from imix_cli import elementary as el
 from imix_cli.envs.continuous_cartpole import FORCE_MAG
 
-# numba cache stamp: imix_cli/elementary.py 46031ffdd2909edc (python -m imix_cli.elementary rewrites it)
+# numba cache stamp: imix_cli/elementary.py 139c5148f7bf817e (python -m imix_cli.elementary rewrites it)
 
 __all__ = [
     "uniform_row",
