@@ -19,6 +19,21 @@ mean-policy return. Commands (one process each; ~70 s a seed for sb3-contrib, ~4
     imix run env=swimmer +ars=swimmer algo=ars eim=false lr=0.0141421356 seeds=80 generations=300 eval_mean_every=10 \\
         eval_mean_episodes=3 experiment=ars_rep workers=1
     python benchmarks/ars_replication.py results/ars_rep
+
+Hopper (``hopper``): the study's 3 seeds gave sb3-contrib a final mean-policy return of 2126 against
+imix's 694 (p = 0.40). The replication, with the study's settings (V2-t, 1,600 training episodes, the
+mean policy on 3 fresh episodes every 5 iterations), runs sb3-contrib on seeds 3-22 and imix on seeds
+0-39 twice: with its normaliser frozen after 5 generations (the default, which keeps reuse honest)
+and with it updated every generation as ARS and sb3-contrib do (``policy.obs_norm_warmup=100``, the
+run's length: no mixing could use it). ~120 s a seed for sb3-contrib, ~20 s for imix here:
+
+    for k in $(seq 3 22); do python -m imix_cli.bench.ars_peer --envs hopper --seeds 100 --seed $k --episodes 1600 \\
+        --eval-every 5 --eval-episodes 3 --experiment ars_hop; done
+    imix run env=hopper +ars=hopper algo=ars eim=false seeds=40 generations=100 eval_mean_every=5 eval_mean_episodes=3 \\
+        experiment=ars_hop workers=1
+    imix run env=hopper +ars=hopper algo=ars eim=false policy.obs_norm_warmup=100 seeds=40 generations=100 \\
+        eval_mean_every=5 eval_mean_episodes=3 experiment=ars_hop workers=1
+    python benchmarks/ars_replication.py results/ars_hop hopper
 """
 
 import glob
@@ -31,33 +46,41 @@ from scipy import stats
 
 from imix_cli.plotting.ars import p_vs_peer
 
-THRESHOLD = 325.0
+#: Per replication: the ARS paper's threshold, and its arms (label, the run folder's glob, seeds);
+#: the first arm is sb3-contrib's, which the others are compared with.
+REPLICATIONS = {
+    "swimmer": (325.0, [
+        ("sb3-contrib ARS (rl-zoo3), seeds 40-99", "sb3_ars-Swimmer-v5", range(40, 100)),
+        ("imix ARS, the ARS paper's step, seeds 20-79", "ars-Swimmer-v5-none-*lr=0.02,*", range(20, 80)),
+        ("imix ARS at sb3-contrib's step (alpha/sqrt 2), seeds 10-79", "ars-Swimmer-v5-none-*lr=0.0141421356*", range(10, 80)),
+    ]),
+    "hopper": (3120.0, [
+        ("sb3-contrib ARS (rl-zoo3), seeds 3-22", "sb3_ars-Hopper-v5", range(3, 23)),
+        ("imix ARS, statistics frozen after 5 generations (default), seeds 0-39", "ars-Hopper-v5-none-*obs_norm=5,*", range(0, 40)),
+        ("imix ARS, statistics updated every generation, seeds 0-39", "ars-Hopper-v5-none-*obs_norm=100,*", range(0, 40)),
+    ]),
+}  # fmt: skip
 
 
-def per_seed(path: Path, seeds) -> dict:
+def per_seed(path: Path, seeds, threshold: float) -> dict:
     reached, episodes, final = [], [], []
     for seed in seeds:
         frame = pd.read_csv(path / f"seed_{seed}.csv")
         measured = frame.dropna(subset=["mean_policy_score"])
-        hit = measured[measured["mean_policy_score"] >= THRESHOLD]
+        hit = measured[measured["mean_policy_score"] >= threshold]
         reached.append(len(hit) > 0)
         episodes.append(float(hit["evaluations"].iloc[0]) if len(hit) else np.inf)
         final.append(float(measured["mean_policy_score"].iloc[-1]))
     return {"reached": np.array(reached), "episodes": np.array(episodes), "final": np.array(final)}
 
 
-def main(root: str) -> int:
+def main(root: str, env: str = "swimmer") -> int:
     root = Path(root)
-    sb3 = root / "sb3_ars-Swimmer-v5"
-    paper = Path(glob.glob(str(root / "ars-Swimmer-v5-none-*lr=0.02,*"))[0])
-    small = Path(glob.glob(str(root / "ars-Swimmer-v5-none-*lr=0.0141421356*"))[0])
-    arms = {
-        "sb3-contrib ARS (rl-zoo3), seeds 40-99": per_seed(sb3, range(40, 100)),
-        "imix ARS, the ARS paper's step, seeds 20-79": per_seed(paper, range(20, 80)),
-        "imix ARS at sb3-contrib's step (alpha/sqrt 2), seeds 10-79": per_seed(small, range(10, 80)),
-    }
-    peer = arms["sb3-contrib ARS (rl-zoo3), seeds 40-99"]
-    columns = ["method", "seeds", "reached 325", "episodes to 325 (median of those reaching it)", "final mean-policy return: median (mean)"]
+    threshold, specs = REPLICATIONS[env]
+    arms = {label: per_seed(Path(glob.glob(str(root / folder))[0]), seeds, threshold) for label, folder, seeds in specs}
+    peer = arms[specs[0][0]]
+    columns = ["method", "seeds", f"reached {threshold:.0f}", f"episodes to {threshold:.0f} (median of those reaching it)"]
+    columns.append("final mean-policy return: median (mean)")
     columns.append("vs sb3-contrib: Fisher p (reached) / Mann-Whitney p (episodes, final)")
     print("| " + " | ".join(columns) + " |")
     print("|---|---:|---:|---:|---:|---|")
@@ -69,9 +92,11 @@ def main(root: str) -> int:
         else:
             fisher = stats.fisher_exact([[k, n - k], [int(peer["reached"].sum()), len(peer["reached"]) - int(peer["reached"].sum())]])[1]
             versus = f"{fisher:.2f} / {p_vs_peer(list(arm['episodes']), list(peer['episodes'])):.2f}, {p_vs_peer(list(arm['final']), list(peer['final'])):.2f}"
-        print(f"| {name} | {n} | {k}/{n} ({k / n:.0%}) | {np.median(hits):,.0f} | {np.median(arm['final']):.1f} ({np.mean(arm['final']):.1f}) | {versus} |")
+        to_threshold = np.median(hits) if len(hits) else np.nan
+        final = f"{np.median(arm['final']):.1f} ({np.mean(arm['final']):.1f})"
+        print(f"| {name} | {n} | {k}/{n} ({k / n:.0%}) | {to_threshold:,.0f} | {final} | {versus} |")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1] if len(sys.argv) > 1 else "results/ars_rep"))
+    raise SystemExit(main(*(sys.argv[1:] or ["results/ars_rep"])))

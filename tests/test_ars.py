@@ -322,6 +322,38 @@ def test_with_obs_norm_the_bias_free_weights_act_on_normalised_observations():
     np.testing.assert_allclose(forward(np.repeat(raw, 50, axis=0), states, 2, ()), expected, rtol=1e-10, atol=1e-10)
 
 
+def test_the_variance_floor_is_the_configs_reaches_each_seed_and_survives_a_checkpoint():
+    """policy.obs_var_floor: the V2 presets set ARS's 1e-8 (imix's 0.01 cost ARS V2-t on Hopper two
+    thirds of its return, docs/ars.md); a coordinate of variance 1e-4 is then scaled by its own
+    1/std = 100, not the default floor's 10. The floor is part of the run's name, every seed's
+    normaliser gets it, and a checkpoint keeps it (an older checkpoint, without it, had 0.01)."""
+    from types import SimpleNamespace
+
+    from imix_cli.policies import OBS_VAR_FLOOR, ObsNormalizer
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.lockstep import loop_settings, new_seed_state
+
+    states = np.stack([np.linspace(-1.0, 1.0, 101) * 0.01 * np.sqrt(3.0), np.linspace(-3.0, 3.0, 101)], axis=1)
+    for floor, expected in ((1e-8, 0.01), (OBS_VAR_FLOOR, 0.1)):
+        norm = ObsNormalizer(2, 1, floor)
+        norm.add(states.sum(0)[None], (states**2).sum(0)[None], np.array([len(states)]))
+        norm.end_generation()
+        assert norm.std[0] == pytest.approx(expected, rel=0.02) and norm.std[1] > 1.0
+        again = ObsNormalizer.from_state(norm.to_state())
+        assert again.var_floor == floor and np.array_equal(again.std, norm.std)
+    old_state = {k: v for k, v in norm.to_state().items() if k != "var_floor"}
+    assert ObsNormalizer.from_state(old_state).var_floor == OBS_VAR_FLOOR
+
+    for env in ("hopper", "halfcheetah", "walker2d"):
+        (spec,) = validate_overrides(["algo=ars", f"env={env}", f"+ars={env}"])
+        assert spec.obs_var_floor == 1e-8 and "obs_var_floor=1e-08" in spec.run_name
+    (default,) = validate_overrides(["algo=ars", "env=hopper", "+ars=hopper", "policy.obs_var_floor=0.01"])
+    assert "obs_var_floor" not in default.run_name  # the default keeps the folder runs had before the key
+    evaluator = SimpleNamespace(obs_dim=11, out_dim=3, hidden=())
+    settings = loop_settings(spec, evaluator)
+    assert all(new_seed_state(settings, seed).obs_norm.var_floor == 1e-8 for seed in range(3))
+
+
 def test_the_ars_presets_run_the_papers_policy_and_eval_acts_with_it(tmp_path):
     """+ars=<env>: no biases (the ES searches 16 weights on Swimmer), clipped actions; the saved
     policies keep zero biases and say "clip", and imix eval acts with the clip."""
@@ -411,6 +443,8 @@ def test_bad_policy_outputs_are_one_line_errors(tmp_path, capsys):
         (["env=gym", "env.id=CartPole-v1", "policy.output=clip"], "CartPole-v1 has discrete actions"),
         (["env=cartpole", "policy.output=sigmoid"], "policy.output='sigmoid'"),
         (["env=cartpole", "policy.bias=maybe"], "policy.bias='maybe'"),
+        (["env=cartpole", "policy.obs_var_floor=-1"], "policy.obs_var_floor=-1: must be > 0"),
+        (["env=cartpole", "policy.obs_var_floor=0"], "policy.obs_var_floor=0: must be > 0"),
     ):
         assert main(["run", "algo=ars", "seeds=1", "generations=1", f"results_dir={tmp_path}", *bad]) == 2
         err = capsys.readouterr().err

@@ -103,6 +103,10 @@ KEYS = (
         "normalise observations (gymnasium envs), statistics frozen after the warm-up (honest reuse)", "the policy"),
     Key("policy.obs_norm_warmup", "5", "warm-up generations, without mixing, that gather the statistics",
         "generations that gather the statistics, without mixing, before they freeze", "the policy"),
+    Key("policy.obs_var_floor", "0.01", "lower bound of each observation coordinate's variance (ARS: 1e-8)",
+        "lower bound (> 0) of each observation coordinate's variance in the normaliser: 0.01 (Salimans et al. 2017) "
+        "keeps a coordinate that barely moved during the warm-up from being blown up; the ARS presets set 1e-8, ARS's "
+        "own (on Hopper 0.01 cost ARS V2-t two thirds of its return: docs/ars.md)", "the policy"),
     Key("policy.bias", "true", "false: no biases, the ES searches the weights only (ARS)",
         "`false`: the policy has no biases and the ES searches its weights only (ARS's linear policy a = M s); saved "
         "policies keep the usual layout with zero biases", "the policy"),

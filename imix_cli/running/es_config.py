@@ -123,6 +123,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         hidden=policy["hidden"],
         obs_norm=policy["obs_norm"],
         obs_norm_warmup=policy["obs_norm_warmup"],
+        obs_var_floor=policy["obs_var_floor"],
         policy_bias=policy["bias"],
         policy_output=policy["output"],
         evaluator=policy["evaluator"],
@@ -207,6 +208,7 @@ def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_
     p = {f"policy.{k}": policy.get(k, v) for k, v in POLICY_DEFAULTS.items()}
     obs_norm = as_bool(p, "policy.obs_norm")
     warmup = as_int(p, "policy.obs_norm_warmup", 1)
+    var_floor = as_float(p, "policy.obs_var_floor", 0.0, False)
     if obs_norm and env_name in BUILTIN_ENVS:
         raise ConfigError(f"policy.obs_norm=true: only on gymnasium environments (env=gym or a MuJoCo env), not the built-in env={env_name}")
     from imix_cli.policies import OUTPUTS
@@ -238,10 +240,13 @@ def _policy_and_evaluator(cfg: dict, algo: str, env_name: str, env_id: str, max_
     # config.yaml keeps the policy keys only if one differs from the default, and bias/output only if
     # they do: a run's identity (and folder) stays what it was before these keys existed.
     extra = {k: v for k, v in (("bias", bias), ("output", output)) if v != POLICY_DEFAULTS[k]}
+    if obs_norm and var_floor != POLICY_DEFAULTS["obs_var_floor"]:
+        extra["obs_var_floor"] = var_floor
     default = hidden == POLICY_DEFAULTS["hidden"] and not obs_norm and not extra
     stored = None if default else {"hidden": list(hidden), "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else None, **extra}
     return {
         "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else 0, "bias": bias, "output": output,
+        "obs_var_floor": var_floor if obs_norm else POLICY_DEFAULTS["obs_var_floor"],
         "evaluator": evaluator, "evaluator_workers": n_workers or 1, "ray_address": address, "stored": stored,
     }  # fmt: skip
 

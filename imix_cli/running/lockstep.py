@@ -72,6 +72,7 @@ class LoopSettings:
     es_options: dict  # make_es's keyword arguments but the dimension: popsize, sigma, lr, weight decay, algo options
     mixing: MixingSettings
     obs_norm_warmup: int | None  # policy.obs_norm's warm-up; None: no observation normaliser
+    obs_var_floor: float  # policy.obs_var_floor
     policy_bias: bool
     eval_mean_every: int
     eval_mean_episodes: int
@@ -87,7 +88,8 @@ def loop_settings(spec, evaluator) -> LoopSettings:
     mixing = mixing_settings(spec)
     return LoopSettings(
         spec.algo, spec.env_name, spec.mixing, spec.popsize, spec.generations, search_dim(spec, evaluator), evaluator.obs_dim, es_options, mixing,
-        spec.obs_norm_warmup if spec.obs_norm else None, spec.policy_bias, spec.eval_mean_every, spec.eval_mean_episodes, spec.checkpoint_every,
+        spec.obs_norm_warmup if spec.obs_norm else None, spec.obs_var_floor, spec.policy_bias, spec.eval_mean_every, spec.eval_mean_episodes,
+        spec.checkpoint_every,
     )  # fmt: skip
 
 
@@ -123,7 +125,7 @@ def new_seed_state(settings: LoopSettings, seed: int) -> SeedState:
     """Seed ``seed`` of a run at generation 0."""
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
     es = GuardedES(make_es(settings.algo, settings.dim, **settings.es_options))
-    obs_norm = None if settings.obs_norm_warmup is None else ObsNormalizer(settings.obs_dim, settings.obs_norm_warmup)
+    obs_norm = None if settings.obs_norm_warmup is None else ObsNormalizer(settings.obs_dim, settings.obs_norm_warmup, settings.obs_var_floor)
     mean_eval_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(MEAN_EVAL_STREAM,)))
     return SeedState(
         seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq), obs_norm=obs_norm, mean_eval_rng=mean_eval_rng

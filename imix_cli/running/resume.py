@@ -177,6 +177,8 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None, policy
     _validate_archive(st, spec, dim, score_ok)
     if (st.obs_norm is None) == bool(spec.obs_norm):
         _fail("observation normaliser does not match policy.obs_norm")
+    if st.obs_norm is not None and st.obs_norm.var_floor != spec.obs_var_floor:
+        _fail(f"observation normaliser's variance floor {st.obs_norm.var_floor!r} is not policy.obs_var_floor={spec.obs_var_floor!r}")
 
 
 def _validate_es(st, spec, dim: int) -> None:

@@ -85,7 +85,7 @@ TOP_LEVEL_KEYS = (
 
 #: ``policy.*`` defaults (conf/config.yaml): the paper's 8x8 tanh MLP without normalisation, with
 #: biases, continuous actions squashed by tanh.
-POLICY_DEFAULTS = {"hidden": (8, 8), "obs_norm": False, "obs_norm_warmup": 5, "bias": True, "output": "tanh"}
+POLICY_DEFAULTS = {"hidden": (8, 8), "obs_norm": False, "obs_norm_warmup": 5, "obs_var_floor": 0.01, "bias": True, "output": "tanh"}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -127,6 +127,7 @@ class RunSpec:
     hidden: tuple = (8, 8)  # policy.hidden: tanh hidden layer sizes, () = linear
     obs_norm: bool = False  # policy.obs_norm: observation normalisation, frozen after the warm-up
     obs_norm_warmup: int = 0  # policy.obs_norm_warmup: generations of statistics (mixing off) before it freezes
+    obs_var_floor: float = 0.01  # policy.obs_var_floor: lower bound of each observation coordinate's variance
     policy_bias: bool = True  # policy.bias: false = the ES searches the weights only, biases stay 0 (ARS's a = M s)
     policy_output: str = "tanh"  # policy.output: continuous actions tanh-squashed or clipped (imix_cli.policies)
     evaluator: str = "local"  # local | pool | ray (imix_cli.parallel_evaluation)
@@ -180,6 +181,8 @@ class RunSpec:
             changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"
         if self.obs_norm:
             changed["obs_norm"] = self.obs_norm_warmup  # the warm-up in generations
+            if self.obs_var_floor != POLICY_DEFAULTS["obs_var_floor"]:
+                changed["obs_var_floor"] = self.obs_var_floor
         if not self.policy_bias:
             changed["bias"] = False
         if self.policy_output != POLICY_DEFAULTS["output"]:
