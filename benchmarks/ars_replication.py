@@ -20,19 +20,20 @@ mean-policy return. Commands (one process each; ~70 s a seed for sb3-contrib, ~4
         eval_mean_episodes=3 experiment=ars_rep workers=1
     python benchmarks/ars_replication.py results/ars_rep
 
-Hopper (``hopper``): the study's 3 seeds gave sb3-contrib a final mean-policy return of 2126 against
-imix's 694 (p = 0.40). The replication, with the study's settings (V2-t, 1,600 training episodes, the
-mean policy on 3 fresh episodes every 5 iterations), runs sb3-contrib on seeds 3-22 and imix on seeds
-0-39 twice: with its normaliser frozen after 5 generations (the default, which keeps reuse honest)
-and with it updated every generation as ARS and sb3-contrib do (``policy.obs_norm_warmup=100``, the
-run's length: no mixing could use it). ~120 s a seed for sb3-contrib, ~20 s for imix here:
+Hopper (``hopper``): the study's 3 seeds had given sb3-contrib a final mean-policy return of 2126
+against imix's 694 (p = 0.40). The replication, with the study's settings (V2-t, 1,600 training
+episodes, the mean policy on 3 fresh episodes every 5 iterations), runs sb3-contrib on seeds 3-22 and
+imix with its normaliser frozen after 5 generations (the preset, which keeps reuse honest) or updated
+every generation as ARS and sb3-contrib do (``policy.obs_norm_warmup=100``, the run's length: no
+mixing could use it), each with imix's default variance floor 0.01 (what the preset had) and with
+ARS's 1e-8 (the preset now), and imix ARS + EIM. ~120 s a seed for sb3-contrib, 20-60 s for imix:
 
     for k in $(seq 3 22); do python -m imix_cli.bench.ars_peer --envs hopper --seeds 100 --seed $k --episodes 1600 \\
         --eval-every 5 --eval-episodes 3 --experiment ars_hop; done
-    imix run env=hopper +ars=hopper algo=ars eim=false seeds=40 generations=100 eval_mean_every=5 eval_mean_episodes=3 \\
-        experiment=ars_hop workers=1
-    imix run env=hopper +ars=hopper algo=ars eim=false policy.obs_norm_warmup=100 seeds=40 generations=100 \\
-        eval_mean_every=5 eval_mean_episodes=3 experiment=ars_hop workers=1
+    C="env=hopper +ars=hopper algo=ars generations=100 eval_mean_every=5 eval_mean_episodes=3 experiment=ars_hop workers=1"
+    imix run $C eim=false seeds=20;  imix run $C eim=false policy.obs_norm_warmup=100 seeds=20;  imix run $C eim=true seeds=20
+    imix run $C eim=false policy.obs_var_floor=0.01 seeds=40
+    imix run $C eim=false policy.obs_var_floor=0.01 policy.obs_norm_warmup=100 seeds=40
     python benchmarks/ars_replication.py results/ars_hop hopper
 """
 
@@ -56,14 +57,19 @@ REPLICATIONS = {
     ]),
     "hopper": (3120.0, [
         ("sb3-contrib ARS (rl-zoo3), seeds 3-22", "sb3_ars-Hopper-v5", range(3, 23)),
-        ("imix ARS, statistics frozen after 5 generations (default), seeds 0-39", "ars-Hopper-v5-none-*obs_norm=5,*", range(0, 40)),
-        ("imix ARS, statistics updated every generation, seeds 0-39", "ars-Hopper-v5-none-*obs_norm=100,*", range(0, 40)),
+        ("imix ARS (the preset: variance floor 1e-8, statistics frozen after 5 generations), seeds 0-19",
+         "ars-Hopper-v5-none-*obs_norm=5,obs_var_floor=1e-08,*", range(0, 20)),
+        ("imix ARS, floor 1e-8, statistics updated every generation, seeds 0-19", "ars-Hopper-v5-none-*obs_norm=100,obs_var_floor=1e-08,*", range(0, 20)),
+        ("imix ARS + EIM (the preset), seeds 0-19", "ars-Hopper-v5-eim-*obs_norm=5,obs_var_floor=1e-08,*", range(0, 20)),
+        ("imix ARS, imix's default floor 0.01, frozen after 5 generations (the preset before), seeds 0-39",
+         "ars-Hopper-v5-none-*obs_norm=5,output*", range(0, 40)),
+        ("imix ARS, floor 0.01, updated every generation, seeds 0-39", "ars-Hopper-v5-none-*obs_norm=100,output*", range(0, 40)),
     ]),
 }  # fmt: skip
 
 
 def per_seed(path: Path, seeds, threshold: float) -> dict:
-    reached, episodes, final = [], [], []
+    reached, episodes, final, run = [], [], [], []
     for seed in seeds:
         frame = pd.read_csv(path / f"seed_{seed}.csv")
         measured = frame.dropna(subset=["mean_policy_score"])
@@ -71,7 +77,8 @@ def per_seed(path: Path, seeds, threshold: float) -> dict:
         reached.append(len(hit) > 0)
         episodes.append(float(hit["evaluations"].iloc[0]) if len(hit) else np.inf)
         final.append(float(measured["mean_policy_score"].iloc[-1]))
-    return {"reached": np.array(reached), "episodes": np.array(episodes), "final": np.array(final)}
+        run.append(float(frame["evaluations"].iloc[-1]))
+    return {"reached": np.array(reached), "episodes": np.array(episodes), "final": np.array(final), "run": np.array(run)}
 
 
 def main(root: str, env: str = "swimmer") -> int:
@@ -80,10 +87,10 @@ def main(root: str, env: str = "swimmer") -> int:
     arms = {label: per_seed(Path(glob.glob(str(root / folder))[0]), seeds, threshold) for label, folder, seeds in specs}
     peer = arms[specs[0][0]]
     columns = ["method", "seeds", f"reached {threshold:.0f}", f"episodes to {threshold:.0f} (median of those reaching it)"]
-    columns.append("final mean-policy return: median (mean)")
+    columns += ["final mean-policy return: median (mean)", "training episodes run (mean)"]
     columns.append("vs sb3-contrib: Fisher p (reached) / Mann-Whitney p (episodes, final)")
     print("| " + " | ".join(columns) + " |")
-    print("|---|---:|---:|---:|---:|---|")
+    print("|---|---:|---:|---:|---:|---:|---|")
     for name, arm in arms.items():
         n, k = len(arm["reached"]), int(arm["reached"].sum())
         hits = arm["episodes"][np.isfinite(arm["episodes"])]
@@ -94,7 +101,7 @@ def main(root: str, env: str = "swimmer") -> int:
             versus = f"{fisher:.2f} / {p_vs_peer(list(arm['episodes']), list(peer['episodes'])):.2f}, {p_vs_peer(list(arm['final']), list(peer['final'])):.2f}"
         to_threshold = np.median(hits) if len(hits) else np.nan
         final = f"{np.median(arm['final']):.1f} ({np.mean(arm['final']):.1f})"
-        print(f"| {name} | {n} | {k}/{n} ({k / n:.0%}) | {to_threshold:,.0f} | {final} | {versus} |")
+        print(f"| {name} | {n} | {k}/{n} ({k / n:.0%}) | {to_threshold:,.0f} | {final} | {np.mean(arm['run']):,.0f} | {versus} |")
     return 0
 
 

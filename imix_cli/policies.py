@@ -306,8 +306,8 @@ def act(
 #: sb3-contrib's VecNormalize: var + 1e-8) effectively has none, and on Hopper that matters: with
 #: statistics frozen after 5 generations of falling hoppers, several coordinates' variances sit
 #: below 1e-2, the floor shrinks them, and ARS V2-t reached a mean-policy return of 622 (mean of 40
-#: seeds, 1,600 episodes) against 1,809 with a floor of 1e-16 (20 seeds) and sb3-contrib's 1,528
-#: (20 seeds; docs/ars.md, "Hopper"). The ARS presets therefore set 1e-8.
+#: seeds, 1,600 episodes) against 1,809 with ARS's 1e-8 (20 seeds) and sb3-contrib's 1,528 (20
+#: seeds; docs/ars.md, "What freezing cost on Hopper"). The ARS V2 presets therefore set 1e-8.
 OBS_VAR_FLOOR = 1e-2
 
 

@@ -485,6 +485,25 @@ def test_the_study_table_counts_episodes_to_the_papers_threshold_and_the_episode
     assert (exp / "figures" / "ars_swimmer.png").exists()
 
 
+def test_the_study_table_gives_the_wall_time_per_seed_of_seeds_run_together(tmp_path):
+    """imix advances a run's seeds together in each of its ``workers`` processes, so every seed's last
+    wall_time is its process's run time: 4 seeds in 2 processes that took 8 s are 4 s a seed (the
+    table said 8). sb3-contrib's peer runs one seed at a time; a run without config.yaml keeps its own."""
+    from imix_cli.plotting.ars import main as plot_main
+
+    exp = tmp_path / "ars"
+    for k in range(4):
+        _fake_run(exp / "ars-Swimmer-v5-none-x" / f"s{k}", [300.0, 330.0], 2, popsize=2, reused=[0, 0])
+        (exp / "ars-Swimmer-v5-none-x" / f"s{k}" / "seed_0.csv").rename(exp / "ars-Swimmer-v5-none-x" / f"seed_{k}.csv")
+    (exp / "ars-Swimmer-v5-none-x" / "config.yaml").write_text("seeds: 4\nworkers: 2\n")
+    _fake_run(exp / "sb3_ars-Swimmer-v5", [300.0, 330.0], 2)  # wall_time 1, 2: its last, 2 s
+    _fake_run(exp / "ars-Swimmer-v5-eim-x", [300.0, 330.0], 2, popsize=2, reused=[0, 0])  # no config.yaml
+    assert plot_main([f"results_dir={tmp_path}", "experiment=ars", "resamples=50"]) == 0
+    table = pd.read_csv(exp / "figures" / "ars_table.csv").set_index("method")
+    assert table.loc["imix ARS", "wall_time_s"] == 1.0  # the runs' last wall_time 2 s, 2 seeds per process
+    assert table.loc["sb3-contrib ARS", "wall_time_s"] == 2.0 and table.loc["imix ARS + EIM", "wall_time_s"] == 2.0
+
+
 def test_the_study_table_says_whether_imix_differs_from_sb3_contrib_beyond_noise(tmp_path):
     """Rank tests, seeds that never reach the threshold ranked last: 5 seeds that all reach it against
     5 that never do are as far apart as 5 against 5 can be (exact two-sided p = 2 / C(10, 5))."""

@@ -14,7 +14,9 @@ writes into ``<results_dir>/<experiment>/figures/``:
 * ``ars_table.csv`` / ``.md``: per env and method, the seeds, the training episodes and env steps
   to first reach the ARS paper's threshold with the mean policy (mean over the seeds that reached
   it, and how many did), the mean policy's last measured return (mean and 95 % CI), the episodes
-  saved by mixing (1 - episodes run / (generations x popsize)), the training episodes and wall time;
+  saved by mixing (1 - episodes run / (generations x popsize)), the training episodes and the wall
+  time per seed (an imix run's seeds advance together in each of its ``workers`` processes: its
+  run time divided by the seeds each process ran);
   and for imix's methods, whether they differ from sb3-contrib's ARS beyond noise: two-sided
   Mann-Whitney p-values (:func:`p_vs_peer`) of the episodes to the threshold (a seed that never
   reached it ranks after every seed that did) and of the last measured return.
@@ -54,9 +56,28 @@ def load(exp_dir: Path) -> dict:
         else:
             continue
         frames = [pd.read_csv(p) for p in sorted(run.glob("seed_*.csv")) if ".partial" not in p.name]
+        share = _seeds_at_once(run, len(frames)) if method != "sb3_ars" else 1.0
+        for frame in frames:
+            frame["wall_time_per_seed"] = frame["wall_time"] / share
         if frames:
             runs.setdefault(env, {}).setdefault(method, []).extend(frames)
     return runs
+
+
+def _seeds_at_once(run: Path, n_frames: int) -> float:
+    """How many seeds of an imix run shared its wall time: ``imix run`` advances the seeds of each of
+    its ``workers`` processes together, so every seed's last ``wall_time`` is its process's run time.
+    sb3-contrib's peer runs one seed at a time (1)."""
+    import yaml
+
+    from imix_cli.running.results import read_small_text
+
+    try:
+        config = yaml.safe_load(read_small_text(run / "config.yaml"))  # bounded: a config is a few kB
+        seeds, workers = int(config["seeds"]), int(config["workers"])
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        return 1.0  # no run config: the seed's own time
+    return max(1.0, seeds / max(1, min(workers, seeds)))
 
 
 def _measured(frame):
@@ -131,7 +152,7 @@ def summary_rows(runs: dict, resamples: int) -> list[dict]:
                 "env_steps_to_threshold": float(np.mean(to_steps)) if to_steps else float("nan"),
                 "final_mean_policy_return": float(mean), "ci_low": float(low), "ci_high": float(high),
                 "episodes_saved": saved, "episodes_run": float(np.mean(episodes)),
-                "wall_time_s": float(np.mean([f["wall_time"].iloc[-1] for f in frames])),
+                "wall_time_s": float(np.mean([f.get("wall_time_per_seed", f["wall_time"]).iloc[-1] for f in frames])),
                 "p_episodes_vs_sb3": p_vs_peer(censored_episodes, peer[1]) if vs_peer and threshold is not None else float("nan"),
                 "p_final_vs_sb3": p_vs_peer(finals, peer[0]) if vs_peer else float("nan"),
             })  # fmt: skip
@@ -141,7 +162,7 @@ def summary_rows(runs: dict, resamples: int) -> list[dict]:
 def markdown(rows: list[dict]) -> str:
     head = (
         "| env | method | seeds | threshold | reached | episodes to threshold | env steps to threshold | "
-        "final mean-policy return (95 % CI) | episodes saved by mixing | training episodes | wall time (s) | "
+        "final mean-policy return (95 % CI) | episodes saved by mixing | training episodes | wall time per seed (s) | "
         "vs sb3-contrib: p (episodes to threshold / final return) |"
     )
     lines = [head, "|" + "---|" * 12]
