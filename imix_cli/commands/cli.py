@@ -158,7 +158,8 @@ def run_command(args: list[str]) -> int:
         # and came out as a traceback (measured: SIGINT 1.5 s into a 392-point sweep). So the handlers
         # above stay until a point's run starts (_task); another launcher runs the points elsewhere, and
         # this process hands Ctrl-C to it as a KeyboardInterrupt once validation is done.
-        own_launcher = not any(a.startswith("hydra/launcher=") for a in args)
+        launcher = next((a.split("=", 1)[1] for a in reversed(args) if a.startswith("hydra/launcher=")), "basic")
+        own_launcher = launcher == "basic"  # conf/config.yaml's default, also when named (_task: BasicLauncher)
         try:
             _VALIDATED.clear()
             specs = validate_overrides(overrides, validated=_VALIDATED)
