@@ -329,9 +329,12 @@ def test_the_variance_floor_is_the_configs_reaches_each_seed_and_survives_a_chec
     normaliser gets it, and a checkpoint keeps it (an older checkpoint, without it, had 0.01)."""
     from types import SimpleNamespace
 
+    import yaml
+
     from imix_cli.policies import OBS_VAR_FLOOR, ObsNormalizer
     from imix_cli.running.config import validate_overrides
     from imix_cli.running.lockstep import loop_settings, new_seed_state
+    from imix_cli.running.run_spec import POLICY_DEFAULTS
 
     states = np.stack([np.linspace(-1.0, 1.0, 101) * 0.01 * np.sqrt(3.0), np.linspace(-3.0, 3.0, 101)], axis=1)
     for floor, expected in ((1e-8, 0.01), (OBS_VAR_FLOOR, 0.1)):
@@ -343,6 +346,9 @@ def test_the_variance_floor_is_the_configs_reaches_each_seed_and_survives_a_chec
         assert again.var_floor == floor and np.array_equal(again.std, norm.std)
     old_state = {k: v for k, v in norm.to_state().items() if k != "var_floor"}
     assert ObsNormalizer.from_state(old_state).var_floor == OBS_VAR_FLOOR
+    # one default in three places (the normaliser's, the config's, the key check's): they must agree
+    config = yaml.safe_load((Path(__file__).parents[1] / "conf" / "config.yaml").read_text())
+    assert POLICY_DEFAULTS["obs_var_floor"] == OBS_VAR_FLOOR == config["policy"]["obs_var_floor"]
 
     for env in ("hopper", "halfcheetah", "walker2d"):
         (spec,) = validate_overrides(["algo=ars", f"env={env}", f"+ars={env}"])

@@ -127,7 +127,7 @@ class RunSpec:
     hidden: tuple = (8, 8)  # policy.hidden: tanh hidden layer sizes, () = linear
     obs_norm: bool = False  # policy.obs_norm: observation normalisation, frozen after the warm-up
     obs_norm_warmup: int = 0  # policy.obs_norm_warmup: generations of statistics (mixing off) before it freezes
-    obs_var_floor: float = 0.01  # policy.obs_var_floor: lower bound of each observation coordinate's variance
+    obs_var_floor: float = POLICY_DEFAULTS["obs_var_floor"]  # policy.obs_var_floor: lower bound of each observation coordinate's variance
     policy_bias: bool = True  # policy.bias: false = the ES searches the weights only, biases stay 0 (ARS's a = M s)
     policy_output: str = "tanh"  # policy.output: continuous actions tanh-squashed or clipped (imix_cli.policies)
     evaluator: str = "local"  # local | pool | ray (imix_cli.parallel_evaluation)
