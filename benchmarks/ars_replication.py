@@ -45,7 +45,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from imix_cli.plotting.ars import p_vs_peer
+from imix_cli.plotting.ars import p_vs_peer, seed_outcomes
 
 #: Per replication: the ARS paper's threshold, and its arms (label, the run folder's glob, seeds);
 #: the first arm is sb3-contrib's, which the others are compared with.
@@ -69,16 +69,12 @@ REPLICATIONS = {
 
 
 def per_seed(path: Path, seeds, threshold: float) -> dict:
-    reached, episodes, final, run = [], [], [], []
-    for seed in seeds:
-        frame = pd.read_csv(path / f"seed_{seed}.csv")
-        measured = frame.dropna(subset=["mean_policy_score"])
-        hit = measured[measured["mean_policy_score"] >= threshold]
-        reached.append(len(hit) > 0)
-        episodes.append(float(hit["evaluations"].iloc[0]) if len(hit) else np.inf)
-        final.append(float(measured["mean_policy_score"].iloc[-1]))
-        run.append(float(frame["evaluations"].iloc[-1]))
-    return {"reached": np.array(reached), "episodes": np.array(episodes), "final": np.array(final), "run": np.array(run)}
+    """The arm's seeds: reached the threshold, episodes to it (inf: never), final return, episodes run."""
+    frames = [pd.read_csv(path / f"seed_{seed}.csv") for seed in seeds]
+    finals, episodes, _ = seed_outcomes(frames, threshold)  # the study table's reading of a seed
+    episodes = np.array(episodes, dtype=float)
+    run = np.array([float(frame["evaluations"].iloc[-1]) for frame in frames])
+    return {"reached": np.isfinite(episodes), "episodes": episodes, "final": np.array(finals), "run": run}
 
 
 def main(root: str, env: str = "swimmer") -> int:

@@ -56,28 +56,30 @@ def load(exp_dir: Path) -> dict:
         else:
             continue
         frames = [pd.read_csv(p) for p in sorted(run.glob("seed_*.csv")) if ".partial" not in p.name]
-        share = _seeds_at_once(run, len(frames)) if method != "sb3_ars" else 1.0
+        at_once = _seeds_at_once(run) if method != "sb3_ars" else 1.0
         for frame in frames:
-            frame["wall_time_per_seed"] = frame["wall_time"] / share
+            frame["wall_time_per_seed"] = frame["wall_time"] / at_once
         if frames:
             runs.setdefault(env, {}).setdefault(method, []).extend(frames)
     return runs
 
 
-def _seeds_at_once(run: Path, n_frames: int) -> float:
+def _seeds_at_once(run: Path) -> float:
     """How many seeds of an imix run shared its wall time: ``imix run`` advances the seeds of each of
     its ``workers`` processes together, so every seed's last ``wall_time`` is its process's run time.
     sb3-contrib's peer runs one seed at a time (1)."""
-    import yaml
+    from imix_cli.plotting.data import read_run_config
 
-    from imix_cli.running.results import read_small_text
-
+    config = read_run_config(run / "config.yaml", _warn, fallback="wall time per seed taken as each seed's own")
     try:
-        config = yaml.safe_load(read_small_text(run / "config.yaml"))  # bounded: a config is a few kB
         seeds, workers = int(config["seeds"]), int(config["workers"])
-    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+    except (KeyError, TypeError, ValueError):
         return 1.0  # no run config: the seed's own time
     return max(1.0, seeds / max(1, min(workers, seeds)))
+
+
+def _warn(message: str) -> None:
+    print(f"python -m imix_cli.plotting.ars: warning: {message}", file=sys.stderr)
 
 
 def _measured(frame):
@@ -113,7 +115,7 @@ def p_vs_peer(ours: list, peer: list) -> float:
     )
 
 
-def _per_seed(frames: list, threshold) -> tuple[list, list, list]:
+def seed_outcomes(frames: list, threshold) -> tuple[list, list, list]:
     """Per seed: the last measured return, and the episodes and env steps to the threshold (inf: never)."""
     finals, to_episodes, to_steps = [], [], []
     for f in frames:
@@ -130,12 +132,12 @@ def summary_rows(runs: dict, resamples: int) -> list[dict]:
     rows = []
     for env in sorted(runs):
         threshold = THRESHOLDS.get(env)
-        peer = _per_seed(runs[env].get("sb3_ars", []), threshold)
+        peer = seed_outcomes(runs[env].get("sb3_ars", []), threshold)
         for method, label in METHODS:
             frames = runs[env].get(method)
             if not frames:
                 continue
-            finals, censored_episodes, censored_steps = _per_seed(frames, threshold)
+            finals, censored_episodes, censored_steps = seed_outcomes(frames, threshold)
             to_episodes = [e for e in censored_episodes if np.isfinite(e)]
             to_steps = [e for e in censored_steps if np.isfinite(e)]
             vs_peer = method != "sb3_ars" and len(peer[0]) > 0

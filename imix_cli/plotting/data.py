@@ -191,7 +191,9 @@ def parse_overrides(text: str) -> dict:
     return out
 
 
-def _read_config(path: Path, warn) -> dict:
+def read_run_config(path: Path, warn, fallback: str = "hyper-parameters taken from the folder name") -> dict:
+    """A run's ``config.yaml`` as a dict: ``{}`` if it is absent, or unreadable (``warn`` then says so
+    and what the caller does instead, ``fallback``). Read bounded and with ``yaml.safe_load``: data only."""
     if not path.exists():
         return {}
     try:
@@ -199,7 +201,7 @@ def _read_config(path: Path, warn) -> dict:
 
         data = yaml.safe_load(read_small_text(path))  # a huge file (or /dev/zero) is not read
     except Exception as err:  # noqa: BLE001 - any parse error: keep going without the config
-        warn(f"{path}: unreadable config.yaml ({type(err).__name__}); hyper-parameters taken from the folder name")
+        warn(f"{path}: unreadable config.yaml ({type(err).__name__}); {fallback}")
         return {}
     return data if isinstance(data, dict) else {}
 
@@ -271,7 +273,7 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
         overrides = run_dir.name[len(prefix) + 1 :]
     else:
         overrides = run_dir.name  # unexpected folder name: keep it distinct from the standard group
-    config = _read_config(run_dir / "config.yaml", warn)
+    config = read_run_config(run_dir / "config.yaml", warn)
     running = sorted(partial_seeds & set(seeds))
     if running:
         warn(f"{run_dir.name}: seed(s) {', '.join(map(str, running))} still running; their rows up to the last checkpoint are included")
