@@ -417,9 +417,10 @@ def _cartpole_episodes_in_lanes(params, seeds, sizes, continuous, sparse, max_st
             t[g] += 1
             if record:
                 _record(trace, i, t[g], s[g])
-            reward, total[g] = _cartpole_reward(sparse, terminated or t[g] == max_steps, total[g])
+            last = terminated or t[g] == max_steps
+            reward, total[g] = _cartpole_reward(sparse, last, total[g])
             ret[g] += reward
-            if terminated or t[g] == max_steps:
+            if last:
                 returns[i], steps[i] = ret[g], t[g]
                 ret[g], total[g], t[g] = 0.0, 0.0, 0
                 if started < n:
