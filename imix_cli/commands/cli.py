@@ -147,7 +147,11 @@ def run_command(args: list[str]) -> int:
             key = dashed[2:].split("=", 1)[0]
             value = dashed.split("=", 1)[1] if "=" in dashed else (args[args.index(dashed) + 1] if args.index(dashed) + 1 < len(args) else "...")
             return _error(f"unknown option {dashed!r}; keys are given as key=value, e.g. {key}={value} (see imix run --help)", 2)
-        overrides = [a for a in args if not a.startswith("-")]
+        try:
+            hydra_args = _parse_hydra_args(args)
+        except ConfigError as err:
+            return _error(str(err), 2)
+        overrides = hydra_args.overrides
         specs = []
         # Nothing is written before validation ends: a Ctrl-C then stops at once with one line, even
         # if it lands in a library that would swallow a KeyboardInterrupt (an import, a plugin scan).
@@ -162,7 +166,7 @@ def run_command(args: list[str]) -> int:
         own_launcher = launcher == "basic"  # conf/config.yaml's default, also when named (_task: BasicLauncher)
         try:
             _VALIDATED.clear()
-            specs = validate_overrides(overrides, validated=_VALIDATED)
+            specs = validate_overrides(overrides, validated=_VALIDATED, config_name=hydra_args.config_name, config_dirs=hydra_args.config_dirs)
             _check_run_folders(specs)
         except ConfigError as err:
             return _error(str(err), 2)
@@ -191,6 +195,46 @@ def run_command(args: list[str]) -> int:
     for message in _SKIPPED_POINTS:
         _error(f"sweep point skipped: {message}", 1)
     return 1 if _SKIPPED_POINTS else 0
+
+
+class _HydraArgs:
+    """What :func:`_parse_hydra_args` reads of ``imix run``'s command line: the overrides, the primary config's name and
+    the folders Hydra composes it from (imix's conf/, or ``--config-path``; then ``--config-dir``)."""
+
+    def __init__(self, overrides: list, config_name: str, config_dirs: tuple):
+        self.overrides, self.config_name, self.config_dirs = overrides, config_name, config_dirs
+
+
+def _parse_hydra_args(args: list[str]) -> _HydraArgs:
+    """Read the command line with Hydra's own argument parser, so that what is validated is what Hydra will compose:
+    ``--config-dir DIR`` and ``--config-dir=DIR`` (and ``-cd``, ``--config-name``/``-cn``, ``--config-path``/``-cp``) alike,
+    the value of a flag never taken for an override. ConfigError (one line) for a flag without its value or a folder that
+    is not there."""
+    from hydra.main import get_args_parser
+
+    from imix_cli.running.config import ConfigError, config_dir
+
+    parser = get_args_parser()
+
+    def refuse(message: str):
+        raise ConfigError(message)
+
+    parser.error = refuse  # argparse would print its usage and exit
+    parsed = parser.parse_args(args)
+    primary = config_dir()
+    if parsed.config_path is not None:
+        # Hydra takes a relative --config-path relative to the file that calls hydra.main (imix_cli/commands/), not to where
+        # the user stands: only an absolute one means what it says.
+        if not os.path.isabs(parsed.config_path):
+            raise ConfigError(f"--config-path {parsed.config_path!r}: give an absolute path (or add a folder of configs with --config-dir DIR)")
+        primary = parsed.config_path
+    dirs = [primary]
+    if parsed.config_dir is not None:
+        dirs.append(os.path.abspath(parsed.config_dir))
+    for folder in dirs:
+        if not os.path.isdir(folder):
+            raise ConfigError(f"config folder {folder!r} not found (--config-path / --config-dir)")
+    return _HydraArgs(list(parsed.overrides), parsed.config_name or "config", tuple(dirs))
 
 
 def _check_run_folders(specs) -> None:

@@ -27,8 +27,9 @@ from pathlib import Path
 from imix_cli.ddpg.config import ddpg_spec
 from imix_cli.registry import ALGO_NAMES, ALGORITHM_SPECS, BUILTIN_ENVS
 from imix_cli.running.config_checks import ConfigError, as_choice, first_line
+from imix_cli.running.config_keys import did_you_mean
 from imix_cli.running.es_config import es_spec
-from imix_cli.running.run_spec import DDPG_DEFAULTS, PAPER_DEFAULTS, TOP_LEVEL_KEYS, RunSpec, differing_keys
+from imix_cli.running.run_spec import DDPG_DEFAULTS, PAPER_DEFAULTS, TOP_LEVEL_KEYS, RunSpec, algo_option_fields, differing_keys
 
 __all__ = [
     "BUILTIN_ENVS",
@@ -50,15 +51,55 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     ``launcher`` is the Hydra launcher's ``_target_``: under a launcher that runs jobs in
     parallel, each job's seeds run in-process (``workers`` 1).
     """
-    unknown = sorted(set(cfg) - set(TOP_LEVEL_KEYS))
+    unknown = sorted(map(str, set(cfg) - set(TOP_LEVEL_KEYS)))
     if unknown:
-        raise ConfigError(f"unknown key {unknown[0]!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
+        raise ConfigError(f"unknown key {unknown[0]!r}{did_you_mean(unknown[0], all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
     algo_cfg, env_cfg = cfg.get("algo") or {}, cfg.get("env") or {}
     algo = as_choice(algo_cfg.get("name"), "algo", ALGO_NAMES)
+    _refuse_unknown_nested_keys(algo, algo_cfg, env_cfg)
     build = es_spec if ALGORITHM_SPECS[algo].is_es else ddpg_spec
     spec = build(cfg, algo, algo_cfg, env_cfg, launcher)
     _check_folder_names(spec)
     return spec
+
+
+#: The keys of the ``env`` group (conf/env/*.yaml): every env config has these and no other.
+ENV_KEYS = ("name", "id", "max_steps")
+
+
+def algo_keys(algo: str) -> tuple:
+    """The ``algo.<key>`` keys algorithm ``algo`` reads (conf/algo/<algo>.yaml): its name, its generation count and
+    its options; for ddpg its settings (:data:`DDPG_DEFAULTS`) and per-env budgets."""
+    if not ALGORITHM_SPECS[algo].is_es:
+        return ("name", "generations", "default_total_steps", *DDPG_DEFAULTS)
+    return ("name", "generations", *algo_option_fields(algo))
+
+
+def _refuse_unknown_nested_keys(algo: str, algo_cfg, env_cfg) -> None:
+    """ConfigError naming an ``algo.<key>`` or ``env.<key>`` no code reads (``+algo.stlye=x``, ``+env.max_step=5``, or
+    a key in a ``--config-name`` YAML): such a key was recorded in config.yaml and silently ignored, so the run was
+    not the one asked for. An option of another algorithm (``algo=snes +algo.style=cemrl``) names the one it is for."""
+    for group, given, valid in (("algo", algo_cfg, algo_keys(algo)), ("env", env_cfg, ENV_KEYS)):
+        if not isinstance(given, dict):
+            raise ConfigError(f"{group}={given!r}: must be a config of the {group} group (one of {', '.join(group_options(group))})")
+        unknown = [k for k in given if k not in valid]
+        if not unknown:
+            continue
+        key = f"{group}.{unknown[0]}"
+        owners = [name for name in ALGO_NAMES if group == "algo" and unknown[0] in algo_keys(name)]
+        if owners:
+            raise ConfigError(f"{key}: applies to algo={' | '.join(owners)} only, not algo={algo}")
+        for_algo = f" of algo={algo}" if group == "algo" else ""
+        raise ConfigError(f"unknown key {key!r}{did_you_mean(key, all_keys())}; valid {group} keys{for_algo}: {', '.join(valid)}")
+
+
+def all_keys() -> tuple:
+    """Every key ``imix run`` reads, dotted (``seeds``, ``policy.hidden``, ``env.max_steps``, ``algo.style`` ...): what a
+    mistyped key is compared with for its "did you mean" (:func:`~imix_cli.running.config_keys.did_you_mean`)."""
+    from imix_cli.running.run_spec import POLICY_DEFAULTS
+
+    nested = {"algo": sorted({k for name in ALGO_NAMES for k in algo_keys(name)}), "env": ENV_KEYS, "policy": tuple(POLICY_DEFAULTS)}
+    return (*TOP_LEVEL_KEYS, *(f"{group}.{k}" for group, keys in nested.items() for k in keys))
 
 
 #: The longest file or folder name (bytes) of the file systems imix writes to (ext4, xfs, btrfs, APFS, NTFS).
@@ -86,8 +127,10 @@ def config_dir() -> str:
     return str((Path(__file__).resolve().parents[2] / "conf").resolve())
 
 
-def group_options(group: str) -> list[str]:
-    return sorted(p.stem for p in (Path(config_dir()) / group).glob("*.yaml"))
+def group_options(group: str, config_dirs: tuple = ()) -> list[str]:
+    """The options of config group ``group``: the YAML files of ``<dir>/<group>/`` for imix's conf/ (or ``config_dirs``,
+    the folders a command line composes from: ``--config-path``, ``--config-dir``)."""
+    return sorted({p.stem for folder in (config_dirs or (config_dir(),)) for p in (Path(folder) / group).glob("*.yaml")})
 
 
 def point_key(plain: dict, launcher: str | None) -> str:
@@ -96,7 +139,7 @@ def point_key(plain: dict, launcher: str | None) -> str:
     return json.dumps([plain, launcher], sort_keys=True, default=repr)
 
 
-def validate_overrides(overrides: list[str], validated: dict | None = None) -> list[RunSpec]:
+def validate_overrides(overrides: list[str], validated: dict | None = None, config_name: str = "config", config_dirs: tuple = ()) -> list[RunSpec]:
     """Compose and validate the config of every point of a (possibly multirun) command line.
 
     ``validated``, if given, receives each point's RunSpec under its :func:`point_key`: ``imix run`` hands
@@ -110,6 +153,11 @@ def validate_overrides(overrides: list[str], validated: dict | None = None) -> l
     ``key=value`` overrides are then applied to a copy by Hydra's own override function, so a
     point costs milliseconds instead of a full composition (:func:`_apply_values`, public
     OmegaConf API only).
+
+    ``config_name`` and ``config_dirs`` are the command line's ``--config-name`` and its folders (the primary one --
+    imix's conf/ or ``--config-path`` -- then ``--config-dir``): the config validated is the one Hydra will run, a
+    hostile or mistyped YAML included. ``hydra.job.chdir=true`` is refused (:func:`_refuse_hydra_settings`), and so are ``hydra.callbacks``; a
+    ``${hydra:...}`` interpolation (``results_dir=${hydra:runtime.cwd}/results``) resolves as in the run.
     """
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
@@ -129,16 +177,16 @@ def validate_overrides(overrides: list[str], validated: dict | None = None) -> l
             if isinstance(override.value(), Glob):
                 if key not in ("algo", "env"):
                     raise ConfigError(f"{override.input_line}: glob() selects options of the config groups algo and env only")
-                values = override.value().filter(group_options(key))
+                values = override.value().filter(group_options(key, config_dirs))
                 if not values:
-                    raise ConfigError(f"{override.input_line}: matches no {key}; valid choices are {', '.join(group_options(key))}")
+                    raise ConfigError(f"{override.input_line}: matches no {key}; valid choices are {', '.join(group_options(key, config_dirs))}")
             else:
                 values = list(override.sweep_string_iterator())
             choices.append([f"{override.get_key_element()}={v}" for v in values])
         else:
             choices.append([override.input_line])
         if key in ("algo", "env"):
-            valid = group_options(key)
+            valid = group_options(key, config_dirs)
             for line in choices[-1]:
                 value = line.split("=", 1)[1]
                 if value not in valid:
@@ -154,23 +202,28 @@ def validate_overrides(overrides: list[str], validated: dict | None = None) -> l
         return parse_cache[line]
 
     specs, composed = [], {}
+    holder, search = _search_order(config_name, config_dirs)
     GlobalHydra.instance().clear()
     try:
-        with initialize_config_dir(config_dir=config_dir(), version_base="1.3"):
+        with initialize_config_dir(config_dir=holder, version_base="1.3"):
             for point in itertools.product(*choices):
                 parsed_point = [parse_one(line) for line in point]
                 values = [o for o in parsed_point if _is_value_override(o)]
                 base = tuple(line for line, o in zip(point, parsed_point, strict=True) if not _is_value_override(o))
                 try:
                     if base not in composed:  # hydra.* overrides are in base: the hydra node is done with
-                        full = compose("config", overrides=list(base), return_hydra_config=True)
+                        full = compose(config_name, overrides=[*search, *base], return_hydra_config=True)
                         launcher = OmegaConf.select(full, "hydra.launcher._target_")
+                        _refuse_hydra_settings(full)
+                        with_hydra = copy.deepcopy(full)
                         with open_dict(full):
                             del full["hydra"]
-                        composed[base] = (full, launcher)
-                    cfg, launcher = copy.deepcopy(composed[base][0]), composed[base][1]
+                        composed[base] = (full, launcher, with_hydra)
+                    cfg, launcher, with_hydra = copy.deepcopy(composed[base][0]), composed[base][1], composed[base][2]
                     _apply_values(values, cfg)
-                    plain = OmegaConf.to_container(cfg, resolve=True)
+                    plain = _resolved(cfg, with_hydra)
+                except ConfigError:
+                    raise
                 except Exception as err:
                     raise ConfigError(_explain_compose_error(err, point)) from None
                 specs.append(spec_from_config(plain, launcher))
@@ -180,6 +233,66 @@ def validate_overrides(overrides: list[str], validated: dict | None = None) -> l
         GlobalHydra.instance().clear()
     _refuse_shared_folders(specs)
     return specs
+
+
+def _search_order(config_name: str, config_dirs: tuple) -> tuple[str, list]:
+    """Where to compose ``config_name`` from, through Hydra's public API, as the run composes it: the folder that holds the
+    primary config, then (``hydra.searchpath`` overrides) the others.
+
+    The run searches imix's conf/ (or ``--config-path``) first, then each ``--config-dir``; the public API cannot put a
+    folder after the primary one, so a config in a ``--config-dir`` is composed from there, the others searched after it.
+    The two orders compose the same config unless a file of a ``--config-dir`` has the path of one in conf/ -- which the
+    run would silently ignore: that is refused (one line naming it)."""
+    primary, *extra = config_dirs or (config_dir(),)
+    own = {p.relative_to(primary) for p in Path(primary).rglob("*.yaml")}
+    for folder in extra:
+        shadowed = sorted(str(p.relative_to(folder)) for p in Path(folder).rglob("*.yaml") if p.relative_to(folder) in own)
+        if shadowed:
+            raise ConfigError(f"--config-dir {folder}: {shadowed[0]} has the name of imix's own {Path(primary) / shadowed[0]}, which Hydra "
+                              "would use instead; rename it (and pick it with --config-name or group=option)")  # fmt: skip
+    name = config_name.removesuffix(".yaml") + ".yaml"
+    holder = next((folder for folder in (primary, *extra) if (Path(folder) / name).is_file()), primary)
+    others = [folder for folder in (primary, *extra) if folder != holder]
+    return holder, ([f"hydra.searchpath=[{','.join(_quoted('file://' + folder) for folder in others)}]"] if others else [])
+
+
+def _quoted(text: str) -> str:
+    """``text`` as a quoted string of Hydra's override grammar (a folder with spaces, commas or quotes in its name)."""
+    return "'" + text.replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
+def _refuse_hydra_settings(full) -> None:
+    """ConfigError for Hydra settings imix does not honour, on the command line or in a ``--config-name`` YAML.
+
+    ``hydra.job.chdir=true`` is refused rather than honoured: imix writes under ``results_dir`` relative to where the
+    command starts, as the summary and the other commands (plot, status, eval) read it; a job that changed its working
+    directory to Hydra's job folder wrote its results elsewhere than the summary said, and a re-run recomputed instead
+    of resuming. ``hydra.callbacks`` instantiate any class a YAML names (``_target_: os.system``): a config received
+    from someone else would run code before the first line of imix's."""
+    from omegaconf import OmegaConf
+
+    if OmegaConf.select(full, "hydra.job.chdir") is True:
+        raise ConfigError("hydra.job.chdir=true: not supported; imix writes under results_dir from where it starts "
+                          "(set results_dir=/some/path to put results elsewhere)")  # fmt: skip
+    if OmegaConf.select(full, "hydra.callbacks"):
+        raise ConfigError(f"hydra.callbacks ({', '.join(map(str, OmegaConf.select(full, 'hydra.callbacks')))}): imix runs no Hydra callbacks "
+                          "(a callback runs any code its config names); remove them from the config")  # fmt: skip
+
+
+def _resolved(cfg, with_hydra) -> dict:
+    """``cfg`` as a plain dict with its interpolations resolved, ``${hydra:...}`` ones included: the run resolves them with
+    Hydra's config set (``results_dir=${hydra:runtime.cwd}/results`` is a path a user may well give), so they resolve
+    here against this composition's hydra node (``with_hydra``: the composed config with it; its ``hydra.runtime.cwd`` is
+    the current folder, as in the run)."""
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    previous = HydraConfig.instance().cfg
+    HydraConfig.instance().set_config(with_hydra)
+    try:
+        return OmegaConf.to_container(cfg, resolve=True)
+    finally:
+        HydraConfig.instance().cfg = previous
 
 
 def _apply_values(values, cfg) -> None:
@@ -225,11 +338,21 @@ def _refuse_shared_folders(specs: list[RunSpec]) -> None:
 def _explain_compose_error(err: Exception, point) -> str:
     text = str(err)
     if "not in struct" in text or "Could not override" in text or "Key '" in text and "is not in struct" in text:
-        bad = next((p.split("=", 1)[0].lstrip("+~") for p in point if p.split("=", 1)[0].lstrip("+~") in text), None)
-        key = bad or first_line(err)
-        return f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*, hydra.*)"
+        key = _unknown_key_of(text, point) or first_line(err)
+        return f"unknown key {key!r}{did_you_mean(key, all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*, policy.*, hydra.*)"
     missing = re.search(r"Could not find '([^']+)/([^'/]+)'", text)
     if missing:  # a config group option that does not exist, e.g. hydra/launcher=nope
         group, option = missing.groups()
         return f"{group}={option}: no such option in config group {group!r}"
     return f"bad override ({', '.join(point)}): {first_line(err)}"
+
+
+def _unknown_key_of(text: str, point) -> str | None:
+    """The key a "not in struct" / "Could not override" error is about: the full key the message quotes (Hydra's
+    ``full_key: algo.stlye``, our ``Could not override 'algo.stlye'``), else the longest key of the point's overrides the
+    message mentions -- the longest, so that ``algo.stlye`` is named rather than ``algo``, which the message also contains."""
+    quoted = re.search(r"full_key: (\S+)", text) or re.search(r"Could not override '([^']+)'", text)
+    if quoted:
+        return quoted.group(1)
+    keys = sorted((p.split("=", 1)[0].lstrip("+~") for p in point), key=len, reverse=True)
+    return next((k for k in keys if k and k in text), None)

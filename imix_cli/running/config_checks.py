@@ -112,6 +112,10 @@ def workers_and_experiment(cfg: dict, launcher: str | None, pool: str | None = N
     experiment = as_name(cfg, "experiment")
     if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
         raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
+    printable = "".join(c for c in experiment if c.isprintable())
+    if experiment != printable.strip():  # `imix plot experiment= x` and the other commands strip a value: they could not name this folder
+        raise ConfigError(f"experiment={experiment!r}: must be a plain folder name without leading or trailing spaces or control characters "
+                          f"(the other commands could not name it), e.g. experiment={printable.strip() or 'default'}")  # fmt: skip
     return workers, experiment
 
 

@@ -150,6 +150,21 @@ KEYS = (
         "DDPG settings, each documented in `conf/algo/ddpg.yaml`", "DDPG"),
 )  # fmt: skip
 
+
+def key_names() -> tuple:
+    """Every key :data:`KEYS` names, one by one (``algo.actor_lr, algo.critic_lr, ...`` gives each it lists)."""
+    return tuple(part for key in KEYS for part in key.name.split(", ") if part != "...")
+
+
+def did_you_mean(key: str, candidates=None) -> str:
+    """``"; did you mean 'algo.style'?"`` for a mistyped ``key``: the closest of ``candidates`` (default: the keys of
+    :data:`KEYS`) by :func:`difflib.get_close_matches`; ``""`` if none is close. Appended to an unknown key's one line."""
+    import difflib
+
+    close = difflib.get_close_matches(key, list(key_names() if candidates is None else candidates), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "docs" / "configuration.md"
 CONFIG_YAML = ROOT / "conf" / "config.yaml"
