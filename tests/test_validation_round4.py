@@ -11,6 +11,8 @@ Item 8: ``MixingES`` and ``make_es`` check every argument at construction, with 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from imix_cli.commands.cli import main
@@ -150,3 +152,126 @@ def test_a_hydra_interpolation_in_results_dir_runs_where_the_summary_says_and_re
 def test_an_experiment_name_the_other_commands_cannot_address_is_refused(name):
     message = refused([*TINY, f"experiment='{name}'"])
     assert message.startswith(f"experiment={name!r}: must be a plain folder name"), message
+
+
+# ------------------------------------------------------------------ 7. a finished seed's CSV against its run's config
+SCHEDULED = ["seeds=1", "generations=4", "popsize=4", "workers=1", "progress=false", "eval_mean_every=2", "eval_mean_episodes=2",
+             "checkpoint_every=2", "checkpoint_seconds=0"]  # fmt: skip
+
+
+def finished_run(root: Path, *extra: str) -> Path:
+    assert main(["run", *SCHEDULED, *extra, f"results_dir={root}"]) == 0
+    (spec,) = validate_overrides([*SCHEDULED, *extra, f"results_dir={root}"])
+    return spec.run_dir
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Two finished runs of the same shape (cartpole, acrobot) and one of another algorithm, to copy CSVs between."""
+    root = tmp_path_factory.mktemp("item7")
+    return {
+        "cartpole": finished_run(root / "a"),
+        "acrobot": finished_run(root / "b", "env=acrobot"),
+        "cem": finished_run(root / "c", "algo=cem"),
+    }
+
+
+@pytest.fixture
+def run_dir(runs, tmp_path):
+    """A fresh copy of the cartpole run, results_dir ``tmp_path``: each test damages its own."""
+    import shutil
+
+    target = tmp_path / "default" / runs["cartpole"].name
+    shutil.copytree(runs["cartpole"], target)
+    return target
+
+
+def rewrite_csv(path: Path, change) -> None:
+    import pandas as pd
+
+    frame = pd.read_csv(path)
+    frame = change(frame)
+    path.write_text(frame.to_csv(index=False, float_format="%.10g", lineterminator="\n"))
+
+
+NAN = float("nan")
+CONTRADICTIONS = {
+    "another env's CSV": (lambda runs, csv: csv.write_bytes((runs["acrobot"] / "seed_0.csv").read_bytes()), "env=acrobot"),
+    "another algo's CSV": (lambda runs, csv: csv.write_bytes((runs["cem"] / "seed_0.csv").read_bytes()), "algo=cem"),
+    "another popsize": (lambda runs, csv: rewrite_csv(csv, lambda f: f.assign(popsize=6)), "popsize 6"),
+    "an extra column": (lambda runs, csv: rewrite_csv(csv, lambda f: f.assign(note="x")), "extra column(s) ['note']"),
+    "columns reordered": (lambda runs, csv: rewrite_csv(csv, lambda f: f[list(f.columns[::-1])]), "another order"),
+    "another schedule": (
+        lambda runs, csv: rewrite_csv(csv, lambda f: f.assign(mean_policy_episodes=[0, 0, 2, 2], mean_policy_score=[NAN, NAN, 1.0, NAN])),
+        "eval_mean_every=2",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(CONTRADICTIONS))
+def test_imix_run_refuses_a_finished_csv_that_contradicts_its_config(runs, run_dir, tmp_path, capsys, name):
+    damage, text = CONTRADICTIONS[name]
+    csv = run_dir / "seed_0.csv"
+    damage(runs, csv)
+    capsys.readouterr()
+    assert main(["run", *SCHEDULED, f"results_dir={tmp_path}"]) == 1
+    out = capsys.readouterr()
+    err = out.err.strip()
+    assert len(err.splitlines()) == 1 and str(csv) in err and text in err, err
+    assert "reuse" not in out.out  # no summary made of it
+
+
+@pytest.mark.parametrize("name", list(CONTRADICTIONS))
+def test_imix_plot_skips_a_csv_that_contradicts_its_config(runs, run_dir, tmp_path, name):
+    from imix_cli.plotting.data import load_experiment
+
+    damage, text = CONTRADICTIONS[name]
+    csv = run_dir / "seed_0.csv"
+    damage(runs, csv)
+    warnings = []
+    experiment = load_experiment(tmp_path, "default", warn=warnings.append)
+    assert experiment.groups == [] and any(str(csv) in w and text in w for w in warnings), warnings
+
+
+@pytest.mark.parametrize("name", ["another env's CSV", "another popsize", "another schedule"])
+def test_imix_eval_refuses_a_run_whose_csv_contradicts_its_config(runs, run_dir, tmp_path, capsys, name):
+    damage, text = CONTRADICTIONS[name]
+    csv = run_dir / "seed_0.csv"
+    damage(runs, csv)
+    assert main(["eval", f"results_dir={tmp_path}", "episodes=2"]) == 1
+    err = one_line_error(capsys)
+    assert str(csv) in err and text in err, err
+    assert not (run_dir / "eval.csv").exists()
+
+
+def test_the_readers_accept_the_runs_own_csvs(runs, run_dir, tmp_path, capsys):
+    """The other side of the tests above: the untouched run passes every reader's check."""
+    from imix_cli.plotting.data import load_experiment
+
+    assert main(["run", *SCHEDULED, f"results_dir={tmp_path}"]) == 0
+    assert "(0 seed(s) run now" in capsys.readouterr().out
+    assert [g.n_seeds for g in load_experiment(tmp_path, "default", warn=pytest.fail).groups] == [1]
+    assert main(["eval", f"results_dir={tmp_path}", "episodes=2"]) == 0
+
+
+def test_a_changed_schedule_does_not_continue_a_csv_on_another_one(run_dir, tmp_path, capsys):
+    """eval_mean_every changed between a run and its continuation (a changed default looks the same): refused with one
+    line; continued with the recorded schedule, the CSV follows one schedule to the end."""
+    from imix_cli.running.results import check_seed_csv, read_run_csv
+
+    csv = run_dir / "seed_0.csv"
+    before = csv.read_bytes()
+    assert main(["run", *SCHEDULED, "generations=6", "eval_mean_every=3", f"results_dir={tmp_path}"]) == 1
+    err = one_line_error(capsys)
+    assert "eval_mean_every=2" in err and "eval_mean_every=3" in err, err
+    assert csv.read_bytes() == before
+    assert main(["run", *SCHEDULED, "generations=6", f"results_dir={tmp_path}"]) == 0
+    frame = read_run_csv(csv)
+    assert len(frame) == 6 and frame["mean_policy_episodes"].tolist() == [0, 2, 2, 4, 4, 6]
+    check_seed_csv(frame, csv, {"algo": {"name": "snes"}, "eval_mean_every": 2, "eval_mean_episodes": 2})
+
+
+def test_a_finished_run_is_still_summarised_under_another_schedule(run_dir, tmp_path, capsys):
+    """Nothing to continue: the finished CSVs keep the schedule config.yaml records, and the run says so by reusing them."""
+    assert main(["run", *SCHEDULED, "eval_mean_every=3", f"results_dir={tmp_path}"]) == 0
+    assert "(0 seed(s) run now" in capsys.readouterr().out

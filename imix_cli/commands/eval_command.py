@@ -226,7 +226,10 @@ def evaluate_run(run_dir: Path, which: str, episodes: int, cache: dict | None = 
     from imix_cli.running.policy_files import PolicyFileError, read_policy
 
     rows = []
-    for seed, path in policy_files(run_dir, which).items():
+    policies = policy_files(run_dir, which)
+    if policies:
+        check_finished_seeds(run_dir, policies)
+    for seed, path in policies.items():
         policy = read_policy(path)
         h = policy.header
         if h["seed"] != seed or h["which"] != which:
@@ -241,6 +244,25 @@ def evaluate_run(run_dir: Path, which: str, episodes: int, cache: dict | None = 
             }
         )  # fmt: skip
     return rows
+
+
+def check_finished_seeds(run_dir: Path, seeds) -> None:
+    """CorruptResultError (one line naming the file) if the CSV of one of ``seeds`` contradicts the run's config.yaml
+    (:func:`imix_cli.running.results.check_seed_csv`): its policies would be reported as the run's. A seed without a
+    CSV (unfinished, its policy from a checkpoint) or a run without config.yaml is not checked."""
+    from imix_cli.plotting.data import read_run_config
+    from imix_cli.running.results import check_seed_csv, read_run_csv, seed_csv_path
+
+    def warn(message: str) -> None:
+        print(f"imix eval: warning: {message}", file=sys.stderr)
+
+    config = read_run_config(Path(run_dir) / "config.yaml", warn, fallback="its seed CSVs are not checked against it")
+    if not config:
+        return
+    for seed in seeds:
+        path = seed_csv_path(run_dir, seed)
+        if path.exists():
+            check_seed_csv(read_run_csv(path), path, config)
 
 
 def write_eval_csv(run_dir: Path, rows: list) -> Path:
@@ -285,6 +307,7 @@ def main(argv: list | None = None) -> int:
             raise UsageError(f"bad value for episodes: {s['episodes']} (at most {MAX_EPISODES:,} per seed: they run in batches, but more would take days)")
         folders = run_folders(s["results_dir"], s["experiment"], s["run"])
         from imix_cli.running.policy_files import PolicyFileError
+        from imix_cli.running.results import CorruptResultError
 
         cache, results = {}, []
         for run_dir in folders:
@@ -297,7 +320,7 @@ def main(argv: list | None = None) -> int:
     except UsageError as err:
         print(f"imix eval: {err}", file=sys.stderr)
         return err.status
-    except PolicyFileError as err:
+    except (PolicyFileError, CorruptResultError) as err:
         print(f"imix eval: {err}", file=sys.stderr)
         return 1
     if not results:

@@ -65,7 +65,7 @@ import numpy as np
 import pandas as pd
 
 from imix_cli.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
-from imix_cli.running.results import CorruptResultError, read_run_csv, read_small_text, run_dir_name, seed_csv_path
+from imix_cli.running.results import CorruptResultError, ResultMismatchError, check_seed_csv, read_run_csv, read_small_text, run_dir_name, seed_csv_path
 from imix_cli.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 
 __all__ = [
@@ -221,9 +221,14 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
         return None
     seeds, fingerprints = {}, {}
     identity = None
+    config = read_run_config(run_dir / "config.yaml", warn)
     for seed, path in sorted(csvs):
         try:
             frame = read_run_csv(path)
+            check_seed_csv(frame, path, config)  # a CSV that contradicts its run's config.yaml is not one of its seeds
+        except ResultMismatchError as err:
+            warn(f"skipped {err}")
+            continue
         except CorruptResultError as err:
             warn(f"skipped corrupt result {err}")
             continue
@@ -231,6 +236,7 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
             if seed in partial_seeds and seed_csv_path(run_dir, seed).exists():  # finished while we listed
                 try:
                     frame, partial_seeds = read_run_csv(seed_csv_path(run_dir, seed)), partial_seeds - {seed}
+                    check_seed_csv(frame, seed_csv_path(run_dir, seed), config)
                 except (CorruptResultError, OSError):
                     continue
             else:
@@ -273,7 +279,6 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
         overrides = run_dir.name[len(prefix) + 1 :]
     else:
         overrides = run_dir.name  # unexpected folder name: keep it distinct from the standard group
-    config = read_run_config(run_dir / "config.yaml", warn)
     running = sorted(partial_seeds & set(seeds))
     if running:
         warn(f"{run_dir.name}: seed(s) {', '.join(map(str, running))} still running; their rows up to the last checkpoint are included")

@@ -16,7 +16,16 @@ import os
 import reprlib
 import stat
 
-from imix_cli.running.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
+from imix_cli.running.results import (
+    SCHEDULE_KEYS,
+    CorruptResultError,
+    atomic_write_text,
+    check_seed_csv,
+    partial_csv_path,
+    read_run_csv,
+    read_small_text,
+    seed_csv_path,
+)
 from imix_cli.running.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.running.trainers import trainer_for
 
@@ -39,7 +48,7 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
     refuse_links(spec)
-    old = None
+    old = recorded = None
     if config_file.exists():
         try:
             old = yaml.safe_load(read_small_text(config_file))  # bounded: a config is a few kB
@@ -49,12 +58,17 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
             raise RunError(f"{config_file}: unreadable ({type(err).__name__}); move it away or choose another experiment=") from None
         if not isinstance(old, dict) or not all(isinstance(k, str) for k in old):
             raise RunError(f"{config_file}: not a config mapping; move it away or choose another experiment=")
+        recorded = old
         old, new = identity_of(old), spec.identity()
         differing = differing_keys(resume_identity(old), resume_identity(new))
         if differing:
             # reprlib: a value read from the file is shown shortened (a YAML alias bomb must not expand here)
             changes = ", ".join(f"{k}={reprlib.repr(old.get(k))} there, {new.get(k)!r} now" for k in differing[:8])
             raise RunError(f"{config_file} holds a different config ({changes}); choose another experiment= or move that folder away")
+    # The config the run's CSVs must agree with (check_seed_csv): this command's -- config.yaml's in every identity key,
+    # checked above -- with the schedule of the distribution mean's measurements config.yaml records, which its seeds followed.
+    kept = {k: recorded[k] for k in SCHEDULE_KEYS if recorded is not None and k in recorded}
+    reference = {**spec.config, **kept}
     todo = []
     for seed in range(spec.seeds):
         path = seed_csv_path(run_dir, seed)
@@ -63,14 +77,22 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
             continue
         try:
             frame = read_run_csv(path)
+            if trainer.needs_running(spec, seed, path, frame):
+                todo.append(seed)
+            check_seed_csv(frame, path, reference)  # a CSV of another run is not a finished seed of this one
         except CorruptResultError as err:
             raise RunError(f"{err}; move or delete it, then re-run") from None
-        if trainer.needs_running(spec, seed, path, frame):
-            todo.append(seed)
     # A continuable run's generations may change (to more, or back to fewer than a continuation that was
     # killed reached): config.yaml records the latest target. What a run holds is its finished CSVs,
     # which needs_running has checked against that target.
     write_config = old is None or (trainer.continuable and old.get("generations") != spec.generations)
+    changed = [k for k in kept if trainer.unit == "gen" and kept[k] != spec.config.get(k)]
+    if changed and (todo or write_config):  # eval_mean_* do not change results, but a CSV must follow one schedule
+        was = ", ".join(f"{k}={kept[k]}" for k in changed)
+        raise RunError(
+            f"{config_file} was made with {was}, the command has {', '.join(f'{k}={spec.config.get(k)}' for k in changed)} (a changed default?): "
+            f"seeds continued or started now would measure the distribution mean on another schedule; give {was} to resume, or choose another experiment="
+        )
     return todo, write_config
 
 
