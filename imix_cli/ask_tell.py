@@ -46,9 +46,19 @@ class MixingES:
 
     def __init__(self, es, variant: str | None = "exact", *, rng=None, eim_generations: int = 3, alpha: float = 0.0,
                  reeval_age: int | None = None, reeval_prob: float = 0.0):  # fmt: skip
+        # Every argument is checked here, with imix run's bounds (MixingSettings: imix_cli.generation.MIXING_BOUNDS):
+        # a bad one is one error naming it now, not at the first ask() or deep inside it.
+        missing = [name for name in ("ask", "tell", "distribution", "popsize") if not hasattr(es, name)]
+        if missing:
+            raise TypeError(f"es must be an evolution strategy (imix_cli.algorithms.make_es), got {type(es).__name__} without {', '.join(missing)}")
         self.es = es
         self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob)
-        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        if isinstance(rng, bool) or not (rng is None or isinstance(rng, (np.random.Generator, int, np.integer, np.random.SeedSequence))):
+            raise TypeError(f"rng must be a numpy Generator, an int seed or None, got {rng!r}")
+        try:
+            self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        except ValueError as err:  # a negative seed
+            raise ValueError(f"rng: {err}") from None
         self.archive = Archive()
         self.plan: Plan | None = None  # the generation asked and not yet told
         self._last = None  # the last generation asked

@@ -42,7 +42,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imix_cli import linalg_kernels as lk
+from imix_cli.bounds import Bound
 from imix_cli.mixing import Generation, mix, variant_spec
+
+#: The range of each numeric :class:`MixingSettings` field, checked when one is made and by ``imix run``'s config (its
+#: keys ``eim_generations``, ``im_alpha``, ``reeval_*``: :mod:`imix_cli.running.es_config`): one copy of the numbers.
+MIXING_BOUNDS = {
+    "eim_generations": Bound(1, integer=True),
+    "alpha": Bound(0.0, high=1.0),
+    "reeval_age": Bound(1, integer=True),
+    "reeval_prob": Bound(0.0, high=1.0),
+    "reeval_count": Bound(0, integer=True),
+}
 
 
 @dataclass(frozen=True)
@@ -74,6 +85,19 @@ class MixingSettings:
     reeval_age: int | None = None
     reeval_prob: float = 0.0
     reeval_count: int = 0
+
+    def __post_init__(self):
+        """Every setting checked here, with the bounds ``imix run`` checks its keys with (:data:`MIXING_BOUNDS`): a bad
+        one is a ValueError or TypeError naming it when the object is made, not at the first ``ask`` (``variant='nope'``)
+        or deep inside it (``eim_generations=2.5``); ``reeval_prob=5`` and ``eim_generations=0`` were accepted."""
+        if self.variant is not None:
+            variant_spec(self.variant)  # ValueError naming the valid variants
+        for name, bound in MIXING_BOUNDS.items():
+            value = getattr(self, name)
+            if value is not None or name != "reeval_age":  # reeval_age None: never re-evaluate by age
+                bound.check(name, value)
+        if self.alpha and not (self.variant is not None and variant_spec(self.variant).uses_alpha):
+            raise ValueError(f"alpha={self.alpha!r} applies to a variant with a minimal refresh rate (sun2009) only, not variant={self.variant!r}")
 
     @property
     def depth(self) -> int:

@@ -275,3 +275,75 @@ def test_a_finished_run_is_still_summarised_under_another_schedule(run_dir, tmp_
     """Nothing to continue: the finished CSVs keep the schedule config.yaml records, and the run says so by reusing them."""
     assert main(["run", *SCHEDULED, "eval_mean_every=3", f"results_dir={tmp_path}"]) == 0
     assert "(0 seed(s) run now" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------ 8. the library checks its arguments with the CLI's bounds
+@pytest.mark.parametrize(
+    "kwargs, error, named",
+    [
+        ({"eim_generations": 0}, ValueError, "eim_generations"),
+        ({"eim_generations": -3}, ValueError, "eim_generations"),
+        ({"eim_generations": 2.5}, TypeError, "eim_generations"),  # was a TypeError deep inside the first ask
+        ({"reeval_prob": 5}, ValueError, "reeval_prob"),
+        ({"reeval_age": 0}, ValueError, "reeval_age"),
+        ({"alpha": 1.0, "variant": "sun2009"}, ValueError, "alpha"),
+        ({"variant": "nope"}, ValueError, "variant 'nope'"),  # was an error at the first ask
+        ({"rng": "x"}, TypeError, "rng"),
+    ],
+)
+def test_mixing_es_refuses_a_bad_argument_at_construction(kwargs, error, named):
+    from imix_cli.algorithms import make_es
+    from imix_cli.ask_tell import MixingES
+
+    with pytest.raises(error, match=named):
+        MixingES(make_es("snes", 3, popsize=6), **kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, named",
+    [({"popsize": 2.5}, TypeError, "popsize"), ({"popsize": True}, TypeError, "popsize"), ({"sigma": 1e300}, ValueError, "sigma"),
+     ({"sigma": float("nan")}, ValueError, "sigma"), ({"lr": 0}, ValueError, "lr")],
+)  # fmt: skip
+def test_make_es_refuses_rather_than_truncates(kwargs, error, named):
+    from imix_cli.algorithms import make_es
+
+    with pytest.raises(error, match=named):
+        make_es("snes", 3, **kwargs)
+
+
+# (config key, library argument, a value inside the bound, values outside it): both sides must agree on each
+SHARED_BOUNDS = [
+    ("popsize", "popsize", 2, [1, 2.5]),
+    ("sigma", "sigma", 1e153, [0, -1, 1e154, 1e300]),
+    ("lr", "lr", 1e-9, [0, -0.1]),
+    ("weight_decay", "weight_decay", 0, [-0.1]),
+    ("eim_generations", "eim_generations", 1, [0, -3, 2.5]),
+    ("reeval_prob", "reeval_prob", 0.5, [1, 5, -0.1]),
+    ("reeval_age", "reeval_age", 1, [0, 1.5]),
+    ("reeval_count", "reeval_count", 0, [-1, 0.5]),
+]
+
+
+@pytest.mark.parametrize("key, argument, good, bad", SHARED_BOUNDS, ids=[c[0] for c in SHARED_BOUNDS])
+def test_the_library_and_the_cli_refuse_the_same_values(key, argument, good, bad):
+    from imix_cli.algorithms import make_es
+    from imix_cli.ask_tell import MixingES
+
+    def library(value):
+        if argument in ("popsize", "sigma", "lr", "weight_decay"):
+            return make_es("snes", 3, **{argument: value})
+        if argument == "reeval_count":  # MixingES does not take it; the runner's MixingSettings does
+            from imix_cli.generation import MixingSettings
+
+            return MixingSettings("exact", reeval_count=value)
+        return MixingES(make_es("snes", 3, popsize=6), "exact", **{argument: value})
+
+    def cli(value):
+        return validate_overrides([*TINY, "eim=true", f"{key}={value!r}"])
+
+    library(good)
+    cli(good)
+    for value in bad:
+        with pytest.raises((TypeError, ValueError), match=argument):
+            library(value)
+        assert f"{key}=" in refused([*TINY, "eim=true", f"{key}={value!r}"])

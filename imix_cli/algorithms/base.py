@@ -39,6 +39,7 @@ from dataclasses import fields as fields_of
 
 import numpy as np
 
+from imix_cli.bounds import Bound
 from imix_cli.elementary import math_pow
 
 
@@ -238,6 +239,20 @@ WEIGHT_DECAY_FORMS: dict[str, WeightDecayForm] = {"paper": PaperWeightDecay(), "
 
 
 # ------------------------------------------------------------------------------ parameters
+#: The largest initial standard deviation: the initial variance sigma^2 must be a finite float64 (sqrt(max) ~ 1.34e154);
+#: above it the first tell divided by an infinite variance and raised deep inside, losing the generation.
+MAX_SIGMA = 1e154
+
+#: The range of each numeric field of :class:`Params`, checked when a record is made and by ``imix run``'s config
+#: (:mod:`imix_cli.running.es_config`): one copy of the numbers (:mod:`imix_cli.bounds`).
+PARAM_BOUNDS = {
+    "popsize": Bound(2, integer=True),  # an integer: 2.5 members was silently 2
+    "sigma": Bound(0, low_inclusive=False, high=MAX_SIGMA),
+    "lr": Bound(0, low_inclusive=False),
+    "weight_decay": Bound(0),
+}
+
+
 @dataclass(frozen=True)
 class Params:
     """The hyper-parameters every ES shares; the defaults are the paper's (section 4.1).
@@ -266,14 +281,8 @@ class Params:
     fitness_shaping: str = "centered_ranks"
 
     def __post_init__(self):
-        if self.popsize < 2:
-            raise ValueError(f"popsize must be >= 2, got {self.popsize}")
-        if not self.sigma > 0:
-            raise ValueError(f"sigma must be > 0, got {self.sigma}")
-        if not self.lr > 0:
-            raise ValueError(f"lr must be > 0, got {self.lr}")
-        if self.weight_decay < 0:
-            raise ValueError(f"weight_decay must be >= 0, got {self.weight_decay}")
+        for name, bound in PARAM_BOUNDS.items():  # the bounds imix run checks its keys with
+            bound.check(name, getattr(self, name))
         if self.weight_decay_form not in WEIGHT_DECAY_FORMS:
             raise ValueError(f"weight_decay_form must be one of {tuple(WEIGHT_DECAY_FORMS)}, got {self.weight_decay_form!r}")
         if self.fitness_shaping not in FITNESS_SHAPINGS:

@@ -62,6 +62,17 @@ def as_float(cfg: dict, key: str, low: float, low_inclusive: bool, high: float =
     return float(value)
 
 
+def as_bounded(cfg: dict, key: str, bound):
+    """``cfg[key]`` checked against a :class:`~imix_cli.bounds.Bound` of the library's (:data:`imix_cli.algorithms.base.PARAM_BOUNDS`,
+    :data:`imix_cli.generation.MIXING_BOUNDS`): the CLI and the library's constructors check the same numbers."""
+    if bound.integer:
+        value = as_int(cfg, key, bound.low)
+        if not bound.contains(value):
+            raise ConfigError(f"{key}={value!r}: must be {bound.rule()}")
+        return value
+    return as_float(cfg, key, bound.low, bound.low_inclusive, bound.high, bound.high_inclusive)
+
+
 def as_bool(cfg: dict, key: str) -> bool:
     value = cfg.get(key)
     if not isinstance(value, bool):

@@ -10,13 +10,15 @@ from __future__ import annotations
 import math
 
 from imix_cli.algorithms import cmaes
-from imix_cli.algorithms.base import WEIGHT_DECAY_FORMS
+from imix_cli.algorithms.base import PARAM_BOUNDS, WEIGHT_DECAY_FORMS
+from imix_cli.generation import MIXING_BOUNDS
 from imix_cli.mixing import config_variants, variant_spec
 from imix_cli.processes import default_workers
 from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
 from imix_cli.running.config_checks import (
     ConfigError,
     as_bool,
+    as_bounded,
     as_choice,
     as_float,
     as_int,
@@ -41,12 +43,12 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     eim_variant = as_choice(cfg.get("eim_variant", PAPER_DEFAULTS["eim_variant"]), "eim_variant", tuple(eim_variants))
     reeval_age = cfg.get("reeval_age")
     if reeval_age is not None:
-        reeval_age = as_int(cfg, "reeval_age", 1)
-    reeval_prob = as_float(cfg, "reeval_prob", 0.0, True, 1.0, False)
-    reeval_count = as_int(cfg, "reeval_count", 0)
+        reeval_age = as_bounded(cfg, "reeval_age", MIXING_BOUNDS["reeval_age"])
+    reeval_prob = as_bounded(cfg, "reeval_prob", MIXING_BOUNDS["reeval_prob"])
+    reeval_count = as_bounded(cfg, "reeval_count", MIXING_BOUNDS["reeval_count"])
     algo_options = _algo_options(algo, algo_cfg)
-    im_alpha = as_float(cfg, "im_alpha", 0.0, True, 1.0, False)
-    eim_generations = as_int(cfg, "eim_generations", 1)
+    im_alpha = as_bounded(cfg, "im_alpha", MIXING_BOUNDS["alpha"])
+    eim_generations = as_bounded(cfg, "eim_generations", MIXING_BOUNDS["eim_generations"])
     if eim and im_variant != PAPER_DEFAULTS["im_variant"]:
         raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(eim_variants)}")
     mixing = "eim" if eim else ("im" if im else "none")
@@ -68,13 +70,11 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
             f"total_steps={cfg['total_steps']!r}: algo=ddpg's budget (environment steps); an evolution strategy (algo={algo}) runs generations= instead"
         )
     config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
-    popsize, sigma = as_int(cfg, "popsize", 2), as_float(cfg, "sigma", 0.0, False)
+    popsize, sigma = as_bounded(cfg, "popsize", PARAM_BOUNDS["popsize"]), as_bounded(cfg, "sigma", PARAM_BOUNDS["sigma"])
     if algo == "cmaes" and popsize < cmaes.MIN_POPSIZE:
         raise ConfigError(
             f"popsize={popsize}: algo=cmaes needs popsize >= {cmaes.MIN_POPSIZE} (its recombination weights need at least 2 parents and one non-parent)"
         )
-    if not math.isfinite(sigma * sigma):
-        raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
     _check_params_together(algo, popsize, algo_options)
     _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
     num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"], policy["bias"], policy["output"])
@@ -107,8 +107,8 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         generations=as_int(cfg, "generations", 1),
         popsize=popsize,
         sigma=sigma,
-        lr=as_float(cfg, "lr", 0.0, False),
-        weight_decay=as_float(cfg, "weight_decay", 0.0, True),
+        lr=as_bounded(cfg, "lr", PARAM_BOUNDS["lr"]),
+        weight_decay=as_bounded(cfg, "weight_decay", PARAM_BOUNDS["weight_decay"]),
         weight_decay_form=as_choice(cfg.get("weight_decay_form"), "weight_decay_form", tuple(WEIGHT_DECAY_FORMS)),
         workers=workers,
         checkpoint_every=as_int(cfg, "checkpoint_every", 0),
