@@ -434,3 +434,73 @@ def test_mutated_files_through_the_cli_never_give_a_traceback(run, tmp_path, cap
         for path, data in originals.items():
             path.write_bytes(data)
     assert pd.read_csv(csv).shape[0] == 4
+
+
+# ------------------------------------------------------------------------------- the command line
+#: Values no key takes, the kinds a hostile or careless command line holds: newlines, quotes, interpolations (Hydra's and
+#: OmegaConf's resolvers), paths out of the folder, a very long value, unicode, NUL, control characters, sweep syntax.
+HOSTILE = [
+    "a\nb", "a\rb", "'", '"', "'x'", '"x"', "'a\nb'", "\\", "${oc.env:HOME}", "${hydra:runtime.cwd}", "${now:%Y}", "${undefined_key}",
+    "${seeds}", "${oc.decode:'[1]'}", "${", "}", "$", "../..", "../../etc/passwd", "/", "x" * 5000, "é漢字🙂", "\u202e", "a\x00b", "\x00",
+    "\t", " x ", "a,b", "range(1,4)", "choice(a,b)", "glob(*)", "interval(0,1)", "tag(x,y)", "shuffle(1,2)", "[", "{a:", "=",
+    "nonexistent_module_q:Foo-v0", "???", "null", "", " ", "\x7f", "1e400", "-1e400", "nan", "-inf", "0x10", "1_000",
+]  # fmt: skip
+TYPED = ["0", "1", "2", "-1", "3", "50", "2.5", "0.5", "1e-300", "1e300", "true", "false", "[]", "[1,2]", "[a]", "{a: 1}", "123456789012345678901"]
+EXTRA_KEYS = ["algo", "env", "hydra.job.chdir", "hydra.run.dir", "hydra.sweep.dir", "hydra/launcher", "hydra.callbacks.x._target_", "hydra.verbose"]
+
+
+def random_command_line(rng: random.Random, keys: tuple, root: Path) -> list:
+    """One ``imix run`` command line: 1-5 overrides of keys of the table (or mistyped, or unknown, or Hydra's), each with a
+    typed, a valid-choice or a hostile value, some with ``+``/``++``/``~``, sometimes ``-m`` and Hydra's flags."""
+    from imix_cli.registry import ALGO_NAMES
+
+    choices = [*ALGO_NAMES, "cartpole", "acrobot", "gym", "exact", "paper", "sun2009", "csa", "cemrl", "local", "pool", "ray", "tensorboard"]
+    args = [f"results_dir={root}", "seeds=1", "workers=1"]
+    careful = rng.random() < 0.4  # keys of the table with typed or valid values only: many lines are accepted
+    for _ in range(1 if careful else rng.randint(1, 5)):
+        key = rng.choice(keys if careful else keys + tuple(EXTRA_KEYS))
+        if not careful and rng.random() < 0.15:  # a typo of a real key
+            k = rng.randrange(len(key))
+            key = key[:k] + rng.choice("abcdefghijklmnopqrstuvwxyz._") + key[k + 1 :]
+        value = rng.choice([rng.choice(TYPED), rng.choice(choices)] + ([] if careful else [rng.choice(HOSTILE), rng.choice(HOSTILE) + rng.choice(TYPED)]))
+        if rng.random() < 0.2:  # Hydra's quoting: the hostile text reaches the config as a string
+            value = "'" + value.replace("\\", "\\\\").replace("'", "\\'") + "'"
+        prefix = "" if careful else rng.choice(["", "", "", "", "+", "++", "~"])
+        args.append(f"{prefix}{key}" if prefix == "~" and rng.random() < 0.5 else f"{prefix}{key}={value}")
+    if rng.random() < 0.3:
+        args.insert(0, "-m")
+    if rng.random() < 0.1:
+        args += rng.choice([["--config-name", rng.choice(HOSTILE)], [f"--config-dir={rng.choice(HOSTILE)}"], ["--config-dir"], ["-cn"], ["--seeds", "3"],
+                            ["-x"], ["--config-path", rng.choice(HOSTILE)]])  # fmt: skip
+    return args
+
+
+@pytest.mark.slow
+def test_fuzz_the_command_line_validation(tmp_path, monkeypatch):
+    """1,000 random ``imix run`` command lines through its validation alone (``validate_run_args``: in-process, no episode):
+    each is accepted or refused with one line (ConfigError, exit 2; RunError, exit 1) -- never another exception, never a
+    hang -- and nothing is written, wherever its results_dir, experiment or Hydra folders point."""
+    from imix_cli.commands.cli import validate_run_args
+    from imix_cli.running.config import ConfigError, all_keys
+
+    monkeypatch.chdir(tmp_path)
+    root = tmp_path / "results"
+    rng, keys = random.Random(20261127), all_keys()
+    tally = {"accepted": 0, "refused": 0}
+    for k in range(MUTATIONS):
+        args = random_command_line(rng, keys, root)
+        try:
+            with deadline(30):
+                validate_run_args(args)
+            tally["accepted"] += 1
+        except (ConfigError, RunError) as err:
+            message = str(err)
+            assert message.strip() and "\n" not in message and "Traceback" not in message, f"case {k} {args!r}: {message!r}"
+            tally["refused"] += 1
+        except Hang:
+            pytest.fail(f"case {k}: validation of {args!r} hangs")
+        except Exception as err:  # a traceback a user would see
+            pytest.fail(f"case {k}: {args!r}: {type(err).__name__}: {err}")
+    print(tally)
+    assert list(tmp_path.iterdir()) == []  # validation wrote nothing, not even results_dir
+    assert tally["accepted"] > 0.02 * MUTATIONS and tally["refused"] > 0.5 * MUTATIONS

@@ -137,21 +137,11 @@ def _error(message: str, code: int) -> int:
 
 def run_command(args: list[str]) -> int:
     """``imix run [hydra flags] [overrides]``."""
-    from imix_cli.running.config import ConfigError, validate_overrides
+    from imix_cli.running.config import ConfigError
     from imix_cli.running.run_folder import RunError
 
     info_only = any(a in _HYDRA_INFO_FLAGS or a.startswith("--cfg=") for a in args)
     if not info_only:
-        dashed = next((a for a in args if a.startswith("--") and a.split("=", 1)[0] not in _HYDRA_RUN_FLAGS), None)
-        if dashed is not None:  # `--seeds 3` or `--seeds=3`: keys are Hydra overrides, key=value
-            key = dashed[2:].split("=", 1)[0]
-            value = dashed.split("=", 1)[1] if "=" in dashed else (args[args.index(dashed) + 1] if args.index(dashed) + 1 < len(args) else "...")
-            return _error(f"unknown option {dashed!r}; keys are given as key=value, e.g. {key}={value} (see imix run --help)", 2)
-        try:
-            hydra_args = _parse_hydra_args(args)
-        except ConfigError as err:
-            return _error(str(err), 2)
-        overrides = hydra_args.overrides
         specs = []
         # Nothing is written before validation ends: a Ctrl-C then stops at once with one line, even
         # if it lands in a library that would swallow a KeyboardInterrupt (an import, a plugin scan).
@@ -166,8 +156,7 @@ def run_command(args: list[str]) -> int:
         own_launcher = launcher == "basic"  # conf/config.yaml's default, also when named (_task: BasicLauncher)
         try:
             _VALIDATED.clear()
-            specs = validate_overrides(overrides, validated=_VALIDATED, config_name=hydra_args.config_name, config_dirs=hydra_args.config_dirs)
-            _check_run_folders(specs)
+            specs = validate_run_args(args, _VALIDATED)
         except ConfigError as err:
             return _error(str(err), 2)
         except RunError as err:
@@ -195,6 +184,25 @@ def run_command(args: list[str]) -> int:
     for message in _SKIPPED_POINTS:
         _error(f"sweep point skipped: {message}", 1)
     return 1 if _SKIPPED_POINTS else 0
+
+
+def validate_run_args(args: list[str], validated: dict | None = None) -> list:
+    """Everything ``imix run ARGS`` checks before anything runs or is written, and nothing else: the flags, every point's
+    composed config (:func:`imix_cli.running.config.validate_overrides`) and run folder (read only); returns the RunSpecs.
+
+    ConfigError (exit status 2) or RunError (1), each a one-line message. ``imix run`` calls it first; the command-line
+    fuzzer (tests/test_fuzz_readers.py) calls it alone, in-process: validation without an episode."""
+    from imix_cli.running.config import ConfigError, validate_overrides
+
+    dashed = next((a for a in args if a.startswith("--") and a.split("=", 1)[0] not in _HYDRA_RUN_FLAGS), None)
+    if dashed is not None:  # `--seeds 3` or `--seeds=3`: keys are Hydra overrides, key=value
+        key = dashed[2:].split("=", 1)[0]
+        value = dashed.split("=", 1)[1] if "=" in dashed else (args[args.index(dashed) + 1] if args.index(dashed) + 1 < len(args) else "...")
+        raise ConfigError(f"unknown option {dashed!r}; keys are given as key=value, e.g. {key}={value} (see imix run --help)")
+    hydra_args = _parse_hydra_args(args)
+    specs = validate_overrides(hydra_args.overrides, validated=validated, config_name=hydra_args.config_name, config_dirs=hydra_args.config_dirs)
+    _check_run_folders(specs)
+    return specs
 
 
 class _HydraArgs:

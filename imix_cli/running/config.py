@@ -18,9 +18,11 @@ a run's identity). The names other modules import from here are re-exported.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import itertools
 import json
+import os
 import re
 from pathlib import Path
 
@@ -181,11 +183,16 @@ def validate_overrides(overrides: list[str], validated: dict | None = None, conf
                 if not values:
                     raise ConfigError(f"{override.input_line}: matches no {key}; valid choices are {', '.join(group_options(key, config_dirs))}")
             else:
-                values = list(override.sweep_string_iterator())
+                try:
+                    values = list(override.sweep_string_iterator())
+                except Exception as err:  # interval(): a sweeper plugin's search space, which -m cannot enumerate
+                    raise ConfigError(f"{override.input_line}: {first_line(err)}; imix run -m enumerates a,b,c, range() and glob() sweeps") from None
             choices.append([f"{override.get_key_element()}={v}" for v in values])
         else:
             choices.append([override.input_line])
         if key in ("algo", "env"):
+            if override.is_delete():
+                raise ConfigError(f"{override.input_line}: the {key} group cannot be removed; choose an option with {key}=<option>")
             valid = group_options(key, config_dirs)
             for line in choices[-1]:
                 value = line.split("=", 1)[1]
@@ -201,38 +208,80 @@ def validate_overrides(overrides: list[str], validated: dict | None = None, conf
                 raise ConfigError(f"cannot parse overrides: {first_line(err)}") from None
         return parse_cache[line]
 
-    specs, composed = [], {}
+    specs = []
     holder, search = _search_order(config_name, config_dirs)
-    GlobalHydra.instance().clear()
-    try:
-        with initialize_config_dir(config_dir=holder, version_base="1.3"):
-            for point in itertools.product(*choices):
-                parsed_point = [parse_one(line) for line in point]
-                values = [o for o in parsed_point if _is_value_override(o)]
-                base = tuple(line for line, o in zip(point, parsed_point, strict=True) if not _is_value_override(o))
-                try:
-                    if base not in composed:  # hydra.* overrides are in base: the hydra node is done with
-                        full = compose(config_name, overrides=[*search, *base], return_hydra_config=True)
-                        launcher = OmegaConf.select(full, "hydra.launcher._target_")
-                        _refuse_hydra_settings(full)
-                        with_hydra = copy.deepcopy(full)
-                        with open_dict(full):
-                            del full["hydra"]
-                        composed[base] = (full, launcher, with_hydra)
-                    cfg, launcher, with_hydra = copy.deepcopy(composed[base][0]), composed[base][1], composed[base][2]
-                    _apply_values(values, cfg)
-                    plain = _resolved(cfg, with_hydra)
-                except ConfigError:
-                    raise
-                except Exception as err:
-                    raise ConfigError(_explain_compose_error(err, point)) from None
-                specs.append(spec_from_config(plain, launcher))
-                if validated is not None:
-                    validated[point_key(plain, launcher)] = specs[-1]
-    finally:
-        GlobalHydra.instance().clear()
+    files = _config_files_state((holder, *config_dirs))
+    with contextlib.ExitStack() as hydra_session:  # Hydra is started on the first composition this call needs, if any
+        started = False
+        for point in itertools.product(*choices):
+            parsed_point = [parse_one(line) for line in point]
+            values = [o for o in parsed_point if _is_value_override(o)]
+            base = tuple(line for line, o in zip(point, parsed_point, strict=True) if not _is_value_override(o))
+            key = (config_name, holder, tuple(search), base, os.getcwd(), files)  # hydra.* overrides are in base
+            try:
+                if key not in _COMPOSED:
+                    if not started:
+                        started = True
+                        GlobalHydra.instance().clear()
+                        hydra_session.callback(GlobalHydra.instance().clear)
+                        hydra_session.enter_context(initialize_config_dir(config_dir=holder, version_base="1.3"))
+                    full = compose(config_name, overrides=[*search, *base], return_hydra_config=True)
+                    launcher = OmegaConf.select(full, "hydra.launcher._target_")
+                    _refuse_hydra_settings(full)
+                    with_hydra = copy.deepcopy(full)
+                    with open_dict(full):
+                        del full["hydra"]
+                    if len(_COMPOSED) >= _COMPOSED_MAX:
+                        _COMPOSED.clear()
+                    _COMPOSED[key] = (full, launcher, with_hydra)
+                full, launcher, with_hydra = _COMPOSED[key]
+                cfg = copy.deepcopy(full)
+                _apply_values(values, cfg)
+                plain = _resolved(cfg, with_hydra)
+            except ConfigError:
+                raise
+            except Exception as err:
+                raise ConfigError(_explain_compose_error(err, point)) from None
+            specs.append(spec_from_config(plain, launcher))
+            if validated is not None:
+                validated[point_key(plain, launcher)] = specs[-1]
     _refuse_shared_folders(specs)
     return specs
+
+
+#: Hydra's compositions by (config name, folders, overrides other than plain values, working folder, the config files'
+#: state): Hydra composes in ~0.1-0.2 s, and a process validates the same bases again and again (a library caller's
+#: runs, the test suite, the command-line fuzzer). Editing, adding or removing a YAML file changes the key.
+_COMPOSED: dict = {}
+_COMPOSED_MAX = 256
+
+
+def _config_files_state(folders) -> tuple:
+    """(path, size, mtime) of every YAML file under ``folders``: what a composition read, to know when it is stale."""
+    state = []
+    for folder in dict.fromkeys(folders):
+        for path in _yaml_files(folder):
+            try:
+                info = path.stat()
+            except OSError:
+                continue
+            state.append((str(path), info.st_size, info.st_mtime_ns))
+    return tuple(state)
+
+
+def _yaml_files(folder, depth: int = 3, limit: int = 10_000) -> list[Path]:
+    """The YAML files of a config folder, as Hydra lays them out (``config.yaml``, ``algo/snes.yaml``,
+    ``hydra/launcher/joblib.yaml``): at most ``depth`` levels down and ``limit`` files, unreadable folders skipped -- a
+    ``--config-path /`` is not a walk of the whole file system."""
+    found, root = [], str(folder)
+    for here, subfolders, names in os.walk(root, onerror=lambda err: None):
+        level = here[len(root) :].count(os.sep)
+        if level + 1 >= depth:
+            subfolders[:] = []
+        found += [Path(here) / name for name in sorted(names) if name.endswith(".yaml")]
+        if len(found) >= limit:
+            break
+    return sorted(found[:limit])
 
 
 def _search_order(config_name: str, config_dirs: tuple) -> tuple[str, list]:
@@ -244,9 +293,9 @@ def _search_order(config_name: str, config_dirs: tuple) -> tuple[str, list]:
     The two orders compose the same config unless a file of a ``--config-dir`` has the path of one in conf/ -- which the
     run would silently ignore: that is refused (one line naming it)."""
     primary, *extra = config_dirs or (config_dir(),)
-    own = {p.relative_to(primary) for p in Path(primary).rglob("*.yaml")}
+    own = {p.relative_to(primary) for p in _yaml_files(primary)}
     for folder in extra:
-        shadowed = sorted(str(p.relative_to(folder)) for p in Path(folder).rglob("*.yaml") if p.relative_to(folder) in own)
+        shadowed = sorted(str(p.relative_to(folder)) for p in _yaml_files(folder) if p.relative_to(folder) in own)
         if shadowed:
             raise ConfigError(f"--config-dir {folder}: {shadowed[0]} has the name of imix's own {Path(primary) / shadowed[0]}, which Hydra "
                               "would use instead; rename it (and pick it with --config-name or group=option)")  # fmt: skip
@@ -339,12 +388,21 @@ def _explain_compose_error(err: Exception, point) -> str:
     text = str(err)
     if "not in struct" in text or "Could not override" in text or "Key '" in text and "is not in struct" in text:
         key = _unknown_key_of(text, point) or first_line(err)
-        return f"unknown key {key!r}{did_you_mean(key, all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*, policy.*, hydra.*)"
+        shown = f"{key[:100]!r}{'...' if len(key) > 100 else ''}"
+        return f"unknown key {shown}{did_you_mean(key, all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*, policy.*, hydra.*)"
     missing = re.search(r"Could not find '([^']+)/([^'/]+)'", text)
     if missing:  # a config group option that does not exist, e.g. hydra/launcher=nope
         group, option = missing.groups()
-        return f"{group}={option}: no such option in config group {group!r}"
-    return f"bad override ({', '.join(point)}): {first_line(err)}"
+        return f"{_shown(group)}={_shown(option)}: no such option in config group {_shown(group)}"
+    return f"bad override ({', '.join(map(_shown, point))}): {_shown(first_line(err), 200)}"
+
+
+def _shown(text: str, limit: int = 100) -> str:
+    """``text`` as a message shows a user's input: as is if short and printable, else quoted with its newlines and
+    control characters escaped and cut at ``limit`` characters -- the message stays one readable line."""
+    if text.isprintable() and len(text) <= limit:
+        return text
+    return repr(text[:limit]) + ("..." if len(text) > limit else "")
 
 
 def _unknown_key_of(text: str, point) -> str | None:
