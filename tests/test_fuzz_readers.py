@@ -321,6 +321,8 @@ def test_fuzz_policy_reader(run):
 
 
 # ------------------------------------------------------------------------------- seed CSVs
+#: Hostile cells: a quoted newline with text after it, quotes, an interpolation, a path, a formula, unicode, NUL, a long value.
+HOSTILE_CELLS = ['"cem\n<any text>"', '"', "'", "${oc.env:HOME}", "../../etc/passwd", "=HYPERLINK(1)", "é漢字🙂", "\x00", "a\x00b", "x" * 5000]
 @pytest.mark.slow
 def test_fuzz_seed_csv_reader(run):
     root, _, _ = run
@@ -351,7 +353,7 @@ def test_fuzz_seed_csv_reader(run):
         row = rng.randrange(1, len(lines) - 1)
         cells = lines[row].split(",")
         col = rng.randrange(len(cells))
-        cells[col] = rng.choice(["-1", "1.5", "nan", "inf", "x", "", "1e400", "0", "999999", "-0.0", "1e18", "True"])
+        cells[col] = rng.choice(["-1", "1.5", "nan", "inf", "x", "", "1e400", "0", "999999", "-0.0", "1e18", "True", *HOSTILE_CELLS])
         lines[row] = ",".join(cells)
         return "\n".join(lines).encode(), f"row {row} column {col} -> {cells[col]!r}"
 

@@ -300,9 +300,16 @@ def _search_order(config_name: str, config_dirs: tuple) -> tuple[str, list]:
             raise ConfigError(f"--config-dir {folder}: {shadowed[0]} has the name of imix's own {Path(primary) / shadowed[0]}, which Hydra "
                               "would use instead; rename it (and pick it with --config-name or group=option)")  # fmt: skip
     name = config_name.removesuffix(".yaml") + ".yaml"
-    holder = next((folder for folder in (primary, *extra) if (Path(folder) / name).is_file()), primary)
+    holder = next((folder for folder in (primary, *extra) if _is_file(Path(folder) / name)), primary)
     others = [folder for folder in (primary, *extra) if folder != holder]
     return holder, ([f"hydra.searchpath=[{','.join(_quoted('file://' + folder) for folder in others)}]"] if others else [])
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except OSError:  # a name too long for the file system (a fuzzed --config-name): no such config
+        return False
 
 
 def _quoted(text: str) -> str:
