@@ -178,26 +178,27 @@ def validate_overrides(overrides: list[str], validated: dict | None = None, conf
         if override.is_sweep_override():
             if isinstance(override.value(), Glob):
                 if key not in ("algo", "env"):
-                    raise ConfigError(f"{override.input_line}: glob() selects options of the config groups algo and env only")
+                    raise ConfigError(f"{_shown(override.input_line)}: glob() selects options of the config groups algo and env only")
                 values = override.value().filter(group_options(key, config_dirs))
                 if not values:
-                    raise ConfigError(f"{override.input_line}: matches no {key}; valid choices are {', '.join(group_options(key, config_dirs))}")
+                    raise ConfigError(f"{_shown(override.input_line)}: matches no {key}; valid choices are {', '.join(group_options(key, config_dirs))}")
             else:
                 try:
                     values = list(override.sweep_string_iterator())
                 except Exception as err:  # interval(): a sweeper plugin's search space, which -m cannot enumerate
-                    raise ConfigError(f"{override.input_line}: {first_line(err)}; imix run -m enumerates a,b,c, range() and glob() sweeps") from None
+                    why = f"{_shown(override.input_line)}: {_shown(first_line(err), 200)}"
+                    raise ConfigError(f"{why}; imix run -m enumerates a,b,c, range() and glob() sweeps") from None
             choices.append([f"{override.get_key_element()}={v}" for v in values])
         else:
             choices.append([override.input_line])
         if key in ("algo", "env"):
             if override.is_delete():
-                raise ConfigError(f"{override.input_line}: the {key} group cannot be removed; choose an option with {key}=<option>")
+                raise ConfigError(f"{_shown(override.input_line)}: the {key} group cannot be removed; choose an option with {key}=<option>")
             valid = group_options(key, config_dirs)
             for line in choices[-1]:
                 value = line.split("=", 1)[1]
                 if value not in valid:
-                    raise ConfigError(f"{key}={value}: unknown {key}; valid choices are {', '.join(valid)}")
+                    raise ConfigError(f"{key}={_shown(value)}: unknown {key}; valid choices are {', '.join(valid)}")
     parse_cache: dict = {}
 
     def parse_one(line: str):

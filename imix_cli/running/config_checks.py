@@ -176,6 +176,8 @@ def gym_env_bytes(env_id: str) -> int:
 # ----------------------------------------------------------------------------------- env
 def env_of(env_cfg: dict):
     name, env_id = env_cfg.get("name"), env_cfg.get("id")
+    if name is not None and not isinstance(name, str):  # env.name=[a] from the command line: a name, never a list or a number
+        raise ConfigError(f"env.name={name!r}: must be the name of an env config ({', '.join(BUILTIN_ENVS)}, gym, ...)")
     max_steps = env_cfg.get("max_steps")
     if max_steps is not None:
         max_steps = as_int(env_cfg, "max_steps", 1, label="env.max_steps")
