@@ -323,6 +323,8 @@ def test_fuzz_policy_reader(run):
 # ------------------------------------------------------------------------------- seed CSVs
 #: Hostile cells: a quoted newline with text after it, quotes, an interpolation, a path, a formula, unicode, NUL, a long value.
 HOSTILE_CELLS = ['"cem\n<any text>"', '"', "'", "${oc.env:HOME}", "../../etc/passwd", "=HYPERLINK(1)", "é漢字🙂", "\x00", "a\x00b", "x" * 5000]
+
+
 @pytest.mark.slow
 def test_fuzz_seed_csv_reader(run):
     root, _, _ = run
