@@ -347,3 +347,27 @@ def test_the_library_and_the_cli_refuse_the_same_values(key, argument, good, bad
         with pytest.raises((TypeError, ValueError), match=argument):
             library(value)
         assert f"{key}=" in refused([*TINY, "eim=true", f"{key}={value!r}"])
+
+
+# ------------------------------------------------------------------ what the command-line fuzzer found
+FOUND_BY_THE_FUZZER = [
+    (["-m", "sigma=interval(0,1)"], "interval"),  # HydraException
+    (["~env"], "~env"),  # IndexError
+    (["~algo"], "~algo"),
+    (["env.name=[a]"], "env.name=['a']"),  # TypeError: unhashable list
+    (["+env='a\nb'"], "unknown env"),  # a message of two lines
+    (["algo.gamma='a\nb'", "algo=ddpg", "env=continuous_cartpole", "+algo.x=1"], "algo.x"),
+    (["--config-name", "x" * 5000], "--config-name 'xxx"),  # OSError: File name too long
+    (["--config-path", "/"], "--config-name config: no such config in / "),  # walked the whole file system (OSError in /proc)
+]
+
+
+@pytest.mark.parametrize("args, text", FOUND_BY_THE_FUZZER, ids=[f"case{k}" for k in range(len(FOUND_BY_THE_FUZZER))])
+def test_what_the_fuzzer_found_is_one_line(tmp_path, args, text):
+    from imix_cli.commands.cli import validate_run_args
+    from imix_cli.running.run_folder import RunError
+
+    with pytest.raises((ConfigError, RunError)) as caught:
+        validate_run_args([*TINY, f"results_dir={tmp_path}", *args])
+    message = str(caught.value)
+    assert "\n" not in message and text in message and len(message) < 2000, message

@@ -242,7 +242,18 @@ def _parse_hydra_args(args: list[str]) -> _HydraArgs:
     for folder in dirs:
         if not os.path.isdir(folder):
             raise ConfigError(f"config folder {folder!r} not found (--config-path / --config-dir)")
-    return _HydraArgs(list(parsed.overrides), parsed.config_name or "config", tuple(dirs))
+    name = parsed.config_name or "config"
+
+    def holds(folder: str) -> bool:
+        try:
+            return os.path.isfile(os.path.join(folder, name.removesuffix(".yaml") + ".yaml"))
+        except (OSError, ValueError):  # a name too long for the file system, or holding NUL
+            return False
+
+    if not any(map(holds, dirs)):
+        shown = name if len(name) <= 100 and name.isprintable() else repr(name[:100]) + "..."
+        raise ConfigError(f"--config-name {shown}: no such config in {', '.join(dirs)} (--config-path / --config-dir)")
+    return _HydraArgs(list(parsed.overrides), name, tuple(dirs))
 
 
 def _check_run_folders(specs) -> None:
