@@ -18,6 +18,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "imix_cli"
 LAYERS = [
     [
         "registry",
+        "bounds",
         "messages",
         "processes",
         "stats",
@@ -56,6 +57,7 @@ LAYERS = [
         "running.compiled_loop",
         "running.warmup",
         "running.trainers",
+        "running.seed_checks",
         "running.resume",
         "running.run_folder",
         "running.run_writer",

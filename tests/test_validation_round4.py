@@ -1,11 +1,11 @@
-"""Reliability round 4, validation (issue 36 items 6-8; issue 38 item 9's "did you mean").
+"""Validation (issue 36 items 6-8; issue 38 item 9's "did you mean").
 
 Item 6: the whole composed config -- ``+algo.<key>``, ``+env.<key>``, a ``--config-name`` YAML, ``--config-dir`` in both
 forms -- is checked against the keys table before any point runs; a mistyped key is named as typed, with the closest
 key of the table; ``hydra.job.chdir=true`` and ``hydra.callbacks`` are refused; ``${hydra:runtime.cwd}`` works end to end;
 an experiment name the other commands could not address is refused.
 Item 7: a finished seed's CSV that contradicts its run's config is refused by run, plot and eval (one line naming the file
-and the mismatch), through one shared check (:func:`imix_cli.running.results.check_seed_csv`).
+and the mismatch), through one shared check (:func:`imix_cli.running.seed_checks.check_seed_csv`).
 Item 8: ``MixingES`` and ``make_es`` check every argument at construction, with the bounds ``imix run`` checks.
 """
 
@@ -257,7 +257,8 @@ def test_the_readers_accept_the_runs_own_csvs(runs, run_dir, tmp_path, capsys):
 def test_a_changed_schedule_does_not_continue_a_csv_on_another_one(run_dir, tmp_path, capsys):
     """eval_mean_every changed between a run and its continuation (a changed default looks the same): refused with one
     line; continued with the recorded schedule, the CSV follows one schedule to the end."""
-    from imix_cli.running.results import check_seed_csv, read_run_csv
+    from imix_cli.running.results import read_run_csv
+    from imix_cli.running.seed_checks import check_seed_csv
 
     csv = run_dir / "seed_0.csv"
     before = csv.read_bytes()

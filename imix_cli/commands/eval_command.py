@@ -248,10 +248,11 @@ def evaluate_run(run_dir: Path, which: str, episodes: int, cache: dict | None = 
 
 def check_finished_seeds(run_dir: Path, seeds) -> None:
     """CorruptResultError (one line naming the file) if the CSV of one of ``seeds`` contradicts the run's config.yaml
-    (:func:`imix_cli.running.results.check_seed_csv`): its policies would be reported as the run's. A seed without a
+    (:func:`imix_cli.running.seed_checks.check_seed_csv`): its policies would be reported as the run's. A seed without a
     CSV (unfinished, its policy from a checkpoint) or a run without config.yaml is not checked."""
     from imix_cli.plotting.data import read_run_config
-    from imix_cli.running.results import check_seed_csv, read_run_csv, seed_csv_path
+    from imix_cli.running.results import read_run_csv, seed_csv_path
+    from imix_cli.running.seed_checks import check_seed_csv
 
     def warn(message: str) -> None:
         print(f"imix eval: warning: {message}", file=sys.stderr)

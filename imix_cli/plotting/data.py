@@ -65,7 +65,8 @@ import numpy as np
 import pandas as pd
 
 from imix_cli.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
-from imix_cli.running.results import CorruptResultError, ResultMismatchError, check_seed_csv, read_run_csv, read_small_text, run_dir_name, seed_csv_path
+from imix_cli.running.results import CorruptResultError, ResultMismatchError, read_run_csv, read_small_text, run_dir_name, seed_csv_path
+from imix_cli.running.seed_checks import check_seed_csv
 from imix_cli.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 
 __all__ = [

@@ -16,17 +16,9 @@ import os
 import reprlib
 import stat
 
-from imix_cli.running.results import (
-    SCHEDULE_KEYS,
-    CorruptResultError,
-    atomic_write_text,
-    check_seed_csv,
-    partial_csv_path,
-    read_run_csv,
-    read_small_text,
-    seed_csv_path,
-)
+from imix_cli.running.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
 from imix_cli.running.run_spec import differing_keys, identity_of, resume_identity
+from imix_cli.running.seed_checks import SCHEDULE_KEYS, check_seed_csv
 from imix_cli.running.trainers import trainer_for
 
 

@@ -1,0 +1,99 @@
+"""A finished seed's CSV checked against the config of its run: the one check run, plot, eval and status share.
+
+:func:`imix_cli.running.results.read_run_csv` checks that a CSV follows the contract; :func:`check_seed_csv` checks
+that it is a seed of *this* run -- the run folder's config.yaml (or, for ``imix run``, the command's config) -- and raises
+:class:`~imix_cli.running.results.ResultMismatchError`, a :class:`~imix_cli.running.results.CorruptResultError`, so that
+every reader's handling of a corrupt CSV applies to it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from imix_cli.env_ids import plain_env_id
+from imix_cli.registry import BUILTIN_ENVS
+from imix_cli.running.results import COLUMNS, ResultMismatchError
+from imix_cli.running.trainers import trainer_named
+
+__all__ = ["SCHEDULE_KEYS", "check_seed_csv", "csv_env_name"]
+
+
+#: The schedule keys of a run's config.yaml: where and on how many episodes the distribution mean is measured.
+SCHEDULE_KEYS = ("eval_mean_every", "eval_mean_episodes")
+
+
+def csv_env_name(config: dict) -> str | None:
+    """The ``env`` column a run of ``config`` (config.yaml's mapping) writes: a built-in env's config name when its
+    id is the built-in's, else the plain gymnasium id (``module:`` dropped), as ``env_of`` names the run; None if the
+    config does not say."""
+    env = config.get("env")
+    if not isinstance(env, dict) or not isinstance(env.get("id"), str):
+        return None
+    name, env_id = env.get("name"), env["id"]
+    return name if name in BUILTIN_ENVS and env_id == BUILTIN_ENVS[name] else plain_env_id(env_id)
+
+
+def check_seed_csv(frame, path, config: dict) -> None:
+    """Raise :class:`ResultMismatchError` (one line naming ``path`` and the mismatch) if a seed's CSV contradicts the
+    config of its run.
+
+    ``frame``: the CSV as :func:`read_run_csv` returned it (the contract already holds); ``config``: the run's
+    config.yaml mapping (``imix run`` passes its own config, schedule keys from config.yaml). A key ``config`` lacks,
+    or holds in a form no run writes, is not compared: a config.yaml of an older imix still lets its CSVs be read.
+
+    Why: a CSV is a file like any other -- copied from another run, left by an older version, edited -- and every
+    reader took one that follows the contract as a seed of the run it sits in: ``imix run`` summed a CSV of another env
+    or popsize into its summary as a finished seed ("reuse 100.0%"), and a run continued after a changed default
+    (``eval_mean_every``) appended rows measured on another schedule. Run, plot, eval (and status) share this one check:
+    the schema (the header is :data:`COLUMNS`, in order), algo, env, mixing, popsize, at most the run's budget
+    (generations, or DDPG's total_steps), and the distribution mean measured exactly where :data:`SCHEDULE_KEYS` say."""
+    header = frame.attrs.get("header", COLUMNS)
+    if tuple(header) != COLUMNS:
+        extra = [c for c in header if c not in COLUMNS]
+        what = f"extra column(s) {extra[:3]}" if extra else "its columns in another order"
+        raise ResultMismatchError(f"{path}: not the seed CSV schema of this imix ({what})")
+    algo_cfg = config.get("algo") if isinstance(config.get("algo"), dict) else {}
+    algo = algo_cfg.get("name")
+    expected = {"algo": algo, "env": csv_env_name(config), "mixing": config.get("mixing")}
+    for column, want in expected.items():
+        got = str(frame[column].iloc[0])
+        if isinstance(want, str) and got != want:
+            raise ResultMismatchError(f"{path}: a {column}={got} seed, its run's config has {column}={want} (a CSV of another run?)")
+    popsize = config.get("popsize")  # an ES's (algo=ddpg's config.yaml has none: one member)
+    if _is_count(popsize) and int(frame["popsize"].iloc[0]) != popsize:
+        raise ResultMismatchError(f"{path}: rows of popsize {int(frame['popsize'].iloc[0])}, its run's config has popsize={popsize}")
+    trainer = trainer_named(algo)
+    budget = config.get(trainer.budget_key)
+    spent = len(frame) if trainer.unit == "gen" else int(frame["env_steps"].iloc[-1])  # generations, or DDPG's env steps
+    if _is_count(budget) and spent > budget:
+        unit = "generations" if trainer.unit == "gen" else "env steps"
+        raise ResultMismatchError(f"{path}: has {spent} {unit}, its run's config has {trainer.budget_key}={budget}")
+    if trainer.unit == "gen":  # an ES measures its distribution mean on a schedule; DDPG never does
+        _check_schedule(frame, path, config)
+
+
+def _is_count(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _check_schedule(frame, path, config: dict) -> None:
+    """ResultMismatchError unless the distribution mean was measured (``mean_policy_episodes`` grows by
+    ``eval_mean_episodes``) at exactly the rows ``eval_mean_every`` schedules -- row r when (r + 1) % every == 0 -- and
+    nowhere else (a diverged seed's last row may go unmeasured: its mean is not finite)."""
+    every, episodes = (config.get(k) for k in SCHEDULE_KEYS)
+    if not _is_count(every) or not _is_count(episodes):
+        return
+    counted = frame["mean_policy_episodes"].to_numpy(dtype=np.int64)
+    grown = np.diff(counted, prepend=0)
+    rows = np.arange(len(frame))
+    due = (rows + 1) % every == 0 if every else np.zeros(len(frame), dtype=bool)
+    diverged_last = np.zeros(len(frame), dtype=bool)
+    diverged_last[-1] = frame["diverged"].iloc[-1] == 1
+    measured = np.isfinite(frame["mean_policy_score"].to_numpy(dtype=np.float64))
+    wrong = (grown != np.where(due, episodes, 0)) & ~(due & diverged_last & (grown == 0)) | (measured & (grown == 0))
+    if np.any(wrong):
+        first = int(np.argmax(wrong))
+        raise ResultMismatchError(
+            f"{path}: the distribution mean was measured on another schedule than its run's eval_mean_every={every}, "
+            f"eval_mean_episodes={episodes} (generation {first}: {int(grown[first])} episodes); a CSV continued after a change of either?"
+        )
