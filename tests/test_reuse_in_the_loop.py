@@ -258,3 +258,40 @@ def test_tie_key_salt_is_what_the_es_uses(monkeypatch):
     for _ in range(3):
         es.tell(np.random.default_rng(0).standard_normal((6, 3)), np.ones(6))
     assert seen == [1, 2, 3]
+
+
+# ------------------------------------------------------------------ no fixed point (the minimal refresh)
+def _fully_reused_runs(algo, min_fresh, seed, generations=300):
+    """CEM/CMA-ES + "exact" on a noise-free 10-d sphere (N = 20): the longest run of generations in which every
+    member was reused, the generations in which the mean did not move, the longest run of those, the evaluations."""
+    from imix_cli import MixingES, make_es
+
+    es = MixingES(make_es(algo, dim=10, popsize=20, sigma=0.5), "exact", rng=seed, min_fresh=min_fresh)
+    longest = run = still = longest_still = run_still = 0
+    mean = es.distribution.mean.copy()
+    for _ in range(generations):
+        x = es.ask()
+        es.tell(x, -np.sum((x - 1.0) ** 2, axis=1))
+        run = run + 1 if len(x) == 0 else 0
+        longest = max(longest, run)
+        moved = not np.array_equal(es.distribution.mean, mean)
+        mean = es.distribution.mean.copy()
+        still += not moved
+        run_still = 0 if moved else run_still + 1
+        longest_still = max(longest_still, run_still)
+    return longest, still, longest_still, es.evaluations
+
+
+def test_cem_with_mixing_has_no_fixed_point():
+    """Issue 35: once CEM's distribution stops moving, p_new = p_old, every member is reused, CEM is told the same
+    members and returns and makes the same update -- a fixed point in which nothing is searched. Without the minimal
+    refresh (min_fresh=0) each of three seeds has a run of over 20 generations that evaluate nothing (24-78 measured)
+    and the mean stands still in over 100 of 300 generations. With the default (one slot drawn at random holds a fresh
+    member) no generation is fully reused, and the elites turn over: the mean stands still in at most 10 % of the
+    generations, never more than 5 in a row (measured: 10-20 of 300, runs of 2-4)."""
+    for seed in range(3):
+        longest, still, _, _ = _fully_reused_runs("cem", 0, seed)
+        assert longest > 20 and still > 100, (seed, longest, still)  # the fixed point is there to be cured
+        longest, still, longest_still, evaluations = _fully_reused_runs("cem", 1, seed)
+        assert longest == 0 and still <= 30 and longest_still <= 5, (seed, longest, still, longest_still)
+        assert evaluations < 0.3 * 300 * 20, evaluations  # and mixing still saves most episodes

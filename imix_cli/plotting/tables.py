@@ -267,7 +267,7 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
 # --------------------------------------------------------------------------- robust statistics (Agarwal et al. 2021)
 
 #: Overrides that only set how mixing is done: stripped when pairing a run with its no-mixing twin.
-_MIXING_OVERRIDES = ("eim_generations", "im_variant", "im_alpha")
+_MIXING_OVERRIDES = ("eim_generations", "im_variant", "im_alpha", "min_fresh")
 BOOTSTRAP_REPS = 2000
 
 

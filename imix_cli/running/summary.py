@@ -13,7 +13,7 @@ from imix_cli.stats import mean_ci
 
 #: Config keys that only say how (and whether) mixing is done: runs that differ in these alone are
 #: "the same config with and without mixing", compared in the summary.
-MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "mixing")
+MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "min_fresh", "mixing")
 
 
 def prepare_summary() -> None:
