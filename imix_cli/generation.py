@@ -77,7 +77,7 @@ class MixingSettings:
     reeval_age: int | None = None
     reeval_prob: float = 0.0
     reeval_count: int = 0
-    min_fresh: int = 0
+    min_fresh: int = 1
 
     @property
     def depth(self) -> int:
