@@ -172,7 +172,9 @@ def seed_summary(frame) -> dict:
     """What a run's summary needs of one seed's rows: a contract-conforming frame (read or just
     written), or any mapping of column name to its values (:func:`write_run_csv`'s plain rows).
 
-    ``theta``: the distribution mean's return on fresh episodes where it was last measured (NaN if never)."""
+    ``theta``: the distribution mean's return on fresh episodes where it was last measured (NaN if never).
+    ``stalled``: generations in which no member was evaluated (every one reused: ``reused == popsize``),
+    what ``min_fresh`` >= 1 rules out (imix_cli/mixing.py, "A minimal refresh")."""
 
     def column(name):
         return np.asarray(frame[name])
@@ -186,6 +188,7 @@ def seed_summary(frame) -> dict:
         "env_steps": int(column("env_steps")[-1]),
         "reused": int(column("reused").sum()),
         "members": int(column("popsize").sum()),
+        "stalled": int(np.count_nonzero(column("reused") == column("popsize"))),
         "nonfinite": int(column("nonfinite").sum()),
         "mixing": str(column("mixing")[0]),
         "diverged": int(column("diverged")[-1] == 1),

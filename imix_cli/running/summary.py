@@ -58,6 +58,7 @@ def summarize(spec, run_dir: Path | None = None, known: dict | None = None) -> d
         "env_steps": env_steps,  # total over seeds
         "env_steps_per_seed": env_steps / n,
         "reuse_percent": 100.0 * reused / members if members else 0.0,
+        "stalled_generations": sum(s.get("stalled", 0) for s in per_seed),  # no member evaluated (total over seeds)
         "nonfinite_returns": sum(s["nonfinite"] for s in per_seed),
         "diverged_seeds": sum(s["diverged"] for s in per_seed),
     }
@@ -90,7 +91,8 @@ def _score(mean: float, half: float) -> str:
 
 #: The footnote of every summary table: which score is free of reused returns.
 SCORES_NOTE = (
-    "population: last generation's mean return (reused members with stored returns); θ fresh: distribution mean on fresh episodes (free of reused returns)"
+    "population: last generation's mean return (reused members with stored returns); θ fresh: distribution mean on fresh episodes (free of reused returns); "
+    "no-fresh: generations in which every member was reused (all seeds)"
 )
 
 
@@ -99,14 +101,15 @@ def format_table(rows: list[dict]) -> list[str]:
     width = max(32, *(len(r["run"]) for r in rows))
     header = (
         f"{'run':<{width}} {'seeds':>5} {'population (68% CI)':>22} {'θ fresh (68% CI)':>20} {'episodes/seed':>14} "
-        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10} {'diverged':>8}"
+        f"{'env steps/seed':>15} {'reuse':>7} {'no-fresh':>8} {'non-finite':>10} {'diverged':>8}"
     )
     lines = [header]
     for r in rows:
         theta = _score(r.get("theta_mean_score", float("nan")), r.get("theta_ci68", float("nan")))
         lines.append(
             f"{r['run']:<{width}} {r['seeds']:>5} {_score(r['final_mean_score'], r['ci68']):>22} {theta:>20} {r['evaluations_per_seed']:>14,.0f} "
-            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10} {r['diverged_seeds']:>8}"
+            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r.get('stalled_generations', 0):>8} {r['nonfinite_returns']:>10} "
+            f"{r['diverged_seeds']:>8}"
         )
     return lines
 
