@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import atexit
 import logging
-import multiprocessing
 import os
 import queue as queue_module
 import signal
 import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from imix_cli.processes import one_blas_thread, start_orphan_watchdog
+from imix_cli.processes import one_blas_thread, spawn_context, start_orphan_watchdog
 
 _progress_queue = None
 
@@ -34,7 +33,7 @@ def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None)
 
     ``when_a_core_is_free()`` is called once, here, when a worker has finished its chunk while others
     still run: work this process will need next can be done then without slowing a worker."""
-    ctx = multiprocessing.get_context("spawn")
+    ctx = spawn_context()
     progress_queue = ctx.Queue()
     pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
     try:
