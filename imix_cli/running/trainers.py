@@ -17,7 +17,8 @@ from pathlib import Path
 class Trainer:
     """How the seeds of one kind of algorithm are trained.
 
-    ``run_seeds(spec, seeds, progress) -> {seed: summary}`` runs seeds to completion in this process
+    ``run_seeds(spec, seeds, progress, resumed) -> {seed: summary}`` runs seeds to completion in this process
+    (``resumed({seed: generation})``: where each starts, told once)
     and ``needs_running(spec, seed, path, frame) -> bool`` says whether a seed whose CSV exists
     is to be run further (RunError if that CSV does not fit the config). Both are the functions
     below (the ES's ``run_seeds`` also builds the run's evaluator, and closes it), which import
@@ -37,19 +38,22 @@ class Trainer:
         return getattr(spec, self.budget_key)
 
 
-def _run_es_seeds(spec, seeds: list[int], progress) -> dict:
+def _run_es_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:
     """The run's evaluator, then its seeds on it: the evaluator's processes (pool, Ray) end with the
-    seeds, a Ctrl-C or SIGTERM included."""
+    seeds, a Ctrl-C or SIGTERM included. A Ctrl-C or SIGTERM stops the seeds between two generations,
+    checkpointed, and acts once the evaluator is closed (:mod:`imix_cli.running.stopping`)."""
     from imix_cli.parallel_evaluation import build_evaluator
     from imix_cli.running.es_seeds import run_es_seeds
+    from imix_cli.running.stopping import stops_between_generations
 
     evaluator = build_evaluator(spec)
-    try:
-        return run_es_seeds(spec, seeds, progress, evaluator)
-    finally:
-        close = getattr(evaluator, "close", None)  # a user's evaluator may have nothing to close
-        if close is not None:
-            close()
+    with stops_between_generations():
+        try:
+            return run_es_seeds(spec, seeds, progress, evaluator, resumed)
+        finally:
+            close = getattr(evaluator, "close", None)  # a user's evaluator may have nothing to close
+            if close is not None:
+                close()
 
 
 def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
@@ -58,7 +62,7 @@ def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
     return needs_running(spec, seed, path, frame)
 
 
-def _run_ddpg_seeds(spec, seeds: list[int], progress) -> dict:
+def _run_ddpg_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:  # a DDPG seed is never resumed
     from imix_cli.ddpg.seeds import run_ddpg_seeds
 
     return run_ddpg_seeds(spec, seeds, progress)
