@@ -24,6 +24,7 @@ from imix_cli.running.resume import can_checkpoint, load_checkpoint
 from imix_cli.running.run_folder import RunError
 from imix_cli.running.run_spec import resume_identity
 from imix_cli.running.run_writer import RunWriter
+from imix_cli.running.trainers import es_seed_finished
 
 
 def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> dict:
@@ -125,7 +126,7 @@ def needs_running(spec, seed: int, path: Path, frame) -> bool:
             f"{path}: has {len(frame)} generations, config asks for {spec.generations}: a run can be continued to more generations, "
             "not shortened below what a seed finished; choose another experiment= or move that folder away"
         )
-    if len(frame) < spec.generations and frame["diverged"].iloc[-1] != 1:  # continue it from its final state
+    if not es_seed_finished(frame, spec.generations):  # continue it from its final state
         if not checkpoint_path(run_dir, seed).exists():
             raise RunError(
                 f"{path}: has {len(frame)} of {spec.generations} generations and no final state to continue from "

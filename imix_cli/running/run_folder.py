@@ -17,6 +17,7 @@ import reprlib
 import stat
 
 from imix_cli.running.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
+from imix_cli.running.run_lock import LOCK_NAME
 from imix_cli.running.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.running.trainers import trainer_for
 
@@ -137,9 +138,6 @@ def make_run_dir(spec) -> None:
         raise RunError(f"results_dir={spec.results_dir!r}: cannot create {run_dir} ({err.strerror or err})") from None
     if not os.access(run_dir, os.W_OK):
         raise RunError(f"results_dir={spec.results_dir!r}: {run_dir} is not writable")
-
-
-LOCK_NAME = ".lock"
 
 
 @contextlib.contextmanager

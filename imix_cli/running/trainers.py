@@ -29,6 +29,7 @@ class Trainer:
 
     run_seeds: Callable[..., dict]
     needs_running: Callable[..., bool]
+    finished: Callable[..., bool]  # finished(frame, budget): whether a seed whose CSV holds ``frame`` is done (see es_seed_finished)
     unit: str  # what progress counts: "gen" (seed-generations) or "step" (environment steps)
     budget_key: str  # the RunSpec field (and config.yaml key) holding a seed's budget in those units
     continuable: bool  # a finished run may be continued to a larger budget from its final states
@@ -56,6 +57,20 @@ def _run_es_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:
                 close()
 
 
+def es_seed_finished(frame, generations: int) -> bool:
+    """Whether an ES seed whose CSV holds ``frame`` is finished in a run of ``generations``: it has them all, or
+    fewer ending in a diverged row (a diverged seed stops there for good).
+
+    The one notion of "finished" of every reader: ``imix run`` skips such a seed and continues (or refuses) any
+    other (:func:`imix_cli.running.es_seeds.needs_running`), ``imix status`` counts it done; a 1-of-30-row CSV is
+    neither's finished seed."""
+    return len(frame) >= generations or (len(frame) > 0 and int(frame["diverged"].iloc[-1]) == 1)
+
+
+def _ddpg_seed_finished(frame, total_steps) -> bool:
+    return True  # a DDPG seed's CSV is written once, when it ends (never continued: needs_running)
+
+
 def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
     from imix_cli.running.es_seeds import needs_running
 
@@ -74,8 +89,8 @@ def _ddpg_needs_running(spec, seed: int, path: Path, frame) -> bool:
     return needs_running(spec, seed, path, frame)
 
 
-EVOLUTION_STRATEGY = Trainer(_run_es_seeds, _es_needs_running, "gen", "generations", continuable=True, compares_mixing=True)
-DDPG = Trainer(_run_ddpg_seeds, _ddpg_needs_running, "step", "total_steps", continuable=False, compares_mixing=False)
+EVOLUTION_STRATEGY = Trainer(_run_es_seeds, _es_needs_running, es_seed_finished, "gen", "generations", continuable=True, compares_mixing=True)
+DDPG = Trainer(_run_ddpg_seeds, _ddpg_needs_running, _ddpg_seed_finished, "step", "total_steps", continuable=False, compares_mixing=False)
 
 #: Algorithms that are not evolution strategies, by name; every other algo is an ES.
 TRAINERS = {"ddpg": DDPG}
