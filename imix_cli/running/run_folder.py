@@ -30,13 +30,17 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
     """Check the run folder against ``spec`` without writing anything; return (seeds still to run, whether
     config.yaml is to be (re)written).
 
-    Raises RunError (one line) if the folder, the experiment folder or anything in the run folder is a
+    Raises RunError (one line) if the algorithm's optional packages are not installed (:attr:`Trainer.missing_extra`),
+    if the folder, the experiment folder or anything in the run folder is a
     symbolic link, if the folder holds results of a different config, a corrupt CSV, or a seed finished
     beyond ``generations`` (a run is never shortened below what a seed finished).
     """
     import yaml
 
     trainer = trainer_for(spec)
+    missing = trainer.missing_extra()
+    if missing:  # before anything is made: a run that cannot start leaves no folder for status to list
+        raise RunError(missing)
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
     refuse_links(spec)

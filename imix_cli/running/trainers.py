@@ -34,9 +34,20 @@ class Trainer:
     budget_key: str  # the RunSpec field (and config.yaml key) holding a seed's budget in those units
     continuable: bool  # a finished run may be continued to a larger budget from its final states
     compares_mixing: bool  # the summary compares sibling runs with other mixing settings
+    needs: tuple = ()  # (module, pip requirement): the optional packages its seeds import
+    install: str = ""  # how to install them, as the docs say
 
     def budget(self, spec) -> int:
         return getattr(spec, self.budget_key)
+
+    def missing_extra(self) -> str | None:
+        """One line naming what to install if a package of :attr:`needs` is missing (looked up, not imported:
+        torch takes seconds to import), else None. Why up front: the import failed only in the seeds' processes,
+        as a 40-line traceback, after the run folder was made."""
+        import importlib.util
+
+        missing = [requirement for module, requirement in self.needs if importlib.util.find_spec(module) is None]
+        return f"algo=ddpg needs {' and '.join(missing)}, not installed: {self.install}" if missing else None
 
 
 def _run_es_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:
@@ -90,7 +101,11 @@ def _ddpg_needs_running(spec, seed: int, path: Path, frame) -> bool:
 
 
 EVOLUTION_STRATEGY = Trainer(_run_es_seeds, _es_needs_running, es_seed_finished, "gen", "generations", continuable=True, compares_mixing=True)
-DDPG = Trainer(_run_ddpg_seeds, _ddpg_needs_running, _ddpg_seed_finished, "step", "total_steps", continuable=False, compares_mixing=False)
+DDPG = Trainer(
+    _run_ddpg_seeds, _ddpg_needs_running, _ddpg_seed_finished, "step", "total_steps", continuable=False, compares_mixing=False,
+    needs=(("torch", "torch"), ("stable_baselines3", "stable-baselines3")),
+    install='pip install torch==2.13.0 "imix-cli[ddpg]" (a CPU torch first: an unpinned one pulls several GB of CUDA packages)',
+)  # fmt: skip
 
 #: Algorithms that are not evolution strategies, by name; every other algo is an ES.
 TRAINERS = {"ddpg": DDPG}
