@@ -134,3 +134,37 @@ def test_ctrl_c_to_the_whole_group_with_two_workers_keeps_each_seeds_current_gen
     assert sorted(got) == sorted(expected) and len(got) == 2
     for name in expected:
         pd.testing.assert_frame_equal(got[name], expected[name])
+
+
+def test_in_process_a_step_that_does_not_end_is_given_up_after_the_grace_period(tmp_path, monkeypatch):
+    """In-process nobody else bounds the wait: a step that outlasts STOP_GRACE_SECONDS (a first run compiling its
+    kernels takes minutes) is cut, as a second Ctrl-C would cut it; the seeds keep what was saved before."""
+    from imix_cli.running import stopping
+
+    monkeypatch.setattr(stopping, "STOP_GRACE_SECONDS", 0.5)
+    (spec,) = validate_overrides([*COMMON, f"results_dir={tmp_path}"])
+    todo = prepare_run_dir(spec)
+    reached = {}
+
+    def a_step_that_hangs(n):
+        os.kill(os.getpid(), signal.SIGINT)
+        started = time.monotonic()
+        try:
+            time.sleep(30)  # the step goes on (a compilation, a long generation; here a system call)
+        finally:
+            reached["cut after"] = time.monotonic() - started
+
+    class Stopped(Exception):
+        pass
+
+    def raise_stopped(signum, frame):
+        raise Stopped()
+
+    previous = signal.signal(signal.SIGINT, raise_stopped)
+    try:
+        with pytest.raises(Stopped):
+            run_seeds(spec, todo, progress=a_step_that_hangs)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert reached["cut after"] < 20, reached  # cut in its system call, not when it ended (30 s)
+    assert not list(spec.run_dir.glob("seed_*.partial.csv"))  # given up: nothing new saved

@@ -4,7 +4,7 @@
 own process and returns their results. Workers report progress through :func:`report_progress`
 (a queue drained into ``bar``); they ignore SIGINT (the main process alone decides, and stops
 them with SIGTERM, after which each checkpoints its seeds' current generation: at most
-:data:`STOP_GRACE_SECONDS`), and exit within a second if the main process dies (kill -9), so that none lingers.
+:data:`imix_cli.running.stopping.STOP_GRACE_SECONDS`), and exit within a second if the main process dies (kill -9), so that none lingers.
 Workers are spawned with one BLAS thread each (:func:`imix_cli.processes.one_blas_thread`).
 """
 
@@ -23,12 +23,6 @@ from imix_cli.processes import one_blas_thread, spawn_context, start_orphan_watc
 from imix_cli.running import stopping
 
 _progress_queue = None
-
-
-#: The longest the main process waits, after a Ctrl-C or SIGTERM, for its workers to checkpoint every seed's
-#: current generation and exit (:mod:`imix_cli.running.stopping`); a worker still busy then is killed, and its
-#: seeds keep their last periodic checkpoint. A worker's step is about a tenth of a second on the main job.
-STOP_GRACE_SECONDS = 20.0
 
 
 def report_progress(n: int) -> None:
@@ -69,7 +63,7 @@ def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None,
     except BaseException:
         # Ctrl-C / SIGINT to this process alone, or a worker's error: stop the other workers now rather than
         # let them finish their seeds; each checkpoints its seeds' current generation first (writes are atomic).
-        _terminate_workers(pool, grace=STOP_GRACE_SECONDS)
+        _terminate_workers(pool, grace=stopping.STOP_GRACE_SECONDS)
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

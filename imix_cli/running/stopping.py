@@ -12,9 +12,10 @@ each seed at its current generation and raises :class:`StopRequested`; once the 
 
 How long: the current step ends first -- one generation, or one seed's compiled chunk of at most
 :data:`imix_cli.running.es_seeds.CHUNK` generations (the numba call cannot be cut; on the main job a chunk
-takes about a tenth of a second) -- then one checkpoint per seed. In-process, a second Ctrl-C stops at
-once (the last periodic checkpoints are kept, as a kill keeps them); with worker processes the main
-process waits for them at most :data:`imix_cli.running.pool.STOP_GRACE_SECONDS`, then kills those still busy.
+takes about a tenth of a second; a first run's compilation of the kernels, minutes) -- then one
+checkpoint per seed. At most :data:`STOP_GRACE_SECONDS` all told: with worker processes the main process
+then kills those still busy; in-process the signal then acts as if it came again. A second Ctrl-C acts at
+once. Either way, what was not saved keeps its last periodic checkpoint, as a kill does.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ import threading
 __all__ = ["StopRequested", "requested", "stops_between_generations", "worker_waits_for_its_main"]
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: The longest a Ctrl-C or SIGTERM waits for the seeds to reach the end of their step and be checkpointed.
+STOP_GRACE_SECONDS = 20.0
 #: The signal that asked the running loop to stop (None: none did).
 _requested: int | None = None
 #: In a worker process of the seed pool: a repeated signal is not the user's second Ctrl-C but the main
@@ -73,11 +76,18 @@ def stops_between_generations():
     def on_signal(signum, frame) -> None:
         global _requested
         if _requested is None or _patient:
+            if _requested is None and not _patient:  # in-process: nobody else bounds the wait
+                timer.start()
             _requested = _requested or signum
             return
-        restore()  # a second Ctrl-C: the user will not wait for the current step
+        restore()  # a second Ctrl-C (or the grace period over): the user will not wait for the current step
         _deliver(signum, previous[signum], frame)
 
+    # Sent again, from a timer thread to the main thread (a wait in a system call ends), its handler runs as soon as
+    # the main thread is back in Python: in a compilation, at once; in a compiled call, when that returns.
+    main = threading.main_thread().ident
+    timer = threading.Timer(STOP_GRACE_SECONDS, lambda: signal.pthread_kill(main, _requested) if _requested else None)
+    timer.daemon = True
     _requested = None
     for signum in taken:
         signal.signal(signum, on_signal)
@@ -88,6 +98,7 @@ def stops_between_generations():
         _deliver(stop.signum, previous[stop.signum], None)
         raise KeyboardInterrupt from None  # the previous handler returned: the run stops all the same
     finally:
+        timer.cancel()
         restore()
         _requested = None
 
