@@ -97,6 +97,12 @@ def stops_between_generations():
         restore()
         _deliver(stop.signum, previous[stop.signum], None)
         raise KeyboardInterrupt from None  # the previous handler returned: the run stops all the same
+    except BaseException:
+        signum = _requested
+        if signum is not None:  # the step failed while a stop was pending (evaluator=pool's workers died of the
+            restore()  # same SIGTERM to the group): the signal is what the user sent, and what is answered
+            _deliver(signum, previous[signum], None)
+        raise
     finally:
         timer.cancel()
         restore()
