@@ -36,7 +36,7 @@ commands:
             imix eval experiment=try episodes=100 which=mean
   render  write a GIF (or .mp4 with ffmpeg) of one saved policy acting in its env
             imix render experiment=try run=snes-cartpole-eim seed=0 out=policy.gif
-  status  seeds done / running / not started of each run, last generation, scores (read-only)
+  status  seeds done / running / stopped / not started of each run, last generation, scores (read-only)
             imix status experiment=try
 
 Results go to results/<experiment>/<algo>-<env>-<mixing>[-<overrides>]/seed_<k>.csv.

@@ -139,8 +139,40 @@ def format_summary(spec, s: dict) -> str:
     return "\n".join(lines)
 
 
+#: RunSpec fields a sweep point's name may leave out, by the config key shown for them; the name's own
+#: spelling, where it differs, in :data:`_NAMED_AS`. The algo, env and mixing are in every name.
+_SHOWN_KEYS = {
+    "generations": "generations", "total_steps": "total_steps", "popsize": "popsize", "sigma": "sigma", "lr": "lr",
+    "weight_decay": "weight_decay", "weight_decay_form": "weight_decay_form", "im_alpha": "im_alpha", "eim_generations": "eim_generations",
+    "reeval_age": "reeval_age", "reeval_prob": "reeval_prob", "reeval_count": "reeval_count", "env_max_steps": "env.max_steps",
+    "hidden": "policy.hidden", "obs_norm": "policy.obs_norm", "obs_var_floor": "policy.obs_var_floor", "policy_bias": "policy.bias",
+    "policy_output": "policy.output",
+}  # fmt: skip
+_NAMED_AS = {"env_max_steps": "env.max_steps", "policy_bias": "bias", "policy_output": "output"}
+
+
+def hidden_values(specs) -> dict[str, str]:
+    """Run name -> ``key=value, ...`` of the keys whose values differ between the points of a sweep but that its name
+    does not show. Why: a folder is named by the values that differ from the paper's (``snes-cartpole-none-popsize=100``),
+    so the point that ran with ``popsize=50`` reads ``snes-cartpole-none``; and ``generations`` (1000 for snes, 400
+    for cem) names none. Each run's config.yaml has every value; the sweep's table shows these next to the names."""
+    differing = [f for f in _SHOWN_KEYS if len({repr(getattr(spec, f)) for spec in specs}) > 1]
+    out = {}
+    for spec in specs:
+        name = spec.run_name
+        shown = [f"{_SHOWN_KEYS[f]}={_value(getattr(spec, f))}" for f in differing if f"{_NAMED_AS.get(f, f)}=" not in name]
+        if shown:
+            out[name] = ", ".join(shown)
+    return out
+
+
+def _value(v) -> str:
+    return str(list(v)) if isinstance(v, tuple) else str(v)
+
+
 def format_sweep_table(specs) -> str | None:
     """One table of every point of a sweep (``imix run -m``), printed after the last one; None for a single run.
+    A run's name is followed by the values its name leaves out that differ between the points (:func:`hidden_values`).
 
     A point whose seeds are not all finished (a failed job of a launcher) is named, not tabled."""
     if len(specs) < 2:
@@ -153,6 +185,8 @@ def format_sweep_table(specs) -> str | None:
             missing.append(spec.run_name)
     if not rows:
         return None
+    hidden = hidden_values(specs)
+    rows = [{**r, "run": f"{r['run']} ({hidden[r['run']]})"} if hidden.get(r["run"]) else r for r in rows]
     lines = [f"sweep: {len(rows)} run(s) of {specs[0].results_dir}/{specs[0].experiment}", *format_table(rows), SCORES_NOTE]
     if missing:
         lines.append(f"not finished: {', '.join(missing)}")
