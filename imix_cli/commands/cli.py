@@ -196,10 +196,19 @@ def run_command(args: list[str]) -> int:
 def _check_run_folders(specs) -> None:
     """Every point's run folder, read only (:func:`imix_cli.running.run_folder.check_run_dir`), before any point runs:
     a folder holding another config, a corrupt CSV or a link stops the sweep before its first point."""
-    from imix_cli.running.run_folder import check_run_dir
+    from pathlib import Path
+
+    from imix_cli.running.run_folder import RunError, check_run_dir
+    from imix_cli.writing import LinkRefusedError
 
     for spec in specs:
         check_run_dir(spec)
+        # Hydra writes a sweep's multirun.yaml and job folders below <experiment>/.multirun itself (not through
+        # imix_cli.writing); the folder it makes there is new (named by the second and the pid), so refusing a
+        # linked .multirun (the experiment folder: check_run_dir) keeps those writes inside results_dir.
+        multirun = Path(spec.results_dir) / spec.experiment / ".multirun"
+        if multirun.is_symlink():
+            raise RunError(str(LinkRefusedError(multirun)))
 
 
 def _own_sweep_folder(args: list[str]) -> list[str]:
