@@ -143,13 +143,24 @@ def policy_frames(policy, frames: int | None = None, env_id: str | None = None):
         limit = frames if frames is not None else int(h["max_steps"]) + 1
         space = env.action_space
         for _ in range(limit - 1):
-            a = act(np.asarray(obs, dtype=np.float64).reshape(1, -1))
+            flat = np.asarray(obs, dtype=np.float64).reshape(-1)
+            if flat.size != int(h["obs_dim"]):
+                from imix_cli.evaluation import UserEnvError
+
+                raise UserEnvError(env_id, f"step returned an observation of shape {np.shape(obs)}; the policy takes {h['obs_dim']} numbers")
+            a = act(flat.reshape(1, -1))
             if h["discrete"]:
                 action = int(a[0]) + int(h.get("action_start") or 0)
             else:
                 action = np.asarray(a[0]).reshape(space.shape).astype(space.dtype)
-            obs, _, terminated, truncated, _ = env.step(action)
-            yield np.asarray(env.render())
+            try:
+                obs, _, terminated, truncated, _ = env.step(action)
+                frame = np.asarray(env.render())
+            except Exception as err:  # noqa: BLE001 - the env's own code: one line naming it (imix_cli.commands.boundary)
+                from imix_cli.evaluation import UserEnvError
+
+                raise UserEnvError.wrap(env_id, "step", err) from err
+            yield frame
             if terminated or truncated:
                 break
     finally:
