@@ -180,7 +180,7 @@ def bad_env(tmp_path_factory):
 
 
 def _imix(argv, folder, mode, debug=False):
-    env = {**os.environ, "PYTHONPATH": str(folder), "BAD_ENV_MODE": mode}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(folder), os.environ.get("PYTHONPATH")])), "BAD_ENV_MODE": mode}
     env.pop("IMIX_DEBUG", None)
     if debug:
         env["IMIX_DEBUG"] = "1"
