@@ -181,36 +181,37 @@ def write_gif(fh, frames, fps: float, scale: float = 1.0) -> int:
     """An endlessly looping GIF (adaptive 256-colour palette per frame) streamed to the binary file ``fh``; returns
     the number of frames.
 
-    Streamed: each frame is encoded as it comes (Pillow's ``GifImagePlugin.getdata``), so memory is one frame and
-    one encoded frame, whatever the episode's length (Pillow's ``save_all`` holds every frame). A frame identical
-    to the one before is stored as a longer display of that frame; the total duration is always
-    ``frames / fps``.
+    Streamed: each frame is encoded as it comes (Pillow's ``GifImagePlugin.getdata``), so memory is two frames and
+    one encoded frame, whatever the episode's length (Pillow's ``save_all`` holds every frame). Only the rectangle
+    that changed since the frame before is stored (drawn over it: disposal 1), and a frame identical to the one
+    before is stored as a longer display of that frame; the total duration is always ``frames / fps``.
     """
-    from PIL import GifImagePlugin, Image
+    from PIL import GifImagePlugin, Image, ImageChops
 
     delay = max(20, round(1000 / fps))
-    count, held, held_ms, size = 0, None, 0, None
+    count, held, held_ms, previous = 0, None, 0, None
 
-    def emit(image, duration: int) -> None:
-        for chunk in GifImagePlugin.getdata(image, duration=duration, disposal=1, include_color_table=True):  # each frame its own palette
+    def emit(piece, offset, duration: int) -> None:
+        for chunk in GifImagePlugin.getdata(piece, offset, duration=duration, disposal=1, include_color_table=True):  # each its own palette
             fh.write(chunk)
 
     for frame in frames:
-        image = _image(frame, scale).convert("P", palette=Image.Palette.ADAPTIVE, colors=256)
-        if size is None:
-            size = image.size
-            header, _ = GifImagePlugin.getheader(image, info={"loop": 0})  # logical screen, looping forever
-            for chunk in header:
-                fh.write(chunk)
+        image = _image(frame, scale)
         count += 1
-        if held is not None and image.tobytes() == held.tobytes() and image.getpalette() == held.getpalette():
+        box = (0, 0, *image.size) if previous is None else ImageChops.difference(previous, image).getbbox()
+        if box is None:  # the same picture as the frame before
             held_ms += delay
             continue
+        piece = image.crop(box).convert("P", palette=Image.Palette.ADAPTIVE, colors=256)
+        if previous is None:
+            header, _ = GifImagePlugin.getheader(piece, info={"loop": 0})  # logical screen (the whole first frame), looping forever
+            for chunk in header:
+                fh.write(chunk)
         if held is not None:
-            emit(held, held_ms)
-        held, held_ms = image, delay
+            emit(*held, held_ms)
+        held, held_ms, previous = (piece, box[:2]), delay, image
     if held is not None:
-        emit(held, held_ms)
+        emit(*held, held_ms)
     fh.write(b";")  # the GIF trailer
     return count
 
