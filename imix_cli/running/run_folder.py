@@ -16,10 +16,11 @@ import os
 import reprlib
 import stat
 
-from imix_cli.running.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
+from imix_cli.running.results import CorruptResultError, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
 from imix_cli.running.run_lock import LOCK_NAME
 from imix_cli.running.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.running.trainers import trainer_for
+from imix_cli.writing import atomic_write_text
 
 
 class RunError(RuntimeError):

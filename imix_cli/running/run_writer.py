@@ -30,8 +30,9 @@ import time
 from imix_cli.messages import warn
 from imix_cli.running.checkpoints import remove_checkpoint, save_checkpoint
 from imix_cli.running.policy_files import write_seed_policies
-from imix_cli.running.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
+from imix_cli.running.results import partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
 from imix_cli.running.tracking import make_tracker
+from imix_cli.writing import atomic_write_text
 
 
 class RunWriter:
