@@ -24,14 +24,14 @@ from scipy import stats
 from imix_cli.mixing import VARIANTS, DiagonalGaussian, mix, variant_spec
 
 
-def chains(variant, drift, chains=100, generations=200, popsize=50, k=3, step=0.125, seed=0, burn_in=20):
+def chains(variant, drift, chains=100, generations=200, popsize=50, k=3, step=0.125, seed=0, burn_in=20, min_fresh=0):
     rng = np.random.default_rng(seed)
     first, second, last = [], [], []
     reused = older = 0
     for _ in range(chains):
         mean, log_std, archive, zs = 0.0, 0.0, [], []
         for t in range(generations):
-            g = mix(DiagonalGaussian([mean], [np.exp(log_std)]), archive, popsize, rng, variant=variant, eim_generations=k)
+            g = mix(DiagonalGaussian([mean], [np.exp(log_std)]), archive, popsize, rng, variant=variant, eim_generations=k, min_fresh=min_fresh)
             z = (g.samples[:, 0] - mean) / np.exp(log_std)
             if t >= burn_in:
                 zs.append(z)

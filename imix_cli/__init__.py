@@ -28,7 +28,7 @@ def _stop_before_anything_is_written(signum, frame):
     _os._exit(128 + signum)
 
 
-# The `imix` console script: a Ctrl-C during the imports of a run (numpy, gymnasium, Hydra) or the
+# The `imix` console script: a Ctrl-C (or SIGTERM) during the imports of a run (numpy, gymnasium, Hydra) or the
 # validation that follows can be swallowed by C code that clears errors (measured: with a cold
 # bytecode cache, SIGINT 0.2 s after start let a whole sweep run). Nothing is written before the
 # run starts, so until then a Ctrl-C ends the process at once; imix_cli.commands.cli hands SIGINT back to
@@ -36,6 +36,9 @@ def _stop_before_anything_is_written(signum, frame):
 # before any module loads numpy (imix_cli.processes says why). Library imports are unaffected.
 if _os.path.basename(_sys.argv[0] if _sys.argv else "") == "imix":
     _signal.signal(_signal.SIGINT, _stop_before_anything_is_written)
+    # SIGTERM too: `imix run`'s handlers are set only once its imports (numba: seconds on a loaded
+    # machine) are done, and a SIGTERM before that ended the process without a word (exit -15).
+    _signal.signal(_signal.SIGTERM, _stop_before_anything_is_written)
     from imix_cli.processes import set_one_blas_thread as _set_one_blas_thread
 
     _set_one_blas_thread()

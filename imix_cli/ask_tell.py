@@ -40,19 +40,22 @@ class MixingES:
         ``im=true``; :data:`~imix_cli.mixing.VARIANT_SPECS`); None draws every generation fresh, i.e. the plain ES.
     rng : numpy Generator, int or None
         The stream that draws and mixes the generations (an int seeds a new Generator).
-    eim_generations, alpha, reeval_age, reeval_prob
-        As the config keys of the same names (:class:`~imix_cli.generation.MixingSettings`).
+    eim_generations, alpha, reeval_age, reeval_prob, min_fresh
+        As the config keys of the same names (:class:`~imix_cli.generation.MixingSettings`); ``min_fresh``
+        (default 1, as ``imix run``): at least this many members of every mixed generation are fresh, in slots
+        drawn at random -- without it a distribution that stops moving reuses every member and CEM or CMA-ES
+        repeats its update (:mod:`imix_cli.mixing`, "A minimal refresh"); 0: the rules alone.
     """
 
     def __init__(self, es, variant: str | None = "exact", *, rng=None, eim_generations: int = 3, alpha: float = 0.0,
-                 reeval_age: int | None = None, reeval_prob: float = 0.0):  # fmt: skip
+                 reeval_age: int | None = None, reeval_prob: float = 0.0, min_fresh: int = 1):  # fmt: skip
         # Every argument is checked here, with imix run's bounds (MixingSettings: imix_cli.generation.MIXING_BOUNDS):
         # a bad one is one error naming it now, not at the first ask() or deep inside it.
         missing = [name for name in ("ask", "tell", "distribution", "popsize") if not hasattr(es, name)]
         if missing:
             raise TypeError(f"es must be an evolution strategy (imix_cli.algorithms.make_es), got {type(es).__name__} without {', '.join(missing)}")
         self.es = es
-        self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob)
+        self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob, min_fresh=min_fresh)
         if isinstance(rng, bool) or not (rng is None or isinstance(rng, (np.random.Generator, int, np.integer, np.random.SeedSequence))):
             raise TypeError(f"rng must be a numpy Generator, an int seed or None, got {rng!r}")
         try:

@@ -237,6 +237,24 @@ class ContinuousCartPoleEvaluator(_CompiledEvaluator):
         self._kernels.cartpole_episodes(params, seeds, self._sizes(), True, self.hard, self.max_steps, returns, steps, trace)
 
 
+class UserEnvError(RuntimeError):
+    """An env raised, or broke gymnasium's contract (an observation of the wrong shape, a reward that is no number):
+    carries the env id and the first line of what it said, for the one line a command ends with
+    (:mod:`imix_cli.commands.boundary`). Picklable: it crosses from worker processes."""
+
+    def __init__(self, env_id: str, message: str) -> None:
+        super().__init__(env_id, message)
+        self.env_id, self.message = env_id, message
+
+    def __str__(self) -> str:
+        return f"env {self.env_id!r} failed: {self.message}"
+
+    @classmethod
+    def wrap(cls, env_id: str, where: str, err: BaseException) -> UserEnvError:
+        text = str(err).strip()
+        return cls(env_id, f"{where}: {type(err).__name__}: {text.splitlines()[0] if text else ''}".rstrip(": "))
+
+
 class GymEvaluator(BatchEvaluator):
     """Any registered gymnasium id, one ``gym.make`` env per member, stepped while it is alive.
 
@@ -262,7 +280,7 @@ class GymEvaluator(BatchEvaluator):
         message = missing_extra_message(env_id)
         if message:
             raise ValueError(message)
-        probe = gym.make(env_id, **self._make_kwargs)
+        probe = self._make()
         obs_space, act_space = probe.observation_space, probe.action_space
         if not isinstance(obs_space, spaces.Box):
             probe.close()
@@ -289,9 +307,15 @@ class GymEvaluator(BatchEvaluator):
     def policy(self, params):
         return BatchPolicy(params, self.obs_dim, self.out_dim, discrete=self.discrete, hidden=self.hidden, low=self._low, high=self._high, output=self.output)
 
+    def _make(self):
+        try:
+            return gym.make(self.env_name, **self._make_kwargs)
+        except Exception as err:  # noqa: BLE001 - the user's code: any exception, named with the env
+            raise UserEnvError.wrap(self.env_name, "gym.make", err) from err
+
     def _env_list(self, n: int) -> list:
         while len(self._envs) < n:
-            self._envs.append(gym.make(self.env_name, **self._make_kwargs))
+            self._envs.append(self._make())
         return self._envs[:n]
 
     def close(self) -> None:
@@ -303,21 +327,45 @@ class GymEvaluator(BatchEvaluator):
         envs = self._env_list(len(seeds))
         obs = np.empty((len(seeds), self.obs_dim))
         for i, env in enumerate(envs):
-            obs[i] = np.asarray(env.reset(seed=int(seeds[i]))[0], dtype=np.float64).reshape(-1)
+            obs[i] = self._observation(self._call(env.reset, "reset", seed=int(seeds[i]))[0], "reset")
         shape, dtype = self._act_space.shape, self._act_space.dtype
 
         def step(live, members, actions, ret, length, alive, obs):
             for j, i in zip(live, members):
                 a = actions[j] + self._start if self.discrete else actions[j].reshape(shape).astype(dtype)
-                o, reward, terminated, truncated, _ = envs[i].step(a)
-                ret[i] += float(reward)
+                o, reward, terminated, truncated, _ = self._call(envs[i].step, "step", a)
+                ret[i] += self._reward(reward)
                 length[i] += 1
                 if terminated or truncated:
                     alive[j] = False
                 else:
-                    obs[j] = np.asarray(o, dtype=np.float64).reshape(-1)
+                    obs[j] = self._observation(o, "step")
 
         return self._roll_out(policy, obs, step)
+
+    def _call(self, method, where: str, *args, **kwargs):
+        """``env.reset`` / ``env.step``: whatever the user's env raises comes out as a :class:`UserEnvError` naming it."""
+        try:
+            return method(*args, **kwargs)
+        except Exception as err:  # noqa: BLE001 - the user's code
+            raise UserEnvError.wrap(self.env_name, where, err) from err
+
+    def _observation(self, o, where: str) -> np.ndarray:
+        try:
+            flat = np.asarray(o, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError) as err:
+            raise UserEnvError.wrap(self.env_name, f"{where} returned an observation that is not numbers", err) from None
+        if flat.size != self.obs_dim:
+            raise UserEnvError(self.env_name, f"{where} returned an observation of shape {np.shape(o)}; its observation space has {self.obs_dim} numbers")
+        return flat
+
+    def _reward(self, reward) -> float:
+        if isinstance(reward, (str, bytes)) or not np.ndim(reward) == 0:  # float("1.5") would pass a str for a number
+            raise UserEnvError(self.env_name, f"step returned the reward {reward!r:.60} ({type(reward).__name__}); a reward is a number")
+        try:
+            return float(reward)
+        except (TypeError, ValueError) as err:
+            raise UserEnvError.wrap(self.env_name, "step returned a reward that is no number", err) from None
 
 
 class MujocoDirectEvaluator(BatchEvaluator):

@@ -11,20 +11,31 @@ summary) and the same CSVs -- with the CSV rows read back and returned::
 
 Keys are those of ``imix run`` (docs: the configuration reference), given as keywords (``eim=True``,
 ``policy={"hidden": []}``, ``**{"env.id": "Acrobot-v1"}``) or as ``key=value`` strings, with
-Hydra's sweep syntax (``"popsize=10,25"``) for several runs. Re-running the same call skips
-finished seeds and resumes the others, as on the command line.
+Hydra's sweep syntax (``"popsize=10,25"``) for several runs. A keyword's value is a value, never
+override syntax: ``experiment="a,b"`` names one folder ``a,b`` (a string from elsewhere cannot turn
+into a sweep or an interpolation). Re-running the same call skips finished seeds and resumes the
+others, as on the command line.
+
+Without ``experiment=``, results go to ``<results_dir>/library/`` (:data:`DEFAULT_EXPERIMENT`), not to
+``imix run``'s ``default/``: the command line's main job (1,000 generations) must not turn a later
+``run(..., generations=50)`` into "a run is never shortened" error. A script may call ``run`` at its
+top level, without ``if __name__ == "__main__":``: the worker processes never re-run the script
+(:func:`imix_cli.processes.spawn_context`).
 """
 
 from __future__ import annotations
 
-__all__ = ["Experiment", "run", "overrides_of"]
+__all__ = ["DEFAULT_EXPERIMENT", "Experiment", "run", "overrides_of"]
+
+#: The experiment (sub-folder of ``results_dir``) of a library call that names none; ``imix run``'s is ``default``.
+DEFAULT_EXPERIMENT = "library"
 
 
 def overrides_of(*overrides: str, **keys) -> list[str]:
-    """``key=value`` strings (as on ``imix run``'s command line) from strings and keyword arguments.
+    """``key=value`` strings (as on ``imix run``'s command line) from strings and keyword arguments: how a call is shown.
 
-    Booleans become ``true``/``false``, None ``null``, lists ``[a,b]``, and a mapping ``policy={"hidden": [16]}``
-    the dotted keys ``policy.hidden=[16]``."""
+    (What runs takes keyword values as values: :class:`Experiment`.) Booleans become ``true``/``false``, None
+    ``null``, lists ``[a,b]``, and a mapping ``policy={"hidden": [16]}`` the dotted keys ``policy.hidden=[16]``."""
     out = [str(o) for o in overrides]
 
     def value(v) -> str:
@@ -59,12 +70,16 @@ class Experiment:
     def __init__(self, *overrides: str, progress: bool = False, **keys):
         from imix_cli.running.config import validate_overrides
 
+        self.overrides = [str(o) for o in overrides]
         # progress=False: a library call prints the summary, not a progress bar (progress=True restores it)
-        self.overrides = overrides_of(*overrides, progress=progress, **keys)
-        self.specs = validate_overrides(self.overrides)
+        self.values = {"progress": progress, **_dotted(keys)}
+        named = any(o.split("=", 1)[0].lstrip("+~") == "experiment" for o in self.overrides) or "experiment" in self.values
+        if not named:
+            self.values["experiment"] = DEFAULT_EXPERIMENT
+        self.specs = validate_overrides(self.overrides, values=self.values)
 
     def __repr__(self) -> str:
-        return f"Experiment({', '.join(map(repr, self.overrides))})"
+        return f"Experiment({', '.join([*map(repr, self.overrides), *(f'{k}={v!r}' for k, v in self.values.items())])})"
 
     @property
     def run_dirs(self) -> list:
@@ -101,6 +116,15 @@ class Experiment:
 
             return pd.DataFrame(columns=[*COLUMNS, "run"])
         return pd.concat(frames, ignore_index=True)
+
+
+def _dotted(keys: dict, prefix: str = "") -> dict:
+    """``{"policy": {"hidden": [16]}}`` -> ``{"policy.hidden": [16]}``: a mapping's keys as dotted keys."""
+    out = {}
+    for key, v in keys.items():
+        name = f"{prefix}{key}"
+        out.update(_dotted(v, f"{name}.") if isinstance(v, dict) else {name: v})
+    return out
 
 
 def run(*overrides: str, echo=print, **keys):

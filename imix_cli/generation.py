@@ -77,6 +77,9 @@ class MixingSettings:
     reeval_count : int
         Re-evaluate this many reused members (drawn at random) every generation, and tell the
         ES the other reused members' stored returns calibrated on them (module docstring).
+    min_fresh : int
+        The minimal refresh of :func:`~imix_cli.mixing.mix`: at least this many members of every mixed
+        generation are fresh, in slots drawn at random (no fixed point; the generation keeps its law).
     """
 
     variant: str | None = None
@@ -85,6 +88,7 @@ class MixingSettings:
     reeval_age: int | None = None
     reeval_prob: float = 0.0
     reeval_count: int = 0
+    min_fresh: int = 1
 
     def __post_init__(self):
         """Every setting checked here, with the bounds ``imix run`` checks its keys with (:data:`MIXING_BOUNDS`): a bad
@@ -168,7 +172,8 @@ def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.rand
     if settings.variant is None or not archive.generations:
         g = Generation(es.ask(rng), np.zeros(popsize, np.int64), np.full(popsize, -1, np.int64), dist)
     else:
-        g = mix(dist, archive.generations, popsize, rng, variant=settings.variant, alpha=settings.alpha, eim_generations=settings.eim_generations)
+        g = mix(dist, archive.generations, popsize, rng, variant=settings.variant, alpha=settings.alpha, eim_generations=settings.eim_generations,
+                min_fresh=settings.min_fresh)
     age = np.zeros(popsize, dtype=np.int64)
     for k, ages in enumerate(archive.ages, start=1):
         from_k = g.source == k

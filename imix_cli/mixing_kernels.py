@@ -170,6 +170,21 @@ def _fill_plain(rng, mean, std, out, size, popsize):
 
 
 @njit(cache=True)
+def _refresh(rng, mean, std, out, source, index, popsize, min_fresh):
+    """:func:`imix_cli.mixing._refresh`: ``min_fresh`` slots drawn at random, the member in each replaced by
+    a fresh draw (the same draws, in the same order)."""
+    if min_fresh <= 0:
+        return
+    slots = _permutation(rng, popsize)
+    for s in range(min(min_fresh, popsize)):
+        i = slots[s]
+        for j in range(mean.shape[0]):
+            out[i, j] = rng.standard_normal() * std[j] + mean[j]
+        source[i] = 0
+        index[i] = -1
+
+
+@njit(cache=True)
 def _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, log_keep, alpha, out, source, index):
     """mixing._sun2009 (archive entry 0 only); returns (size, trials)."""
     q, lin, c = _row_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
@@ -341,26 +356,29 @@ def _output(popsize, d):
 
 # One compiled entry point per rule, so that a run compiles (once, on first use) only its own rule.
 @njit(cache=True)
-def _mix_paper(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
+def _mix_paper(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha, min_fresh):
     out, source, index = _output(popsize, mean.shape[0])
     size, trials = _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, out, source, index)
     _fill_plain(rng, mean, std, out, size, popsize)
+    _refresh(rng, mean, std, out, source, index, popsize, min_fresh)
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
 
 
 @njit(cache=True)
-def _mix_sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
+def _mix_sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha, min_fresh):
     out, source, index = _output(popsize, mean.shape[0])
     size, trials = _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, log_keep, alpha, out, source, index)
     _fill_plain(rng, mean, std, out, size, popsize)
+    _refresh(rng, mean, std, out, source, index, popsize, min_fresh)
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
 
 
 @njit(cache=True)
-def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha):
+def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha, min_fresh):
     out, source, index = _output(popsize, mean.shape[0])
     size, trials = _exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index)
     _fill_plain(rng, mean, std, out, size, popsize)
+    _refresh(rng, mean, std, out, source, index, popsize, min_fresh)
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
 
 
@@ -379,7 +397,7 @@ def _stacked(arrays, rows: int) -> np.ndarray:
     return out
 
 
-def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random.Generator, kernel: int, alpha: float):
+def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random.Generator, kernel: int, alpha: float, min_fresh: int = 0):
     """One mixing step, as :func:`imix_cli.mixing.mix` with float64 DiagonalGaussians; ``kernel``: the
     variant's step (:data:`KERNELS`, the variant's ``kernel``).
 
@@ -397,5 +415,5 @@ def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random
     log_keep = el.math_log1p(-alpha)  # -inf for alpha = 1
     return KERNELS[kernel](
         rng, new_dist.mean, new_dist.std, float(new_dist._log_norm),
-        means, stds, log_norms, xs, h, counts, popsize, log_keep, float(alpha),
+        means, stds, log_norms, xs, h, counts, popsize, log_keep, float(alpha), int(min_fresh),
     )  # fmt: skip

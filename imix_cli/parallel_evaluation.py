@@ -37,7 +37,6 @@ Every evaluator here has ``evaluate(params, seeds) -> (returns, steps)``, the at
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import signal
 import threading
@@ -47,7 +46,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from imix_cli.evaluation import make_evaluator
-from imix_cli.processes import default_workers, one_blas_thread, start_orphan_watchdog
+from imix_cli.processes import default_workers, one_blas_thread, spawn_context, start_orphan_watchdog
 
 __all__ = ["PoolEvaluator", "RayEvaluator", "EvaluatorError", "build_evaluator", "EVALUATORS"]
 
@@ -149,7 +148,7 @@ class PoolEvaluator(_Remote):
         self.workers = int(workers or default_workers())
         # One BLAS thread per worker process (the workers already use every core): one_blas_thread() around the
         # submits, which start them.
-        ctx = multiprocessing.get_context("spawn")
+        ctx = spawn_context()
         self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(self._make_args, os.getpid()))
         self._finalizer = weakref.finalize(self, self._pool.shutdown, wait=True, cancel_futures=True)
 

@@ -10,9 +10,12 @@ A variable the user set is left as it is.
 
 from __future__ import annotations
 
+import multiprocessing.context
 import os
+import sys
 import threading
 import time
+import types
 from contextlib import contextmanager
 
 #: The thread-count variables of OpenBLAS, OpenMP and MKL (numpy reads them when it loads).
@@ -37,6 +40,47 @@ def one_blas_thread():
     finally:
         for var in added:
             os.environ.pop(var, None)
+
+
+def spawn_context():
+    """The multiprocessing context of every process imix starts: spawn, without re-running the caller's ``__main__``.
+
+    Why: a spawned process normally re-imports the parent's main script (as ``__mp_main__``) before it
+    runs its task, so ``imix_cli.run(...)`` at a script's top level -- no ``if __name__ == "__main__":``
+    -- ran the whole script again in every worker, each worker's run then finding the folder locked by
+    the first. imix's workers need nothing of the caller's script: their task, the RunSpec and the
+    env (a gymnasium id, or a module the user named) are imix's or are imported by name. So the
+    processes start as a notebook's do, whose main module has no file: the script is never re-run.
+    Spawn, not fork: the parent has numba's and the progress bar's threads."""
+    return _SpawnContext()
+
+
+class _SpawnProcess(multiprocessing.context.SpawnProcess):
+    """A spawned process told to import no main module (module level: the process object is pickled to the child)."""
+
+    @staticmethod
+    def _Popen(process_obj):
+        with _main_module_hidden():  # what the child is told to import is decided here, at its start
+            return multiprocessing.context.SpawnProcess._Popen(process_obj)
+
+
+class _SpawnContext(multiprocessing.context.SpawnContext):
+    Process = _SpawnProcess
+
+
+@contextmanager
+def _main_module_hidden():
+    """While a process is spawned, ``__main__`` is a module with neither ``__file__`` nor ``__spec__``: multiprocessing's
+    preparation data then names no main module for the child to import (``multiprocessing.spawn.get_preparation_data``)."""
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        if main is None:
+            sys.modules.pop("__main__", None)
+        else:
+            sys.modules["__main__"] = main
 
 
 def default_workers() -> int:

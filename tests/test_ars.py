@@ -227,7 +227,7 @@ def test_imix_run_ars_on_swimmer_saves_policies_and_resumes_after_a_kill(tmp_pat
     assert killed, "the run ended before a checkpoint could be killed"
     done = subprocess.run([IMIX, *args, f"results_dir={target}"], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    assert "resumes at generation" in done.stderr, done.stderr
+    assert "imix: resuming" in done.stderr, done.stderr
     expected, got = _csvs(tmp_path / "ref"), _csvs(target)
     assert sorted(got) == sorted(expected) and len(got) == 2
     for name in expected:
@@ -423,7 +423,7 @@ def test_a_bias_free_shifted_ars_run_resumes_from_its_checkpoint(tmp_path, capsy
     capsys.readouterr()
     assert main([*args, "generations=6"]) == 0
     err = capsys.readouterr().err
-    assert "resumes at generation 4" in err and "ignored" not in err, err
+    assert "resuming 1 seed of" in err and "at generation 4" in err and "ignored" not in err, err
     frame = pd.read_csv(next(tmp_path.glob("default/ars-*/seed_0.csv")))
     assert len(frame) == 6 and (frame["mean_score"] < 0).all()  # every step's reward 1 - 2: the training returns are negative
 

@@ -610,14 +610,14 @@ def test_eval_bounds_episodes_and_runs_them_in_batches(copied, capsys, monkeypat
 
 
 def test_eval_of_a_read_only_results_folder_prints_the_numbers_and_one_line(copied, capsys, monkeypatch):
-    import imix_cli.running.results as results_module
+    import imix_cli.writing as writing_module
 
     root, run_dir = copied
 
-    def read_only(path, text):
+    def read_only(path, text, **_):
         raise PermissionError(13, "Permission denied", str(path))
 
-    monkeypatch.setattr(results_module, "atomic_write_text", read_only)  # as in a read-only folder (root ignores chmod)
+    monkeypatch.setattr(writing_module, "atomic_write_text", read_only)  # as in a read-only folder (root ignores chmod)
     assert main(["eval", f"results_dir={root}", "experiment=e", "episodes=2"]) == 1
     out, err = capsys.readouterr()
     assert RUN in out and "95% CI" in out

@@ -32,6 +32,7 @@ LAYERS = [
         "running.config_keys",
         "running.safe_npz",
         "running.results",
+        "writing",
         "ddpg",
         "ddpg.settings",
     ],

@@ -230,7 +230,7 @@ def test_bad_arguments_raise(kwargs, message):
 CHAIN_GENERATIONS, CHAIN_REPEATS, CHAIN_BURN_IN = 200, 60, 20
 
 
-def chain_statistics(variant, drift, seed):
+def chain_statistics(variant, drift, seed, min_fresh=0):
     """``benchmarks/mixing_chains.py``'s statistic (one implementation): z-scores of the mean of z
     and of E[z^2], KS p of the last generations, E[z^2]."""
     import importlib.util
@@ -240,15 +240,18 @@ def chain_statistics(variant, drift, seed):
     spec = importlib.util.spec_from_file_location("mixing_chains", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    r = module.chains(variant, drift, chains=CHAIN_REPEATS, generations=CHAIN_GENERATIONS, seed=seed, burn_in=CHAIN_BURN_IN)
+    r = module.chains(variant, drift, chains=CHAIN_REPEATS, generations=CHAIN_GENERATIONS, seed=seed, burn_in=CHAIN_BURN_IN, min_fresh=min_fresh)
     return r["z_mean"], r["z_var"], r["ks_p_last"], r["E[z^2]"]
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("min_fresh", [0, 3], ids=["rules-alone", "min_fresh-3"])
 @pytest.mark.parametrize("drift", [0.0, 0.1], ids=["random-walk", "drift"])
 @pytest.mark.parametrize("variant", ["paper", "sun2009", "exact"])
-def test_chains_of_generations_stay_distributed_as_their_distribution(variant, drift):
-    z_mean, z_var, ks_p, second = chain_statistics(variant, drift, seed=2024)
+def test_chains_of_generations_stay_distributed_as_their_distribution(variant, drift, min_fresh):
+    """Also with the minimal refresh (imix_cli.mixing, "A minimal refresh"): slots drawn independently
+    of the members keep every generation's law, over chains too."""
+    z_mean, z_var, ks_p, second = chain_statistics(variant, drift, seed=2024, min_fresh=min_fresh)
     assert abs(z_mean) < 4 and abs(z_var) < 4, (z_mean, z_var, second)
     assert ks_p > KS_P_MIN
 
@@ -304,9 +307,10 @@ def _walk_steps(rng, dim, generations):
         yield DiagonalGaussian(mean, std)
 
 
+@pytest.mark.parametrize("min_fresh", [0, 2])
 @pytest.mark.parametrize("variant", ["paper", "sun2009", "exact"])
 @pytest.mark.parametrize("dim,popsize", [(1, 50), (130, 50), (2, 3)])
-def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize):
+def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize, min_fresh):
     """imix_cli.mixing_kernels draws the same random numbers in the same order as the numpy step:
     along 100-generation chains, every generation has the same members (source, index, samples to
     1e-12), the same trial count, the same heights, and leaves the Generator in the same state.
@@ -316,8 +320,10 @@ def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize):
     archive_numpy, archive_compiled = [], []
     for t, dist in enumerate(_walk_steps(rng, dim, 100)):
         r_numpy, r_compiled = np.random.default_rng(t), np.random.default_rng(t)
-        g_numpy = mix(dist, archive_numpy, popsize, r_numpy, variant=variant, compiled=False)
-        g_compiled = mix(dist, archive_compiled, popsize, r_compiled, variant=variant, compiled=None if t == 0 else True)
+        g_numpy = mix(dist, archive_numpy, popsize, r_numpy, variant=variant, compiled=False, min_fresh=min_fresh)
+        g_compiled = mix(dist, archive_compiled, popsize, r_compiled, variant=variant, compiled=None if t == 0 else True, min_fresh=min_fresh)
+        if t and min_fresh:
+            assert np.count_nonzero(g_numpy.source == 0) >= min(min_fresh, popsize), t
         assert np.array_equal(g_numpy.source, g_compiled.source) and np.array_equal(g_numpy.index, g_compiled.index), t
         np.testing.assert_allclose(g_compiled.samples, g_numpy.samples, rtol=0, atol=1e-12)
         assert g_numpy.trials == g_compiled.trials and r_numpy.random() == r_compiled.random(), t

@@ -168,14 +168,15 @@ def test_runner_tracks_the_best_ever_member_not_the_last_generations():
     assert isinstance(st.best_params, np.ndarray) and st.best_params.dtype == np.float64 and isinstance(st.best_return, float)
 
 
-def test_render_without_out_names_the_file_by_run_and_seed_and_never_overwrites_it(trained, tmp_path, monkeypatch, capsys):
+def test_render_without_out_writes_into_the_run_folder_and_never_overwrites_it(trained, tmp_path, monkeypatch, capsys):
+    """Issue 38: a GIF goes into the run folder it shows, not the current directory."""
     pytest.importorskip("pygame")
-    root, _ = trained
+    root, run_dir = trained
     monkeypatch.chdir(tmp_path)
     args = ["render", f"results_dir={root}", "experiment=pol", f"run={RUN}", "seed=1", "frames=3"]
     assert main(args) == 0
-    made = tmp_path / f"{RUN}-seed1-mean.gif"
-    assert made.exists() and not (tmp_path / "policy.gif").exists()
+    made = run_dir / "render-seed1-mean.gif"
+    assert made.exists() and not list(tmp_path.iterdir())  # nothing in the current directory
     before = made.read_bytes()
     made.write_bytes(b"mine")  # a file the user cares about
     capsys.readouterr()
@@ -184,3 +185,4 @@ def test_render_without_out_names_the_file_by_run_and_seed_and_never_overwrites_
     assert len(err) == 1 and "exists" in err[0] and "out=" in err[0]
     assert made.read_bytes() == b"mine"
     assert main([*args, f"out={made}"]) == 0 and made.read_bytes() == before  # out= given: overwritten as asked
+    made.unlink()

@@ -216,8 +216,8 @@ def test_a_killed_continuation_neither_locks_the_run_nor_hides_its_rows(tmp_path
     # status shows the continuation's rows, not the 10 of the committed CSV
     assert main(["status", f"results_dir={tmp_path}"]) == 0
     line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith(spec.run_name))
-    done, running, _, last = line.split()[1:5]
-    assert (done, running) == ("0", "1") and int(last.split("/")[0]) >= 40, line
+    done, running, stopped, _, last = line.split()[1:6]
+    assert (done, running, stopped) == ("0", "0", "1") and int(last.split("/")[0]) >= 40, line  # killed: stopped, not running
     # the committed 10 generations are what the run holds: 10 is done; 20 lies behind the continuation's
     # checkpoint (>= 40), so that seed is computed again; 100 continues from 20's final state
     assert main(["run", *common, "generations=10"]) == 0
@@ -312,7 +312,7 @@ def test_status_calls_a_corrupt_csv_corrupt(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "corrupt" in out and "seed_0.csv" in out, out
     line = next(ln for ln in out.splitlines() if ln.strip().startswith(csv.parent.name))
-    assert line.split()[1:4] == ["0", "0", "0"], line  # neither done, nor running, nor not started
+    assert line.split()[1:5] == ["0", "0", "0", "0"], line  # neither done, nor running, nor stopped, nor not started
 
 
 @pytest.mark.parametrize("algo", ["snes", "cem"])

@@ -4,13 +4,22 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from imix_cli.commands.cli import main
 from imix_cli.commands.status import run_status
 from imix_cli.running.results import partial_csv_path, rows_to_frame, seed_csv_path, write_run_csv
+
+IMIX = str(Path(sys.executable).parent / "imix")
 
 
 def rows(seed, scores, popsize=10):
@@ -40,7 +49,8 @@ def make_run(root):
 def test_status_counts_finished_partial_and_missing_seeds(tmp_path):
     run_dir = make_run(tmp_path)
     s = run_status(run_dir)
-    assert (s["done"], s["running"], s["not_started"]) == ([0], [1, 2, 3], [4])
+    assert (s["done"], s["running"], s["stopped"], s["not_started"]) == ([0], [], [1, 2, 3], [4])  # no live run holds it
+    assert s["generations"] == {0: 10, 1: 5, 2: 7}
     assert s["last_generation"] == 10 and s["target"] == 10
     assert s["best_score"] == 195.0
     assert s["current_score"] == (190.0 + 100.0) / 2  # last rows of the seeds that have rows
@@ -52,8 +62,8 @@ def test_status_command_prints_one_line_per_run_and_writes_nothing(tmp_path, cap
     assert main(["status", f"results_dir={tmp_path}"]) == 0
     out = capsys.readouterr().out
     line = next(ln for ln in out.splitlines() if ln.strip().startswith("snes-cartpole-eim"))
-    assert line.split() == ["snes-cartpole-eim", "1", "3", "1", "10/10", "195.00", "145.00"]
-    assert "running seeds: 1-3" in out
+    assert line.split() == ["snes-cartpole-eim", "1", "0", "3", "1", "5-10/10", "195.00", "145.00"]
+    assert "stopped seeds: 1-3 (re-run the same command to resume them)" in out
     assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before
 
 
@@ -68,3 +78,120 @@ def test_status_bad_experiment_is_one_line(tmp_path, capsys):
     assert main(["status", "colour=red"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "nope" in err[0] and "colour" in err[1]
+
+
+def test_a_live_run_holding_the_lock_makes_every_unfinished_seed_running(tmp_path, capsys):
+    """The lock's holder is what tells running from stopped: every unfinished seed of a folder a live run holds is
+    being run (those with nothing on disk yet included); the same files without it are a stopped run's."""
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.run_folder import run_dir_lock
+
+    run_dir = make_run(tmp_path)
+    (spec,) = validate_overrides(["seeds=5", f"results_dir={tmp_path}", "experiment=exp", "popsize=50", "algo=snes", "eim=true"])
+    assert spec.run_dir == run_dir
+    with run_dir_lock(spec):  # this process is the live run
+        s = run_status(run_dir)
+        assert (s["done"], s["running"], s["stopped"], s["not_started"], s["pid"]) == ([0], [1, 2, 3, 4], [], [], os.getpid())
+        assert main(["status", f"results_dir={tmp_path}"]) == 0
+        assert f"running seeds: 1-4 (imix run, pid {os.getpid()})" in capsys.readouterr().out
+    s = run_status(run_dir)  # the lock released (its file and pid stay): stopped
+    assert (s["running"], s["stopped"], s["not_started"], s["pid"]) == ([], [1, 2, 3], [4], None)
+
+
+def test_a_csv_short_of_the_configs_generations_is_not_done_as_imix_run_refuses_it(tmp_path, capsys):
+    """Issue 36 item 7: a 1-of-30-row CSV without a final state to continue from: imix run refuses the folder,
+    and status says so instead of counting it done."""
+    from imix_cli.running.results import read_run_csv
+
+    args = ["algo=cem", "seeds=2", "generations=30", "popsize=8", "workers=1", "progress=false", "checkpoint_every=0", f"results_dir={tmp_path}"]
+    assert main(["run", *args]) == 0
+    (csv,) = tmp_path.rglob("seed_1.csv")
+    write_run_csv(csv, read_run_csv(csv).iloc[:1])
+    capsys.readouterr()
+    assert main(["run", *args]) == 1
+    assert "1 of 30 generations" in capsys.readouterr().err
+    s = run_status(csv.parent)
+    assert s["done"] == [0] and 1 not in s["stopped"] + s["running"] + s["not_started"]
+    assert s["corrupt"] == {"seed_1.csv": "1 of 30 generations and no final state to continue from"}
+    assert main(["status", f"results_dir={tmp_path}"]) == 0
+    out = capsys.readouterr().out
+    assert "corrupt: seed_1.csv (1 of 30 generations and no final state to continue from); imix run refuses it" in out, out
+
+
+def _truth(run_dir, seeds: int, generations: int) -> tuple[list, list, dict]:
+    """What the files say, read apart from status: finished seeds, unfinished ones, and each seed's generations on
+    disk (its CSV's rows, or its partial CSV's, or its checkpoint's header)."""
+    from imix_cli.commands.status import _checkpoint_generation
+    from imix_cli.running.results import read_run_csv
+
+    done, unfinished, gens = [], [], {}
+    for seed in range(seeds):
+        csv, partial = seed_csv_path(run_dir, seed), partial_csv_path(run_dir, seed)
+        if csv.exists() and len(read_run_csv(csv)) == generations:
+            done.append(seed)
+            gens[seed] = generations
+            continue
+        unfinished.append(seed)
+        ckpt = _checkpoint_generation(run_dir, seed)
+        rows = len(read_run_csv(partial)) if partial.exists() else None
+        if ckpt is not None or rows is not None:
+            gens[seed] = max(g for g in (ckpt, rows) if g is not None)
+    return done, unfinished, gens
+
+
+@pytest.mark.slow
+def test_status_agrees_with_the_files_at_every_stop_of_a_run(tmp_path):
+    """A run of 3 seeds over 2 workers, frozen (SIGSTOP to its whole group) at several moments and compared with
+    what its files say; then after Ctrl-C, SIGTERM and kill -9 of re-runs, and at the end."""
+    seeds, generations = 3, 6000
+    args = [IMIX, "run", "algo=snes", "env=cartpole", "eim=true", f"seeds={seeds}", f"generations={generations}", "workers=2", "checkpoint_every=25",
+            "checkpoint_seconds=0", "progress=false", f"results_dir={tmp_path}"]  # fmt: skip
+
+    def check(run_dir, live_pid):
+        s = run_status(run_dir)
+        done, unfinished, gens = _truth(run_dir, seeds, generations)
+        assert s["done"] == done and s["generations"] == gens, (s, done, gens)
+        if live_pid is None:
+            assert (s["running"], s["pid"]) == ([], None) and s["stopped"] + s["not_started"] == unfinished, s
+            assert s["stopped"] == sorted(gens.keys() - set(done)), s
+        else:
+            assert (s["running"], s["stopped"], s["not_started"], s["pid"]) == (unfinished, [], [], live_pid), s
+        return gens
+
+    def start():
+        proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.rglob("config.yaml")) and time.monotonic() < deadline:  # written under the lock: a live run
+            time.sleep(0.05)
+        return proc
+
+    proc = start()
+    try:
+        run_dir = next(tmp_path.rglob("config.yaml")).parent
+        seen = []
+        for moment in ("started", "first checkpoint", "a second later"):  # frozen at a few moments
+            if moment == "first checkpoint":
+                deadline = time.monotonic() + 120
+                while not list(run_dir.glob(".checkpoints/*.npz")) and time.monotonic() < deadline:
+                    time.sleep(0.02)
+            time.sleep(1.0 if moment == "a second later" else 0.0)
+            os.killpg(proc.pid, signal.SIGSTOP)
+            try:
+                seen.append(check(run_dir, proc.pid))
+            finally:
+                os.killpg(proc.pid, signal.SIGCONT)
+        os.killpg(proc.pid, signal.SIGINT)
+        assert proc.wait(timeout=60) == 130
+        after_ctrl_c = check(run_dir, None)
+        assert seen[0] == {} and sum(seen[-1].values()) > 0  # frozen before anything was saved, and after
+        assert sum(after_ctrl_c.values()) >= sum(seen[-1].values())
+        for stop in (lambda p: os.kill(p.pid, signal.SIGTERM), lambda p: os.killpg(p.pid, signal.SIGKILL)):
+            proc = start()
+            time.sleep(2.0)
+            stop(proc)
+            proc.wait(timeout=60)
+            time.sleep(1.5)  # an orphaned worker of kill -9 exits within a second
+            check(run_dir, None)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)

@@ -14,6 +14,8 @@ import signal
 import sys
 from concurrent.futures.process import BrokenProcessPool
 
+from imix_cli.commands.boundary import Terminated, guard, report, take_debug_flag  # Terminated: SIGTERM as a Ctrl-C
+
 USAGE = """\
 usage: imix <command> [arguments]
 
@@ -36,7 +38,7 @@ commands:
             imix eval experiment=try episodes=100 which=mean
   render  write a GIF (or .mp4 with ffmpeg) of one saved policy acting in its env
             imix render experiment=try run=snes-cartpole-eim seed=0 out=policy.gif
-  status  seeds done / running / not started of each run, last generation, scores (read-only)
+  status  seeds done / running / stopped / not started of each run, last generation, scores (read-only)
             imix status experiment=try
 
 Results go to results/<experiment>/<algo>-<env>-<mixing>[-<overrides>]/seed_<k>.csv.
@@ -61,16 +63,24 @@ def main(argv: list[str] | None = None) -> int:
 
         print(f"imix {__version__}")
         return 0
-    command, rest = argv[0], argv[1:]
-    if command != "run":  # imix_cli's early Ctrl-C/SIGTERM handler (see imix_cli/__init__.py) is for `imix run` only
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    command, rest = argv[0], take_debug_flag(argv[1:])
     if command == "run":
         try:
             return run_command(rest)
         except KeyboardInterrupt as stop:  # during validation or Hydra's start-up (the run itself reports its own)
             print(TERMINATED if isinstance(stop, Terminated) else INTERRUPTED, file=sys.stderr)
             return 143 if isinstance(stop, Terminated) else 130
+        except BaseException as err:  # noqa: BLE001 - the one boundary (imix_cli.commands.boundary): one line
+            if isinstance(err, SystemExit):
+                raise
+            return report("run", err)
+    if command in COMMANDS:  # imix_cli's early Ctrl-C/SIGTERM handler (see imix_cli/__init__.py) is for `imix run` only
+        return guard(command, lambda: _dispatch(command, rest))
+    print(f"imix: unknown command {command!r}; valid commands: {', '.join(COMMANDS)} (see imix --help)", file=sys.stderr)
+    return 2
+
+
+def _dispatch(command: str, rest: list) -> int:
     if command == "plot":
         from imix_cli.plotting import main as plot_main
 
@@ -91,17 +101,11 @@ def main(argv: list[str] | None = None) -> int:
         from imix_cli.commands.status import main as status_main
 
         return status_main(rest)
-    print(f"imix: unknown command {command!r}; valid commands: {', '.join(COMMANDS)} (see imix --help)", file=sys.stderr)
-    return 2
+    raise AssertionError(command)
 
 
 INTERRUPTED = "imix run: interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)"
 TERMINATED = "imix run: terminated (SIGTERM); re-run the same command to resume (finished seeds and checkpoints are kept)"
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (kill, a scheduler's time limit), raised in the main thread like a Ctrl-C: the run stops
-    its worker pools the same way and ends with one line and exit status 143 (128 + SIGTERM)."""
 
 
 def _raise_terminated(signum, frame) -> None:
@@ -259,10 +263,19 @@ def _parse_hydra_args(args: list[str]) -> _HydraArgs:
 def _check_run_folders(specs) -> None:
     """Every point's run folder, read only (:func:`imix_cli.running.run_folder.check_run_dir`), before any point runs:
     a folder holding another config, a corrupt CSV or a link stops the sweep before its first point."""
-    from imix_cli.running.run_folder import check_run_dir
+    from pathlib import Path
+
+    from imix_cli.running.run_folder import RunError, check_run_dir
+    from imix_cli.writing import LinkRefusedError
 
     for spec in specs:
         check_run_dir(spec)
+        # Hydra writes a sweep's multirun.yaml and job folders below <experiment>/.multirun itself (not through
+        # imix_cli.writing); the folder it makes there is new (named by the second and the pid), so refusing a
+        # linked .multirun (the experiment folder: check_run_dir) keeps those writes inside results_dir.
+        multirun = Path(spec.results_dir) / spec.experiment / ".multirun"
+        if multirun.is_symlink():
+            raise RunError(str(LinkRefusedError(multirun)))
 
 
 def _own_sweep_folder(args: list[str]) -> list[str]:
@@ -300,6 +313,7 @@ def _task(cfg) -> None:
         sys.exit(_error(str(err), 2))
     from hydra.types import RunMode
 
+    from imix_cli.commands.boundary import broken_pipe
     from imix_cli.parallel_evaluation import EvaluatorError
     from imix_cli.running.runner import RunError, run
 
@@ -316,6 +330,8 @@ def _task(cfg) -> None:
         sys.exit(_error(str(err), 1))
     except BrokenProcessPool:
         sys.exit(_error("a worker process died (killed?); re-run the same command to resume from the checkpoints", 1))
+    except BrokenPipeError:  # the reader of the output went away (`imix run ... | head`): the results are written
+        sys.exit(broken_pipe())
     except OSError as err:
         where = f" {err.filename}" if getattr(err, "filename", None) else ""
         sys.exit(_error(f"cannot write{where}: {err.strerror or err}", 1))
@@ -323,6 +339,8 @@ def _task(cfg) -> None:
         sys.exit(_error("terminated (SIGTERM); re-run the same command to resume (finished seeds and checkpoints are kept)", 143))
     except KeyboardInterrupt:
         sys.exit(_error("interrupted; re-run the same command to resume (finished seeds and checkpoints are kept)", 130))
+    except Exception as err:  # noqa: BLE001 - a user env's exception, MemoryError...: Hydra would print a traceback
+        sys.exit(report("run", err))
     finally:
         if str(launcher or "").endswith("BasicLauncher"):  # this process: between two points (Hydra preparing
             signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)  # the next) and after the last,

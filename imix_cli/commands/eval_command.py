@@ -266,18 +266,18 @@ def check_finished_seeds(run_dir: Path, seeds) -> None:
             check_seed_csv(read_run_csv(path), path, config)
 
 
-def write_eval_csv(run_dir: Path, rows: list) -> Path:
-    """Write ``<run_dir>/eval.csv`` atomically, keeping the rows of the other ``which`` already there."""
+def write_eval_csv(run_dir: Path, rows: list, root=None) -> Path:
+    """Write ``<run_dir>/eval.csv`` through the one writer (:mod:`imix_cli.writing`: atomic, no link followed below
+    ``root``, text cells neutralised), keeping the rows of the other ``which`` already there."""
     import pandas as pd
 
-    from imix_cli.running.results import atomic_write_text
+    from imix_cli.running.results import regular_file_size
+    from imix_cli.writing import atomic_write_text, csv_text
 
     path = Path(run_dir) / "eval.csv"
     frame = pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
-    if path.exists():
+    if path.exists() and not path.is_symlink():  # a link is not read (the writer refuses it below)
         try:
-            from imix_cli.running.results import regular_file_size
-
             if regular_file_size(path) > 64 << 20:  # an eval.csv is a few rows a seed; /dev/zero or a huge file is replaced, not read
                 raise ValueError("not an eval.csv")
             old = pd.read_csv(path)
@@ -286,7 +286,7 @@ def write_eval_csv(run_dir: Path, rows: list) -> Path:
         except Exception:  # an unreadable old eval.csv is replaced, not merged
             pass
     frame = frame.sort_values(["which", "seed"], kind="stable")
-    atomic_write_text(path, frame.to_csv(index=False, float_format="%.10g", lineterminator="\n"))
+    atomic_write_text(path, csv_text(frame, float_format="%.10g"), root=root)
     return path
 
 
@@ -337,9 +337,10 @@ def main(argv: list | None = None) -> int:
     # The numbers are printed first: a read-only results folder (a colleague's) still gives them.
     for run_dir, rows in results:
         try:
-            write_eval_csv(run_dir, rows)
+            write_eval_csv(run_dir, rows, root=s["results_dir"])
         except OSError as err:
-            print(f"imix eval: cannot write {Path(run_dir) / 'eval.csv'} ({err.strerror or err}); the numbers above are not saved", file=sys.stderr)
+            where = err.filename or Path(run_dir) / "eval.csv"
+            print(f"imix eval: cannot write {where} ({err.strerror or err}); the numbers above are not saved", file=sys.stderr)
             return 1
     return 0
 

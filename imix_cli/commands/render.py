@@ -17,11 +17,14 @@ Backends (what to install):
 * GIFs are written with Pillow (a matplotlib dependency, always present); ``.mp4`` pipes raw
   frames to the ``ffmpeg`` executable, which must be on PATH.
 
-The output file is written atomically (a temporary file, then a rename).
+The output file is written by the one writer (:mod:`imix_cli.writing`: a temporary file, then a rename;
+no link followed inside the results folder), frame by frame: memory does not grow with the episode.
+Without ``out=`` it goes into the run folder, next to the policy it shows.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 import shutil
 import subprocess
@@ -34,6 +37,7 @@ import numpy as np
 
 from imix_cli.commands.eval_command import POLICY_KEY_CHECKS, POLICY_KEYS, eval_episode_seeds, run_folders
 from imix_cli.commands.keyvalue import UsageError, at_least, help_requested, parse_key_values
+from imix_cli.writing import atomic_writer
 
 HELP = """\
 usage: imix render [key=value ...]
@@ -48,7 +52,7 @@ keys:
   seed=K             seed whose policy is shown (default: 0)
   which=mean|best    final distribution mean or best-ever member (default: mean)
   out=FILE           output, .gif or .mp4, overwritten if it exists (default:
-                     <run>-seed<K>-<which>.gif here, never overwritten)
+                     <run folder>/render-seed<K>-<which>.gif, never overwritten)
   frames=N           at most N frames (default: the whole episode: reset + every step)
   scale=F            resize frames by F in (0, 1] (default: 1; 0.5 halves a GIF's size)
   fps=N              frames per second (default: the env's render_fps, else 30)
@@ -111,93 +115,148 @@ def render_env_id(policy, allowed_modules=(), run_dir=None, where: str = "policy
     return BUILTIN_ENVS[name] if name in BUILTIN_ENVS else plain_env_id(policy.header["env_id"])
 
 
-def policy_frames(policy, frames: int | None = None, env_id: str | None = None) -> list:
-    """RGB frames (H, W, 3) uint8 of the policy's first evaluation episode: after reset, then after each step.
+def policy_frames(policy, frames: int | None = None, env_id: str | None = None):
+    """RGB frames (H, W, 3) uint8 of the policy's first evaluation episode: after reset, then after each step,
+    yielded one at a time (a writer holds one or two at once: memory does not grow with the episode).
 
-    ``env_id``: the registered id to render in (default: the header's, resolved with no module allowed)."""
+    ``env_id``: the registered id to render in (default: the header's, resolved with no module allowed).
+    The env is made and its first frame drawn before the first yield returns, so a missing backend is
+    reported (UsageError) before anything is written."""
     h = policy.header
     if h.get("obs_normalizer") is not None:
         raise UsageError(f"policy of run {h.get('run')!r} seed {h.get('seed')} normalises observations; this imix render cannot apply a normaliser yet", 1)
     env_id = env_id or render_env_id(policy)
     env = make_render_env(h, env_id)
     act = policy.batch_policy(1)
-    out = []
     try:
         seed = int(eval_episode_seeds(h["seed"], 1)[0])
         try:
             obs, _ = env.reset(seed=seed)
-            out.append(np.asarray(env.render()))
+            first = np.asarray(env.render())
         except Exception as err:  # noqa: BLE001
             if isinstance(err, ImportError) or "DependencyNotInstalled" in type(err).__name__:
                 raise UsageError(f"cannot render {env_id}: {_one_line(err)}", 1) from None
             hint = _MUJOCO_HINT if _is_mujoco(env_id) else _one_line(err)
             raise UsageError(f"cannot render {env_id}: {hint}", 1) from None
+        yield first
+        del first
         limit = frames if frames is not None else int(h["max_steps"]) + 1
         space = env.action_space
-        while len(out) < limit:
-            a = act(np.asarray(obs, dtype=np.float64).reshape(1, -1))
+        for _ in range(limit - 1):
+            flat = np.asarray(obs, dtype=np.float64).reshape(-1)
+            if flat.size != int(h["obs_dim"]):
+                from imix_cli.evaluation import UserEnvError
+
+                raise UserEnvError(env_id, f"step returned an observation of shape {np.shape(obs)}; the policy takes {h['obs_dim']} numbers")
+            a = act(flat.reshape(1, -1))
             if h["discrete"]:
                 action = int(a[0]) + int(h.get("action_start") or 0)
             else:
                 action = np.asarray(a[0]).reshape(space.shape).astype(space.dtype)
-            obs, _, terminated, truncated, _ = env.step(action)
-            out.append(np.asarray(env.render()))
+            try:
+                obs, _, terminated, truncated, _ = env.step(action)
+                frame = np.asarray(env.render())
+            except Exception as err:  # noqa: BLE001 - the env's own code: one line naming it (imix_cli.commands.boundary)
+                from imix_cli.evaluation import UserEnvError
+
+                raise UserEnvError.wrap(env_id, "step", err) from err
+            yield frame
             if terminated or truncated:
                 break
     finally:
         env.close()
-    return out
 
 
-def _scaled(frames: list, scale: float) -> list:
+def _image(frame, scale: float):
+    """One frame as an RGB Pillow image, resized by ``scale``."""
     from PIL import Image
 
-    images = [Image.fromarray(np.ascontiguousarray(f[..., :3]).astype(np.uint8)) for f in frames]
+    image = Image.fromarray(np.ascontiguousarray(frame[..., :3]).astype(np.uint8))
     if scale != 1.0:
-        size = (max(1, round(images[0].width * scale)), max(1, round(images[0].height * scale)))
-        images = [im.resize(size, Image.Resampling.LANCZOS) for im in images]
-    return images
+        image = image.resize((max(1, round(image.width * scale)), max(1, round(image.height * scale))), Image.Resampling.LANCZOS)
+    return image
 
 
-def write_gif(path, frames: list, fps: float, scale: float = 1.0) -> None:
-    """An endlessly looping GIF (adaptive 256-colour palette per frame), written atomically.
+def write_gif(fh, frames, fps: float, scale: float = 1.0) -> int:
+    """An endlessly looping GIF (adaptive 256-colour palette per frame) streamed to the binary file ``fh``; returns
+    the number of frames.
 
-    Pillow stores a frame identical to the one before as a longer display of that frame, so the
-    file may hold fewer images than ``frames``; the total duration is always ``len(frames) / fps``.
+    Streamed: each frame is encoded as it comes (Pillow's ``GifImagePlugin.getdata``), so memory is two frames and
+    one encoded frame, whatever the episode's length (Pillow's ``save_all`` holds every frame). Only the rectangle
+    that changed since the frame before is stored (drawn over it: disposal 1), and a frame identical to the one
+    before is stored as a longer display of that frame; the total duration is always ``frames / fps``.
     """
-    import io
+    from PIL import GifImagePlugin, Image, ImageChops
 
-    from PIL import Image
+    delay = max(20, round(1000 / fps))
+    count, held, held_ms, previous = 0, None, 0, None
 
-    from imix_cli.running.results import atomic_write_bytes
+    def emit(piece, offset, duration: int) -> None:
+        for chunk in GifImagePlugin.getdata(piece, offset, duration=duration, disposal=1, include_color_table=True):  # each its own palette
+            fh.write(chunk)
 
-    images = [im.convert("P", palette=Image.Palette.ADAPTIVE, colors=256) for im in _scaled(frames, scale)]
-    buffer = io.BytesIO()
-    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=max(20, round(1000 / fps)), loop=0, optimize=True)
-    atomic_write_bytes(path, buffer.getvalue())
+    for frame in frames:
+        image = _image(frame, scale)
+        count += 1
+        box = (0, 0, *image.size) if previous is None else ImageChops.difference(previous, image).getbbox()
+        if box is None:  # the same picture as the frame before
+            held_ms += delay
+            continue
+        piece = image.crop(box).convert("P", palette=Image.Palette.ADAPTIVE, colors=256)
+        if previous is None:
+            header, _ = GifImagePlugin.getheader(piece, info={"loop": 0})  # logical screen (the whole first frame), looping forever
+            for chunk in header:
+                fh.write(chunk)
+        if held is not None:
+            emit(*held, held_ms)
+        held, held_ms, previous = (piece, box[:2]), delay, image
+    if held is not None:
+        emit(*held, held_ms)
+    fh.write(b";")  # the GIF trailer
+    return count
 
 
-def write_mp4(path, frames: list, fps: float, scale: float = 1.0) -> None:
-    """H.264 MP4 through the ``ffmpeg`` executable (UsageError naming it if absent), written atomically."""
+def write_mp4(fh, frames, fps: float, scale: float = 1.0) -> int:
+    """H.264 MP4 through the ``ffmpeg`` executable (UsageError naming it if absent) into the binary file ``fh``;
+    frames are piped one at a time (memory does not grow with the episode). Returns the number of frames."""
     ffmpeg = shutil.which("ffmpeg")
     if ffmpeg is None:
         raise UsageError("writing .mp4 needs the ffmpeg executable on PATH (e.g. apt install ffmpeg); out=<name>.gif needs nothing", 1)
-    images = _scaled(frames, scale)
-    w, h = images[0].size
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp.mp4")
-    os.close(fd)
-    try:
-        cmd = [
-            ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps:g}",
-            "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-c:v", "libx264", tmp,
-        ]  # fmt: skip
-        proc = subprocess.run(cmd, input=b"".join(im.tobytes() for im in images), capture_output=True)
-        if proc.returncode != 0:
-            raise UsageError(f"ffmpeg failed: {_one_line(RuntimeError(proc.stderr.decode(errors='replace')))}", 1)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    frames = iter(frames)
+    first = _image(next(frames), scale)
+    w, h = first.size
+    cmd = [
+        ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{fps:g}",
+        "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-c:v", "libx264", "-f", "mp4", f"/dev/fd/{fh.fileno()}",
+    ]  # fmt: skip
+    # ffmpeg writes the writer's temporary file through its descriptor (an MP4 needs a seekable output, not a pipe)
+    with tempfile.TemporaryFile() as errors:
+        proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=errors, pass_fds=(fh.fileno(),))
+        count = 0
+        try:
+            for image in _chain(first, frames, scale):
+                proc.stdin.write(image.tobytes())
+                count += 1
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass  # ffmpeg stopped: its message is read below
+        finally:
+            returncode = proc.wait()
+        if returncode != 0:
+            errors.seek(0)
+            raise UsageError(f"ffmpeg failed: {_one_line(RuntimeError(errors.read(4096).decode(errors='replace')))}", 1)
+    return count
+
+
+def _chain(first, frames, scale: float):
+    yield first
+    for frame in frames:
+        yield _image(frame, scale)
+
+
+def default_out(run_dir: Path, seed: int, which: str) -> Path:
+    """Where a render goes without ``out=``: into the run folder, next to the policy it shows."""
+    return Path(run_dir) / f"render-seed{seed}-{which}.gif"
 
 
 def _pick_run(folders: list, run: str | None) -> Path:
@@ -227,28 +286,38 @@ def main(argv: list | None = None) -> int:
             scale = -1.0
         if not 0.0 < scale <= 1.0:
             raise UsageError(f"bad value for scale: {s['scale']!r} (expected a number in (0, 1])")
-        if not out.parent.is_dir():
+        if s["out"] is not None and not out.parent.is_dir():
             raise UsageError(f"bad value for out: folder {out.parent} does not exist")
         run_dir = _pick_run(run_folders(s["results_dir"], s["experiment"], s["run"]), s["run"])
+        # out= is the user's own path (its folder may be a link they chose); the default is inside the results
+        # folder, below which the writer follows no link
+        root = out.parent if s["out"] is not None else s["results_dir"]
         if s["out"] is None:  # a name of its own, and an earlier render is never replaced without out= saying so
-            out = Path(f"{run_dir.name}-seed{s['seed']}-{s['which']}.gif")
-            if out.exists():
+            out = default_out(run_dir, s["seed"], s["which"])
+            if out.exists() or out.is_symlink():
                 raise UsageError(f"{out} exists; give out={out} to overwrite it, or another out= name", 1)
         path = policy_path(run_dir, s["seed"], s["which"])
         policy = read_policy(path)
         env_id = render_env_id(policy, s["import"], run_dir, str(path))
         frames = policy_frames(policy, s["frames"], env_id)
+        first = next(frames)  # the env made and its first frame drawn before the output file is opened
         import gymnasium as gym
 
         fps = s["fps"] or gym.spec(env_id).kwargs.get("render_fps") or _env_fps(env_id)
-        (write_mp4 if out.suffix.lower() == ".mp4" else write_gif)(out, frames, float(fps), scale)
+        write = write_mp4 if out.suffix.lower() == ".mp4" else write_gif
+        with atomic_writer(out, root=root) as fh:
+            count = write(fh, itertools.chain([first], frames), float(fps), scale)
     except UsageError as err:
         print(f"imix render: {err}", file=sys.stderr)
         return err.status
     except PolicyFileError as err:
         print(f"imix render: {err}", file=sys.stderr)
         return 1
-    print(f"wrote {out} ({len(frames)} frames, {out.stat().st_size / 1024:.0f} KiB, {policy.header['env_id']}, seed {s['seed']}, {s['which']})")
+    except OSError as err:  # a link refused by the writer, a full disk: the file named keeps its old content
+        where = f" {err.filename}" if err.filename else ""
+        print(f"imix render: error: cannot write{where}: {err.strerror or err}", file=sys.stderr)
+        return 1
+    print(f"wrote {out} ({count} frames, {out.stat().st_size / 1024:.0f} KiB, {policy.header['env_id']}, seed {s['seed']}, {s['which']})")
     return 0
 
 

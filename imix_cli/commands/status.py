@@ -8,20 +8,27 @@ reading (a partial CSV removed as its seed finishes) is read again as finished o
 
 Per seed ``k`` of a run folder (``seeds`` from its config.yaml, else the files found):
 
-* done: ``seed_<k>.csv`` exists (and no partial CSV goes beyond it);
-* running: ``seed_<k>.partial.csv`` (rows up to the last checkpoint) or a checkpoint
-  ``.checkpoints/seed_<k>.*`` exists, and no final CSV -- or a partial CSV longer than the final
-  one (a continuation to more generations). "Running" means "started and not finished": a killed
-  run looks the same until it is resumed;
-* corrupt: ``seed_<k>.csv`` (or its partial CSV) does not follow the CSV contract; listed by name
-  and reason, and counted neither done nor running (``imix run`` refuses the folder until it is moved);
+* done: ``seed_<k>.csv`` is finished -- the same notion as ``imix run``'s, in one place
+  (:func:`imix_cli.running.trainers.es_seed_finished`: all the config's generations, or fewer ending
+  diverged) -- and no partial CSV goes beyond it;
+* running: not done, and a live ``imix run`` holds the run folder's lock
+  (:func:`imix_cli.running.run_folder.lock_holder`: the pid in ``.lock``, holding a lock on it): that run
+  runs every unfinished seed of the folder at once, those with nothing on disk yet included;
+* stopped: not done, no live run, and started -- ``seed_<k>.partial.csv`` (rows up to its last checkpoint),
+  a checkpoint ``.checkpoints/seed_<k>.*``, or a CSV short of the config's generations with its final state
+  to continue from. A run stopped by Ctrl-C or SIGTERM checkpointed every seed's current generation; one
+  killed (kill -9) keeps its last periodic checkpoint. Re-running the same command resumes them;
+* corrupt: ``seed_<k>.csv`` (or its partial CSV) does not follow the CSV contract, or is short of the
+  config's generations with no final state to continue from; listed by name and reason, and counted
+  neither done nor running nor stopped (``imix run`` refuses the folder until it is moved);
 * not started: none of these.
 
-Last generation: the most advanced of the CSV/partial rows and the checkpoint's JSON header
-(``generation``, if the checkpoint is an ``.npz`` holding a ``header`` entry or has a
-``seed_<k>.json`` beside it; anything else is tolerated and ignored). Best score: the highest
-``best_score`` of any generation read; current: the population ``mean_score`` of the last
-generation read, averaged over the seeds that have rows.
+Last gen: per seed, the most advanced of its CSV/partial rows and its checkpoint's header (``generation``,
+if the checkpoint is an ``.npz`` holding a ``header`` entry or has a ``seed_<k>.json`` beside it; anything
+else is tolerated and ignored); shown as the range over the seeds (``370-375/1000``). A running seed's is
+that of its last checkpoint: the run itself is ahead. Best score: the highest ``best_score`` of any
+generation read; current: the population ``mean_score`` of the last generation read, averaged over the
+seeds that have rows.
 """
 
 from __future__ import annotations
@@ -35,14 +42,17 @@ from pathlib import Path
 from imix_cli.commands.eval_command import run_folders
 from imix_cli.commands.keyvalue import UsageError, folder_name, help_requested, parse_key_values
 from imix_cli.running.results import MAX_CONFIG_BYTES, read_small_text, regular_file_size
+from imix_cli.running.run_lock import lock_holder
 from imix_cli.running.trainers import trainer_named
 
 HELP = """\
 usage: imix status [key=value ...]
 
-For each run folder: seeds done / running / not started, the last generation reached, the best
-member score ever and the current population mean score. Read-only; safe while runs write.
-Rows of running seeds are those of their last checkpoint (checkpoint_every=, checkpoint_seconds=).
+For each run folder: seeds done / running (a live imix run holds the folder) / stopped (started,
+no live run: re-run the same command to resume) / not started, the generations each seed has on
+disk (range over the seeds), the best member score ever and the current population mean score.
+Read-only; safe while runs write. Rows of running seeds are those of their last checkpoint
+(checkpoint_every=, checkpoint_seconds=); Ctrl-C or SIGTERM saves each seed's current generation.
 
 keys:
   results_dir=PATH   folder holding the experiments (default: results)
@@ -83,7 +93,10 @@ def _checkpoint_generation(run_dir: Path, seed: int):
                 if archive.getinfo("header.npy").file_size > MAX_CONFIG_BYTES:
                     return None
             with np.load(npz, allow_pickle=False) as data:
-                return int(json.loads(str(data["header"][()]))["generation"])
+                header = data["header"]
+                # imix's checkpoints: the JSON's UTF-8 bytes as a uint8 array (imix_cli.running.checkpoints); else a string
+                text = header.tobytes().decode() if header.dtype == np.uint8 else str(header[()])
+                return int(json.loads(text)["generation"])
     except Exception:  # noqa: BLE001 - another helper's format, a write in progress: not our business
         return None
     return None
@@ -95,7 +108,7 @@ def _has_checkpoint(run_dir: Path, seed: int) -> bool:
 
 
 def run_status(run_dir: Path) -> dict:
-    """Status of one run folder (see the module docstring)."""
+    """Status of one run folder (see the module docstring); ``generations``: seed -> its last generation on disk."""
     import yaml
 
     try:
@@ -112,39 +125,47 @@ def run_status(run_dir: Path) -> dict:
         found |= {int(m.group(1)) for p in (run_dir / ".checkpoints").iterdir() if (m := re.match(r"^seed_(\d+)\.", p.name))}
     n_seeds = config.get("seeds") if isinstance(config.get("seeds"), int) else (max(found) + 1 if found else 0)
     algo = config.get("algo") if isinstance(config.get("algo"), dict) else {}
-    target = config.get(trainer_named(algo.get("name")).budget_key)  # generations, or DDPG's total_steps
-    done, running, not_started, corrupt = [], [], [], {}
-    last_gen, best, current = [], -math.inf, []
+    trainer = trainer_named(algo.get("name"))
+    target = config.get(trainer.budget_key)  # generations, or DDPG's total_steps
+    target = target if isinstance(target, int) and not isinstance(target, bool) else None
+    holder = lock_holder(run_dir)
+    done, unfinished, not_started, corrupt = [], [], [], {}
+    generations, best, current = {}, -math.inf, []
     for seed in range(max(n_seeds, max(found) + 1 if found else 0)):
         final = _read_rows(run_dir / f"seed_{seed}.csv", corrupt)
+        if final is None and f"seed_{seed}.csv" not in corrupt and (run_dir / f"seed_{seed}.csv").exists():
+            final = _read_rows(run_dir / f"seed_{seed}.csv", corrupt)  # replaced between listing and reading: once more
         partial = _read_rows(run_dir / f"seed_{seed}.partial.csv", corrupt)
-        if final is not None and (partial is None or len(partial) <= len(final)):
+        finished = final is not None and (target is None or trainer.finished(final, target))
+        if finished and (partial is None or len(partial) <= len(final)):
             done.append(seed)
             frame = final
         elif f"seed_{seed}.csv" in corrupt:  # neither done nor running: a file to move away (imix run refuses it)
             continue
+        elif final is not None and not finished and holder is None and not _has_checkpoint(run_dir, seed):
+            # short of the config's generations with no final state to continue from: what imix run refuses
+            corrupt[f"seed_{seed}.csv"] = f"{len(final)} of {target} generations and no final state to continue from"
+            continue
         else:
-            # No final CSV, or a continuation to more generations (started, killed or still running) whose
-            # partial rows go beyond it: the seed is running, and its rows are the partial ones.
-            frame = partial
-            if frame is None and final is None and (run_dir / f"seed_{seed}.csv").exists():  # finished between the two reads
-                frame = _read_rows(run_dir / f"seed_{seed}.csv")
-                done.append(seed) if frame is not None else None
-            if seed not in done:
-                ckpt_gen = _checkpoint_generation(run_dir, seed)
-                if frame is not None or ckpt_gen is not None or _has_checkpoint(run_dir, seed):
-                    running.append(seed)
-                    if ckpt_gen is not None and (frame is None or ckpt_gen > len(frame)):
-                        last_gen.append(ckpt_gen)
-                else:
-                    not_started.append(seed)
+            # Not finished: a seed under way, stopped, or a continuation to more generations whose partial rows go
+            # beyond its CSV. Its rows are the most advanced on disk.
+            frame = partial if partial is not None and (final is None or len(partial) > len(final)) else final
+            ckpt_gen = _checkpoint_generation(run_dir, seed)
+            if holder is not None or frame is not None or ckpt_gen is not None or _has_checkpoint(run_dir, seed):
+                unfinished.append(seed)
+                if ckpt_gen is not None and (frame is None or ckpt_gen > len(frame)):
+                    generations[seed] = ckpt_gen
+            else:
+                not_started.append(seed)
         if frame is not None:
-            last_gen.append(len(frame))
+            generations[seed] = max(len(frame), generations.get(seed, 0))
             best = max(best, float(frame["best_score"].max()))
             current.append(float(frame["mean_score"].iloc[-1]))
     return {
-        "run": run_dir.name, "seeds": n_seeds, "done": done, "running": running, "not_started": not_started, "corrupt": corrupt,
-        "last_generation": max(last_gen) if last_gen else None, "target": target,
+        "run": run_dir.name, "seeds": n_seeds, "done": done, "running": unfinished if holder is not None else [],
+        "stopped": [] if holder is not None else unfinished, "not_started": not_started, "corrupt": corrupt, "pid": holder,
+        "generations": generations, "last_generation": max(generations.values()) if generations else None,
+        "first_generation": min(generations.values()) if generations else None, "target": target,
         "best_score": best if math.isfinite(best) else None,
         "current_score": sum(current) / len(current) if current else None,
     }  # fmt: skip
@@ -163,14 +184,19 @@ def _seed_list(seeds: list) -> str:
 
 def format_status(experiment: str, statuses: list) -> str:
     width = max(32, *(len(s["run"]) for s in statuses)) if statuses else 32
-    lines = [f"experiment {experiment}:", f"  {'run':<{width}} {'done':>5} {'running':>8} {'not started':>12} {'last gen':>12} {'best':>9} {'current':>9}"]
+    header = f"  {'run':<{width}} {'done':>5} {'running':>8} {'stopped':>8} {'not started':>12} {'last gen':>14} {'best':>9} {'current':>9}"
+    lines = [f"experiment {experiment}:", header]
     for s in statuses:
-        last = "-" if s["last_generation"] is None else f"{s['last_generation']}" + (f"/{s['target']}" if s["target"] else "")
+        low, high = s.get("first_generation"), s["last_generation"]
+        last = "-" if high is None else (f"{high}" if low in (None, high) else f"{low}-{high}") + (f"/{s['target']}" if s["target"] else "")
         best = "-" if s["best_score"] is None else f"{s['best_score']:.2f}"
         current = "-" if s["current_score"] is None else f"{s['current_score']:.2f}"
-        lines.append(f"  {s['run']:<{width}} {len(s['done']):>5} {len(s['running']):>8} {len(s['not_started']):>12} {last:>12} {best:>9} {current:>9}")
+        counts = f"{len(s['done']):>5} {len(s['running']):>8} {len(s['stopped']):>8} {len(s['not_started']):>12}"
+        lines.append(f"  {s['run']:<{width}} {counts} {last:>14} {best:>9} {current:>9}")
         if s["running"]:
-            lines.append(f"  {'':<{width}}   running seeds: {_seed_list(s['running'])}")
+            lines.append(f"  {'':<{width}}   running seeds: {_seed_list(s['running'])} (imix run, pid {s['pid']})")
+        if s["stopped"]:
+            lines.append(f"  {'':<{width}}   stopped seeds: {_seed_list(s['stopped'])} (re-run the same command to resume them)")
         for name, reason in s.get("corrupt", {}).items():
             lines.append(f"  {'':<{width}}   corrupt: {name} ({reason}); imix run refuses it: move it away")
     return "\n".join(lines)
@@ -192,7 +218,7 @@ def main(argv: list | None = None) -> int:
         blocks = []
         for experiment in experiments:
             statuses = [run_status(d) for d in run_folders(root, experiment)]
-            statuses = [st for st in statuses if st["seeds"] or st["done"] or st["running"] or st["corrupt"]]
+            statuses = [st for st in statuses if st["seeds"] or st["done"] or st["running"] or st["stopped"] or st["corrupt"]]
             if statuses:
                 blocks.append(format_status(experiment, statuses))
     except UsageError as err:

@@ -200,9 +200,11 @@ def main(argv: list | None = None) -> int:
                 continue
             try:
                 for stem, fig in spec.draw(exp, opts):
-                    for path in save_figure(fig, out_dir, stem, opts.formats, opts.dpi):
+                    for path in save_figure(fig, out_dir, stem, opts.formats, opts.dpi, root=settings["results_dir"]):
                         print(f"wrote {path}")
                         written += 1
+            except (OSError, MemoryError) as err:  # a refused link, a full disk, no memory: the next file would fail the same way
+                return _cannot_write(err)
             except Exception as err:  # noqa: BLE001 - one broken figure must not cost the others
                 print(f"imix plot: error: figure {spec.name!r} failed: {type(err).__name__}: {err}", file=sys.stderr)
                 status = 1
@@ -210,9 +212,11 @@ def main(argv: list | None = None) -> int:
         for spec in tables:
             try:
                 for table in spec.build(exp, opts):
-                    for path in write_table(table, out_dir):
+                    for path in write_table(table, out_dir, root=settings["results_dir"]):
                         print(f"wrote {path}")
                         written += 1
+            except (OSError, MemoryError) as err:
+                return _cannot_write(err)
             except Exception as err:  # noqa: BLE001
                 print(f"imix plot: error: table {spec.name!r} failed: {type(err).__name__}: {err}", file=sys.stderr)
                 status = 1
@@ -220,3 +224,14 @@ def main(argv: list | None = None) -> int:
         status = 1
     print(f"imix plot: {written} file(s) in {out_dir}")
     return status
+
+
+def _cannot_write(err: OSError | MemoryError) -> int:
+    """One line for a file that could not be written (a link refused by :mod:`imix_cli.writing`, a full disk); exit status 1.
+    What was written before stays, and the file named keeps its old content. (A closed stdout is not a file: the
+    command's boundary, imix_cli.commands.boundary, ends it silently; MemoryError too goes to it.)"""
+    if isinstance(err, (BrokenPipeError, MemoryError)):
+        raise err
+    where = f" {err.filename}" if err.filename else ""
+    print(f"imix plot: error: cannot write{where}: {err.strerror or err}", file=sys.stderr)
+    return 1

@@ -34,6 +34,7 @@ import numpy as np
 
 from imix_cli.commands.keyvalue import UsageError, at_least, help_requested, parse_key_values
 from imix_cli.plotting.mujoco import bootstrap_ci, hold_on_grid
+from imix_cli.writing import atomic_write_text, csv_text, one_line, write_figure
 
 #: The ARS paper's thresholds (Mania et al. 2018, on the -v1 envs), by gymnasium id of the v5 env.
 THRESHOLDS = {"Swimmer-v5": 325.0, "Hopper-v5": 3120.0, "HalfCheetah-v5": 3430.0, "Walker2d-v5": 4390.0}
@@ -174,7 +175,7 @@ def markdown(rows: list[dict]) -> str:
 
     for r in rows:
         lines.append(
-            f"| {r['env']} | {r['method']} | {r['seeds']} | {num(r['threshold'])} | {r['reached']} | {num(r['episodes_to_threshold'])} | "
+            f"| {one_line(r['env'])} | {one_line(r['method'])} | {r['seeds']} | {num(r['threshold'])} | {r['reached']} | {num(r['episodes_to_threshold'])} | "
             f"{num(r['env_steps_to_threshold'])} | {num(r['final_mean_policy_return'], '{:.1f}')} "
             f"({num(r['ci_low'], '{:.1f}')} – {num(r['ci_high'], '{:.1f}')}) | {num(r['episodes_saved'], '{:.1%}')} | "
             f"{num(r['episodes_run'])} | {num(r['wall_time_s'])} | "
@@ -183,7 +184,7 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def figure(env: str, methods: dict, out: Path, resamples: int) -> None:
+def figure(env: str, methods: dict, out: Path, resamples: int, root=None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -210,7 +211,7 @@ def figure(env: str, methods: dict, out: Path, resamples: int) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     for suffix in (".png", ".pdf"):
-        fig.savefig(out / f"ars_{env.split('-')[0].lower()}{suffix}", dpi=120)
+        write_figure(fig, out / f"ars_{env.split('-')[0].lower()}{suffix}", root=root, dpi=120)
     plt.close(fig)
 
 
@@ -232,15 +233,14 @@ def main(argv=None) -> int:
     if not runs:
         print(f"python -m imix_cli.plotting.ars: error: {exp_dir}: no ARS runs (ars-* or sb3_ars-*)", file=sys.stderr)
         return 2
-    out = exp_dir / "figures"
-    out.mkdir(exist_ok=True)
+    out, root = exp_dir / "figures", opts["results_dir"]
     rows = summary_rows(runs, resamples)
     import pandas as pd
 
-    pd.DataFrame(rows).to_csv(out / "ars_table.csv", index=False)
-    (out / "ars_table.md").write_text(markdown(rows))
+    atomic_write_text(out / "ars_table.csv", csv_text(pd.DataFrame(rows)), root=root)
+    atomic_write_text(out / "ars_table.md", markdown(rows), root=root)
     for env, methods in runs.items():
-        figure(env, methods, out, resamples)
+        figure(env, methods, out, resamples, root)
     print(markdown(rows))
     print(f"figures and table: {out}")
     return 0

@@ -43,6 +43,7 @@ from matplotlib.ticker import FuncFormatter
 
 from imix_cli.registry import ALGORITHM_SPECS, MIXING_NAMES, OKABE_ITO, algo_label, env_label, mixing_suffix, mixing_title
 from imix_cli.registry import NON_ES_NAMES as NON_ES
+from imix_cli.writing import atomic_write_bytes, write_figure
 
 from . import didactic
 from .data import (
@@ -124,35 +125,36 @@ def new_figure(width: float, height: float) -> Figure:
     return Figure(figsize=(width, height), layout="constrained")
 
 
-def save_figure(fig: Figure, out_dir: Path, stem: str, formats=("png", "pdf"), dpi: int = 150) -> list:
-    """Write ``<out_dir>/<stem>.<fmt>`` for each format (no timestamps, so reruns give identical files)."""
+def save_figure(fig: Figure, out_dir: Path, stem: str, formats=("png", "pdf"), dpi: int = 150, root=None) -> list:
+    """Write ``<out_dir>/<stem>.<fmt>`` for each format (no timestamps, so reruns give identical files) through the
+    one writer (:mod:`imix_cli.writing`; ``root``: the results folder, below which no link is followed)."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for fmt in formats:
         path = out_dir / f"{stem}.{fmt}"
         if fmt == "png":
-            _save_png(fig, path, dpi)
+            atomic_write_bytes(path, _png_bytes(fig, dpi), root=root)
         else:
             metadata = {"pdf": {"CreationDate": None}, "svg": {"Date": None}}.get(fmt)
-            fig.savefig(path, format=fmt, dpi=dpi, metadata=metadata)
+            write_figure(fig, path, root=root, format=fmt, dpi=dpi, metadata=metadata)
         paths.append(path)
     return paths
 
 
-def _save_png(fig: Figure, path: Path, dpi: int) -> None:
+def _png_bytes(fig: Figure, dpi: int) -> bytes:
     """PNG reduced to a 256-colour palette (no dithering): about 3x smaller, no visible change for line art."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=dpi, metadata={"Software": None})
     try:
         from PIL import Image
     except ImportError:  # pragma: no cover - Pillow is a matplotlib dependency
-        path.write_bytes(buffer.getvalue())
-        return
+        return buffer.getvalue()
     buffer.seek(0)
+    out = io.BytesIO()
     with Image.open(buffer) as image:
         palette = image.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
-        palette.save(path, format="png", optimize=True)
+        palette.save(out, format="png", optimize=True)
+    return out.getvalue()
 
 
 #: The returns an env can give (per episode), for clipping CI bands; other envs use the data's range.

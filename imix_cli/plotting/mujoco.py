@@ -42,6 +42,7 @@ import numpy as np
 
 from imix_cli.commands.keyvalue import UsageError, at_least, finite_number, help_requested, parse_key_values
 from imix_cli.registry import mujoco_thresholds
+from imix_cli.writing import atomic_write_text, csv_text, one_line, write_figure
 
 #: Return thresholds of the to-threshold columns: a clear sign of learning in the study's budget.
 #: Keyed by gymnasium id (MuJoCo runs are named by it), from :data:`imix_cli.registry.ENV_SPECS`.
@@ -168,7 +169,7 @@ def _markdown(rows: list[dict]) -> str:
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in rows:
         lines.append(
-            f"| {r['env']} | {r['run']} | {r['seeds']} | {r['final_return']:.1f} [{r['ci95_low']:.1f}, {r['ci95_high']:.1f}] | "
+            f"| {one_line(r['env'])} | {one_line(r['run'])} | {r['seeds']} | {r['final_return']:.1f} [{r['ci95_low']:.1f}, {r['ci95_high']:.1f}] | "
             f"{_fmt(r['mean_policy_return'], '.1f')} | {_fmt(r['return_at_budget'], '.1f')} ({r['budget_episodes']:,}) | "
             f"{r['reuse_percent']:.1f} % | {r['episodes']:,.0f} | {r['env_steps']:,.0f} | {r['wall_time_s']:.0f} s | "
             f"{_fmt(r['threshold'], '.0f')} | {r['reached'] or '-'} | {_fmt(r['episodes_to_threshold'], ',.0f')} | "
@@ -231,22 +232,21 @@ def main(argv: list | None = None) -> int:
     if not runs:
         print(f"imix plot mujoco: no run CSVs under {exp_dir}", file=sys.stderr)
         return 1
-    out = exp_dir / "figures"
-    out.mkdir(parents=True, exist_ok=True)
+    out, root = exp_dir / "figures", settings["results_dir"]
     import matplotlib.pyplot as plt
 
     for env, runs_of_env in sorted(runs.items()):
         fig = draw_env(env, runs_of_env, settings["resamples"])
         for ext in ("png", "pdf"):
             path = out / f"mujoco_{env}.{ext}"
-            fig.savefig(path, dpi=150)
+            write_figure(fig, path, root=root, dpi=150)
             print(f"wrote {path}")
         plt.close(fig)
     rows = table_rows(runs, settings["thresholds"], settings["resamples"])
     import pandas as pd
 
-    pd.DataFrame(rows).to_csv(out / "mujoco_table.csv", index=False)
-    (out / "mujoco_table.md").write_text(_markdown(rows))
+    atomic_write_text(out / "mujoco_table.csv", csv_text(pd.DataFrame(rows)), root=root)
+    atomic_write_text(out / "mujoco_table.md", _markdown(rows), root=root)
     print(f"wrote {out / 'mujoco_table.csv'}\nwrote {out / 'mujoco_table.md'}")
     print(_markdown(rows), end="")
     return 0

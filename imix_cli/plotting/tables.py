@@ -34,6 +34,7 @@ from imix_cli.registry import NON_ES_NAMES as NON_ES
 from imix_cli.registry import algo_label as _algo
 from imix_cli.registry import env_label as _env
 from imix_cli.registry import mixing_label
+from imix_cli.writing import atomic_write_text, csv_text, one_line
 
 from .data import (
     HYPERPARAMS,
@@ -71,7 +72,7 @@ def _pm(mean, ci, digits=1, suffix=""):
 
 
 def _tex_escape(text: str) -> str:
-    text = str(text)
+    text = one_line(text)
     for char, repl in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#"), ("$", r"\$"), ("{", r"\{"), ("}", r"\}")):
         text = text.replace(char, repl)
     return text.replace("±", r"$\pm$").replace("–", "--").replace("σ", r"$\sigma$").replace("−", "-")
@@ -79,12 +80,12 @@ def _tex_escape(text: str) -> str:
 
 def markdown_table(header: list, rows: list, notes: str = "") -> str:
     def cell(v):
-        return str(v).replace("|", "\\|")
+        return one_line(v).replace("|", "\\|")  # a cell never starts a line of its own
 
     lines = ["| " + " | ".join(cell(h) for h in header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
     if notes:
-        lines += ["", notes]
+        lines += ["", one_line(notes)]  # labels inside the notes come from the results folder too
     return "\n".join(lines) + "\n"
 
 
@@ -267,7 +268,7 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
 # --------------------------------------------------------------------------- robust statistics (Agarwal et al. 2021)
 
 #: Overrides that only set how mixing is done: stripped when pairing a run with its no-mixing twin.
-_MIXING_OVERRIDES = ("eim_generations", "im_variant", "im_alpha")
+_MIXING_OVERRIDES = ("eim_generations", "im_variant", "im_alpha", "min_fresh")
 BOOTSTRAP_REPS = 2000
 
 
@@ -464,17 +465,14 @@ TABLES = [
 ]
 
 
-def write_table(table: Table, out_dir) -> list:
-    """Write ``<stem>.csv``, ``.md`` and ``.tex``; returns the paths."""
+def write_table(table: Table, out_dir, root=None) -> list:
+    """Write ``<stem>.csv``, ``.md`` and ``.tex`` through the one writer (:mod:`imix_cli.writing`; ``root``: the results
+    folder, below which no link is followed); returns the paths. Text cells come from CSVs a results folder carries:
+    a formula-looking one is quoted for spreadsheets and none can start a line of its own (:func:`imix_cli.writing.safe_cell`)."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
-    for suffix, text in (
-        ("csv", table.frame.to_csv(index=False, float_format="%.6g", lineterminator="\n")),
-        ("md", table.markdown),
-        ("tex", table.latex),
-    ):
+    for suffix, text in (("csv", csv_text(table.frame, float_format="%.6g")), ("md", table.markdown), ("tex", table.latex)):
         path = out_dir / f"{table.stem}.{suffix}"
-        path.write_text(text, encoding="utf-8")
+        atomic_write_text(path, text, root=root)
         paths.append(path)
     return paths

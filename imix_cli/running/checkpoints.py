@@ -11,7 +11,7 @@ A seed's checkpoint is ``.checkpoints/seed_<k>.npz`` in its run folder (:func:`c
 the run's writer (:mod:`imix_cli.running.run_writer`) and read back, and checked against the run, by
 :mod:`imix_cli.running.resume`.
 
-Format (``FORMAT_VERSION`` 1), written atomically (:func:`imix_cli.running.results.atomic_write_bytes`):
+Format (``FORMAT_VERSION`` 1), written atomically (:func:`imix_cli.writing.atomic_write_bytes`):
 an uncompressed NumPy ``.npz`` (a zip of ``.npy`` files, read back with
 ``np.load(allow_pickle=False)``, so no object array can be loaded) holding
 
@@ -51,7 +51,8 @@ from imix_cli import messages
 from imix_cli.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.mixing import Generation
 from imix_cli.policies import ObsNormalizer
-from imix_cli.running.results import atomic_write_bytes, regular_file_size
+from imix_cli.running.results import regular_file_size
+from imix_cli.writing import atomic_write_bytes
 
 FORMAT = "imix-checkpoint"
 FORMAT_VERSION = 1
@@ -90,7 +91,7 @@ def remove_checkpoint(run_dir, seed: int) -> None:
 
 def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int, tables: dict | None = None, durable: bool = True) -> None:
     """Write dataclass ``state`` (a seed's state at ``generation``) to ``path`` atomically (``durable``:
-    flushed to the disk too, :func:`imix_cli.running.results.atomic_write_bytes`).
+    flushed to the disk too, :func:`imix_cli.writing.atomic_write_bytes`).
 
     ``tables``: a dict the caller keeps between the checkpoints of one seed (empty at first), where
     the encoding of the state's tables (its rows) is kept for the next checkpoint to reuse
@@ -111,7 +112,6 @@ def write_checkpoint(path, state, *, identity: dict, seed: int, generation: int,
     header["checksum"] = _checksum(header, arrays)
     buffer = io.BytesIO()
     np.savez(buffer, **{_HEADER: np.frombuffer(_canonical(header).encode(), dtype=np.uint8)}, **arrays)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, buffer.getvalue(), durable=durable)
 
 

@@ -267,7 +267,7 @@ def _draw_seeds(rng, n):
 def _make_entry(digest: int):
     @njit(cache=True)
     def _run_chunk(
-        generations, algo, variant, depth, alpha, log_keep, weight_decay, mult, es_generation,
+        generations, algo, variant, depth, alpha, log_keep, min_fresh, weight_decay, mult, es_generation,
         mu, log_sigma, std, sigma0, opt_m, opt_v, opt_t, lrs, beta1, beta2,
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
         sample_rng, episode_rng, mean_rng, sizes, continuous, sparse, max_steps, eval_every, eval_episodes, generation0,
@@ -304,17 +304,17 @@ def _make_entry(digest: int):
                 if variant == 1:
                     x, source, index, trials = mk._mix_paper(
                         sample_rng, mu, std, log_norm, a_mean[:k_used], a_std[:k_used], a_lognorm[:k_used],
-                        a_x[:k_used], a_h[:k_used], counts, popsize, log_keep, alpha,
+                        a_x[:k_used], a_h[:k_used], counts, popsize, log_keep, alpha, min_fresh,
                     )  # fmt: skip
                 elif variant == 2:
                     x, source, index, trials = mk._mix_sun2009(
                         sample_rng, mu, std, log_norm, a_mean[:k_used], a_std[:k_used], a_lognorm[:k_used],
-                        a_x[:k_used], a_h[:k_used], counts, popsize, log_keep, alpha,
+                        a_x[:k_used], a_h[:k_used], counts, popsize, log_keep, alpha, min_fresh,
                     )  # fmt: skip
                 else:
                     x, source, index, trials = mk._mix_exact(
                         sample_rng, mu, std, log_norm, a_mean[:k_used], a_std[:k_used], a_lognorm[:k_used],
-                        a_x[:k_used], a_h[:k_used], counts, popsize, log_keep, alpha,
+                        a_x[:k_used], a_h[:k_used], counts, popsize, log_keep, alpha, min_fresh,
                     )  # fmt: skip
             age = np.zeros(popsize, dtype=np.int64)
             fitness = np.empty(popsize)
@@ -539,7 +539,7 @@ def advance(st, settings, evaluator, generations: int) -> bool:
     with np.errstate(divide="ignore"):
         log_keep = el.math_log1p(-mixing.alpha)
     done = entry()(
-        generations, _ALGOS[type(es)], _kernel(mixing.variant), depth, float(mixing.alpha), log_keep,
+        generations, _ALGOS[type(es)], _kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh),
         float(es.weight_decay), hash_multipliers(d), es_generation,
         mu, log_sigma, std, float(es.sigma), opt_m, opt_v, opt_t, lrs, float(es.params.beta1), float(es.params.beta2),
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,

@@ -141,11 +141,17 @@ def point_key(plain: dict, launcher: str | None) -> str:
     return json.dumps([plain, launcher], sort_keys=True, default=repr)
 
 
-def validate_overrides(overrides: list[str], validated: dict | None = None, config_name: str = "config", config_dirs: tuple = ()) -> list[RunSpec]:
+def validate_overrides(
+    overrides: list[str], validated: dict | None = None, values: dict | None = None, config_name: str = "config", config_dirs: tuple = ()
+) -> list[RunSpec]:
     """Compose and validate the config of every point of a (possibly multirun) command line.
 
     ``validated``, if given, receives each point's RunSpec under its :func:`point_key`: ``imix run`` hands
     them to the Hydra task, which runs them without validating its point a second time.
+
+    ``values``: dotted key -> Python value (the keyword arguments of :func:`imix_cli.run`), set on every
+    point after ``overrides`` as values, never read as override syntax: ``experiment="a,b"`` is one folder
+    named ``a,b``, not a sweep, and ``"${...}"`` is that text, not an interpolation (:func:`_set_values`).
 
     Raises ConfigError (one line) on the first problem, or when two points would share a run
     folder with different configs (the second would be refused halfway through the sweep).
@@ -167,6 +173,12 @@ def validate_overrides(overrides: list[str], validated: dict | None = None, conf
     from hydra.core.override_parser.types import Glob
     from omegaconf import OmegaConf, open_dict
 
+    set_values = dict(values or {})
+    # algo and env choose config files: a name of conf/algo or conf/env, composed like the command line's
+    overrides = [*overrides, *(_group_choice(key, set_values.pop(key)) for key in ("algo", "env") if key in set_values)]
+    for key in set_values:
+        if not isinstance(key, str) or not _DOTTED_KEY.match(key) or key.split(".")[0] == "hydra":
+            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)")
     parser = OverridesParser.create()
     try:
         parsed = parser.parse_overrides(overrides)
@@ -216,7 +228,7 @@ def validate_overrides(overrides: list[str], validated: dict | None = None, conf
         started = False
         for point in itertools.product(*choices):
             parsed_point = [parse_one(line) for line in point]
-            values = [o for o in parsed_point if _is_value_override(o)]
+            point_values = [o for o in parsed_point if _is_value_override(o)]
             base = tuple(line for line, o in zip(point, parsed_point, strict=True) if not _is_value_override(o))
             key = (config_name, holder, tuple(search), base, os.getcwd(), files)  # hydra.* overrides are in base
             try:
@@ -237,7 +249,8 @@ def validate_overrides(overrides: list[str], validated: dict | None = None, conf
                     _COMPOSED[key] = (full, launcher, with_hydra)
                 full, launcher, with_hydra = _COMPOSED[key]
                 cfg = copy.deepcopy(full)
-                _apply_values(values, cfg)
+                _apply_values(point_values, cfg)
+                _set_values(set_values, cfg)
                 plain = _resolved(cfg, with_hydra)
             except ConfigError:
                 raise
@@ -366,6 +379,45 @@ def _apply_values(values, cfg) -> None:
             raise ValueError(f"Could not override '{override.key_or_group}'.") from None
         except OmegaConfBaseException:
             raise ValueError(f"Error merging override {override.input_line}") from None
+
+
+_DOTTED_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+def _group_choice(group: str, value) -> str:
+    """``group=value`` for a config group chosen by a keyword (``algo="snes"``); ConfigError unless it names one of its options."""
+    valid = group_options(group)
+    if not isinstance(value, str) or value not in valid:
+        raise ConfigError(f"{group}={value!r}: unknown {group}; valid choices are {', '.join(valid)}")
+    return f"{group}={value}"
+
+
+def _set_values(values: dict, cfg) -> None:
+    """Set each ``key: value`` of ``values`` on the composed ``cfg`` as a value: strings with their ``${`` escaped
+    (OmegaConf's ``\\${``, a backslash run before it doubled), so that resolving the config leaves them as given;
+    numpy scalars as Python's. ConfigError naming the key if the config has no such key or the value is of no type
+    a config holds."""
+    from omegaconf import OmegaConf
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
+
+    def plain(key, v):
+        if isinstance(v, str):
+            return re.sub(r"(\\*)\$\{", lambda m: m.group(1) * 2 + "\\${", v)
+        if isinstance(v, (list, tuple)):
+            return [plain(key, x) for x in v]
+        if v is None or isinstance(v, (bool, int, float)):
+            return v
+        if type(v).__module__ == "numpy" and hasattr(v, "item"):  # np.int64(5), np.float32(0.1)
+            return plain(key, v.item())
+        raise ConfigError(f"{key}={v!r}: a {type(v).__name__} is not a value of the config (give a str, number, bool, None or list)")
+
+    for key, v in values.items():
+        try:
+            OmegaConf.update(cfg, key, plain(key, v), merge=True)
+        except (ConfigAttributeError, ConfigKeyError):
+            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)") from None
+        except OmegaConfBaseException as err:
+            raise ConfigError(f"{key}={v!r}: {first_line(err)}") from None
 
 
 def _is_value_override(override) -> bool:

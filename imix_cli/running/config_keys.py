@@ -79,6 +79,11 @@ KEYS = (
         "because its `paper` is Algorithm 2 (`im_variant=paper`)", "mixing"),
     Key("im_alpha", "0.0", "sun2009's minimal refresh rate in [0, 1)", "`sun2009`'s minimal refresh rate α ∈ [0, 1)", "mixing"),
     Key("eim_generations", "3", "K, archived generations eim reuses from", "K, the archived generations `eim` reuses from", "mixing"),
+    Key("min_fresh", "1", "with mixing: fresh members per generation, at least (no fixed point)",
+        "with `im=true` or `eim=true`: at least this many members of every generation are fresh, in slots drawn at random "
+        "independently of the members, so the generation keeps its law (`0`: the rules alone). Without it a distribution "
+        "that stops moving reuses every member and an ES whose update depends only on its members and their returns (CEM, "
+        "CMA-ES) repeats its update: a fixed point (the research notes, \"Reused returns and the search\")", "mixing"),
     Key("reeval_age", "null", "re-evaluate reused members whose return is older (generations)",
         "re-evaluate a reused member whose stored return is more than this many generations old (`null`: never; a remedy "
         "for the selection bias of stored returns, see the research notes)", "mixing"),

@@ -49,6 +49,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     algo_options = _algo_options(algo, algo_cfg)
     im_alpha = as_bounded(cfg, "im_alpha", MIXING_BOUNDS["alpha"])
     eim_generations = as_bounded(cfg, "eim_generations", MIXING_BOUNDS["eim_generations"])
+    min_fresh = as_int(cfg, "min_fresh", 0)
     if eim and im_variant != PAPER_DEFAULTS["im_variant"]:
         raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(eim_variants)}")
     mixing = "eim" if eim else ("im" if im else "none")
@@ -56,6 +57,8 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     variant = eim_variants[eim_variant].name if eim else (im_variants[im_variant].name if im else None)
     if im_alpha != 0.0 and not (variant is not None and variant_spec(variant).uses_alpha):
         raise ConfigError(f"im_alpha={im_alpha}: only applies with im=true im_variant=sun2009")
+    if mixing == "none" and min_fresh != PAPER_DEFAULTS["min_fresh"]:
+        raise ConfigError(f"min_fresh={min_fresh}: only applies with im=true or eim=true (fresh members of a mixed generation)")
     if mixing == "none" and (reeval_age is not None or reeval_prob or reeval_count):
         raise ConfigError("reeval_age/reeval_prob/reeval_count: only apply with im=true or eim=true (they re-evaluate reused members)")
 
@@ -75,6 +78,10 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         raise ConfigError(
             f"popsize={popsize}: algo=cmaes needs popsize >= {cmaes.MIN_POPSIZE} (its recombination weights need at least 2 parents and one non-parent)"
         )
+    if mixing != "none" and min_fresh > popsize:
+        raise ConfigError(f"min_fresh={min_fresh}: more than popsize={popsize} members")
+    if not math.isfinite(sigma * sigma):
+        raise ConfigError(f"sigma={sigma!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
     _check_params_together(algo, popsize, algo_options)
     _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
     num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"], policy["bias"], policy["output"])
@@ -100,6 +107,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         variant=variant,
         im_alpha=im_alpha,
         eim_generations=eim_generations,
+        min_fresh=min_fresh,
         reeval_age=reeval_age,
         reeval_prob=reeval_prob,
         reeval_count=reeval_count,

@@ -4,32 +4,38 @@ The run is read once (:func:`imix_cli.running.lockstep.loop_settings`); each see
 checkpoint (:mod:`imix_cli.running.resume`); the loop steps the seeds (:mod:`imix_cli.running.lockstep`,
 :mod:`imix_cli.running.compiled_loop`) and hands each step's record to the run's one writer
 (:mod:`imix_cli.running.run_writer`): ``seed_<k>.csv`` written atomically when seed ``k`` finishes, its
-state checkpointed every ``checkpoint_every`` generations with ``seed_<k>.partial.csv`` as a live view.
-Re-running the same command resumes each seed from its checkpoint, saying so on stderr
-(``seed k resumes at generation G``).
+state checkpointed every ``checkpoint_every`` generations with ``seed_<k>.partial.csv`` as a live view,
+and at its current generation when the run is stopped (:mod:`imix_cli.running.stopping`). Re-running the
+same command resumes each seed from its checkpoint; the runner says so in one line.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
-import sys
 import time
 from pathlib import Path
 
 from imix_cli.messages import warn
+from imix_cli.running import stopping
 from imix_cli.running.checkpoints import checkpoint_path
 from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state, seed_record
 from imix_cli.running.resume import can_checkpoint, load_checkpoint
 from imix_cli.running.run_folder import RunError
 from imix_cli.running.run_spec import resume_identity
 from imix_cli.running.run_writer import RunWriter
+from imix_cli.running.trainers import es_seed_finished
 
 
-def run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
+def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> dict:
     """Run ``seeds`` of ``spec`` to completion in this process, in lockstep, on the run's ``evaluator``
     (:func:`imix_cli.parallel_evaluation.build_evaluator`, built and closed by the caller); ``progress(n)`` gets
-    the number of seed-generations just completed. Returns seed -> :func:`imix_cli.running.results.seed_summary`."""
+    the number of seed-generations just completed, ``resumed({seed: generation})`` once, the generation each seed
+    starts from (0: from scratch), for the runner's one line about them. Returns seed ->
+    :func:`imix_cli.running.results.seed_summary`.
+
+    Stopped by a signal (:mod:`imix_cli.running.stopping`, which the caller sets up), the loop checkpoints every
+    unfinished seed at its current generation and raises :class:`~imix_cli.running.stopping.StopRequested`."""
     identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
     settings = loop_settings(spec, evaluator)
     states = []
@@ -44,12 +50,14 @@ def run_es_seeds(spec, seeds: list[int], progress, evaluator) -> dict:
             warn(f"{path}: checkpoint at generation {st.generation} is past generations={settings.generations}; seed {seed} restarts from generation 0")
             st = None
         if st is not None:
-            print(f"imix: seed {seed} resumes at generation {st.generation} from {path}", file=sys.stderr, flush=True)
             progress(st.generation)
         states.append(fresh if st is None else st)
+    if resumed is not None:
+        resumed({st.seed: st.generation for st in states})
     if states and not can_checkpoint(states[0].es):
         settings = dataclasses.replace(settings, checkpoint_every=0)
     writer = RunWriter(spec, evaluator, identity)
+    writer.saved_generation.update({st.seed: st.generation for st in states if st.generation})  # on disk already
     try:
         _run_loop(settings, states, evaluator, writer, progress)
     finally:
@@ -78,9 +86,17 @@ def _run_loop(settings, states, evaluator, writer: RunWriter, progress) -> None:
     stepped_until: dict[int, int] = {}  # seed -> the end of a chunk the compiled loop handed back
     active = states
     while active:
+        if stopping.requested():  # here every seed is between two generations: keep them all
+            if every:  # checkpoint_every=0: the user asked for no checkpoints
+                for st in active:
+                    writer.checkpoint_now(st)
+            raise stopping.StopRequested(stopping.requested())
         firsts = [st.generation for st in active]
         began, stepped = {}, []  # seed -> when its compiled chunk began
         for st in (st for st in active if st.generation < settings.generations):
+            if stopping.requested():  # the seeds not advanced yet stay where they are
+                stepped = []
+                break
             if st.generation < stepped_until.get(st.seed, 0) or not (compiles and compiled_loop.applies(settings, evaluator, st)):
                 stepped.append(st)
                 continue
@@ -110,7 +126,7 @@ def needs_running(spec, seed: int, path: Path, frame) -> bool:
             f"{path}: has {len(frame)} generations, config asks for {spec.generations}: a run can be continued to more generations, "
             "not shortened below what a seed finished; choose another experiment= or move that folder away"
         )
-    if len(frame) < spec.generations and frame["diverged"].iloc[-1] != 1:  # continue it from its final state
+    if not es_seed_finished(frame, spec.generations):  # continue it from its final state
         if not checkpoint_path(run_dir, seed).exists():
             raise RunError(
                 f"{path}: has {len(frame)} of {spec.generations} generations and no final state to continue from "

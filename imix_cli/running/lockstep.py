@@ -133,7 +133,7 @@ def new_seed_state(settings: LoopSettings, seed: int) -> SeedState:
 
 
 def mixing_settings(spec) -> MixingSettings:
-    return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob, spec.reeval_count)
+    return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob, spec.reeval_count, spec.min_fresh)
 
 
 def generation_row(*, algo: str, env: str, mixing: str, seed: int, generation: int, evaluations: int, env_steps: int,

@@ -14,7 +14,7 @@ File layout (``np.load(path, allow_pickle=False)`` reads it)::
     params   float64 (d,)   the flat MLP parameter vector (layout: imix_cli.policies)
     header   str scalar     JSON, the fields of HEADER_FIELDS below
 
-A file is written atomically (temporary file + rename, :func:`imix_cli.running.results.atomic_write_bytes`),
+A file is written atomically (temporary file + rename, :func:`imix_cli.writing.atomic_write_bytes`),
 so a reader never sees half a policy.
 """
 
@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.running.results import atomic_write_bytes, regular_file_size
+from imix_cli.running.results import regular_file_size
+from imix_cli.writing import atomic_write_bytes
 
 FORMAT = "imix-policy/1"
 WHICH = ("mean", "best")

@@ -3,7 +3,8 @@
 ``run_pool(task, spec, chunks, bar)`` runs ``task(spec, chunk)`` for every chunk of seeds in its
 own process and returns their results. Workers report progress through :func:`report_progress`
 (a queue drained into ``bar``); they ignore SIGINT (the main process alone decides, and stops
-them), and exit within a second if the main process dies (kill -9), so that none lingers.
+them with SIGTERM, after which each checkpoints its seeds' current generation: at most
+:data:`imix_cli.running.stopping.STOP_GRACE_SECONDS`), and exit within a second if the main process dies (kill -9), so that none lingers.
 Workers are spawned with one BLAS thread each (:func:`imix_cli.processes.one_blas_thread`).
 """
 
@@ -11,14 +12,15 @@ from __future__ import annotations
 
 import atexit
 import logging
-import multiprocessing
 import os
 import queue as queue_module
 import signal
 import sys
+import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from imix_cli.processes import one_blas_thread, start_orphan_watchdog
+from imix_cli.processes import one_blas_thread, spawn_context, start_orphan_watchdog
+from imix_cli.running import stopping
 
 _progress_queue = None
 
@@ -29,12 +31,19 @@ def report_progress(n: int) -> None:
         _progress_queue.put(n)
 
 
-def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None) -> list:
+def report_resumed(starts: dict) -> None:
+    """A worker's seeds and the generation each starts from (no-op outside a pool worker)."""
+    if _progress_queue is not None:
+        _progress_queue.put(("resumed", starts))
+
+
+def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None, resumed=None) -> list:
     """``[task(spec, chunk) for chunk in chunks]``, each in a worker process of its own.
 
     ``when_a_core_is_free()`` is called once, here, when a worker has finished its chunk while others
-    still run: work this process will need next can be done then without slowing a worker."""
-    ctx = multiprocessing.get_context("spawn")
+    still run: work this process will need next can be done then without slowing a worker.
+    ``resumed(starts)`` receives what each worker reports with :func:`report_resumed`."""
+    ctx = spawn_context()
     progress_queue = ctx.Queue()
     pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
     try:
@@ -43,18 +52,18 @@ def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None)
         pending = set(futures)
         while pending:
             done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            _drain(progress_queue, bar)
+            _drain_into(progress_queue, bar, resumed)
             for future in done:
                 future.result()  # re-raise a worker's error here
             if done and pending and when_a_core_is_free is not None:
                 when_a_core_is_free()
                 when_a_core_is_free = None
-        _drain(progress_queue, bar)
+        _drain_into(progress_queue, bar, resumed)
         return [future.result() for future in futures]
     except BaseException:
-        # Ctrl-C / SIGINT to this process alone, or a worker's error: stop the other workers now
-        # rather than let them finish their seeds (what is checkpointed is kept; writes are atomic).
-        _terminate_workers(pool)
+        # Ctrl-C / SIGINT to this process alone, or a worker's error: stop the other workers now rather than
+        # let them finish their seeds; each checkpoints its seeds' current generation first (writes are atomic).
+        _terminate_workers(pool, grace=stopping.STOP_GRACE_SECONDS)
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
@@ -65,7 +74,10 @@ def _init_worker(progress_queue) -> None:
     _progress_queue = progress_queue
     # Ctrl-C reaches the whole process group: the main process alone decides, and stops us.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the main process's one line is enough: a worker ends silently
+    # SIGTERM (the main process stopping us): the seeds' loop checkpoints their current generation, then the worker
+    # ends silently (the main process's one line is enough); outside that loop it ends at once.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    stopping.worker_waits_for_its_main()
     start_orphan_watchdog(os.getppid())
     atexit.register(_exit_without_teardown)  # registered first, so it runs after the tasks' own atexit hooks
 
@@ -87,20 +99,35 @@ def _exit_without_teardown() -> None:
     os._exit(0)
 
 
-def _terminate_workers(pool: ProcessPoolExecutor) -> None:
+def _terminate_workers(pool: ProcessPoolExecutor, grace: float = 5.0) -> None:
+    """SIGTERM to every worker, then up to ``grace`` seconds in all for them to exit (a run's workers checkpoint
+    first: :mod:`imix_cli.running.stopping`); those still alive are killed, at once on a second Ctrl-C."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
     for process in processes:
         process.terminate()
+    deadline = time.monotonic() + grace
+    try:
+        for process in processes:
+            process.join(timeout=max(0.0, deadline - time.monotonic()))
+    except KeyboardInterrupt:  # a second Ctrl-C: the user will not wait (the last periodic checkpoints are kept)
+        pass
     for process in processes:
-        process.join(timeout=5)
+        if process.is_alive():
+            process.kill()
+            process.join(timeout=5)
 
 
-def _drain(progress_queue, bar) -> None:
+def _drain_into(progress_queue, bar, resumed=None) -> None:
     while True:
         try:
-            bar.update(progress_queue.get_nowait())
+            item = progress_queue.get_nowait()
         except queue_module.Empty:
             return
+        if isinstance(item, tuple):  # ("resumed", starts)
+            if resumed is not None:
+                resumed(item[1])
+        else:
+            bar.update(item)
 
 
 class _NoBar:

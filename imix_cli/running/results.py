@@ -6,9 +6,10 @@ Layout::
     <results_dir>/<experiment>/<algo>-<env>-<mixing>[-<overrides>]/config.yaml
 
 One row per generation (for DDPG: per finished episode), with exactly the columns
-of :data:`COLUMNS`. Files are written atomically: the data goes to a temporary
-file in the same folder, is flushed to disk, then renamed over the final name,
-so a reader (or a resumed run) never sees a half-written CSV.
+of :data:`COLUMNS`. Files are written by the one writer (:mod:`imix_cli.writing`): the data
+goes to a temporary file in the same folder, is flushed to disk, then renamed over the final
+name, so a reader (or a resumed run) never sees a half-written CSV, and no link in the run
+folder is followed.
 """
 
 from __future__ import annotations
@@ -16,11 +17,12 @@ from __future__ import annotations
 import os
 import re
 import stat
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from imix_cli.writing import atomic_write_bytes, atomic_write_text  # noqa: F401 - the one writer (imix_cli.writing), used here and re-exported
 
 if TYPE_CHECKING:
     import pandas as pd  # imported where used: a worker process writing plain rows never needs it (~0.25 s)
@@ -88,59 +90,6 @@ def run_dir_name(algo: str, env: str, mixing: str, overrides: str = "") -> str:
     return f"{name}-{overrides}" if overrides else name
 
 
-def atomic_write_bytes(path, data: bytes, *, durable: bool = True) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and an atomic rename.
-
-    A reader never sees a partial file at ``path``, and a process killed at any moment leaves
-    either the old file or the new one; on any error (a full disk, say) the temporary is removed and
-    whatever was at ``path`` before is left untouched.
-
-    ``durable``: the data is also flushed to the disk (``fsync``) before the rename, so that a
-    *machine* crash (power loss, kernel panic) cannot leave an empty or truncated file there. That
-    costs ~5-7 ms a file here (most of a periodic checkpoint's cost); files that are only a shortcut
-    -- a periodic checkpoint, the live ``seed_<k>.partial.csv`` -- pass ``durable=False``: a process
-    kill (Ctrl-C, SIGKILL, a scheduler's preemption) leaves them whole all the same, and one damaged
-    by a machine crash is refused by its checksum and costs recomputation only
-    (docs/reliability-runs.md). Results (seed CSVs, policies, a seed's final state) stay durable.
-    """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        _write_and_rename(fd, tmp, path, data, durable)
-    except OSError as err:
-        if err.filename is None:  # ENOSPC from write/fsync names no file: name the one we were writing
-            raise OSError(err.errno, err.strerror or str(err), str(path)) from None
-        raise
-
-
-def _write_and_rename(fd: int, tmp: str, path: Path, data: bytes, durable: bool) -> None:
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp creates 0600; give the file the usual permissions
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            if durable:
-                os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
-def atomic_write_text(path, text: str, *, durable: bool = True) -> None:
-    """:func:`atomic_write_bytes` for text (UTF-8)."""
-    atomic_write_bytes(path, text.encode("utf-8"), durable=durable)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def rows_to_frame(rows) -> pd.DataFrame:
     """Build a contract-conforming DataFrame from a list of dicts (one per generation)."""
     import pandas as pd
@@ -176,7 +125,9 @@ def seed_summary(frame) -> dict:
     """What a run's summary needs of one seed's rows: a contract-conforming frame (read or just
     written), or any mapping of column name to its values (:func:`write_run_csv`'s plain rows).
 
-    ``theta``: the distribution mean's return on fresh episodes where it was last measured (NaN if never)."""
+    ``theta``: the distribution mean's return on fresh episodes where it was last measured (NaN if never).
+    ``stalled``: generations in which no member was evaluated (every one reused: ``reused == popsize``),
+    what ``min_fresh`` >= 1 rules out (imix_cli/mixing.py, "A minimal refresh")."""
 
     def column(name):
         return np.asarray(frame[name])
@@ -190,6 +141,7 @@ def seed_summary(frame) -> dict:
         "env_steps": int(column("env_steps")[-1]),
         "reused": int(column("reused").sum()),
         "members": int(column("popsize").sum()),
+        "stalled": int(np.count_nonzero(column("reused") == column("popsize"))),
         "nonfinite": int(column("nonfinite").sum()),
         "mixing": str(column("mixing")[0]),
         "diverged": int(column("diverged")[-1] == 1),

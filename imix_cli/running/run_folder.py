@@ -16,10 +16,12 @@ import os
 import reprlib
 import stat
 
-from imix_cli.running.results import CorruptResultError, atomic_write_text, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
+from imix_cli.running.results import CorruptResultError, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
+from imix_cli.running.run_lock import LOCK_NAME
 from imix_cli.running.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.running.seed_checks import SCHEDULE_KEYS, check_seed_csv
 from imix_cli.running.trainers import trainer_for
+from imix_cli.writing import atomic_write_text
 
 
 class RunError(RuntimeError):
@@ -30,13 +32,17 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
     """Check the run folder against ``spec`` without writing anything; return (seeds still to run, whether
     config.yaml is to be (re)written).
 
-    Raises RunError (one line) if the folder, the experiment folder or anything in the run folder is a
+    Raises RunError (one line) if the algorithm's optional packages are not installed (:attr:`Trainer.missing_extra`),
+    if the folder, the experiment folder or anything in the run folder is a
     symbolic link, if the folder holds results of a different config, a corrupt CSV, or a seed finished
     beyond ``generations`` (a run is never shortened below what a seed finished).
     """
     import yaml
 
     trainer = trainer_for(spec)
+    missing = trainer.missing_extra()
+    if missing:  # before anything is made: a run that cannot start leaves no folder for status to list
+        raise RunError(missing)
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
     refuse_links(spec)
@@ -151,9 +157,6 @@ def make_run_dir(spec) -> None:
         raise RunError(f"results_dir={spec.results_dir!r}: cannot create {run_dir} ({err.strerror or err})") from None
     if not os.access(run_dir, os.W_OK):
         raise RunError(f"results_dir={spec.results_dir!r}: {run_dir} is not writable")
-
-
-LOCK_NAME = ".lock"
 
 
 @contextlib.contextmanager

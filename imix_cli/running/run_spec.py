@@ -27,6 +27,7 @@ MIXING_DEFAULTS = {
     "eim_variant": next(iter(config_variants("eim"))),
     "im_alpha": 0.0,
     "eim_generations": 3,
+    "min_fresh": 1,
     "reeval_age": None,
     "reeval_prob": 0.0,
     "reeval_count": 0,
@@ -62,7 +63,7 @@ DDPG_DEFAULTS = PAPER_SETTINGS
 #: Top-level keys of the evolution strategies only: algo=ddpg ignores them (and leaves them out
 #: of its config.yaml, so they never make two DDPG runs differ). ``total_steps`` is ddpg's only.
 ES_ONLY_KEYS = (
-    "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age", "reeval_prob", "reeval_count",
+    "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "min_fresh", "reeval_age", "reeval_prob", "reeval_count",
     "generations", "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "checkpoint_every",
     "checkpoint_seconds", "policy", "evaluator", "evaluator_workers", "ray_address", "logger",
 )  # fmt: skip
@@ -76,7 +77,7 @@ NON_IDENTITY_KEYS = (
 )  # fmt: skip
 
 TOP_LEVEL_KEYS = (
-    "algo", "env", "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "reeval_age",
+    "algo", "env", "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "min_fresh", "reeval_age",
     "reeval_prob", "reeval_count", "seeds", "generations",
     "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
     "checkpoint_seconds", "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
@@ -107,6 +108,7 @@ class RunSpec:
     variant: str | None = None  # mix() variant: paper | sun2009 | exact | conditional | eim_paper; None without mixing
     im_alpha: float = PAPER_DEFAULTS["im_alpha"]
     eim_generations: int = PAPER_DEFAULTS["eim_generations"]
+    min_fresh: int = PAPER_DEFAULTS["min_fresh"]  # with mixing: fresh members per generation, at least (mixing.mix)
     reeval_age: int | None = None  # re-evaluate a reused member whose return is older than this (None: never)
     reeval_prob: float = 0.0  # ... and any reused member with this probability
     reeval_count: int = 0  # ... and this many reused members per generation, calibrating the other stored returns
@@ -170,6 +172,7 @@ class RunSpec:
         if self.mixing == "eim":
             values["eim_generations"] = self.eim_generations
         if self.mixing != "none":
+            values["min_fresh"] = self.min_fresh
             values["reeval_age"] = self.reeval_age
             values["reeval_prob"] = self.reeval_prob
             values["reeval_count"] = self.reeval_count

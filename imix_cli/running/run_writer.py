@@ -12,7 +12,9 @@ step's :class:`imix_cli.running.lockstep.SeedRecord` -- and it writes what falls
 * at a finished seed's end: its policy files (:mod:`imix_cli.running.policy_files`), its final state, from
   which a larger ``generations=`` continues, then ``seed_<k>.csv``;
 * at a diverged seed's end: one warning line, ``seed_<k>.csv`` ending at the diverged row, and its
-  checkpoint removed.
+  checkpoint removed;
+* when the run is stopped (Ctrl-C, SIGTERM: :mod:`imix_cli.running.stopping`): every unfinished seed's checkpoint
+  and live view at its current generation (:meth:`RunWriter.checkpoint_now`).
 
 The file formats are the modules named, which know nothing of the loop; what falls due when, and in
 which order, is here: a seed's CSV, which marks it done, comes after its policy files and final state,
@@ -28,8 +30,9 @@ import time
 from imix_cli.messages import warn
 from imix_cli.running.checkpoints import remove_checkpoint, save_checkpoint
 from imix_cli.running.policy_files import write_seed_policies
-from imix_cli.running.results import atomic_write_text, partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
+from imix_cli.running.results import partial_csv_path, rows_csv_text, seed_csv_path, write_run_csv
 from imix_cli.running.tracking import make_tracker
+from imix_cli.writing import atomic_write_text
 
 
 class RunWriter:
@@ -44,6 +47,7 @@ class RunWriter:
         self.partial: dict[int, tuple[int, str]] = {}  # seed -> (rows in its live CSV, their text)
         self.tables: dict[int, dict] = {}  # seed -> its rows' encoding at its last checkpoint (imix_cli.running.checkpoints.TableCache)
         self.saved: dict[int, float] = {}  # seed -> when (perf_counter) its last checkpoint was written in this process
+        self.saved_generation: dict[int, int] = {}  # seed -> the generation of its checkpoint on disk (written or resumed from)
 
     def write(self, st, record, began: float | None = None) -> None:
         """Seed ``st``'s step ``record``: its new rows, then what falls due. ``began``: when the compiled
@@ -68,19 +72,36 @@ class RunWriter:
             state = dataclasses.replace(st, elapsed=st.elapsed + now)
             save_checkpoint(self.run_dir, state, self.identity, self.tables.setdefault(st.seed, {}), durable=ended)
             self.saved[st.seed] = time.perf_counter()
+            self.saved_generation[st.seed] = st.generation
         if ended:  # its CSV; its live view is no longer needed
             self.summaries[st.seed] = write_run_csv(seed_csv_path(self.run_dir, st.seed), st.rows)
             partial_csv_path(self.run_dir, st.seed).unlink(missing_ok=True)
             self.partial.pop(st.seed, None)
-        elif due:  # the live view, rewritten whole with only its new rows formatted: earlier rows never change
-            done, text = self.partial.get(st.seed, (0, ""))
-            text += rows_csv_text(st.rows[done:], header=not done)
-            self.partial[st.seed] = (len(st.rows), text)
-            atomic_write_text(partial_csv_path(self.run_dir, st.seed), text, durable=False)  # a live view, not a result
+        elif due:
+            self._write_partial(st)
         if ended:  # its checkpoint is no longer needed -- but for a final state, from which a larger ``generations=`` continues
             self.tables.pop(st.seed, None)
             if not due:
                 remove_checkpoint(self.run_dir, st.seed)
+
+    def checkpoint_now(self, st) -> None:
+        """Seed ``st``'s checkpoint and live view at its current generation, whatever the schedule: the run is being
+        stopped (:mod:`imix_cli.running.stopping`), and what a re-run keeps is what is on disk. Flushed to the disk:
+        a SIGTERM is often a machine going down. Nothing is written for a seed at generation 0, or whose
+        checkpoint on disk is already of this generation."""
+        if st.generation == 0 or self.saved_generation.get(st.seed) == st.generation:
+            return
+        state = dataclasses.replace(st, elapsed=st.elapsed + time.perf_counter() - self.started)
+        save_checkpoint(self.run_dir, state, self.identity, self.tables.setdefault(st.seed, {}), durable=True)
+        self.saved_generation[st.seed] = st.generation
+        self._write_partial(st)
+
+    def _write_partial(self, st) -> None:
+        """The live view ``seed_<k>.partial.csv``, rewritten whole with only its new rows formatted: earlier rows never change."""
+        done, text = self.partial.get(st.seed, (0, ""))
+        text += rows_csv_text(st.rows[done:], header=not done)
+        self.partial[st.seed] = (len(st.rows), text)
+        atomic_write_text(partial_csv_path(self.run_dir, st.seed), text, durable=False)  # a live view, not a result
 
     def _time_for_checkpoint(self, seed: int) -> bool:
         """Whether ``checkpoint_seconds`` have passed since seed ``seed``'s last checkpoint (or since this process took it)."""

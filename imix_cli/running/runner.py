@@ -15,11 +15,12 @@ other seeds sharing its batch, or whether it was resumed (:mod:`imix_cli.running
 
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
 
-from imix_cli.running.pool import progress_bar, report_progress, run_pool
+from imix_cli.running.pool import progress_bar, report_progress, report_resumed, run_pool
 from imix_cli.running.run_folder import RunError, check_run_dir, prepare_run_dir, run_dir_lock
 from imix_cli.running.summary import format_summary, prepare_summary, summarize
 from imix_cli.running.trainers import trainer_for
@@ -41,13 +42,14 @@ def run(spec, echo=print) -> dict:
         return _run_locked(spec, echo)
 
 
-def run_seeds(spec, seeds: list[int], progress=None) -> dict:
+def run_seeds(spec, seeds: list[int], progress=None, resumed=None) -> dict:
     """Run ``seeds`` of ``spec`` to completion in this process; return seed -> summary of its rows.
 
     ``progress(n)`` is called with the progress just made, in the trainer's unit (ES:
-    seed-generations; DDPG: environment steps); by default it goes to the pool's progress queue.
+    seed-generations; DDPG: environment steps), ``resumed({seed: generation})`` once with where each seed
+    starts; by default both go to the pool's queue.
     """
-    return trainer_for(spec).run_seeds(spec, seeds, progress or report_progress)
+    return trainer_for(spec).run_seeds(spec, seeds, progress or report_progress, resumed or report_resumed)
 
 
 def _run_locked(spec, echo) -> dict:
@@ -59,12 +61,13 @@ def _run_locked(spec, echo) -> dict:
     if todo:
         workers = min(spec.workers, len(todo))
         chunks = [list(map(int, c)) for c in np.array_split(np.array(todo), workers)]
+        resumed = ResumeLine(spec, todo, bar)
         if workers == 1:
-            done = run_seeds(spec, chunks[0], progress=bar.update)
+            done = run_seeds(spec, chunks[0], progress=bar.update, resumed=resumed)
         else:
             if spec.algo != "ddpg":
                 warm_up(spec, workers)  # a first run: the kernels compiled once, over the cores, not in every worker
-            for share in run_pool(run_seeds, spec, chunks, bar, when_a_core_is_free=prepare_summary):
+            for share in run_pool(run_seeds, spec, chunks, bar, when_a_core_is_free=prepare_summary, resumed=resumed):
                 done.update(share)
     bar.close()
     summary = summarize(spec, known=done)
@@ -72,3 +75,34 @@ def _run_locked(spec, echo) -> dict:
     summary["seeds_run"] = len(todo)
     echo(format_summary(spec, summary))
     return summary
+
+
+class ResumeLine:
+    """Where the seeds of a run start, said in one line on stderr once every seed to run has been told
+    (``resumed({seed: generation})``, from each process of the run), and only if one resumes:
+    ``imix: resuming 25 seeds of snes-cartpole-eim at generations 370-375 from their checkpoints``."""
+
+    def __init__(self, spec, todo: list[int], bar):
+        self.spec, self.todo, self.bar, self.starts = spec, set(todo), bar, {}
+
+    def __call__(self, starts: dict) -> None:
+        self.starts.update(starts)
+        if self.todo and self.todo <= set(self.starts):
+            self.todo = set()  # said once
+            line = resume_line(self.spec.run_name, self.starts)
+            if line:
+                write = getattr(self.bar, "write", None)  # above a progress bar, not through it
+                write(line, file=sys.stderr) if write else print(line, file=sys.stderr, flush=True)
+
+
+def resume_line(run_name: str, starts: dict) -> str | None:
+    """One line saying how many generations the seeds keep, e.g. ``resuming 25 seeds of R at generations 370-375``
+    (and how many start from scratch); None if none resumes."""
+    kept = sorted(g for g in starts.values() if g)
+    if not kept:
+        return None
+    n, low, high = len(kept), kept[0], kept[-1]
+    at = f"generation {low}" if low == high else f"generations {low}-{high}"
+    fresh = len(starts) - n
+    rest = f"; {fresh} start{'s' if fresh == 1 else ''} from generation 0" if fresh else ""
+    return f"imix: resuming {n} seed{'s' if n > 1 else ''} of {run_name} at {at} from their checkpoints{rest}"

@@ -13,7 +13,7 @@ from imix_cli.stats import mean_ci
 
 #: Config keys that only say how (and whether) mixing is done: runs that differ in these alone are
 #: "the same config with and without mixing", compared in the summary.
-MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "mixing")
+MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "min_fresh", "mixing")
 
 
 def prepare_summary() -> None:
@@ -58,6 +58,7 @@ def summarize(spec, run_dir: Path | None = None, known: dict | None = None) -> d
         "env_steps": env_steps,  # total over seeds
         "env_steps_per_seed": env_steps / n,
         "reuse_percent": 100.0 * reused / members if members else 0.0,
+        "stalled_generations": sum(s.get("stalled", 0) for s in per_seed),  # no member evaluated (total over seeds)
         "nonfinite_returns": sum(s["nonfinite"] for s in per_seed),
         "diverged_seeds": sum(s["diverged"] for s in per_seed),
     }
@@ -90,7 +91,8 @@ def _score(mean: float, half: float) -> str:
 
 #: The footnote of every summary table: which score is free of reused returns.
 SCORES_NOTE = (
-    "population: last generation's mean return (reused members with stored returns); θ fresh: distribution mean on fresh episodes (free of reused returns)"
+    "population: last generation's mean return (reused members with stored returns); θ fresh: distribution mean on fresh episodes (free of reused returns); "
+    "no-fresh: generations in which every member was reused (all seeds)"
 )
 
 
@@ -99,14 +101,15 @@ def format_table(rows: list[dict]) -> list[str]:
     width = max(32, *(len(r["run"]) for r in rows))
     header = (
         f"{'run':<{width}} {'seeds':>5} {'population (68% CI)':>22} {'θ fresh (68% CI)':>20} {'episodes/seed':>14} "
-        f"{'env steps/seed':>15} {'reuse':>7} {'non-finite':>10} {'diverged':>8}"
+        f"{'env steps/seed':>15} {'reuse':>7} {'no-fresh':>8} {'non-finite':>10} {'diverged':>8}"
     )
     lines = [header]
     for r in rows:
         theta = _score(r.get("theta_mean_score", float("nan")), r.get("theta_ci68", float("nan")))
         lines.append(
             f"{r['run']:<{width}} {r['seeds']:>5} {_score(r['final_mean_score'], r['ci68']):>22} {theta:>20} {r['evaluations_per_seed']:>14,.0f} "
-            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r['nonfinite_returns']:>10} {r['diverged_seeds']:>8}"
+            f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r.get('stalled_generations', 0):>8} {r['nonfinite_returns']:>10} "
+            f"{r['diverged_seeds']:>8}"
         )
     return lines
 
@@ -136,8 +139,40 @@ def format_summary(spec, s: dict) -> str:
     return "\n".join(lines)
 
 
+#: RunSpec fields a sweep point's name may leave out, by the config key shown for them; the name's own
+#: spelling, where it differs, in :data:`_NAMED_AS`. The algo, env and mixing are in every name.
+_SHOWN_KEYS = {
+    "generations": "generations", "total_steps": "total_steps", "popsize": "popsize", "sigma": "sigma", "lr": "lr",
+    "weight_decay": "weight_decay", "weight_decay_form": "weight_decay_form", "im_alpha": "im_alpha", "eim_generations": "eim_generations",
+    "reeval_age": "reeval_age", "reeval_prob": "reeval_prob", "reeval_count": "reeval_count", "env_max_steps": "env.max_steps",
+    "hidden": "policy.hidden", "obs_norm": "policy.obs_norm", "obs_var_floor": "policy.obs_var_floor", "policy_bias": "policy.bias",
+    "policy_output": "policy.output",
+}  # fmt: skip
+_NAMED_AS = {"env_max_steps": "env.max_steps", "policy_bias": "bias", "policy_output": "output"}
+
+
+def hidden_values(specs) -> dict[str, str]:
+    """Run name -> ``key=value, ...`` of the keys whose values differ between the points of a sweep but that its name
+    does not show. Why: a folder is named by the values that differ from the paper's (``snes-cartpole-none-popsize=100``),
+    so the point that ran with ``popsize=50`` reads ``snes-cartpole-none``; and ``generations`` (1000 for snes, 400
+    for cem) names none. Each run's config.yaml has every value; the sweep's table shows these next to the names."""
+    differing = [f for f in _SHOWN_KEYS if len({repr(getattr(spec, f)) for spec in specs}) > 1]
+    out = {}
+    for spec in specs:
+        name = spec.run_name
+        shown = [f"{_SHOWN_KEYS[f]}={_value(getattr(spec, f))}" for f in differing if f"{_NAMED_AS.get(f, f)}=" not in name]
+        if shown:
+            out[name] = ", ".join(shown)
+    return out
+
+
+def _value(v) -> str:
+    return str(list(v)) if isinstance(v, tuple) else str(v)
+
+
 def format_sweep_table(specs) -> str | None:
     """One table of every point of a sweep (``imix run -m``), printed after the last one; None for a single run.
+    A run's name is followed by the values its name leaves out that differ between the points (:func:`hidden_values`).
 
     A point whose seeds are not all finished (a failed job of a launcher) is named, not tabled."""
     if len(specs) < 2:
@@ -150,6 +185,8 @@ def format_sweep_table(specs) -> str | None:
             missing.append(spec.run_name)
     if not rows:
         return None
+    hidden = hidden_values(specs)
+    rows = [{**r, "run": f"{r['run']} ({hidden[r['run']]})"} if hidden.get(r["run"]) else r for r in rows]
     lines = [f"sweep: {len(rows)} run(s) of {specs[0].results_dir}/{specs[0].experiment}", *format_table(rows), SCORES_NOTE]
     if missing:
         lines.append(f"not finished: {', '.join(missing)}")

@@ -17,7 +17,8 @@ from pathlib import Path
 class Trainer:
     """How the seeds of one kind of algorithm are trained.
 
-    ``run_seeds(spec, seeds, progress) -> {seed: summary}`` runs seeds to completion in this process
+    ``run_seeds(spec, seeds, progress, resumed) -> {seed: summary}`` runs seeds to completion in this process
+    (``resumed({seed: generation})``: where each starts, told once)
     and ``needs_running(spec, seed, path, frame) -> bool`` says whether a seed whose CSV exists
     is to be run further (RunError if that CSV does not fit the config). Both are the functions
     below (the ES's ``run_seeds`` also builds the run's evaluator, and closes it), which import
@@ -28,28 +29,57 @@ class Trainer:
 
     run_seeds: Callable[..., dict]
     needs_running: Callable[..., bool]
+    finished: Callable[..., bool]  # finished(frame, budget): whether a seed whose CSV holds ``frame`` is done (see es_seed_finished)
     unit: str  # what progress counts: "gen" (seed-generations) or "step" (environment steps)
     budget_key: str  # the RunSpec field (and config.yaml key) holding a seed's budget in those units
     continuable: bool  # a finished run may be continued to a larger budget from its final states
     compares_mixing: bool  # the summary compares sibling runs with other mixing settings
+    needs: tuple = ()  # (module, pip requirement): the optional packages its seeds import
+    install: str = ""  # how to install them, as the docs say
 
     def budget(self, spec) -> int:
         return getattr(spec, self.budget_key)
 
+    def missing_extra(self) -> str | None:
+        """One line naming what to install if a package of :attr:`needs` is missing (looked up, not imported:
+        torch takes seconds to import), else None. Why up front: the import failed only in the seeds' processes,
+        as a 40-line traceback, after the run folder was made."""
+        import importlib.util
 
-def _run_es_seeds(spec, seeds: list[int], progress) -> dict:
+        missing = [requirement for module, requirement in self.needs if importlib.util.find_spec(module) is None]
+        return f"algo=ddpg needs {' and '.join(missing)}, not installed: {self.install}" if missing else None
+
+
+def _run_es_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:
     """The run's evaluator, then its seeds on it: the evaluator's processes (pool, Ray) end with the
-    seeds, a Ctrl-C or SIGTERM included."""
+    seeds, a Ctrl-C or SIGTERM included. A Ctrl-C or SIGTERM stops the seeds between two generations,
+    checkpointed, and acts once the evaluator is closed (:mod:`imix_cli.running.stopping`)."""
     from imix_cli.parallel_evaluation import build_evaluator
     from imix_cli.running.es_seeds import run_es_seeds
+    from imix_cli.running.stopping import stops_between_generations
 
     evaluator = build_evaluator(spec)
-    try:
-        return run_es_seeds(spec, seeds, progress, evaluator)
-    finally:
-        close = getattr(evaluator, "close", None)  # a user's evaluator may have nothing to close
-        if close is not None:
-            close()
+    with stops_between_generations():
+        try:
+            return run_es_seeds(spec, seeds, progress, evaluator, resumed)
+        finally:
+            close = getattr(evaluator, "close", None)  # a user's evaluator may have nothing to close
+            if close is not None:
+                close()
+
+
+def es_seed_finished(frame, generations: int) -> bool:
+    """Whether an ES seed whose CSV holds ``frame`` is finished in a run of ``generations``: it has them all, or
+    fewer ending in a diverged row (a diverged seed stops there for good).
+
+    The one notion of "finished" of every reader: ``imix run`` skips such a seed and continues (or refuses) any
+    other (:func:`imix_cli.running.es_seeds.needs_running`), ``imix status`` counts it done; a 1-of-30-row CSV is
+    neither's finished seed."""
+    return len(frame) >= generations or (len(frame) > 0 and int(frame["diverged"].iloc[-1]) == 1)
+
+
+def _ddpg_seed_finished(frame, total_steps) -> bool:
+    return True  # a DDPG seed's CSV is written once, when it ends (never continued: needs_running)
 
 
 def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
@@ -58,7 +88,7 @@ def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
     return needs_running(spec, seed, path, frame)
 
 
-def _run_ddpg_seeds(spec, seeds: list[int], progress) -> dict:
+def _run_ddpg_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:  # a DDPG seed is never resumed
     from imix_cli.ddpg.seeds import run_ddpg_seeds
 
     return run_ddpg_seeds(spec, seeds, progress)
@@ -70,8 +100,12 @@ def _ddpg_needs_running(spec, seed: int, path: Path, frame) -> bool:
     return needs_running(spec, seed, path, frame)
 
 
-EVOLUTION_STRATEGY = Trainer(_run_es_seeds, _es_needs_running, "gen", "generations", continuable=True, compares_mixing=True)
-DDPG = Trainer(_run_ddpg_seeds, _ddpg_needs_running, "step", "total_steps", continuable=False, compares_mixing=False)
+EVOLUTION_STRATEGY = Trainer(_run_es_seeds, _es_needs_running, es_seed_finished, "gen", "generations", continuable=True, compares_mixing=True)
+DDPG = Trainer(
+    _run_ddpg_seeds, _ddpg_needs_running, _ddpg_seed_finished, "step", "total_steps", continuable=False, compares_mixing=False,
+    needs=(("torch", "torch"), ("stable_baselines3", "stable-baselines3")),
+    install='pip install torch==2.13.0 "imix-cli[ddpg]" (a CPU torch first: an unpinned one pulls several GB of CUDA packages)',
+)  # fmt: skip
 
 #: Algorithms that are not evolution strategies, by name; every other algo is an ES.
 TRAINERS = {"ddpg": DDPG}

@@ -24,13 +24,14 @@ sizes), so a few configurations cover all runs on the built-in environments.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+
+from imix_cli.processes import spawn_context
 
 __all__ = ["compile_groups", "warm_up", "warm_all"]
 
@@ -151,7 +152,7 @@ def _run_groups(jobs, workers: int) -> None:
     processes are stopped at once (a compile can take tens of seconds) and the exception re-raised."""
     from imix_cli.running.pool import _terminate_workers
 
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"))
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=spawn_context())
     try:
         for future in [pool.submit(group, spec) for group, spec in jobs]:
             future.result()
