@@ -116,6 +116,14 @@ def _poison_csv(results: Path, text: str) -> None:
         row[column] = text
     with path.open("w", newline="") as fh:
         csv.writer(fh).writerows(rows)
+    # The attacker sends the whole folder: its config.yaml names the same algo, so the CSV agrees with its run's
+    # config (imix_cli.running.seed_checks) and the cell reaches the tables, where the writer must neutralise it.
+    import yaml
+
+    config_path = results / "e" / RUN / "config.yaml"
+    config = yaml.safe_load(config_path.read_text())
+    config["algo"]["name"] = text
+    config_path.write_text(yaml.safe_dump(config))
 
 
 def test_the_issues_attack_a_newline_cell_and_a_linked_iqm_md_writes_nothing_outside(results, tmp_path, capsys):
