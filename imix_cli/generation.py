@@ -53,6 +53,7 @@ MIXING_BOUNDS = {
     "reeval_age": Bound(1, integer=True),
     "reeval_prob": Bound(0.0, high=1.0),
     "reeval_count": Bound(0, integer=True),
+    "min_fresh": Bound(0, integer=True),
 }
 
 
@@ -172,8 +173,16 @@ def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.rand
     if settings.variant is None or not archive.generations:
         g = Generation(es.ask(rng), np.zeros(popsize, np.int64), np.full(popsize, -1, np.int64), dist)
     else:
-        g = mix(dist, archive.generations, popsize, rng, variant=settings.variant, alpha=settings.alpha, eim_generations=settings.eim_generations,
-                min_fresh=settings.min_fresh)
+        g = mix(
+            dist,
+            archive.generations,
+            popsize,
+            rng,
+            variant=settings.variant,
+            alpha=settings.alpha,
+            eim_generations=settings.eim_generations,
+            min_fresh=settings.min_fresh,
+        )
     age = np.zeros(popsize, dtype=np.int64)
     for k, ages in enumerate(archive.ages, start=1):
         from_k = g.source == k

@@ -195,3 +195,18 @@ def test_status_agrees_with_the_files_at_every_stop_of_a_run(tmp_path):
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_status_does_not_count_a_csv_of_another_run_as_done(tmp_path, capsys):
+    """Issue 36, item 7: a finished-looking seed CSV whose env contradicts its run's config.yaml is what ``imix run``
+    refuses (the readers' one check, imix_cli.running.seed_checks); status lists it as corrupt, not done."""
+    from imix_cli.commands.cli import main
+
+    assert main(["run", "algo=cem", "env=cartpole", "seeds=1", "generations=3", "popsize=4", "progress=false", f"results_dir={tmp_path}"]) == 0
+    (csv,) = tmp_path.rglob("seed_0.csv")
+    csv.write_text(csv.read_text().replace(",cartpole,", ",acrobot,"))
+    capsys.readouterr()
+    assert main(["status", f"results_dir={tmp_path}"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.strip().startswith(csv.parent.name))
+    assert line.split()[1] == "0" and "corrupt" in out and "env=acrobot" in out, out

@@ -41,8 +41,9 @@ from pathlib import Path
 
 from imix_cli.commands.eval_command import run_folders
 from imix_cli.commands.keyvalue import UsageError, folder_name, help_requested, parse_key_values
-from imix_cli.running.results import MAX_CONFIG_BYTES, read_small_text, regular_file_size
+from imix_cli.running.results import MAX_CONFIG_BYTES, ResultMismatchError, read_small_text, regular_file_size
 from imix_cli.running.run_lock import lock_holder
+from imix_cli.running.seed_checks import check_seed_csv
 from imix_cli.running.trainers import trainer_named
 
 HELP = """\
@@ -136,6 +137,12 @@ def run_status(run_dir: Path) -> dict:
         if final is None and f"seed_{seed}.csv" not in corrupt and (run_dir / f"seed_{seed}.csv").exists():
             final = _read_rows(run_dir / f"seed_{seed}.csv", corrupt)  # replaced between listing and reading: once more
         partial = _read_rows(run_dir / f"seed_{seed}.partial.csv", corrupt)
+        if final is not None and config:
+            try:  # a CSV that contradicts its run's config is one imix run refuses: not done (the readers' one check)
+                check_seed_csv(final, run_dir / f"seed_{seed}.csv", config)
+            except ResultMismatchError as err:
+                corrupt[f"seed_{seed}.csv"] = str(err).replace(f"{run_dir / f'seed_{seed}.csv'}: ", "", 1)
+                continue
         finished = final is not None and (target is None or trainer.finished(final, target))
         if finished and (partial is None or len(partial) <= len(final)):
             done.append(seed)

@@ -49,7 +49,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     algo_options = _algo_options(algo, algo_cfg)
     im_alpha = as_bounded(cfg, "im_alpha", MIXING_BOUNDS["alpha"])
     eim_generations = as_bounded(cfg, "eim_generations", MIXING_BOUNDS["eim_generations"])
-    min_fresh = as_int(cfg, "min_fresh", 0)
+    min_fresh = as_bounded(cfg, "min_fresh", MIXING_BOUNDS["min_fresh"])
     if eim and im_variant != PAPER_DEFAULTS["im_variant"]:
         raise ConfigError(f"im_variant={im_variant}: applies to im=true only; with eim=true choose eim_variant={'|'.join(eim_variants)}")
     mixing = "eim" if eim else ("im" if im else "none")
