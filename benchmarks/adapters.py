@@ -19,7 +19,9 @@ Sections (each prints a markdown table):
               (the issue's setting, in pycma's documented ask/tell loop), and mixing with and without
               the stored-return remedy ``reeval_count``.
 ``evosax``    evosax SNES and Open_ES on gymnax CartPole-v1 (``imix bench peers``' task and settings:
-              popsize 50, sigma 0.25, Adam lr 0.01 for Open_ES, the 2 x 8 tanh policy, 200 steps):
+              popsize 50, sigma 0.25, Adam lr 0.01 for Open_ES, the 2 x 8 tanh policy, 200 steps; and
+              SNES with imix's step sizes, Adam lr 0.01 on the mean and lr_std 0.01, where
+              evosax's defaults move the mean by a full natural-gradient step per generation):
               episodes and wall time until the generation's mean return (stored returns for reused
               members) reaches 195, with and without mixing. Both arms run the same host loop (evosax's
               jitted ask/tell, one jitted batched rollout of the points asked; batch sizes padded to
@@ -78,6 +80,17 @@ def pycma_run(fname, d, seed, arm, max_generations=100_000):
     return np.array(evals), np.array(values)
 
 
+def _safe_run(*args, **kw):
+    """:func:`pycma_run`, or the run up to an error as one that did not reach the target (said on stderr)."""
+    import sys
+
+    try:
+        return pycma_run(*args, **kw)
+    except (ValueError, np.linalg.LinAlgError) as err:
+        print(f"run {args} stopped: {err}", file=sys.stderr)
+        return np.array([0]), np.array([np.inf])
+
+
 def _f_at(evals, values, budget):
     """f(mean) after the last generation whose evaluations fit in ``budget`` (the start's if none)."""
     k = np.searchsorted(evals, budget, side="right") - 1
@@ -93,7 +106,7 @@ def stepsize(seeds=5, dims=(10,)):
     for fname in FUNCTIONS:
         for d in dims:
             for arm in arms:
-                runs = [pycma_run(fname, d, s, arm, max_generations=20_000) for s in range(1, seeds + 1)]
+                runs = [_safe_run(fname, d, s, arm, max_generations=20_000) for s in range(1, seeds + 1)]
                 ok = [r for r in runs if r[1][-1] <= TARGET]
                 e = np.array([r[0][-1] for r in ok]) if ok else np.array([np.nan])
                 g = np.array([len(r[0]) for r in ok]) if ok else np.array([np.nan])
@@ -107,8 +120,8 @@ def cma_table(seeds=15, dims=(10, 40)):
     print("|---|---:|---:|---:|---:|---:|---|---:|---:|")
     for fname in FUNCTIONS:
         for d in dims:
-            plain = [pycma_run(fname, d, s, "pycma") for s in range(1, seeds + 1)]
-            mixed = [pycma_run(fname, d, s, "mix") for s in range(1, seeds + 1)]
+            plain = [_safe_run(fname, d, s, "pycma") for s in range(1, seeds + 1)]
+            mixed = [_safe_run(fname, d, s, "mix") for s in range(1, seeds + 1)]
             ep, em = (np.array([r[0][-1] for r in runs]) for runs in (plain, mixed))
             gp, gm = (np.array([len(r[0]) for r in runs]) for runs in (plain, mixed))
             budget = float(np.median(em))
@@ -186,7 +199,7 @@ def noisy(seeds=15, budget=30_000):
         print(f"| {arm} | " + " | ".join(cells) + " |", flush=True)
 
 
-def evosax_cartpole(algo, mixing, seed, max_generations=300, target=195.0):
+def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
     """Episodes and wall seconds until the population mean return reaches ``target`` (None if never)."""
     import gymnax
     import jax
@@ -230,6 +243,9 @@ def evosax_cartpole(algo, mixing, seed, max_generations=300, target=195.0):
     if algo == "snes":
         algorithm = SNES(population_size=PEER_POPSIZE, solution=solution)
         params = algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
+    elif algo == "snes-small":  # imix's SNES step sizes: Adam (lr 0.01, beta1 0.99) on the mean, ~0.01 per generation on log sigma
+        algorithm = SNES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR, b1=0.99))
+        params = algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA), lr_std_init=jnp.asarray(0.01))
     else:
         algorithm = Open_ES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR),
                             std_schedule=optax.constant_schedule(PEER_SIGMA))  # fmt: skip
@@ -274,10 +290,13 @@ def evosax_cartpole(algo, mixing, seed, max_generations=300, target=195.0):
     return None, time.perf_counter() - started, max_generations, 0.0
 
 
-def evosax_table(seeds=5):
+EVOSAX_NAMES = {"snes": "SNES (evosax's defaults)", "snes-small": "SNES (imix's step sizes)", "openes": "Open_ES (antithetic)"}
+
+
+def evosax_table(seeds=5, algos=("snes", "openes", "snes-small")):
     print("| algorithm | mixing | seeds reaching 195 | episodes to 195, median [min, max] | wall s to 195, median | generations, median | reuse |")
     print("|---|---|---:|---:|---:|---:|---:|")
-    for algo in ("snes", "openes"):
+    for algo in algos:
         for mixing in (False, True):
             runs = [evosax_cartpole(algo, mixing, s) for s in range(seeds)]
             ok = [r for r in runs if r[0] is not None]
@@ -285,7 +304,7 @@ def evosax_table(seeds=5):
             w = np.median([r[1] for r in ok]) if ok else np.nan
             g = np.median([r[2] for r in ok]) if ok else np.nan
             reuse = np.mean([r[3] for r in runs])
-            name = {"snes": "SNES", "openes": "Open_ES (antithetic)"}[algo]
+            name = EVOSAX_NAMES[algo]
             print(f"| {name} | {'exact' if mixing else 'none'} | {len(ok)}/{seeds} | {np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}] | "
                   f"{w:.1f} | {g:.0f} | {100 * reuse:.0f} % |", flush=True)  # fmt: skip
 
@@ -296,6 +315,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: stepsize 5, cma 15, noisy 15, evosax 5)")
     parser.add_argument("--dims", default="10,40", help="cma: dimensions")
     parser.add_argument("--budget", type=int, default=30_000, help="noisy: evaluations")
+    parser.add_argument("--algos", default="snes,openes,snes-small", help="evosax: " + ", ".join(EVOSAX_NAMES))
     args = parser.parse_args(argv)
     dims = tuple(int(d) for d in args.dims.split(","))
     if args.section in ("all", "stepsize"):
@@ -305,7 +325,7 @@ def main(argv=None) -> int:
     if args.section in ("all", "noisy"):
         noisy(args.seeds or 15, args.budget)
     if args.section in ("all", "evosax"):
-        evosax_table(args.seeds or 5)
+        evosax_table(args.seeds or 5, tuple(args.algos.split(",")))
     return 0
 
 
