@@ -34,13 +34,16 @@ class MixingES:
     ----------
     es
         Any ES of :mod:`imix_cli.algorithms` (or an object with ``ask(rng)``, ``tell(samples,
-        fitness)``, ``distribution`` and ``popsize``).
+        fitness)``, ``distribution`` and ``popsize``), a pycma ``CMAEvolutionStrategy`` (wrapped in
+        :class:`~imix_cli.adapters.pycma.PycmaES`), or another library's ES through its adapter
+        (:mod:`imix_cli.adapters`). Fitness is the ES's own: maximised for imix's, minimised for
+        pycma's and evosax's.
     variant : {"exact", "sun2009", "paper", "conditional", "eim_paper", None}
         The :func:`~imix_cli.mixing.mix` variant (``"exact"``: ``imix run eim=true``; ``"paper"``:
         ``im=true``; :data:`~imix_cli.mixing.VARIANT_SPECS`); None draws every generation fresh, i.e. the plain ES.
     rng : numpy Generator, int or None
         The stream that draws and mixes the generations (an int seeds a new Generator).
-    eim_generations, alpha, reeval_age, reeval_prob, min_fresh
+    eim_generations, alpha, reeval_age, reeval_prob, reeval_count, min_fresh
         As the config keys of the same names (:class:`~imix_cli.generation.MixingSettings`); ``min_fresh``
         (default 1, as ``imix run``): at least this many members of every mixed generation are fresh, in slots
         drawn at random -- without it a distribution that stops moving reuses every member and CEM or CMA-ES
@@ -48,14 +51,17 @@ class MixingES:
     """
 
     def __init__(self, es, variant: str | None = "exact", *, rng=None, eim_generations: int = 3, alpha: float = 0.0,
-                 reeval_age: int | None = None, reeval_prob: float = 0.0, min_fresh: int = 1):  # fmt: skip
+                 reeval_age: int | None = None, reeval_prob: float = 0.0, reeval_count: int = 0, min_fresh: int = 1):  # fmt: skip
+        from imix_cli.adapters import adapt
+
         # Every argument is checked here, with imix run's bounds (MixingSettings: imix_cli.generation.MIXING_BOUNDS):
         # a bad one is one error naming it now, not at the first ask() or deep inside it.
+        es = adapt(es)
         missing = [name for name in ("ask", "tell", "distribution", "popsize") if not hasattr(es, name)]
         if missing:
             raise TypeError(f"es must be an evolution strategy (imix_cli.algorithms.make_es), got {type(es).__name__} without {', '.join(missing)}")
         self.es = es
-        self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob, min_fresh=min_fresh)
+        self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob, reeval_count, min_fresh=min_fresh)
         if isinstance(rng, bool) or not (rng is None or isinstance(rng, (np.random.Generator, int, np.integer, np.random.SeedSequence))):
             raise TypeError(f"rng must be a numpy Generator, an int seed or None, got {rng!r}")
         try:
@@ -107,10 +113,32 @@ class MixingES:
             raise ValueError(f"tell(): {returns.shape[0]} returns for the {asked.shape[0]} members ask() returned")
         plan, self.plan = self.plan, None
         fitness = finish_generation(self.es, self.archive, self.settings, plan, returns)
+        if hasattr(self.es, "count_evaluations"):  # an adapter whose library counts evaluations (pycma's countevals)
+            self.es.count_evaluations(asked.shape[0])
         self.evaluations += asked.shape[0]
         self.reused += plan.generation.reused
         self.members += plan.generation.samples.shape[0]
         return fitness
+
+    def stop(self):
+        """The wrapped ES's termination criteria (pycma's ``stop()``: a dict, empty while none holds);
+        an empty dict for an ES without them."""
+        stop = getattr(self.es, "stop", None)
+        return stop() if stop is not None else {}
+
+    def optimize(self, objective, iterations: int | None = None, callback=None):
+        """pycma's ``es.optimize``: ask, evaluate ``objective`` on every point asked, tell, until
+        :meth:`stop` (or ``iterations`` generations); ``callback(self)`` after each. Returns self."""
+        if iterations is None and not hasattr(self.es, "stop"):
+            raise ValueError("optimize(): this ES has no termination criteria; give iterations=")
+        done = 0
+        while (iterations is None or done < iterations) and not self.stop():
+            x = self.ask()
+            self.tell(x, [objective(xi) for xi in x])
+            done += 1
+            if callback is not None:
+                callback(self)
+        return self
 
     @property
     def generation(self):

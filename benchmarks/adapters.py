@@ -1,0 +1,333 @@
+"""Importance mixing for pycma and evosax (imix_cli.adapters): the measurements of docs/adapters.md.
+
+    python benchmarks/adapters.py all                    # every section, the docs' tables (full seeds)
+    python benchmarks/adapters.py cma --seeds 15 --dims 10,40
+    python benchmarks/adapters.py stepsize | noisy | evosax [--seeds N]
+
+Sections (each prints a markdown table):
+
+``stepsize``  pycma's step-size control under mixing (d = 10, default popsize, x0 = 1 (rosen: 0),
+              sigma0 = 0.5): evaluations and generations to f(mean) <= 1e-8 for pycma alone (CSA;
+              its TPA), and with mixing under pycma's CSA, pycma's TPA and imix's TPA
+              (``PycmaES(step_size=...)``). The winner is the adapter's default.
+``cma``       pycma on cma.ff.sphere, elli, rosen, d = 10 and 40, default popsize: evaluations to
+              f(mean) <= 1e-8 with and without mixing (the adapter's defaults, ``"exact"``), and f(mean)
+              of both at equal evaluations (the median evaluations mixing needed).
+``noisy``     the noisy sphere of pycma issue 262 (``cma.ff.noisysphere(x, cond=1e4, noise=1,
+              noise_offset=0)``, d = 33, x0 = 1, sigma0 = 1): noise-free f(mean) (``cma.ff.elli(mean,
+              cond=1e4)``) at equal evaluations for pycma alone, pycma + TPA + ``cma.NoiseHandler``
+              (the issue's setting, in pycma's documented ask/tell loop), and mixing with and without
+              the stored-return remedy ``reeval_count``.
+``evosax``    evosax SNES and Open_ES on gymnax CartPole-v1 (``imix bench peers``' task and settings:
+              popsize 50, sigma 0.25, Adam lr 0.01 for Open_ES, the 2 x 8 tanh policy, 200 steps; and
+              SNES with imix's step sizes, Adam lr 0.01 on the mean and lr_std 0.01, where
+              evosax's defaults move the mean by a full natural-gradient step per generation):
+              episodes and wall time until the generation's mean return (stored returns for reused
+              members) reaches 195, with and without mixing. Both arms run the same host loop (evosax's
+              jitted ask/tell, one jitted batched rollout of the points asked; batch sizes padded to
+              a power of two so each compiles once).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import numpy as np
+
+FUNCTIONS = ("sphere", "elli", "rosen")
+TARGET = 1e-8
+
+
+def _quiet():
+    warnings.simplefilter("ignore")
+
+
+def _pycma(fname, d, seed, **options):
+    import cma
+
+    x0 = d * [0.0 if fname == "rosen" else 1.0]
+    return cma.CMAEvolutionStrategy(x0, 0.5, {"seed": seed, "verbose": -9, **options})
+
+
+def pycma_run(fname, d, seed, arm, max_generations=100_000):
+    """One run to f(mean) <= 1e-8; returns evaluations per generation and f(mean) per generation (arrays)."""
+    import cma
+
+    import imix_cli
+    from imix_cli.adapters.pycma import PycmaES
+
+    _quiet()
+    f = getattr(cma.ff, fname)
+    tpa = {"AdaptSigma": cma.sigma_adaptation.CMAAdaptSigmaTPA} if arm in ("pycma-tpa", "mix-pycma-tpa") else {}
+    es = _pycma(fname, d, seed, **tpa)
+    evals, values = [], []
+    if not arm.startswith("mix"):
+        while f(es.mean) > TARGET and len(evals) < max_generations:
+            x = es.ask()
+            es.tell(x, [f(xi) for xi in x])
+            evals.append(es.countevals)
+            values.append(f(es.mean))
+        return np.array(evals), np.array(values)
+    step = {"mix": None, "mix-pycma-tpa": "pycma", "mix-tpa": "tpa", "mix-csa": "pycma"}[arm]
+    m = imix_cli.MixingES(es if step is None else PycmaES(es, step_size=step), "exact", rng=seed)
+    while f(m.distribution.mean) > TARGET and len(evals) < max_generations:
+        x = m.ask()
+        m.tell(x, [f(xi) for xi in x])
+        evals.append(m.evaluations)
+        values.append(f(m.distribution.mean))
+    return np.array(evals), np.array(values)
+
+
+def _safe_run(*args, **kw):
+    """:func:`pycma_run`, or the run up to an error as one that did not reach the target (said on stderr)."""
+    import sys
+
+    try:
+        return pycma_run(*args, **kw)
+    except (ValueError, np.linalg.LinAlgError) as err:
+        print(f"run {args} stopped: {err}", file=sys.stderr)
+        return np.array([0]), np.array([np.inf])
+
+
+def _f_at(evals, values, budget):
+    """f(mean) after the last generation whose evaluations fit in ``budget`` (the start's if none)."""
+    k = np.searchsorted(evals, budget, side="right") - 1
+    return values[k] if k >= 0 else np.inf
+
+
+def stepsize(seeds=5, dims=(10,)):
+    arms = ("pycma", "pycma-tpa", "mix-csa", "mix-pycma-tpa", "mix-tpa")
+    names = {"pycma": "pycma alone (CSA)", "pycma-tpa": "pycma alone (its TPA)", "mix-csa": "mixing, pycma's CSA (default)",
+             "mix-pycma-tpa": "mixing, pycma's TPA", "mix-tpa": "mixing, imix's TPA"}  # fmt: skip
+    print("| function | d | step size | evaluations to 1e-8, median [min, max] | generations, median | runs that reached it |")
+    print("|---|---:|---|---:|---:|---:|")
+    for fname in FUNCTIONS:
+        for d in dims:
+            for arm in arms:
+                runs = [_safe_run(fname, d, s, arm, max_generations=20_000) for s in range(1, seeds + 1)]
+                ok = [r for r in runs if r[1][-1] <= TARGET]
+                e = np.array([r[0][-1] for r in ok]) if ok else np.array([np.nan])
+                g = np.array([len(r[0]) for r in ok]) if ok else np.array([np.nan])
+                spread = f"{np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}]"
+                print(f"| {fname} | {d} | {names[arm]} | {spread} | {np.median(g):,.0f} | {len(ok)}/{seeds} |", flush=True)
+
+
+def cma_table(seeds=15, dims=(10, 40)):
+    print("| function | d | evaluations to 1e-8, pycma alone | with mixing | ratio | generations ratio "
+          "| f(mean) at equal evaluations (budget): pycma alone | with mixing | reuse |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---|---:|---:|")
+    for fname in FUNCTIONS:
+        for d in dims:
+            plain = [_safe_run(fname, d, s, "pycma") for s in range(1, seeds + 1)]
+            mixed = [_safe_run(fname, d, s, "mix") for s in range(1, seeds + 1)]
+            ep, em = (np.array([r[0][-1] for r in runs]) for runs in (plain, mixed))
+            gp, gm = (np.array([len(r[0]) for r in runs]) for runs in (plain, mixed))
+            budget = float(np.median(em))
+            fp = np.median([_f_at(*r, budget) for r in plain])
+            fm = np.median([_f_at(*r, budget) for r in mixed])
+            reuse = 1 - np.sum(em) / np.sum(gm * _popsize(d))
+            print(f"| {fname} | {d} | {np.median(ep):,.0f} [{ep.min():,.0f}, {ep.max():,.0f}] | {np.median(em):,.0f} [{em.min():,.0f}, {em.max():,.0f}] | "
+                  f"{np.median(em) / np.median(ep):.2f} | {np.median(gm) / np.median(gp):.2f} | ({budget:,.0f}) {fp:.2g} | {fm:.2g} "
+                  f"| {100 * reuse:.0f} % |", flush=True)  # fmt: skip
+
+
+def _popsize(d):
+    return 4 + int(3 * np.log(d))
+
+
+def noisy_run(seed, arm, budget, checkpoints):
+    """Noise-free f(mean) at each checkpoint (evaluations) for one arm on issue 262's noisy sphere."""
+    import cma
+
+    import imix_cli
+
+    _quiet()
+    np.random.seed(10_000 + seed)  # the noise's stream (noisysphere draws from numpy's global generator)
+    count = [0]
+
+    def f(x):
+        count[0] += 1
+        return cma.ff.noisysphere(x, cond=1e4, noise=1, noise_offset=0.0)
+
+    def truth(mean):
+        return cma.ff.elli(np.asarray(mean), cond=1e4)
+
+    d = 33
+    options = {"seed": seed, "verbose": -9}
+    if arm == "pycma + TPA + NoiseHandler":
+        options["AdaptSigma"] = cma.sigma_adaptation.CMAAdaptSigmaTPA
+    es = cma.CMAEvolutionStrategy(d * [1.0], 1.0, options)
+    out, todo = [], list(checkpoints)
+    m = None
+    if arm.startswith("mixing"):
+        remedy = {"reeval_count": 2} if "reeval_count" in arm else {}
+        m = imix_cli.MixingES(es, "exact", rng=seed, **remedy)
+    nh = cma.NoiseHandler(d, maxevals=[1, 1, 30]) if "NoiseHandler" in arm else None
+    last = truth(es.mean)
+    while todo and count[0] < budget:
+        if m is not None:
+            x = m.ask()
+            m.tell(x, [f(xi) for xi in x])
+            mean = m.distribution.mean
+        elif nh is not None:
+            x, values = es.ask_and_eval(f, evaluations=nh.evaluations)
+            es.tell(x, values)
+            es.sigma *= nh(x, values, f, es.ask)
+            mean = es.mean
+        else:
+            x = es.ask()
+            es.tell(x, [f(xi) for xi in x])
+            mean = es.mean
+        while todo and count[0] > todo[0]:
+            out.append(last)
+            todo.pop(0)
+        last = truth(mean)
+    out += [last] * len(todo)
+    return out
+
+
+def noisy(seeds=15, budget=30_000):
+    checkpoints = [budget // 6, budget // 3, budget]
+    arms = ("pycma", "pycma + TPA + NoiseHandler", "mixing", "mixing + reeval_count=2")
+    print("| arm | " + " | ".join(f"f(mean) at {c:,} evaluations, median [IQR]" for c in checkpoints) + " |")
+    print("|---|" + "---:|" * len(checkpoints))
+    for arm in arms:
+        values = np.array([noisy_run(s, arm, budget, checkpoints) for s in range(1, seeds + 1)])
+        cells = [f"{np.median(v):.3g} [{np.percentile(v, 25):.3g}, {np.percentile(v, 75):.3g}]" for v in values.T]
+        print(f"| {arm} | " + " | ".join(cells) + " |", flush=True)
+
+
+def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
+    """Episodes and wall seconds until the population mean return reaches ``target`` (None if never)."""
+    import gymnax
+    import jax
+    import jax.numpy as jnp
+    import optax
+    from evosax.algorithms import SNES, Open_ES
+
+    import imix_cli
+    from imix_cli.adapters.evosax import from_evosax
+    from imix_cli.bench.peers import PEER_LR, PEER_POPSIZE, PEER_SIGMA
+    from imix_cli.policies import num_params
+
+    environment, env_params = gymnax.make("CartPole-v1")
+    env_params = env_params.replace(max_steps_in_episode=200)
+    sizes = [4, 8, 8, 2]
+    dim = num_params(4, 2)
+
+    def policy(flat, obs):  # imix_cli.policies' layout, as imix bench peers
+        k, x = 0, obs
+        for layer, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+            W, bias = flat[k : k + a * b].reshape(a, b), flat[k + a * b : k + a * b + b]
+            k += a * b + b
+            x = x @ W + bias
+            x = jnp.tanh(x) if layer < 2 else x
+        return jnp.argmax(x)
+
+    def episode(flat, key):
+        k_reset, k_step = jax.random.split(key)
+        obs, state = environment.reset(k_reset, env_params)
+
+        def step(carry, _):
+            obs, state, ret, alive = carry
+            obs, state, reward, done, _ = environment.step(k_step, state, policy(flat, obs), env_params)
+            return (obs, state, ret + reward * alive, alive * (1.0 - done)), None
+
+        (_, _, ret, _), _ = jax.lax.scan(step, (obs, state, jnp.float32(0.0), jnp.float32(1.0)), None, length=200)
+        return ret
+
+    rollouts = jax.jit(jax.vmap(episode))
+    solution = jnp.zeros(dim)
+    if algo == "snes":
+        algorithm = SNES(population_size=PEER_POPSIZE, solution=solution)
+        params = algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
+    elif algo == "snes-small":  # imix's SNES step sizes: Adam (lr 0.01, beta1 0.99) on the mean, ~0.01 per generation on log sigma
+        algorithm = SNES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR, b1=0.99))
+        params = algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA), lr_std_init=jnp.asarray(0.01))
+    else:
+        algorithm = Open_ES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR),
+                            std_schedule=optax.constant_schedule(PEER_SIGMA))  # fmt: skip
+        params = algorithm.default_params
+    key = jax.random.key(seed)
+    eval_key = jax.random.key(1_000_000 + seed)
+
+    def evaluate(points):
+        nonlocal eval_key
+        n = points.shape[0]
+        if n == 0:
+            return np.zeros(0)
+        size = 1 << (n - 1).bit_length()  # padded to a power of two: one compilation per size
+        padded = np.zeros((size, dim), np.float32)
+        padded[:n] = points
+        eval_key, k = jax.random.split(eval_key)
+        return np.asarray(rollouts(jnp.asarray(padded), jax.random.split(k, size)))[:n]
+
+    for n in (1, 2, 4, 8, 16, 32, 64):  # compile before the clock starts (both arms)
+        evaluate(np.zeros((n, dim)))
+    started, episodes = time.perf_counter(), 0
+    if mixing:
+        m = imix_cli.MixingES(from_evosax(algorithm, params, key), "exact", rng=seed)
+        for generation in range(max_generations):
+            x = m.ask()
+            returns = evaluate(x)
+            episodes += x.shape[0]
+            fitness = m.tell(x, -returns)  # evosax minimises
+            if -np.mean(fitness) >= target:
+                return episodes, time.perf_counter() - started, generation + 1, m.reuse
+        return None, time.perf_counter() - started, max_generations, m.reuse
+    key, k_init = jax.random.split(key)
+    state = algorithm.init(k_init, solution, params)
+    for generation in range(max_generations):
+        key, k_ask, k_tell = jax.random.split(key, 3)
+        population, state = algorithm.ask(k_ask, state, params)
+        returns = evaluate(np.asarray(population))
+        episodes += population.shape[0]
+        state, _ = algorithm.tell(k_tell, population, -jnp.asarray(returns), state, params)
+        if np.mean(returns) >= target:
+            return episodes, time.perf_counter() - started, generation + 1, 0.0
+    return None, time.perf_counter() - started, max_generations, 0.0
+
+
+EVOSAX_NAMES = {"snes": "SNES (evosax's defaults)", "snes-small": "SNES (imix's step sizes)", "openes": "Open_ES (antithetic)"}
+
+
+def evosax_table(seeds=5, algos=("snes", "openes", "snes-small")):
+    print("| algorithm | mixing | seeds reaching 195 | episodes to 195, median [min, max] | wall s to 195, median | generations, median | reuse |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for algo in algos:
+        for mixing in (False, True):
+            runs = [evosax_cartpole(algo, mixing, s) for s in range(seeds)]
+            ok = [r for r in runs if r[0] is not None]
+            e = np.array([r[0] for r in ok]) if ok else np.array([np.nan])
+            w = np.median([r[1] for r in ok]) if ok else np.nan
+            g = np.median([r[2] for r in ok]) if ok else np.nan
+            reuse = np.mean([r[3] for r in runs])
+            name = EVOSAX_NAMES[algo]
+            print(f"| {name} | {'exact' if mixing else 'none'} | {len(ok)}/{seeds} | {np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}] | "
+                  f"{w:.1f} | {g:.0f} | {100 * reuse:.0f} % |", flush=True)  # fmt: skip
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("section", choices=["all", "stepsize", "cma", "noisy", "evosax"])
+    parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: stepsize 5, cma 15, noisy 15, evosax 5)")
+    parser.add_argument("--dims", default="10,40", help="cma: dimensions")
+    parser.add_argument("--budget", type=int, default=30_000, help="noisy: evaluations")
+    parser.add_argument("--algos", default="snes,openes,snes-small", help="evosax: " + ", ".join(EVOSAX_NAMES))
+    args = parser.parse_args(argv)
+    dims = tuple(int(d) for d in args.dims.split(","))
+    if args.section in ("all", "stepsize"):
+        stepsize(args.seeds or 5)
+    if args.section in ("all", "cma"):
+        cma_table(args.seeds or 15, dims)
+    if args.section in ("all", "noisy"):
+        noisy(args.seeds or 15, args.budget)
+    if args.section in ("all", "evosax"):
+        evosax_table(args.seeds or 5, tuple(args.algos.split(",")))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
