@@ -33,7 +33,7 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true progress=false
 
-.PHONY: install install-all docs docs-numbers test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install install-all docs docs-numbers test test-fast test-extras reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
 # (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
@@ -54,11 +54,18 @@ install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluste
 	$(PY) -m pip install $(PIN) "$(TORCH)"
 	$(PY) -m pip install $(PIN) ".[all]"
 
-test:  ## the whole test suite (what CI runs; includes the slow end-to-end tests)
+# The tests of the extras `make install-all` adds: one marker per extra (tests/conftest.py, EXTRAS). Without
+# its extra a marked test is skipped, so `make test` passes after a plain `make install`.
+EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs
+
+test:  ## the whole test suite, slow end-to-end tests included (tests of extras not installed are skipped)
 	$(PY) -m pytest -q
 
 test-fast:  ## day-to-day: every test not marked slow
 	$(PY) -m pytest -q -m "not slow"
+
+test-extras:  ## only the tests of the extras (after make install-all; CI runs it after make test)
+	$(PY) -m pytest -q -m "$(EXTRA_TESTS)"
 
 reproduce: reproduce-main reproduce-grid reproduce-ddpg  ## the whole paper into results/paper*/
 

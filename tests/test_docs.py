@@ -1,7 +1,6 @@
 """The documentation: the site builds with --strict, the README stays short, no development-log
 words, and the printed outputs the docs show are what the code prints (the cheap ones: a few s)."""
 
-import importlib.util
 import re
 import subprocess
 import sys
@@ -13,7 +12,7 @@ ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 
 
-@pytest.mark.skipif(importlib.util.find_spec("mkdocs") is None, reason='mkdocs not installed (pip install ".[docs]")')
+@pytest.mark.docs
 def test_the_site_builds_strictly(tmp_path):
     command = [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"), "-d", str(tmp_path / "site")]
     env = {"NO_MKDOCS_2_WARNING": "1", "PATH": "/usr/bin:/bin", "PYTHONPATH": str(ROOT)}
