@@ -91,6 +91,7 @@ reproduce-quick:  ## the main figures from 3 seeds x 30 generations, in about a 
 	$(IMIX) plot experiment=quick
 
 docs:  ## the documentation site into site/ (mkdocs-material + mkdocstrings: the docs extra, in install-all)
+	@$(PY) -c "import mkdocs, mkdocstrings, material" 2>/dev/null || { echo 'make docs needs the docs extra: $(PY) -m pip install ".[docs]" (or make install-all)' >&2; exit 2; }
 	$(PY) -m mkdocs build --strict
 
 docs-numbers:  ## regenerate the printed outputs the docs show (README's main job included: about a minute)

@@ -40,8 +40,15 @@ class MixingES:
         ``im=true``; :data:`~imix_cli.mixing.VARIANT_SPECS`); None draws every generation fresh, i.e. the plain ES.
     rng : numpy Generator, int or None
         The stream that draws and mixes the generations (an int seeds a new Generator).
-    eim_generations, alpha, reeval_age, reeval_prob
-        As the config keys of the same names (:class:`~imix_cli.generation.MixingSettings`).
+    eim_generations : int
+        K, the archived generations ``"exact"`` and ``"eim_paper"`` reuse from (the config key of the same
+        name; :class:`~imix_cli.generation.MixingSettings`).
+    alpha : float
+        ``"sun2009"``'s minimal refresh rate in [0, 1) (the config key ``im_alpha``).
+    reeval_age : int or None
+        Re-evaluate a reused member whose return is older than this many generations (None: never).
+    reeval_prob : float
+        Re-evaluate each reused member with this probability.
     """
 
     def __init__(self, es, variant: str | None = "exact", *, rng=None, eim_generations: int = 3, alpha: float = 0.0,

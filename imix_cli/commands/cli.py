@@ -22,12 +22,12 @@ Evolution strategies with importance mixing (Pourchot, Perrin & Sigaud 2018).
 commands:
   run     run an experiment: 25 seeds of one config in parallel, one CSV per seed
             imix run algo=snes env=cartpole eim=true
-            imix run algo=cmaes env=acrobot seeds=5 generations=100 experiment=try
-            imix run -m algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true
+            imix run algo=cmaes env=acrobot im=true seeds=5 generations=100 experiment=try
+            imix run -m algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true experiment=paper
           `imix run --help` lists every key.
   plot    draw the paper's figures and tables from the CSVs of an experiment
-            imix plot experiment=paper
-          `imix plot --help` lists its keys.
+            imix plot experiment=try
+          `imix plot --help` lists its keys (experiment=paper after `make reproduce`).
   bench   print the speed benchmarks (batched rollouts, mixing, a grid)
             imix bench
             imix bench loop seeds=5
@@ -35,7 +35,7 @@ commands:
   eval    evaluate the saved policies of every seed on fresh episodes; writes eval.csv per run
             imix eval experiment=try episodes=100 which=mean
   render  write a GIF (or .mp4 with ffmpeg) of one saved policy acting in its env
-            imix render experiment=try run=snes-cartpole-eim seed=0 out=policy.gif
+            imix render experiment=try run=cmaes-acrobot-im seed=0 out=policy.gif
   status  seeds done / running / not started of each run, last generation, scores (read-only)
             imix status experiment=try
 
