@@ -94,8 +94,8 @@ docs:  ## the documentation site into site/ (mkdocs-material + mkdocstrings: the
 	@$(PY) -c "import mkdocs, mkdocstrings, material" 2>/dev/null || { echo 'make docs needs the docs extra: $(PY) -m pip install ".[docs]" (or make install-all)' >&2; exit 2; }
 	$(PY) -m mkdocs build --strict
 
-docs-numbers:  ## regenerate the printed outputs the docs show (README's main job included: about a minute)
-	$(PY) -m imix_cli.commands.docs_numbers write quick-mixing main-job
+docs-numbers:  ## regenerate every printed output and figure the README and docs show (tests/test_docs.py checks them)
+	$(PY) -m imix_cli.commands.docs_numbers write
 
 bench:  ## speed benchmarks (rollouts, mixing, grid) with baselines measured in the same run
 	$(IMIX) bench

@@ -1,5 +1,5 @@
 """The documentation: the site builds with --strict, the README stays short, no development-log
-words, and the printed outputs the docs show are what the code prints (the cheap ones: a few s)."""
+words, and the printed outputs and the README's figure data are what the code gives now."""
 
 import os
 import re
@@ -141,7 +141,7 @@ def test_no_development_log_words_in_readme_or_docs():
     assert found == []
 
 
-@pytest.mark.slow  # two `imix run` processes, ~15-25 s
+@pytest.mark.slow  # the main job, the getting-started sweep and the first-steps figure's runs
 def test_the_docs_show_what_the_code_prints():
     from imix_cli.commands.docs_numbers import check
 
