@@ -33,7 +33,7 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true progress=false
 
-.PHONY: install install-all docs docs-numbers test test-fast test-extras reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install install-all docs docs-numbers test test-fast test-install test-extras reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
 # (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
@@ -58,11 +58,14 @@ install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluste
 # its extra a marked test is skipped, so `make test` passes after a plain `make install`.
 EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs
 
-test:  ## the whole test suite, slow end-to-end tests included (tests of extras not installed are skipped)
-	$(PY) -m pytest -q
+test:  ## the whole test suite, slow end-to-end tests included (tests of extras not installed are skipped; the warm-up's in test-install)
+	$(PY) -m pytest -q -m "not install"
 
 test-fast:  ## day-to-day: every test not marked slow
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow and not install"
+
+test-install:  ## the install warm-up's tests: cold numba compiles into fresh caches (minutes of CPU; CI runs them once)
+	$(PY) -m pytest -q -m install
 
 test-extras:  ## only the tests of the extras (after make install-all; CI runs it after make test)
 	$(PY) -m pytest -q -m "$(EXTRA_TESTS)"

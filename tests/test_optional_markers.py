@@ -170,7 +170,7 @@ def test_ci_runs_the_readmes_two_commands_first_then_only_the_extras_tests():
     ci = [line.strip() for line in (root / ".ci" / "run").read_text().splitlines() if line.strip() and not line.lstrip().startswith("#")]
     commands = ci[ci.index("rm -rf .venv") + 1 :]
     assert commands[: len(readme_commands)] == readme_commands == ["make install", "make test"], commands
-    assert commands[len(readme_commands) :][:2] == ["make install-all", "make test-extras"], commands
+    assert commands[len(readme_commands) :][:3] == ["make test-install", "make install-all", "make test-extras"], commands
     makefile = (root / "Makefile").read_text()
     markers = re.search(r"^EXTRA_TESTS\s*=\s*(.*)$", makefile, re.M).group(1).split(" or ")
     project = tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"]

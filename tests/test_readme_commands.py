@@ -14,7 +14,6 @@ algo=ddpg without torch: the one line naming the extra, exit status 2 and no run
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 import shlex
@@ -24,6 +23,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import extra_installed
 
 ROOT = Path(__file__).resolve().parents[1]
 IMIX = str(Path(sys.executable).parent / "imix")
@@ -122,7 +122,7 @@ def _fresh_folder(tmp_path: Path) -> Path:
 
 
 def _check(commands: list[tuple[str, str]], work: Path) -> None:
-    torch = importlib.util.find_spec("torch") is not None and importlib.util.find_spec("stable_baselines3") is not None
+    torch = extra_installed("ddpg")
     for command, extra in commands:
         if command.startswith("make "):
             continue
