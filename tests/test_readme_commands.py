@@ -35,7 +35,7 @@ HELP_OVERRIDES = {
     "imix run algo=cmaes env=acrobot im=true seeds=5 generations=100 experiment=try": SMALL,
     "imix run -m algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true experiment=paper": SMALL,
     "imix run env=gym env.id=CartPole-v1 seeds=3 generations=100": SMALL,
-    "imix run -m algo=snes env=cartpole eim=true popsize=10,25,50 sigma=0.05,0.1,0.25": SMALL,
+    "imix run -m algo=snes env=cartpole eim=true popsize=10,25,50 sigma=0.05,0.1,0.25 experiment=grid": SMALL,
     "imix run algo=ddpg env=continuous_cartpole seeds=5": "seeds=1 total_steps=200",
     "imix eval experiment=try episodes=100 which=mean": "episodes=3",
 }
@@ -154,11 +154,13 @@ def test_the_help_overrides_are_still_examples():
 
 
 @pytest.mark.slow
+@pytest.mark.install  # minutes of CPU (the main job twice, sweeps, every bench section): make test-install, run by CI
 def test_every_readme_command_runs_as_shown(tmp_path):
     _check(readme_commands((ROOT / "README.md").read_text()), _fresh_folder(tmp_path))
 
 
 @pytest.mark.slow
+@pytest.mark.install
 def test_every_help_example_runs_as_shown(tmp_path):
     _check(help_commands(), _fresh_folder(tmp_path))
 
