@@ -33,7 +33,7 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true progress=false
 
-.PHONY: install install-all docs docs-numbers test test-fast reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install install-all docs docs-numbers test test-fast test-install test-extras reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
 # (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
@@ -54,11 +54,21 @@ install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluste
 	$(PY) -m pip install $(PIN) "$(TORCH)"
 	$(PY) -m pip install $(PIN) ".[all]"
 
-test:  ## the whole test suite (what CI runs; includes the slow end-to-end tests)
-	$(PY) -m pytest -q
+# The tests of the extras `make install-all` adds: one marker per extra (tests/conftest.py, EXTRAS). Without
+# its extra a marked test is skipped, so `make test` passes after a plain `make install`.
+EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs
+
+test:  ## the whole test suite, slow end-to-end tests included (tests of extras not installed are skipped; the warm-up's in test-install)
+	$(PY) -m pytest -q -m "not install"
 
 test-fast:  ## day-to-day: every test not marked slow
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow and not install"
+
+test-install:  ## what a fresh install gives: the warm-up's cold compiles, every README and --help command as shown (minutes of CPU; CI runs it once)
+	$(PY) -m pytest -q -m install
+
+test-extras:  ## only the tests of the extras (after make install-all; CI runs it after make test)
+	$(PY) -m pytest -q -m "$(EXTRA_TESTS)"
 
 reproduce: reproduce-main reproduce-grid reproduce-ddpg  ## the whole paper into results/paper*/
 
@@ -84,10 +94,11 @@ reproduce-quick:  ## the main figures from 3 seeds x 30 generations, in about a 
 	$(IMIX) plot experiment=quick
 
 docs:  ## the documentation site into site/ (mkdocs-material + mkdocstrings: the docs extra, in install-all)
+	@$(PY) -c "import mkdocs, mkdocstrings, material" 2>/dev/null || { echo 'make docs needs the docs extra: $(PY) -m pip install ".[docs]" (or make install-all)' >&2; exit 2; }
 	$(PY) -m mkdocs build --strict
 
-docs-numbers:  ## regenerate the printed outputs the docs show (README's main job included: about a minute)
-	$(PY) -m imix_cli.commands.docs_numbers write quick-mixing main-job
+docs-numbers:  ## regenerate every printed output and figure the README and docs show (tests/test_docs.py checks them)
+	$(PY) -m imix_cli.commands.docs_numbers write
 
 bench:  ## speed benchmarks (rollouts, mixing, grid) with baselines measured in the same run
 	$(IMIX) bench

@@ -43,10 +43,20 @@ class MixingES:
         ``im=true``; :data:`~imix_cli.mixing.VARIANT_SPECS`); None draws every generation fresh, i.e. the plain ES.
     rng : numpy Generator, int or None
         The stream that draws and mixes the generations (an int seeds a new Generator).
-    eim_generations, alpha, reeval_age, reeval_prob, reeval_count, min_fresh
-        As the config keys of the same names (:class:`~imix_cli.generation.MixingSettings`); ``min_fresh``
-        (default 1, as ``imix run``): at least this many members of every mixed generation are fresh, in slots
-        drawn at random -- without it a distribution that stops moving reuses every member and CEM or CMA-ES
+    eim_generations : int
+        K, the archived generations ``"exact"`` and ``"eim_paper"`` reuse from (the config key of the same
+        name; :class:`~imix_cli.generation.MixingSettings`).
+    alpha : float
+        ``"sun2009"``'s minimal refresh rate in [0, 1) (the config key ``im_alpha``).
+    reeval_age : int or None
+        Re-evaluate a reused member whose return is older than this many generations (None: never).
+    reeval_prob : float
+        Re-evaluate each reused member with this probability.
+    reeval_count : int
+        Re-evaluate this many reused members every generation and tell the others calibrated on them.
+    min_fresh : int
+        At least this many members of every mixed generation are fresh, in slots drawn at random (default 1,
+        as ``imix run``): without it a distribution that stops moving reuses every member and CEM or CMA-ES
         repeats its update (:mod:`imix_cli.mixing`, "A minimal refresh"); 0: the rules alone.
     """
 

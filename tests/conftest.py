@@ -6,6 +6,7 @@ numpy (``import imix_cli`` no longer sets it; tiny CMA-ES matrices on two BLAS t
 """
 
 import errno
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -29,3 +30,61 @@ def csv_disk_full(monkeypatch):
         return real_fsync(fd)
 
     monkeypatch.setattr(results_module.os, "fsync", fsync_fails_for_csvs)
+
+
+# One mechanism for the tests of an optional extra: the marker named after it. A test that needs an
+# extra carries @pytest.mark.<extra> (or its module sets pytestmark) and is skipped, with the install
+# line in the reason, where one of the extra's modules is not importable. `make test` after a plain
+# `make install` therefore passes, and CI runs exactly these tests after `make install-all` with
+# -m "<extra> or ...". tests/test_optional_markers.py checks that no test imports an optional module
+# without its marker.
+EXTRAS = {
+    # marker: (the modules it needs, how to install them)
+    "mujoco": (("mujoco",), 'pip install ".[mujoco]"'),
+    "ddpg": (("torch", "stable_baselines3"), 'pip install torch==2.13.0 ".[ddpg]"'),
+    "cluster": (
+        ("joblib", "ray", "hydra_plugins.hydra_joblib_launcher", "hydra_plugins.hydra_submitit_launcher", "hydra_plugins.hydra_ray_launcher"),
+        'pip install ".[cluster]"',
+    ),
+    "tensorboard": (("tensorboard",), 'pip install ".[tensorboard]"'),
+    "docs": (("mkdocs", "mkdocstrings", "material"), 'pip install ".[docs]"'),
+    "peers": (("jax", "evosax", "gymnax"), 'pip install ".[peers]"'),
+    "ars": (("sb3_contrib", "stable_baselines3", "torch", "mujoco"), 'pip install torch==2.13.0 ".[ars]"'),
+    "mlflow": (("mlflow",), 'pip install ".[mlflow]"'),
+    "wandb": (("wandb",), 'pip install ".[wandb]"'),
+    # not an extra of imix: an outside reference the statistics are checked against
+    "rliable": (("rliable",), "pip install rliable"),
+}
+
+#: The extras `make install-all` installs (pyproject's `all`): CI runs their tests with -m "mujoco or ddpg or ...".
+INSTALL_ALL = ("mujoco", "ddpg", "cluster", "tensorboard", "docs")
+
+
+def importable(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # a missing parent package (hydra_plugins) raises instead of returning None
+        return False
+
+
+def missing_modules(extra: str) -> list[str]:
+    return [module for module in EXTRAS[extra][0] if not importable(module)]
+
+
+def extra_installed(extra: str) -> bool:
+    """For a marked module's guarded imports (it is collected, then skipped by its marker, without the extra)."""
+    return not missing_modules(extra)
+
+
+def pytest_configure(config):
+    for extra, (modules, install) in EXTRAS.items():
+        config.addinivalue_line("markers", f"{extra}: needs {', '.join(modules)} ({install}); skipped without them")
+
+
+def pytest_collection_modifyitems(config, items):
+    missing = {extra: missing_modules(extra) for extra in EXTRAS}
+    for item in items:
+        for extra in EXTRAS:
+            if missing[extra] and item.get_closest_marker(extra) is not None:
+                item.add_marker(pytest.mark.skip(reason=f"needs the {extra} extra ({EXTRAS[extra][1]}): {', '.join(missing[extra])} not importable"))
+                break

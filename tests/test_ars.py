@@ -207,11 +207,11 @@ def _csvs(root: Path) -> dict:
 
 
 @pytest.mark.slow
+@pytest.mark.mujoco
 def test_imix_run_ars_on_swimmer_saves_policies_and_resumes_after_a_kill(tmp_path):
     """The real console script, algo=ars env=swimmer eim=true: SIGKILL the process group once a
     checkpoint exists, re-run the same command, and get the CSVs of an uninterrupted run (but for
     wall time), with reuse, policies and the checkpoint's resume message."""
-    pytest.importorskip("mujoco")
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
     args = [*SWIMMER, "generations=40"]
     subprocess.run([IMIX, *args, f"results_dir={tmp_path / 'ref'}"], check=True, env=env, capture_output=True)
@@ -322,18 +322,14 @@ def test_with_obs_norm_the_bias_free_weights_act_on_normalised_observations():
     np.testing.assert_allclose(forward(np.repeat(raw, 50, axis=0), states, 2, ()), expected, rtol=1e-10, atol=1e-10)
 
 
-def test_the_variance_floor_is_the_configs_reaches_each_seed_and_survives_a_checkpoint():
+def test_the_variance_floor_is_the_configs_and_survives_a_checkpoint():
     """policy.obs_var_floor: the V2 presets set ARS's 1e-8 (imix's 0.01 cost ARS V2-t on Hopper two
     thirds of its return, docs/ars.md); a coordinate of variance 1e-4 is then scaled by its own
-    1/std = 100, not the default floor's 10. The floor is part of the run's name, every seed's
-    normaliser gets it, and a checkpoint keeps it (an older checkpoint, without it, had 0.01)."""
-    from types import SimpleNamespace
-
+    1/std = 100, not the default floor's 10. A checkpoint keeps the floor (an older checkpoint,
+    without it, had 0.01)."""
     import yaml
 
     from imix_cli.policies import OBS_VAR_FLOOR, ObsNormalizer
-    from imix_cli.running.config import validate_overrides
-    from imix_cli.running.lockstep import loop_settings, new_seed_state
     from imix_cli.running.run_spec import POLICY_DEFAULTS
 
     states = np.stack([np.linspace(-1.0, 1.0, 101) * 0.01 * np.sqrt(3.0), np.linspace(-3.0, 3.0, 101)], axis=1)
@@ -350,6 +346,16 @@ def test_the_variance_floor_is_the_configs_reaches_each_seed_and_survives_a_chec
     config = yaml.safe_load((Path(__file__).parents[1] / "conf" / "config.yaml").read_text())
     assert POLICY_DEFAULTS["obs_var_floor"] == OBS_VAR_FLOOR == config["policy"]["obs_var_floor"]
 
+
+@pytest.mark.mujoco
+def test_the_ars_presets_variance_floor_names_the_run_and_reaches_each_seed():
+    """The V2 presets' floor (1e-8, see the test above) is in the run's name and in every seed's normaliser;
+    the default floor keeps the folder name runs had before the key. Validating env=hopper needs MuJoCo."""
+    from types import SimpleNamespace
+
+    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.lockstep import loop_settings, new_seed_state
+
     for env in ("hopper", "halfcheetah", "walker2d"):
         (spec,) = validate_overrides(["algo=ars", f"env={env}", f"+ars={env}"])
         assert spec.obs_var_floor == 1e-8 and "obs_var_floor=1e-08" in spec.run_name
@@ -360,10 +366,10 @@ def test_the_variance_floor_is_the_configs_reaches_each_seed_and_survives_a_chec
     assert all(new_seed_state(settings, seed).obs_norm.var_floor == 1e-8 for seed in range(3))
 
 
+@pytest.mark.mujoco
 def test_the_ars_presets_run_the_papers_policy_and_eval_acts_with_it(tmp_path):
     """+ars=<env>: no biases (the ES searches 16 weights on Swimmer), clipped actions; the saved
     policies keep zero biases and say "clip", and imix eval acts with the clip."""
-    pytest.importorskip("mujoco")
     from imix_cli.commands.cli import main
     from imix_cli.commands.eval_command import evaluator_for
     from imix_cli.evaluation import make_evaluator
@@ -386,13 +392,13 @@ def test_the_ars_presets_run_the_papers_policy_and_eval_acts_with_it(tmp_path):
     assert not np.array_equal(returns, make_evaluator("Swimmer-v5", 60, hidden=()).evaluate(params, seeds)[0])
 
 
+@pytest.mark.mujoco
 def test_the_alive_bonus_offset_reshapes_training_returns_only(tmp_path):
     """algo.alive_bonus_offset=-1 (ARS's shift, +ars=hopper): members are told return - episode length.
     On Swimmer every episode lasts env.max_steps, so the shift is the same constant for every member:
     ARS's step (return differences over their std) and hence the whole run are unchanged, the
     population columns move by exactly the offset x length, and the mean policy's fresh episodes
     (mean_policy_score) stay on the env's own return."""
-    pytest.importorskip("mujoco")
     from imix_cli.commands.cli import main
 
     es = make_es("ars", 3, popsize=4, alive_bonus_offset=-1.0)
@@ -541,9 +547,8 @@ def _frame(scores) -> pd.DataFrame:
 
 
 @pytest.mark.slow
+@pytest.mark.ars
 def test_the_sb3_contrib_peer_writes_a_csv_of_whole_iterations(tmp_path):
-    pytest.importorskip("sb3_contrib")
-    pytest.importorskip("mujoco")
     from imix_cli.bench.ars_peer import main as peer_main
 
     args = ["--envs", "swimmer", "--seeds", "1", "--episodes", "3", "--eval-every", "1", "--eval-episodes", "1", "--results-dir", str(tmp_path)]

@@ -71,10 +71,12 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize("extra, code, text", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+# the joblib launcher plugin comes with the cluster extra (make install-all)
+CLUSTER = pytest.mark.cluster
+
+
+@pytest.mark.parametrize("extra, code, text", [pytest.param(*c[1:], id=c[0], marks=CLUSTER if "hydra/launcher=joblib" in c[1] else ()) for c in CASES])
 def test_malformed_invocation(finished_run, capsys, extra, code, text):
-    if "hydra/launcher=joblib" in extra:  # the launcher plugin comes with the cluster extra (make install-all)
-        pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     results, written = finished_run
     flags = [a for a in extra if a.startswith("-")]
     overrides = [a for a in extra if not a.startswith("-")]

@@ -14,6 +14,7 @@ import warnings
 from pathlib import Path
 
 import pytest
+from conftest import extra_installed
 from process_tree import alive, children_of, cmdline
 
 from imix_cli.commands.cli import main
@@ -213,12 +214,8 @@ def test_fast_validation_composes_what_hydra_composes(tmp_path):
         ["algo=cmaes", "eim=true", "eim_generations=5", "weight_decay=0", "weight_decay_form=estool", "algo.generations=7"],
         ["env=gym", "env.id=MountainCar-v0", "seeds=3", "checkpoint_every=0", "experiment=x"],
     ]
-    try:  # a launcher config group option, where the cluster extra is installed
-        import hydra_plugins.hydra_joblib_launcher  # noqa: F401
-
+    if extra_installed("cluster"):  # a launcher config group option, where the cluster extra is installed
         points.append(["hydra/launcher=joblib", "workers=1", "progress=false"])
-    except ImportError:
-        pass
     for point in points:
         (fast,) = validate_overrides(point)
         GlobalHydra.instance().clear()

@@ -120,9 +120,8 @@ def test_peers_without_the_extra_say_how_to_install_and_exit_0(capsys, monkeypat
 
 
 @pytest.mark.slow
+@pytest.mark.peers
 def test_peers_rows_and_columns(capsys, tmp_path, monkeypatch):
-    pytest.importorskip("evosax")
-    pytest.importorskip("gymnax")
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     assert cli_main(["bench", "peers", "seeds=1", "generations=2", "envs=cartpole"]) == 0
     tables = _tables(capsys.readouterr().out)

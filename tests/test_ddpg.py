@@ -9,17 +9,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import extra_installed
 
-pytest.importorskip("stable_baselines3", reason="algo=ddpg needs torch and stable-baselines3")
-th = pytest.importorskip("torch")
+from imix_cli.commands.cli import main
+from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
+from imix_cli.running.config import DDPG_DEFAULTS, ConfigError, config_dir, validate_overrides
+from imix_cli.running.results import COLUMNS, read_run_csv
 
-from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise  # noqa: E402
+pytestmark = pytest.mark.ddpg  # the whole module: its imports need torch and stable-baselines3
 
-from imix_cli.commands.cli import main  # noqa: E402
-from imix_cli.ddpg.agent import PAPER_SETTINGS, TwoRateDDPG, make_ddpg, train_ddpg  # noqa: E402
-from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID  # noqa: E402
-from imix_cli.running.config import DDPG_DEFAULTS, ConfigError, config_dir, validate_overrides  # noqa: E402
-from imix_cli.running.results import COLUMNS, read_run_csv  # noqa: E402
+if extra_installed("ddpg"):  # collected, and skipped by the marker, without them
+    import torch as th
+    from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
+
+    from imix_cli.ddpg.agent import PAPER_SETTINGS, TwoRateDDPG, make_ddpg, train_ddpg
 
 
 def layer_sizes(sequential) -> list[tuple[int, int]]:

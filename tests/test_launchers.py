@@ -15,6 +15,8 @@ from imix_cli.commands.cli import main
 from imix_cli.running.results import read_run_csv
 
 IMIX = str(Path(sys.executable).parent / "imix")
+pytestmark = pytest.mark.cluster  # the launcher plugins come with the cluster extra
+
 SWEEP = ["algo=cem", "generations=3", "seeds=2", "popsize=8,10", "progress=false"]
 
 
@@ -26,21 +28,18 @@ def assert_two_points(results: Path):
 
 @pytest.mark.slow
 def test_joblib_launcher_runs_points_in_parallel_with_in_process_seeds(tmp_path):
-    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     assert main(["run", "-m", "hydra/launcher=joblib", *SWEEP, f"results_dir={tmp_path}"]) == 0
     assert_two_points(tmp_path)
 
 
 @pytest.mark.slow
 def test_submitit_local_launcher(tmp_path):
-    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     proc = subprocess.run([IMIX, "run", "-m", "hydra/launcher=submitit_local", *SWEEP, f"results_dir={tmp_path}"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert_two_points(tmp_path)
 
 
 def test_slurm_launcher_is_configured(capsys):
-    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     assert main(["run", "hydra/launcher=slurm", "--cfg", "hydra", "--package", "hydra.launcher"]) == 0
     out = capsys.readouterr().out
     assert "SlurmLauncher" in out and "cpus_per_task: 8" in out
@@ -48,7 +47,6 @@ def test_slurm_launcher_is_configured(capsys):
 
 @pytest.mark.slow
 def test_ray_launcher_against_a_local_ray_started_here(tmp_path):
-    pytest.importorskip("hydra_plugins.hydra_ray_launcher")
     ray = shutil.which("ray", path=str(Path(sys.executable).parent))
     assert ray, "the ray CLI comes with the cluster extra"
     start = subprocess.run(

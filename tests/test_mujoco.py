@@ -5,7 +5,6 @@ The normaliser tests run on Pendulum-v1 (gymnasium's classic control, no MuJoCo 
 they check is the runner's bookkeeping, not the physics.
 """
 
-import importlib.util
 import os
 import subprocess
 import sys
@@ -24,7 +23,7 @@ from imix_cli.running.config import validate_overrides
 from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
 from imix_cli.running.results import read_run_csv
 
-needs_mujoco = pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason='needs pip install "imix-cli[mujoco]"')
+needs_mujoco = pytest.mark.mujoco
 
 TINY = ["generations=2", "seeds=1", "popsize=4", "progress=false", "workers=1"]
 

@@ -11,8 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-needs_mujoco = pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason='needs pip install "imix-cli[mujoco]"')
-pytestmark = needs_mujoco
+pytestmark = pytest.mark.mujoco
 
 DIRECT_IDS = ("Swimmer-v5", "Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v5")
 
@@ -224,7 +223,6 @@ def test_the_compiled_step_refuses_rows_and_actions_it_would_read_past():
 
 
 def test_bench_mujoco_without_the_extra_says_how_to_install_and_exits_0(capsys, monkeypatch):
-    import importlib.util
 
     from imix_cli.bench import main
 

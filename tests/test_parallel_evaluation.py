@@ -2,8 +2,6 @@
 evaluator, bit for bit, whatever the worker count and chunking; runs that differ only in
 the evaluator write identical CSVs (wall time aside)."""
 
-import importlib.util
-
 import numpy as np
 import pytest
 
@@ -81,7 +79,7 @@ def test_bad_evaluator_keys_are_one_line_errors(tmp_path, capsys, override, key)
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason='needs pip install "imix-cli[cluster]"')
+@pytest.mark.cluster
 def test_ray_evaluator_on_a_local_ray_equals_local(tmp_path):
     """A local Ray started by the evaluator (ray_address null), 2 actors."""
     local = make_evaluator(ENV, hidden=(4,))
@@ -100,8 +98,8 @@ def test_ray_evaluator_on_a_local_ray_equals_local(tmp_path):
     assert not ray.is_initialized()  # the Ray it started is shut down
 
 
+@pytest.mark.cluster
 def test_pool_is_refused_under_a_parallel_hydra_launcher():
-    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
     from imix_cli.running.config import ConfigError
 
     with pytest.raises(ConfigError, match="evaluator=pool.*joblib"):
@@ -109,7 +107,7 @@ def test_pool_is_refused_under_a_parallel_hydra_launcher():
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason='needs pip install "imix-cli[cluster]"')
+@pytest.mark.cluster
 def test_run_with_evaluator_ray_writes_the_same_csvs_as_local(tmp_path, capfd):
     common = [
         "env=gym",

@@ -407,3 +407,18 @@ def test_iqm_and_improvement_tables_hand_values(tmp_path):
     improvement = pd.read_csv(figures_dir(tmp_path) / "improvement.csv")
     assert improvement["p_fewer_episodes"].tolist() == [1.0] and improvement["ci_low"].tolist() == [1.0]
     assert (figures_dir(tmp_path) / "profile_cartpole.png").stat().st_size > 1000
+
+
+def test_an_env_no_seed_reaches_is_left_out_of_the_threshold_table_with_one_warning(tmp_path, capsys):
+    """A short run (make reproduce-quick: 30 generations) reaches no threshold: its rows would all be 0/n and –."""
+    write_group(tmp_path, "snes", "cartpole", "none", range(3))
+    write_group(tmp_path, "snes", "cartpole", "eim", range(3))
+    write_group(tmp_path, "snes", "acrobot", "eim", range(3))
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=threshold", "threshold.acrobot=1000"]) == 0
+    err = capsys.readouterr().err
+    assert "evaluations_to_threshold leaves out acrobot (no seed reached 1000)" in err and "cartpole" not in err.split("leaves out")[1].split("\n")[0], err
+    table = pd.read_csv(figures_dir(tmp_path) / "evaluations_to_threshold.csv")
+    assert set(table["env"]) == {"cartpole"} and (table["reached"] > 0).all()
+    (figures_dir(tmp_path) / "evaluations_to_threshold.md").unlink()
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=threshold", "threshold.acrobot=1000", "threshold.cartpole=1000"]) == 0
+    assert not (figures_dir(tmp_path) / "evaluations_to_threshold.md").exists()  # no table at all rather than one of 0/3

@@ -79,7 +79,6 @@ def test_eval_episode_seeds_are_not_training_episode_seeds():
 
 
 def test_render_writes_a_gif_of_n_frames(trained, tmp_path):
-    pytest.importorskip("pygame")
     from PIL import Image
 
     root, _ = trained
@@ -123,7 +122,6 @@ def test_a_pickled_policy_file_is_refused(tmp_path):
 
 @pytest.mark.parametrize("env_id", ["imix/ContinuousCartPole-v0", "imix/ContinuousCartPoleHard-v0"])
 def test_continuous_cartpole_passes_check_env_with_render(env_id):
-    pytest.importorskip("pygame")
     import os
 
     import gymnasium as gym
@@ -170,7 +168,6 @@ def test_runner_tracks_the_best_ever_member_not_the_last_generations():
 
 def test_render_without_out_writes_into_the_run_folder_and_never_overwrites_it(trained, tmp_path, monkeypatch, capsys):
     """Issue 38: a GIF goes into the run folder it shows, not the current directory."""
-    pytest.importorskip("pygame")
     root, run_dir = trained
     monkeypatch.chdir(tmp_path)
     args = ["render", f"results_dir={root}", "experiment=pol", f"run={RUN}", "seed=1", "frames=3"]

@@ -1,7 +1,6 @@
 """evaluator=ray: one Ray runtime per run, sized to it; a lost actor restarted (or reported in one line);
 no process left behind after Ctrl-C, SIGTERM or kill -9 of the main process."""
 
-import importlib.util
 import os
 import signal
 import subprocess
@@ -15,7 +14,7 @@ from process_tree import alive, cmdline, descendants
 
 from imix_cli.running.config import ConfigError, validate_overrides
 
-pytestmark = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason='needs pip install "imix-cli[cluster]"')
+pytestmark = pytest.mark.cluster
 
 IMIX = str(Path(sys.executable).parent / "imix")
 

@@ -3,6 +3,8 @@ partial CSV that lets `imix plot` / `imix status` follow a running seed."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from imix_cli.commands.cli import main
@@ -80,6 +82,9 @@ def test_a_sweep_ends_with_one_table_of_every_point(tmp_path, capsys):
     table = out[out.index("sweep: 4 run(s)") :].splitlines()
     runs = sorted(line.split()[0] for line in table[2:6])
     assert runs == sorted(f"cem-cartpole-{m}-popsize={p}" for m in ("none", "eim") for p in (8, 9))
+    # ... and only that table: each point before it says one line, not its own table
+    before = out[: out.index("sweep: 4 run(s)")].splitlines()
+    assert len(before) == 4 and all(re.fullmatch(rf"\[{k}/4\] cem-cartpole-\w+-popsize=\d done", line) for k, line in enumerate(before, 1)), before
 
 
 def test_version(capsys):

@@ -132,8 +132,8 @@ def _physical_memory() -> int:
     return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
 
 
+@pytest.mark.mujoco
 def test_the_memory_check_counts_one_mujoco_env_per_member():
-    pytest.importorskip("mujoco")
     if _physical_memory() >= 26 * 2**30:
         pytest.skip("25,000 Hopper envs (~27 GB) fit on this machine")
     with pytest.raises(ConfigError, match=r"popsize=25000.*env") as caught:
@@ -143,8 +143,8 @@ def test_the_memory_check_counts_one_mujoco_env_per_member():
         validate_overrides(["env=hopper", "popsize=5000", "generations=1", "policy.hidden=[]", "seeds=1"])
 
 
+@pytest.mark.mujoco
 def test_the_memory_check_counts_every_seed_held_at_once():
-    pytest.importorskip("mujoco")
     if _physical_memory() >= 100 * 2**30:
         pytest.skip("25 seeds x 5,000 Hopper envs fit on this machine")
     with pytest.raises(ConfigError, match=r"popsize=5000.*25 seeds"):

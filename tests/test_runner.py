@@ -187,9 +187,14 @@ def test_generic_gymnasium_id_runs(tmp_path):
 
 @pytest.mark.slow
 def test_wheel_ships_the_configs(tmp_path):
-    """`conf/` is packaged as imix_cli.conf so that `imix run` works from any directory after `pip install .`."""
+    """`conf/` is packaged as imix_cli.conf so that `imix run` works from any directory after `pip install .`;
+    the build warns about nothing (setuptools' deprecations, sub-folders of conf/ that "would be ignored")."""
     repo = Path(__file__).resolve().parent.parent
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path), str(repo)], check=True)
+    build = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-v", "-w", str(tmp_path), str(repo)]
+    proc = subprocess.run(build, capture_output=True, text=True)  # -v: pip shows setuptools' own output
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    warnings = [line.strip() for line in proc.stdout.splitlines() + proc.stderr.splitlines() if "Warning:" in line or "would be ignored" in line]
+    assert not warnings, "\n".join(warnings)
     wheel = next(tmp_path.glob("imix_cli-*.whl"))
     names = set(zipfile.ZipFile(wheel).namelist())
     for conf in sorted((repo / "conf").rglob("*.yaml")) + [repo / "conf" / "__init__.py"]:

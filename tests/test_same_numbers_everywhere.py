@@ -14,7 +14,6 @@ CPU without FMA: before imix computed exp, log, pow, tanh, sin and cos itself (:
 every SNES seed of the main job ran a different search from generation 6-15 on under it.
 """
 
-import importlib.util
 import os
 import subprocess
 import sys
@@ -113,7 +112,7 @@ def test_cmaes_is_bit_identical_under_every_blas_kernel(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(importlib.util.find_spec("mujoco") is None, reason='needs pip install "imix-cli[mujoco]"')
+@pytest.mark.mujoco
 def test_mujoco_linear_run_is_bit_identical_under_every_blas_kernel(tmp_path):
     args = ["algo=snes", "env=swimmer", "eim=true", "policy.hidden=[]", "env.max_steps=100", "seeds=1", "generations=8", "popsize=10", "workers=1"]
     # Not under glibc's SSE2 math: MuJoCo's own library calls the C library's sin, cos, ... in its physics, so

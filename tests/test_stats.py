@@ -107,9 +107,11 @@ def test_mean_ci_unchanged():
     assert (mean, n) == (2.5, 4) and half == pytest.approx(3.182446 * 1.290994 / 2, rel=1e-5)
 
 
+@pytest.mark.rliable
 def test_against_rliable_metrics():
     """Point estimates equal rliable 1.2.0's on the same data (skipped where rliable is not importable)."""
-    metrics = pytest.importorskip("rliable.metrics")
+    from rliable import metrics
+
     rng = np.random.default_rng(7)
     x = rng.normal(size=(12, 3))
     y = rng.normal(0.3, size=(12, 3))

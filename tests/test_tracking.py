@@ -16,8 +16,6 @@ import imix_cli
 from imix_cli.running.results import read_run_csv
 from imix_cli.running.tracking import TRACKED_COLUMNS, tensorboard_dir
 
-pytest.importorskip("tensorboard")
-
 
 def _scalars(directory):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -39,6 +37,7 @@ def _run(tmp_path, generations, workers=1, **keys):
                         eval_mean_every=2, checkpoint_every=2, checkpoint_seconds=0, results_dir=str(tmp_path), experiment="tb", echo=None, **keys)  # fmt: skip
 
 
+@pytest.mark.tensorboard
 @pytest.mark.parametrize("workers", [1, 2])  # 2: each seed's events written by its worker process
 def test_tensorboard_event_files_hold_the_csvs_numbers(tmp_path, workers):
     frame = _run(tmp_path, 4, workers=workers, logger="tensorboard")
@@ -49,6 +48,7 @@ def test_tensorboard_event_files_hold_the_csvs_numbers(tmp_path, workers):
     assert len(scalars["mean_policy_score"]) == 2  # measured at generations 0 and 2 only (NaN elsewhere is not logged)
 
 
+@pytest.mark.tensorboard
 def test_a_continued_seed_replaces_what_a_killed_process_logged_after_its_last_state(tmp_path):
     from tensorboard.compat.proto import event_pb2, summary_pb2
     from tensorboard.summary.writer.event_file_writer import EventFileWriter
@@ -81,8 +81,8 @@ def test_a_bad_or_missing_logger_is_one_line_before_anything_runs(tmp_path):
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.mlflow
 def test_mlflow_gets_one_run_per_seed_with_the_csvs_numbers(tmp_path, monkeypatch):
-    pytest.importorskip("mlflow")
     monkeypatch.setenv("MLFLOW_TRACKING_URI", (tmp_path / "mlruns").as_uri())  # a local file store (no server, no database)
     monkeypatch.setenv("MLFLOW_ALLOW_FILE_STORE", "true")
     frame = _run(tmp_path, 3, logger="mlflow")
@@ -99,8 +99,8 @@ def test_mlflow_gets_one_run_per_seed_with_the_csvs_numbers(tmp_path, monkeypatc
     assert runs[f"{name}/seed_1"].data.params["popsize"] == "10"
 
 
+@pytest.mark.wandb
 def test_wandb_offline_gets_one_run_per_seed(tmp_path, monkeypatch):
-    pytest.importorskip("wandb")
     monkeypatch.setenv("WANDB_MODE", "offline")
     monkeypatch.setenv("WANDB_SILENT", "true")
     frame = _run(tmp_path, 2, logger="wandb")

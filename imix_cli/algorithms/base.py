@@ -307,6 +307,8 @@ class EvolutionStrategy(ABC):
     **fields
         Fields of ``ES.Params`` that replace those of ``params``, e.g. ``popsize=20``.
 
+    Notes
+    -----
     Every field is also an attribute of the ES (``es.popsize``, ``es.sigma``, ...; ``es.sigma``
     stays the initial value when the ES adapts its step size).
     """

@@ -24,12 +24,12 @@ Evolution strategies with importance mixing (Pourchot, Perrin & Sigaud 2018).
 commands:
   run     run an experiment: 25 seeds of one config in parallel, one CSV per seed
             imix run algo=snes env=cartpole eim=true
-            imix run algo=cmaes env=acrobot seeds=5 generations=100 experiment=try
-            imix run -m algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true
+            imix run algo=cmaes env=acrobot im=true seeds=5 generations=100 experiment=try
+            imix run -m algo=openes,snes,cem,cmaes env=cartpole,acrobot eim=false,true experiment=paper
           `imix run --help` lists every key.
   plot    draw the paper's figures and tables from the CSVs of an experiment
-            imix plot experiment=paper
-          `imix plot --help` lists its keys.
+            imix plot experiment=try
+          `imix plot --help` lists its keys (experiment=paper after `make reproduce`).
   bench   print the speed benchmarks (batched rollouts, mixing, a grid)
             imix bench
             imix bench loop seeds=5
@@ -37,7 +37,7 @@ commands:
   eval    evaluate the saved policies of every seed on fresh episodes; writes eval.csv per run
             imix eval experiment=try episodes=100 which=mean
   render  write a GIF (or .mp4 with ffmpeg) of one saved policy acting in its env
-            imix render experiment=try run=snes-cartpole-eim seed=0 out=policy.gif
+            imix render experiment=try run=cmaes-acrobot-im seed=0 out=policy.gif
   status  seeds done / running / stopped / not started of each run, last generation, scores (read-only)
             imix status experiment=try
 
@@ -132,6 +132,7 @@ _SKIPPED_POINTS: list[str] = []
 #: as joblib) finds none there and validates its point itself.
 _VALIDATED: dict = {}
 _SWEEPS_STARTED = 0
+_POINTS_DONE = 0  # points of this process's sweep run so far (their one-line reports count them)
 
 
 def _error(message: str, code: int) -> int:
@@ -171,6 +172,8 @@ def run_command(args: list[str]) -> int:
         args = [*args, *_own_sweep_folder(args)]
     sys.argv = ["imix run", *args]
     _SKIPPED_POINTS.clear()
+    global _POINTS_DONE
+    _POINTS_DONE = 0
     try:
         _hydra_run()
     except SystemExit as exit_:
@@ -298,6 +301,18 @@ def _hydra_run() -> None:
     hydra.main(version_base="1.3", config_path=config_dir(), config_name="config")(_task)()
 
 
+def _point_done(spec):
+    """A sweep point's line in place of its summary table: ``[3/16] snes-cartpole-eim done (3 seeds, 1.2 s)``."""
+    global _POINTS_DONE
+    _POINTS_DONE += 1
+    count = f"[{_POINTS_DONE}/{len(_VALIDATED)}] " if len(_VALIDATED) >= _POINTS_DONE else ""
+
+    def echo(_table: str) -> None:
+        print(f"{count}{spec.run_name} done", flush=True)
+
+    return echo
+
+
 def _task(cfg) -> None:
     """The Hydra task: one config (one sweep point) -> its RunSpec (validated by :func:`run_command`) -> runner."""
     from hydra.core.hydra_config import HydraConfig
@@ -318,10 +333,11 @@ def _task(cfg) -> None:
     from imix_cli.running.runner import RunError, run
 
     _run_handles_signals()
+    in_process_sweep = HydraConfig.get().mode == RunMode.MULTIRUN and str(launcher or "").endswith("BasicLauncher")
     try:
-        run(spec)
+        # a sweep in this process prints one table of every point at the end (run_command): each point says one line
+        run(spec, echo=_point_done(spec) if in_process_sweep else print)
     except RunError as err:
-        in_process_sweep = HydraConfig.get().mode == RunMode.MULTIRUN and str(launcher or "").endswith("BasicLauncher")
         if in_process_sweep:  # the sweep's other points still run; this one is reported at the end
             _SKIPPED_POINTS.append(str(err))
             return

@@ -11,11 +11,16 @@ A block in a Markdown file::
     <!-- /output -->
 
 (the README's main job: ``<!-- main-job-output -->`` ... ``<!-- /main-job-output -->``).
-``python -m imix_cli.commands.docs_numbers check [name ...]`` re-runs the commands of :data:`BLOCKS` (default:
-the cheap ones, a few seconds each) in a temporary results folder and fails, naming the block, if
+
+A figure (:data:`FIGURES`: the README's first-steps efficiency figure) is regenerated the same way: its
+runs in a temporary folder, then ``imix plot``, and the PNG copied into docs/. What is checked is the
+data the figure draws (:func:`imix_cli.plotting.figures.efficiency_curves`), written next to it as a
+CSV: pixels change with matplotlib and fonts, the curves only with imix.
+``python -m imix_cli.commands.docs_numbers check [name ...]`` re-runs the commands of :data:`BLOCKS` and
+:data:`FIGURES` (default: all of them; ``make docs-numbers`` writes them all) in a temporary results folder and fails, naming the block, if
 the docs no longer show what the code prints; ``write [name ...]`` regenerates the blocks (``write
 main-job`` runs the README's main job: 25 seeds x 1000 generations). Wall times are the one part
-of an output that is not compared. tests/test_docs.py runs ``check`` on the cheap blocks.
+of an output that is not compared. tests/test_docs.py runs ``check`` on every block and figure.
 """
 
 from __future__ import annotations
@@ -32,20 +37,37 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)
+class FigureBlock:
+    runs: tuple  # `imix run` argument lists, run in order (results_dir is added: a temporary folder)
+    experiment: str
+    env: str  # the efficiency figure of this env
+    png: str  # where the README shows it (relative to the repository); the data goes to the same name .csv
+
+
+FIGURES = {
+    # The README's "what mixing gains" figure: CEM on CartPole without and with EIM, 5 seeds x 60 generations.
+    "first-steps": FigureBlock(
+        (("-m", "algo=cem", "env=cartpole", "eim=false,true", "seeds=5", "generations=60", "experiment=first_steps", "progress=false"),),
+        "first_steps",
+        "cartpole",
+        "docs/first_steps_efficiency_cartpole.png",
+    ),
+}
+
+
+@dataclass(frozen=True)
 class Block:
     command: tuple  # `imix run` arguments (results_dir is added: a temporary folder)
     files: tuple  # Markdown files (relative to the repository) that show it
-    cheap: bool  # checked by the test suite and by `check` without names
 
 
 BLOCKS = {
-    # The README's main job: what a user's first command prints (about 20 s on 2 cores).
-    "main-job": Block(("algo=snes", "env=cartpole", "eim=true", "progress=false"), ("README.md",), cheap=False),
+    # The README's main job: what a user's first command prints (25 seeds x 1000 generations: a few seconds on 2 cores).
+    "main-job": Block(("algo=snes", "env=cartpole", "eim=true", "progress=false"), ("README.md",)),
     # The getting-started guide: the same config without and with mixing, 3 seeds x 30 generations.
     "quick-mixing": Block(
         ("-m", "algo=snes", "env=cartpole", "eim=false,true", "seeds=3", "generations=30", "progress=false", "experiment=first"),
         ("docs/getting-started.md",),
-        cheap=True,
     ),  # fmt: skip
 }
 
@@ -74,7 +96,61 @@ def printed(name: str) -> str:
         return proc.stdout.replace(f"{tmp}/", "")
 
 
+def _run_imix(args, cwd: str) -> None:
+    import os
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p), "MPLBACKEND": "Agg"}
+    proc = subprocess.run([*_imix(), *args], capture_output=True, text=True, env=env, cwd=cwd)
+    if proc.returncode != 0:
+        raise RuntimeError(f"imix {' '.join(args)} failed: {proc.stderr.strip()[-500:]}")
+
+
+def figure_data(name: str, png_to: Path | None = None) -> str:
+    """The CSV of what figure ``name`` draws now, from its runs made afresh (and its PNG copied to ``png_to``)."""
+    import io
+    import shutil
+
+    from imix_cli.plotting.data import load_experiment
+    from imix_cli.plotting.figures import efficiency_curves, efficiency_groups
+
+    block = FIGURES[name]
+    with tempfile.TemporaryDirectory() as tmp:
+        results = f"{tmp}/results"
+        for args in block.runs:
+            _run_imix(["run", *args, f"results_dir={results}"], tmp)
+        if png_to is not None:
+            _run_imix(["plot", f"results_dir={results}", f"experiment={block.experiment}", "only=efficiency", "formats=png"], tmp)
+            shutil.copyfile(Path(results) / block.experiment / "figures" / f"efficiency_{block.env}.png", png_to)
+        log, curves = efficiency_curves(efficiency_groups(load_experiment(results, block.experiment, warn=lambda _: None), block.env))
+    out = io.StringIO()
+    out.write(f"# the curves of {block.png} ({'log' if log else 'linear'} x): population mean return per seed on a common grid of episodes\n")
+    out.write("run,episodes," + ",".join(f"seed_{k}" for k in range(max(len(m) for _, _, m in curves))) + "\n")
+    for group, x, matrix in curves:
+        for i, episodes in enumerate(x):
+            out.write(f"{group.name},{episodes:.6g}," + ",".join("" if v != v else f"{v:.6g}" for v in matrix[:, i]) + "\n")
+    return out.getvalue()
+
+
+def _sidecar(name: str) -> Path:
+    return ROOT / Path(FIGURES[name].png).with_suffix(".csv")
+
+
+def _machine() -> str:
+    """The machine an output's times were measured on: ``2-core AMD EPYC 7B13`` (the CPU's model, as Linux names it)."""
+    import os
+
+    model = platform.processor() or platform.machine()
+    try:
+        model = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{os.cpu_count()}-core {model}"
+
+
 def _provenance(name: str) -> str:
+    import os
+
+    load = os.getloadavg()[0]  # the 1-minute load average: how busy the machine was when the times were taken
     from imix_cli import __version__
 
     try:
@@ -87,7 +163,7 @@ def _provenance(name: str) -> str:
     command = "imix run " + " ".join(BLOCKS[name].command)
     return (
         f"*Printed by `{command}` (imix {__version__}, commit {commit}, Python {platform.python_version()}, numpy {numpy.__version__}, "
-        f"numba {numba.__version__}, {platform.machine()}); regenerate with `python -m imix_cli.commands.docs_numbers write {name}`.*"
+        f"numba {numba.__version__}, {platform.machine()}; times on a {_machine()}, load {load:.1f}); regenerate with `make docs-numbers`.*"
     )
 
 
@@ -106,9 +182,14 @@ def _comparable(output: str) -> str:
 
 def check(names=None) -> list[str]:
     """Problems (one line each; empty when the docs show what the code prints)."""
-    names = names or [n for n, b in BLOCKS.items() if b.cheap]
+    names = names or [*BLOCKS, *FIGURES]
     problems = []
     for name in names:
+        if name in FIGURES:
+            sidecar = _sidecar(name)
+            if not sidecar.exists() or sidecar.read_text() != figure_data(name):
+                problems.append(f"{FIGURES[name].png}: the figure's data ({sidecar.relative_to(ROOT)}) differs from what its runs give now")
+            continue
         now = printed(name)
         for file in BLOCKS[name].files:
             shown = [out for n, _, _, out in _blocks_in((ROOT / file).read_text()) if n == name]
@@ -120,9 +201,13 @@ def check(names=None) -> list[str]:
 
 
 def write(names=None) -> list[Path]:
-    names = names or [n for n, b in BLOCKS.items() if b.cheap]
+    names = names or [*BLOCKS, *FIGURES]
     changed = []
     for name in names:
+        if name in FIGURES:
+            _sidecar(name).write_text(figure_data(name, png_to=ROOT / FIGURES[name].png))
+            changed += [ROOT / FIGURES[name].png, _sidecar(name)]
+            continue
         now = printed(name)
         for file in BLOCKS[name].files:
             path = ROOT / file
@@ -137,8 +222,8 @@ def write(names=None) -> list[Path]:
 
 
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in ("check", "write") or any(n not in BLOCKS for n in argv[1:]):
-        print(f"usage: python -m imix_cli.commands.docs_numbers check|write [{'|'.join(BLOCKS)} ...]", file=sys.stderr)
+    if not argv or argv[0] not in ("check", "write") or any(n not in BLOCKS and n not in FIGURES for n in argv[1:]):
+        print(f"usage: python -m imix_cli.commands.docs_numbers check|write [{'|'.join([*BLOCKS, *FIGURES])} ...]", file=sys.stderr)
         return 2
     if argv[0] == "write":
         for path in write(argv[1:]):

@@ -334,7 +334,7 @@ def efficiency_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
     :data:`LOG_X_RATIO` or more (mixing's curves would otherwise sit in the leftmost few per cent)."""
     groups = _es_main_groups(exp)
     for env in sorted({g.env for g in groups}):
-        yield f"efficiency_{slug(env)}", _efficiency_overlay(exp, opts, env, [g for g in groups if g.env == env])
+        yield f"efficiency_{slug(env)}", _efficiency_overlay(exp, opts, env, efficiency_groups(exp, env))
 
 
 #: Episode counts of the runs differing by this factor or more: the efficiency figure's x axis is logarithmic.
@@ -344,17 +344,29 @@ LOG_X_RATIO = 4.0
 MIXING_LINESTYLES = {"none": (0, (4, 2)), "im": "-.", "eim": "-"}
 
 
-def _efficiency_overlay(exp, opts, env, groups) -> Figure:
+def efficiency_curves(groups) -> tuple[bool, list]:
+    """The data an efficiency figure draws: whether its x axis is logarithmic, and per group ``(group, x,
+    matrix)``, each seed's population mean return held on the common grid ``x`` of episodes evaluated
+    (a row per seed). ``python -m imix_cli.commands.docs_numbers`` writes it next to the README's figure."""
     finals = [max(f["evaluations"].iloc[-1] for f in g.frames()) for g in groups]
     firsts = [min(f["evaluations"].iloc[0] for f in g.frames()) for g in groups]
     log = min(finals) > 0 and min(firsts) > 0 and max(finals) / min(finals) >= LOG_X_RATIO
+    return log, [(group, *align_on_grid(group, "evaluations", "mean_score", log=log)) for group in groups]
+
+
+def efficiency_groups(exp: Experiment, env: str) -> list:
+    """The runs the efficiency figure of ``env`` overlays (the main groups: no grid-search points)."""
+    return [g for g in _es_main_groups(exp) if g.env == env]
+
+
+def _efficiency_overlay(exp, opts, env, groups) -> Figure:
+    log, curves = efficiency_curves(groups)
     fig = new_figure(6.6, 4.2)
     ax = fig.subplots()
     common = common_settings(groups)
     threshold = opts.thresholds.get(env)
     handles = []
-    for group in groups:
-        x, matrix = align_on_grid(group, "evaluations", "mean_score", log=log)
+    for group, x, matrix in curves:
         label = own_settings_label(group, common, with_mixing=True)
         style_ = MIXING_LINESTYLES.get(group.mixing, ":")
         handles.append(_draw_band(ax, x, matrix, algo_color(group.algo), label, opts.ci_level, linestyle=style_, clip=achievable_range(env, matrix)))

@@ -201,10 +201,22 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     groups = [g for g in groups if opts.thresholds.get(g.env) is not None]
     if not groups:
         return
+    stats = [threshold_stats(group, opts.thresholds[group.env], opts.ci_level) for group in groups]
+    # an env no seed reached (a short run: make reproduce-quick's 30 generations) would be a table of 0/n and –
+    unreached = sorted({g.env for g in groups} - {g.env for g, s in zip(groups, stats) if s["reached"]})
+    if unreached:
+        opts.warn(
+            "evaluations_to_threshold leaves out "
+            + ", ".join(f"{env} (no seed reached {opts.thresholds[env]:g})" for env in unreached)
+            + ": more generations=, or a lower threshold.<env>="
+        )
+    kept = [(g, s) for g, s in zip(groups, stats) if g.env not in unreached]
+    if not kept:
+        return
+    groups = [g for g, _ in kept]
     records = []
-    for group in groups:
+    for group, s in kept:
         threshold = opts.thresholds[group.env]
-        s = threshold_stats(group, threshold, opts.ci_level)
         records.append(
             {
                 "env": group.env,
