@@ -11,25 +11,8 @@ from imix_cli.registry import BUILTIN_ENVS, CONTINUOUS_BUILTIN_ENVS, ENV_SPECS
 from imix_cli.running.config_checks import ConfigError, as_bool, as_float, as_int, as_name, env_of, first_line, is_number, seeds_of, workers_and_experiment
 from imix_cli.running.run_spec import ES_ONLY_KEYS, RunSpec
 
+
 #: The one line algo=ddpg gives where its extra is not installed (a plain `make install` leaves it out).
-DDPG_EXTRA_HINT = 'pip install torch==2.13.0 "imix-cli[ddpg]" (or make install-all)'
-
-
-def _missing_ddpg_modules() -> list[str]:
-    """torch and stable-baselines3 are looked up, not imported (importing torch takes seconds)."""
-    import importlib.util
-
-    missing = []
-    for module in ("torch", "stable_baselines3"):
-        try:
-            found = importlib.util.find_spec(module) is not None
-        except (ImportError, ValueError):  # ValueError: sys.modules holds None for it (import blocked)
-            found = False
-        if not found:
-            missing.append(module)
-    return missing
-
-
 def ddpg_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
     """algo=ddpg: ES keys are ignored; ``total_steps`` (null: the algo's per-env default) is the budget."""
     env_name, env_id, max_steps = env_of(env_cfg)
@@ -47,9 +30,6 @@ def ddpg_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str
     if total < episode_cap:
         raise ConfigError(f"total_steps={total}: must be >= the episode cap of {episode_cap} steps, so that every seed finishes an episode")
     workers, experiment = workers_and_experiment(cfg, launcher)
-    missing = _missing_ddpg_modules()
-    if missing:  # with the config's checks (a wrong setting is named first), so that nothing, no run folder, is written before this line
-        raise ConfigError(f"algo=ddpg needs the ddpg extra ({' and '.join(missing)} not installed): {DDPG_EXTRA_HINT}")
     algo_stored = {k: v for k, v in algo_cfg.items() if k not in ("generations", "default_total_steps")}
     config = {k: v for k, v in cfg.items() if k not in ES_ONLY_KEYS}
     config.update(algo=algo_stored, total_steps=total, mixing="none")

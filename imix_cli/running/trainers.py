@@ -46,7 +46,13 @@ class Trainer:
         as a 40-line traceback, after the run folder was made."""
         import importlib.util
 
-        missing = [requirement for module, requirement in self.needs if importlib.util.find_spec(module) is None]
+        def found(module: str) -> bool:
+            try:
+                return importlib.util.find_spec(module) is not None
+            except (ImportError, ValueError):  # ValueError: sys.modules holds None for it (an import blocked)
+                return False
+
+        missing = [requirement for module, requirement in self.needs if not found(module)]
         return f"algo=ddpg needs {' and '.join(missing)}, not installed: {self.install}" if missing else None
 
 
