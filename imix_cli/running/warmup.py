@@ -184,6 +184,11 @@ def warm_all(workers: int | None = None) -> int:
 
 
 if __name__ == "__main__":
+    # Through the module's own name: the compile groups are pickled to spawned processes by reference, and the
+    # processes imix starts never import the parent's __main__ (imix_cli.processes.spawn_context), where they
+    # would otherwise be looked up (`make install` failed: "Can't pickle <function _mixing_group>").
+    from imix_cli.running import warmup as _warmup
+
     started = time.perf_counter()
-    compiled = warm_all()
+    compiled = _warmup.warm_all()
     print(f"imix: {compiled} group(s) of compiled kernels written to numba's cache in {time.perf_counter() - started:.0f} s", file=sys.stderr)
