@@ -13,11 +13,14 @@
 
 import numpy as np
 import pytest
+from conftest import extra_installed  # noqa: E402
 
-jax = pytest.importorskip("jax")
-evosax_algorithms = pytest.importorskip("evosax.algorithms")
+pytestmark = pytest.mark.peers  # jax and evosax (the peers extra: evosax's own extra has no gymnax, these tests need none)
 
-import jax.numpy as jnp  # noqa: E402
+if extra_installed("peers"):  # collected, and skipped by the marker, without them
+    import evosax.algorithms as evosax_algorithms
+    import jax
+    import jax.numpy as jnp
 
 import imix_cli  # noqa: E402
 from imix_cli.adapters.checkpoint import load_mixing, save_mixing  # noqa: E402

@@ -35,6 +35,9 @@ LAYERS = [
         "writing",
         "ddpg",
         "ddpg.settings",
+        "adapters",  # other libraries' ES seen as imix's (pycma, evosax): they read distributions only
+        "adapters.pycma",
+        "adapters.evosax",
     ],
     [
         "generation",
@@ -51,6 +54,7 @@ LAYERS = [
         "running.checkpoints",
         "running.policy_files",
         "ddpg.agent",
+        "adapters.checkpoint",
     ],
     ["running.config_checks", "running.run_spec", "running.es_config", "ddpg.config", "running.config"],
     [

@@ -67,9 +67,17 @@ def test_a_continued_seed_replaces_what_a_killed_process_logged_after_its_last_s
     _assert_same_as_csv(scalars, read_run_csv(run_dir / "seed_0.csv"))
 
 
+@pytest.mark.tensorboard
 def test_logger_is_not_part_of_a_runs_identity(tmp_path):
-    _run(tmp_path, 2)
-    _run(tmp_path, 2, logger="tensorboard")  # same run folder: the finished seeds are simply skipped
+    """A tracker only copies the CSV's rows: the same run with logger=tensorboard is the same run folder, whose
+    finished seeds are skipped (not re-run, not refused as another config)."""
+    first = _run(tmp_path, 2)
+    (folder,) = [p for p in (tmp_path / "tb").iterdir() if p.is_dir()]
+    before = {p.name: p.read_bytes() for p in folder.glob("seed_*.csv")}
+    second = _run(tmp_path, 2, logger="tensorboard")
+    assert [p for p in (tmp_path / "tb").iterdir() if p.is_dir()] == [folder]
+    assert {p.name: p.read_bytes() for p in folder.glob("seed_*.csv")} == before and len(before) == 2
+    assert first.equals(second)
 
 
 def test_a_bad_or_missing_logger_is_one_line_before_anything_runs(tmp_path):
