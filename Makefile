@@ -171,3 +171,12 @@ reproduce-ars:  ## ARS study (imix ARS, ARS + EIM, sb3-contrib ARS on Swimmer/Ho
 	$(PY) -m imix_cli.bench.ars_peer --envs halfcheetah --seeds $(ARS_SEEDS) --episodes $$((64 * $(ARS_HALFCHEETAH_GENERATIONS))) --eval-every 1 --eval-episodes 3 --experiment $(ARS_EXPERIMENT)
 	$(PY) -m imix_cli.bench.ars_peer --envs walker2d --seeds $(ARS_SEEDS) --episodes $$((80 * $(ARS_WALKER2D_GENERATIONS))) --eval-every 1 --eval-episodes 3 --experiment $(ARS_EXPERIMENT)
 	$(PY) -m imix_cli.plotting.ars experiment=$(ARS_EXPERIMENT)
+
+# Reuse on tasks nobody tuned (docs/research/bias.md; benchmarks/untuned_tasks.py): every built-in ES without
+# mixing and with the default EIM on six gymnasium tasks no preset covers (classic control and MuJoCo: the
+# mujoco extra), population 20, 150 generations, 5 seeds; then the 100-episode evaluation and the table.
+# Hours on a quiet 2-core machine; finished runs are skipped, so an interrupted benchmark resumes.
+.PHONY: untuned
+untuned:  ## the untuned-tasks benchmark (issue 35) into results/untuned/ and its table
+	$(PY) benchmarks/untuned_tasks.py run
+	$(PY) benchmarks/untuned_tasks.py table
