@@ -149,8 +149,9 @@ A minimal refresh: why every generation evaluates at least ``min_fresh`` members
 When the distribution stops moving, p_new = p_old and every rule above keeps every old
 member (rule 1 accepts with probability 1, rule 2 with 0): the generation is the previous
 one, its returns are the stored ones, and an ES whose update is a function of its members
-and their returns (CEM, CMA-ES's mean and covariance, ARS) makes the same update again --
-a fixed point in which nothing is searched. Measured: CEM + ``exact`` on a noise-free 10-d
+and their returns (CEM, CMA-ES's mean and covariance) makes the same update again -- a fixed
+point in which nothing is searched. (ARS's mirrored pairs need no refresh: every mirror is
+fresh, so :mod:`imix_cli.mirrored` does not apply it.) Measured: CEM + ``exact`` on a noise-free 10-d
 sphere (N = 20, 300 generations) reused every member in 98-145 generations, runs of up to
 78; on Rastrigin one seed froze for 263 generations at f = -140 (issue 35's notes).
 
