@@ -58,11 +58,16 @@ install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluste
 # its extra a marked test is skipped, so `make test` passes after a plain `make install`.
 EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs
 
+# The suite runs on every core (pytest-xdist, `-n auto`; TEST_WORKERS=0 runs it in one process): its tests
+# are independent (each writes below its own tmp_path and checks only the processes it started).
+TEST_WORKERS ?= auto
+XDIST = $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS))
+
 test:  ## the whole test suite, slow end-to-end tests included (tests of extras not installed are skipped; the warm-up's in test-install)
-	$(PY) -m pytest -q -m "not install"
+	$(PY) -m pytest -q $(XDIST) -m "not install"
 
 test-fast:  ## day-to-day: every test not marked slow
-	$(PY) -m pytest -q -m "not slow and not install"
+	$(PY) -m pytest -q $(XDIST) -m "not slow and not install"
 
 test-install:  ## what a fresh install gives: the warm-up's cold compiles, every README and --help command as shown (minutes of CPU; CI runs it once)
 	$(PY) -m pytest -q -m install

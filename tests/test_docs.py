@@ -142,7 +142,7 @@ def test_no_development_log_words_in_readme_or_docs():
     assert found == []
 
 
-@pytest.mark.slow  # the main job, the getting-started sweep and the first-steps figure's runs
+@pytest.mark.install  # the main job, the getting-started sweep and the first-steps figure's runs: a README-as-shown check, CI runs it once (make test-install)
 def test_the_docs_show_what_the_code_prints():
     from imix_cli.commands.docs_numbers import check
 

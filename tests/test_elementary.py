@@ -16,6 +16,7 @@ and 268 in tanh), log's reduction r = z invc - 1 (397,968), sin's table step (si
 fused product decides a result: unfusing exp's r^2 (C2 + C3 r) term changed none of these inputs.
 """
 
+import functools
 import math
 import os
 import platform
@@ -46,6 +47,7 @@ def _glibc_236_fma() -> str | None:
 REFERENCE = pytest.mark.skipif(_glibc_236_fma() is not None, reason=f"reference unavailable: {_glibc_236_fma()}")
 
 
+@functools.cache  # one compilation per function: a loop that asks again gets the compiled one (was 150 compilations, ~50 s)
 def _elementwise(f):
     @njit
     def run(x):
