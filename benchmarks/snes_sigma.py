@@ -24,8 +24,9 @@ same members). The shadow changes nothing in the runs (its own random streams).
 
 Tasks: ``hash`` -- f(x) = sin(10^4 w.x), 20-d: noise-free (a member evaluated again returns the
 same number) but uninformative, so nothing but the loop can move sigma; ``sphere`` -- f = -|x|^2,
-20-d, started at the optimum; ``idp`` -- InvertedDoublePendulum-v5, 200-step cap, imix's default
-policy (the untuned benchmark's task; needs the mujoco extra). SNES at imix's defaults, popsize 20.
+20-d, started at the optimum; ``idp`` (InvertedDoublePendulum-v5, 200-step cap), ``pendulum``
+(Pendulum-v1), ``reacher`` (Reacher-v5) -- tasks of ``benchmarks/untuned_tasks.py`` with imix's default
+policy (MuJoCo ones need the mujoco extra). SNES at imix's defaults, popsize 20.
 """
 
 from __future__ import annotations
@@ -41,7 +42,9 @@ from imix_cli.algorithms.snes import SNES
 POPSIZE = 20
 #: task -> (generations, what it is)
 TASKS = {"hash": (300, "20-d sin(1e4 w.x), noise-free, uninformative"), "sphere": (300, "20-d -|x|^2 from its optimum"),
-         "idp": (150, "InvertedDoublePendulum-v5, cap 200")}  # fmt: skip
+         "idp": (150, "InvertedDoublePendulum-v5, cap 200"), "pendulum": (150, "Pendulum-v1"), "reacher": (150, "Reacher-v5")}  # fmt: skip
+#: the gymnasium tasks: name -> (id, env.max_steps or None for the env's own limit), as benchmarks/untuned_tasks.py runs them
+GYM = {"idp": ("InvertedDoublePendulum-v5", 200), "pendulum": ("Pendulum-v1", None), "reacher": ("Reacher-v5", None)}
 #: rule -> (variant, min_fresh, fresh returns, Adam beta1 on log sigma)
 RULES = {
     "none": (None, 0, False, None),
@@ -71,10 +74,10 @@ class RecordingSNES(SNES):
 
 def objective(task: str, stream: int):
     """(dim, f) with f(x) -> returns (maximised); ``stream`` seeds the episodes' resets."""
-    if task == "idp":
+    if task in GYM:
         from imix_cli.evaluation import GymEvaluator
 
-        env = GymEvaluator("InvertedDoublePendulum-v5", max_steps=200)
+        env = GymEvaluator(*GYM[task])
         rng = np.random.default_rng(stream)
 
         def episodes(x):
