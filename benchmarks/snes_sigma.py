@@ -18,9 +18,10 @@ coordinates) is compared with the gradient of a *shadow* generation: ``popsize``
 same distribution, evaluated on their own episodes and never told. Their difference is the bias of
 the told generation at the same (mu, sigma), whatever the path; its standard error is taken over
 blocks of 25 generations (the told gradients are correlated from one generation to the next: the
-same members). The shadow changes nothing in the runs (its own random streams).
+same members). The shadow changes nothing in the runs (its own random streams); ``--no-shadow`` leaves
+it out (final sigma only, half the episodes on a gymnasium task).
 
-    python benchmarks/snes_sigma.py [--tasks hash,idp] [--seeds 5] [--rules ...]
+    python benchmarks/snes_sigma.py [--tasks hash,idp] [--seeds 5] [--rules "none,exact,..."] [--no-shadow]
 
 Tasks: ``hash`` -- f(x) = sin(10^4 w.x), 20-d: noise-free (a member evaluated again returns the
 same number) but uninformative, so nothing but the loop can move sigma; ``sphere`` -- f = -|x|^2,
