@@ -129,9 +129,11 @@ def main(argv=None) -> int:
     for rule in rules:
         if rule not in RULES:
             parser.error(f"unknown rule {rule!r}; valid: {', '.join(RULES)}")
-    for task in args.tasks.split(","):
+    tasks = args.tasks.split(",")
+    for task in tasks:  # every name checked before anything runs
         if task not in TASKS:
             parser.error(f"unknown task {task!r}; valid: {', '.join(TASKS)}")
+    for task in tasks:
         generations = TASKS[task][0]
         print(f"\nSNES, {TASKS[task][1]}, popsize {POPSIZE}, {generations} generations, {args.seeds} seeds\n")
         print(
