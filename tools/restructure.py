@@ -189,9 +189,8 @@ class Rewriter:
             if name == old or name.startswith(old + "."):
                 if name == new or name.startswith(new + "."):  # already at its new place (a new name under its old one)
                     return None
-                if old in self.new and following is not None and f"{old}.{following}" in self.new:
-                    return None
-                if name != old and name in self.new:  # e.g. running.config.checks: a module of the new folder
+                after = name[len(old) + 1 :].split(".")[0] if name != old else following
+                if old in self.new and after is not None and f"{old}.{after}" in self.new:  # e.g. running.config.checks
                     return None
                 return new + name[len(old) :]
         return None
@@ -289,18 +288,24 @@ def rewrite_files() -> list[str]:
     rw, changed = Rewriter(), []
     for path in text_files():
         text = path.read_text()
-        new = rw.rewrite(text)
-        if path.name == "pyproject.toml":
+        if path.name == "pyproject.toml":  # its list of packages is made anew from the folders (a package name is no module's)
+            block = PACKAGES.search(text)
+            new = rw.rewrite(text[: block.start(1)]) + block.group(1) + rw.rewrite(text[block.end(1) :]) if block else rw.rewrite(text)
             new = list_packages(new)
+        else:
+            new = rw.rewrite(text)
         if new != text:
             path.write_text(new)
             changed.append(str(path.relative_to(ROOT)))
     return changed
 
 
+PACKAGES = re.compile(r"^packages = \[\n(.*?)^\]", re.MULTILINE | re.DOTALL)
+
+
 def list_packages(text: str) -> str:
     """pyproject's ``packages = [...]``: every package folder of imix_cli listed once, in path order."""
-    m = re.search(r"^packages = \[\n(.*?)^\]", text, re.MULTILINE | re.DOTALL)
+    m = PACKAGES.search(text)
     if not m:
         return text
     listed = re.findall(r'"([\w.]+)"', m.group(1))
