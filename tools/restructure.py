@@ -59,6 +59,13 @@ MOVES = [
     ("envs", "core/envs"),
     ("adapters/checkpoint.py", "running/files/mixing_checkpoint.py"),  # MixingES's checkpoint: a file, written by the one writer
     ("adapters", "core/adapters"),
+    ("ddpg/config.py", "running/config/ddpg.py"),  # the DDPG baseline: its keys with the run's config,
+    ("ddpg/seeds.py", "running/loop/ddpg_seeds.py"),  # its seeds with the run's loops,
+    ("ddpg", "core/ddpg"),  # its agent and settings with the numerical library
+    # below every layer that reads a command line's key=value settings (plot, bench, eval, render, status)
+    ("commands/keyvalue.py", "keyvalue.py"),
+    # the process `imix bench memory` measures runs the command line: it lives with it (bench never imports commands)
+    ("bench/memory_child.py", "commands/bench_memory_child.py"),
     # running/files: what a run reads and writes (CSV contract, checkpoints, policies, locks, trackers), one safe writer
     ("writing.py", "running/files/writing.py"),
     ("running/results.py", "running/files/results.py"),
@@ -85,7 +92,7 @@ MOVES = [
 #: Modules meant to stay where they are: the top of ``imix_cli/`` and of ``imix_cli/running/`` (the run itself:
 #: the seed grid, the processes, the run folder, the trainers, the warm-up, the summary).
 STAYS = {
-    "": {"__init__.py", "experiment.py", "messages.py"},
+    "": {"__init__.py", "experiment.py", "messages.py", "keyvalue.py"},
     "running": {"__init__.py", "runner.py", "pool.py", "trainers.py", "run_folder.py", "seed_checks.py", "summary.py", "warmup.py"},
 }
 
@@ -116,6 +123,25 @@ def dotted(path: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------- 1. moves
+def deepen(path: Path, levels: int) -> None:
+    """A module that moved ``levels`` folders deeper finds the repository's files ``levels`` parents further up:
+    ``Path(__file__).resolve().parents[2]`` becomes ``parents[3]`` (done once, when the module moves)."""
+    if levels and path.suffix == ".py":
+        text = path.read_text()
+        new = re.sub(r"(Path\(__file__\)(?:\.resolve\(\))?\.parents\[)(\d+)\]", lambda m: f"{m.group(1)}{int(m.group(2)) + levels}]", text)
+        if new != text:
+            path.write_text(new)
+
+
+def remove_if_empty(folder: Path) -> None:
+    """Remove ``folder`` (and its empty sub-folders) if no file but bytecode caches is left in it."""
+    if not folder.is_dir() or folder == ROOT / PACKAGE or any(p.is_file() and "__pycache__" not in p.parts for p in folder.rglob("*")):
+        return
+    for path in sorted(folder.rglob("*"), key=lambda p: len(p.parts), reverse=True):
+        path.unlink() if path.is_file() else path.rmdir()
+    folder.rmdir()
+
+
 def move_files() -> list[str]:
     """``git mv`` every row still at its old place; what was moved, as lines."""
     pkg, done = ROOT / PACKAGE, []
@@ -134,21 +160,16 @@ def move_files() -> list[str]:
                 target.parent.mkdir(parents=True, exist_ok=True)
                 git("mv", str(path.relative_to(ROOT)), str(target.relative_to(ROOT)))
                 done.append(f"moved {path.relative_to(ROOT)} -> {target.relative_to(ROOT)}")
-            for leftover in sorted(src.rglob("__pycache__"), reverse=True):
-                for f in leftover.iterdir():
-                    f.unlink()
-                leftover.rmdir()
-            for folder in sorted((p for p in src.rglob("*") if p.is_dir()), reverse=True):
-                if not any(folder.iterdir()):
-                    folder.rmdir()
-            if src.exists() and not any(src.iterdir()):
-                src.rmdir()
+                deepen(target, len(target.parts) - len(path.parts))
+            remove_if_empty(src)
         elif dst.exists():
             done.append(f"CONFLICT: {src.relative_to(ROOT)} and {dst.relative_to(ROOT)} both exist; merge them by hand")
         else:
             dst.parent.mkdir(parents=True, exist_ok=True)
             git("mv", str(src.relative_to(ROOT)), str(dst.relative_to(ROOT)))
             done.append(f"moved {src.relative_to(ROOT)} -> {dst.relative_to(ROOT)}")
+            deepen(dst, len(dst.parts) - len(src.parts))
+        remove_if_empty(src.parent)
     for folder, doc in NEW_PACKAGES.items():
         init = pkg / folder / "__init__.py"
         if not init.exists():
