@@ -63,7 +63,7 @@ _API = {
     "policy_action": "imix_cli.policies",
     "policy_output": "imix_cli.policies",
     "ConfigError": "imix_cli.running.config_checks",
-    "RunError": "imix_cli.running.run_folder",
+    "RunError": "imix_cli.messages",
 }
 
 __all__ = [*_API, "__version__"]

@@ -237,6 +237,16 @@ class ContinuousCartPoleEvaluator(_CompiledEvaluator):
         self._kernels.cartpole_episodes(params, seeds, self._sizes(), True, self.hard, self.max_steps, returns, steps, trace)
 
 
+#: The built-ins' compiled evaluators, ``env name -> (max_steps -> evaluator)``: one entry per
+#: :data:`imix_cli.registry.BUILTIN_ENVS` name (tests/test_registry.py checks the two agree).
+BUILTIN_EVALUATORS = {
+    "cartpole": CartPoleEvaluator,
+    "acrobot": AcrobotEvaluator,
+    "continuous_cartpole": lambda max_steps: ContinuousCartPoleEvaluator(False, max_steps),
+    "continuous_cartpole_hard": lambda max_steps: ContinuousCartPoleEvaluator(True, max_steps),
+}
+
+
 class UserEnvError(RuntimeError):
     """An env raised, or broke gymnasium's contract (an observation of the wrong shape, a reward that is no number):
     carries the env id and the first line of what it said, for the one line a command ends with
@@ -494,7 +504,7 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, b
     if key in BUILTIN_ENVS:
         if output != "tanh":
             raise ValueError(f"{key}: the built-in env's compiled episodes take output='tanh' only, got {output!r}")
-        builtin = ENV_SPECS[key].evaluator(max_steps)
+        builtin = BUILTIN_EVALUATORS[key](max_steps)
         if hidden != HIDDEN:
             builtin.hidden = hidden  # the compiled kernels read the layer sizes from it
         return builtin

@@ -163,84 +163,111 @@ class Plan:
         return int(np.count_nonzero(self.generation.source[self.evaluate] > 0))
 
 
-def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> Plan:
-    """Draw (or mix) the next generation of ``es`` and decide which members to evaluate."""
-    if getattr(es, "mirrored", False):  # mirrored pairs (ARS): anchors mixed, mirrors fresh (imix_cli.mirrored)
-        from imix_cli.mirrored import plan_mirrored
+class GenerationScheme:
+    """How the generations of an ES are drawn (or mixed), evaluated, told and archived: the polymorphic hook
+    behind :func:`plan_generation` and :func:`finish_generation`.
 
-        return plan_mirrored(es, archive, settings, rng)
-    dist, popsize = es.distribution, es.popsize
-    if settings.variant is None or not archive.generations:
-        g = Generation(es.ask(rng), np.zeros(popsize, np.int64), np.full(popsize, -1, np.int64), dist)
-    else:
-        g = mix(
-            dist,
-            archive.generations,
-            popsize,
-            rng,
-            variant=settings.variant,
-            alpha=settings.alpha,
-            eim_generations=settings.eim_generations,
-            min_fresh=settings.min_fresh,
-        )
-    age = np.zeros(popsize, dtype=np.int64)
-    for k, ages in enumerate(archive.ages, start=1):
-        from_k = g.source == k
-        age[from_k] = ages[g.index[from_k]] + 1
-    evaluate = g.source == 0
-    reused = np.flatnonzero(~evaluate)
-    if settings.reeval_age is not None:
-        evaluate[reused] |= age[reused] > settings.reeval_age
-    if settings.reeval_prob > 0.0:
-        evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
-    if settings.reeval_count > 0:
-        waiting = reused[~evaluate[reused]]
-        evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
-    age[evaluate] = 0
-    probes = es.probes(rng)  # never mixed, never archived: not members
-    return Plan(g, np.flatnonzero(evaluate), age, probes=probes)
+    This class is the scheme of an ES whose members are independent draws of its distribution (every ES of
+    the paper): the whole generation is mixed and archived. An ES whose members are built otherwise names
+    its own scheme in its ``generation_scheme`` attribute -- ARS's mirrored pairs,
+    :data:`imix_cli.mirrored.MIRRORED_PAIRS`, mix the anchors and mirror them -- so this module names no ES
+    and no ES is special-cased here.
+    """
+
+    def plan(self, es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> Plan:
+        """Draw (or mix) the next generation of ``es`` and decide which members to evaluate."""
+        dist, popsize = es.distribution, es.popsize
+        if settings.variant is None or not archive.generations:
+            g = Generation(es.ask(rng), np.zeros(popsize, np.int64), np.full(popsize, -1, np.int64), dist)
+        else:
+            g = mix(
+                dist,
+                archive.generations,
+                popsize,
+                rng,
+                variant=settings.variant,
+                alpha=settings.alpha,
+                eim_generations=settings.eim_generations,
+                min_fresh=settings.min_fresh,
+            )
+        age = np.zeros(popsize, dtype=np.int64)
+        for k, ages in enumerate(archive.ages, start=1):
+            from_k = g.source == k
+            age[from_k] = ages[g.index[from_k]] + 1
+        evaluate = g.source == 0
+        reused = np.flatnonzero(~evaluate)
+        if settings.reeval_age is not None:
+            evaluate[reused] |= age[reused] > settings.reeval_age
+        if settings.reeval_prob > 0.0:
+            evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
+        if settings.reeval_count > 0:
+            waiting = reused[~evaluate[reused]]
+            evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
+        age[evaluate] = 0
+        probes = es.probes(rng)  # never mixed, never archived: not members
+        return Plan(g, np.flatnonzero(evaluate), age, probes=probes)
+
+    def finish(self, es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:
+        """Assemble the generation's fitness (stored returns + ``returns`` of ``plan.evaluate``), tell
+        the ES, archive the generation; return the fitness (one per member). ``returns`` are those of
+        ``plan.points``: the members' first, then the probes' (told to the ES apart)."""
+        g = plan.generation
+        returns = np.asarray(returns, dtype=np.float64).reshape(-1)
+        probe = {} if plan.probes is None else {"probe_fitness": returns[plan.evaluate.size :]}
+        returns = returns[: plan.evaluate.size]
+        fitness = np.empty(g.samples.shape[0])
+        for k, stored in enumerate(archive.returns, start=1):  # reused members keep their stored return
+            from_k = g.source == k
+            fitness[from_k] = stored[g.index[from_k]]
+        reused = g.source > 0
+        again = plan.evaluate[reused[plan.evaluate]]  # reused members evaluated again: (stored, fresh) pairs
+        stored_again = fitness[again]
+        fitness[plan.evaluate] = returns  # ... unless evaluated again
+        told_fitness = fitness
+        if settings.depth:  # the (stored, fresh) pairs, older ones forgotten
+            ok = np.isfinite(stored_again) & np.isfinite(fitness[again])
+            a, b = stored_again[ok], fitness[again][ok]
+            new = np.array([a.size, lk.dot(np.ones(a.size), a), lk.dot(np.ones(b.size), b), lk.dot(a, a), lk.dot(a, b)]) if a.size else 0.0
+            archive.pairs = PAIR_MEMORY * archive.pairs + new
+        if settings.reeval_count > 0:
+            line = calibration(archive.pairs)
+            kept = reused & np.isfinite(fitness)  # a non-finite stored return stays what it is (ranked last)
+            kept[plan.evaluate] = False
+            if line is not None and kept.any():
+                told_fitness = fitness.copy()
+                told_fitness[kept] = line[0] + line[1] * fitness[kept]
+        told = getattr(es, "generation", None)
+        es.tell(g.samples, told_fitness, **probe)
+        if told is not None and es.generation > told:  # the weights of this generation's members in the move ("conditional" mixing)
+            g.mean_weights = getattr(es, "mean_weights", None)
+        depth = settings.depth
+        if depth:
+            archive.generations = [g, *archive.generations][:depth]
+            archive.returns = [fitness, *archive.returns][:depth]
+            archive.ages = [plan.age, *archive.ages][:depth]
+        return fitness
+
+    def archived_rows(self, es) -> int:
+        """Rows of every archived generation (what a checkpoint's archive is checked against): the whole population."""
+        return es.popsize
+
+
+#: The scheme of an ES of independent members, the default of every ES that names none.
+INDEPENDENT = GenerationScheme()
+
+
+def scheme_of(es) -> GenerationScheme:
+    """The generation scheme of ``es``: its ``generation_scheme`` (a class attribute of imix's ES, None for
+    independent members; an adapted library ES may set it per instance), else :data:`INDEPENDENT`."""
+    return getattr(es, "generation_scheme", None) or INDEPENDENT
+
+
+def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> Plan:
+    """Draw (or mix) the next generation of ``es`` and decide which members to evaluate (by its scheme)."""
+    return scheme_of(es).plan(es, archive, settings, rng)
 
 
 def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:
-    """Assemble the generation's fitness (stored returns + ``returns`` of ``plan.evaluate``), tell
-    the ES, archive the generation; return the fitness (one per member). ``returns`` are those of
-    ``plan.points``: the members' first, then the probes' (told to the ES apart)."""
-    if getattr(es, "mirrored", False):
-        from imix_cli.mirrored import finish_mirrored
-
-        return finish_mirrored(es, archive, settings, plan, returns)
-    g = plan.generation
-    returns = np.asarray(returns, dtype=np.float64).reshape(-1)
-    probe = {} if plan.probes is None else {"probe_fitness": returns[plan.evaluate.size :]}
-    returns = returns[: plan.evaluate.size]
-    fitness = np.empty(g.samples.shape[0])
-    for k, stored in enumerate(archive.returns, start=1):  # reused members keep their stored return
-        from_k = g.source == k
-        fitness[from_k] = stored[g.index[from_k]]
-    reused = g.source > 0
-    again = plan.evaluate[reused[plan.evaluate]]  # reused members evaluated again: (stored, fresh) pairs
-    stored_again = fitness[again]
-    fitness[plan.evaluate] = returns  # ... unless evaluated again
-    told_fitness = fitness
-    if settings.depth:  # the (stored, fresh) pairs, older ones forgotten
-        ok = np.isfinite(stored_again) & np.isfinite(fitness[again])
-        a, b = stored_again[ok], fitness[again][ok]
-        new = np.array([a.size, lk.dot(np.ones(a.size), a), lk.dot(np.ones(b.size), b), lk.dot(a, a), lk.dot(a, b)]) if a.size else 0.0
-        archive.pairs = PAIR_MEMORY * archive.pairs + new
-    if settings.reeval_count > 0:
-        line = calibration(archive.pairs)
-        kept = reused & np.isfinite(fitness)  # a non-finite stored return stays what it is (ranked last)
-        kept[plan.evaluate] = False
-        if line is not None and kept.any():
-            told_fitness = fitness.copy()
-            told_fitness[kept] = line[0] + line[1] * fitness[kept]
-    told = getattr(es, "generation", None)
-    es.tell(g.samples, told_fitness, **probe)
-    if told is not None and es.generation > told:  # the weights of this generation's members in the move ("conditional" mixing)
-        g.mean_weights = getattr(es, "mean_weights", None)
-    depth = settings.depth
-    if depth:
-        archive.generations = [g, *archive.generations][:depth]
-        archive.returns = [fitness, *archive.returns][:depth]
-        archive.ages = [plan.age, *archive.ages][:depth]
-    return fitness
+    """Tell ``es`` its generation's fitness (stored returns + ``returns`` of ``plan.points``) and archive the
+    generation, by its scheme; return the fitness (one per member)."""
+    return scheme_of(es).finish(es, archive, settings, plan, returns)

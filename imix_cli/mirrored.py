@@ -39,8 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imix_cli.algorithms.ars import mirror
-from imix_cli.generation import Archive, MixingSettings, Plan
+from imix_cli.generation import Archive, GenerationScheme, MixingSettings, Plan
 from imix_cli.mixing import Generation, mix
 
 
@@ -67,40 +66,56 @@ def mix_pairs(dist, archive: list, directions: int, rng: np.random.Generator, va
     return anchors, np.concatenate([anchors.samples, mirror(anchors.samples, dist.mean)])
 
 
-def plan_mirrored(es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> MirroredPlan:
-    """:func:`imix_cli.generation.plan_generation` for an ES of mirrored pairs (``es.mirrored``)."""
-    dist, n = es.distribution, es.directions
-    anchors, members = mix_pairs(dist, archive.generations, n, rng, settings.variant, settings.alpha, settings.eim_generations)
-    source = np.concatenate([anchors.source, np.zeros(n, np.int64)])
-    index = np.concatenate([anchors.index, np.full(n, -1, np.int64)])
-    generation = Generation(members, source, index, dist, anchors.trials)
-    age = np.zeros(2 * n, dtype=np.int64)
-    for k, ages in enumerate(archive.ages, start=1):
-        from_k = source == k
-        age[from_k] = ages[index[from_k]] + 1
-    evaluate = source == 0
-    reused = np.flatnonzero(~evaluate)
-    if settings.reeval_age is not None:
-        evaluate[reused] |= age[reused] > settings.reeval_age
-    if settings.reeval_prob > 0.0:
-        evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
-    age[evaluate] = 0
-    return MirroredPlan(generation, np.flatnonzero(evaluate), age, anchors=anchors)
+def mirror(members: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """The mirror images 2m - theta of ``members`` through ``mean``: the other half of each pair."""
+    return 2.0 * np.asarray(mean)[None, :] - members
 
 
-def finish_mirrored(es, archive: Archive, settings: MixingSettings, plan: MirroredPlan, returns) -> np.ndarray:
-    """:func:`imix_cli.generation.finish_generation` for mirrored pairs: stored + new returns, tell,
-    archive the anchors (and their returns and ages); return the 2N members' fitness."""
-    g, n = plan.generation, plan.anchors.samples.shape[0]
-    fitness = np.empty(g.samples.shape[0])
-    for k, stored in enumerate(archive.returns, start=1):
-        from_k = g.source == k
-        fitness[from_k] = stored[g.index[from_k]]
-    fitness[plan.evaluate] = returns
-    es.tell(g.samples, fitness)
-    depth = settings.depth
-    if depth:
-        archive.generations = [plan.anchors, *archive.generations][:depth]
-        archive.returns = [fitness[:n].copy(), *archive.returns][:depth]
-        archive.ages = [plan.age[:n].copy(), *archive.ages][:depth]
-    return fitness
+class MirroredPairs(GenerationScheme):
+    """The generation scheme of an ES of N mirrored pairs ``[anchors; mirrors]`` (``es.directions`` = N):
+    the anchors are mixed (module docstring), the mirrors always fresh, and only the anchors archived."""
+
+    def plan(self, es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> MirroredPlan:
+        """N pairs: the anchors mixed from the archived anchors, the mirrors fresh; which members to evaluate."""
+        dist, n = es.distribution, es.directions
+        anchors, members = mix_pairs(dist, archive.generations, n, rng, settings.variant, settings.alpha, settings.eim_generations)
+        source = np.concatenate([anchors.source, np.zeros(n, np.int64)])
+        index = np.concatenate([anchors.index, np.full(n, -1, np.int64)])
+        generation = Generation(members, source, index, dist, anchors.trials)
+        age = np.zeros(2 * n, dtype=np.int64)
+        for k, ages in enumerate(archive.ages, start=1):
+            from_k = source == k
+            age[from_k] = ages[index[from_k]] + 1
+        evaluate = source == 0
+        reused = np.flatnonzero(~evaluate)
+        if settings.reeval_age is not None:
+            evaluate[reused] |= age[reused] > settings.reeval_age
+        if settings.reeval_prob > 0.0:
+            evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
+        age[evaluate] = 0
+        return MirroredPlan(generation, np.flatnonzero(evaluate), age, anchors=anchors)
+
+    def finish(self, es, archive: Archive, settings: MixingSettings, plan: MirroredPlan, returns) -> np.ndarray:
+        """Stored + new returns, tell,
+        archive the anchors (and their returns and ages); return the 2N members' fitness."""
+        g, n = plan.generation, plan.anchors.samples.shape[0]
+        fitness = np.empty(g.samples.shape[0])
+        for k, stored in enumerate(archive.returns, start=1):
+            from_k = g.source == k
+            fitness[from_k] = stored[g.index[from_k]]
+        fitness[plan.evaluate] = returns
+        es.tell(g.samples, fitness)
+        depth = settings.depth
+        if depth:
+            archive.generations = [plan.anchors, *archive.generations][:depth]
+            archive.returns = [fitness[:n].copy(), *archive.returns][:depth]
+            archive.ages = [plan.age[:n].copy(), *archive.ages][:depth]
+        return fitness
+
+    def archived_rows(self, es) -> int:
+        """Rows of every archived generation: the N anchors."""
+        return es.directions
+
+
+#: The scheme of ARS (and of an adapted library ES of antithetic pairs): ``generation_scheme = MIRRORED_PAIRS``.
+MIRRORED_PAIRS = MirroredPairs()

@@ -6,17 +6,20 @@ plot threshold, the batched evaluator, ...); the mixing variants (``im_variant``
 the :class:`imix_cli.mixing.Variant` objects of :data:`imix_cli.mixing.VARIANT_SPECS`, each naming the
 scheme that offers it and its value there. Nothing else keeps a list of names:
 :mod:`imix_cli.running.config` validates against these records, :mod:`imix_cli.algorithms` builds an
-ES from :data:`ALGORITHM_SPECS`, :mod:`imix_cli.evaluation` builds a built-in evaluator from
+ES from :data:`ALGORITHM_SPECS`, :mod:`imix_cli.evaluation` sizes a built-in's evaluator from
 :data:`ENV_SPECS`, and the figures and tables take their labels from here.
 
-This module imports nothing heavy (no numpy, no gymnasium): each ES class and each built-in
-evaluator is reached through a small loader function below (``_openes``, ``_cartpole_evaluator``,
-...) that imports its module when called, so a reader (or an IDE) follows the import from here.
+This module imports nothing heavy (no numpy, no gymnasium): each ES class is reached through a
+small loader function below (``_openes``, ...) that imports its module when called, so a reader
+(or an IDE) follows the import from here. The environments' records are data only: the evaluation
+layer, which reads them, names each built-in's compiled evaluator
+(:data:`imix_cli.evaluation.BUILTIN_EVALUATORS`), so this module never imports it.
 
 Adding an evolution strategy: one module under ``imix_cli/algorithms/`` (a subclass of
 :class:`~imix_cli.algorithms.base.EvolutionStrategy`), one :class:`AlgorithmSpec` below and
-``conf/algo/<name>.yaml``. Adding an environment with a batched evaluator: the evaluator, one
-:class:`EnvSpec` below and ``conf/env/<name>.yaml``; a gymnasium id needs no entry at all
+``conf/algo/<name>.yaml``. Adding an environment with a batched evaluator: the evaluator and its
+entry in :data:`imix_cli.evaluation.BUILTIN_EVALUATORS`, one :class:`EnvSpec` below (``builtin=True``)
+and ``conf/env/<name>.yaml``; a gymnasium id needs no entry at all
 (``env=gym env.id=...``), an entry only gives it a config name, a label and a threshold.
 
 The paper's hyper-parameters shared by every ES are the defaults of
@@ -152,31 +155,6 @@ def algo_label(name: str) -> str:
 
 
 # ---------------------------------------------------------------------------- environments
-# The built-ins' batched evaluators, ``max_steps -> evaluator``, each imported when called (numba, the kernels).
-def _cartpole_evaluator(max_steps: int | None):
-    from imix_cli.evaluation import CartPoleEvaluator
-
-    return CartPoleEvaluator(max_steps)
-
-
-def _acrobot_evaluator(max_steps: int | None):
-    from imix_cli.evaluation import AcrobotEvaluator
-
-    return AcrobotEvaluator(max_steps)
-
-
-def _continuous_cartpole_evaluator(max_steps: int | None):
-    from imix_cli.evaluation import ContinuousCartPoleEvaluator
-
-    return ContinuousCartPoleEvaluator(False, max_steps)
-
-
-def _continuous_cartpole_hard_evaluator(max_steps: int | None):
-    from imix_cli.evaluation import ContinuousCartPoleEvaluator
-
-    return ContinuousCartPoleEvaluator(True, max_steps)
-
-
 @dataclass(frozen=True)
 class EnvSpec:
     """An environment with a config name (``env=<name>``, ``conf/env/<name>.yaml``).
@@ -195,10 +173,10 @@ class EnvSpec:
         The return that counts as solved in ``imix plot``'s to-threshold tables and figures.
     continuous : bool
         Continuous (Box) actions; the built-ins algo=ddpg accepts.
-    evaluator : callable or None
-        ``evaluator(max_steps)`` builds the batched (compiled) evaluator of a built-in; None:
-        gymnasium's own env through the generic evaluator (MuJoCo), and runs are named and
-        labelled by the gymnasium id.
+    builtin : bool
+        A built-in: its batched (compiled) evaluator is the one :data:`imix_cli.evaluation.BUILTIN_EVALUATORS`
+        holds under its name; False: gymnasium's own env through the generic evaluator (MuJoCo), and runs
+        are named and labelled by the gymnasium id.
     policy_dims : (int, int) or None
         A built-in's observation size and policy output size (known without making the env).
     step_reward : (float, float) or None
@@ -215,15 +193,10 @@ class EnvSpec:
     max_steps: int
     threshold: float | None = None
     continuous: bool = False
-    evaluator: Callable | None = field(default=None, compare=False)
+    builtin: bool = False
     policy_dims: tuple[int, int] | None = None
     step_reward: tuple[float, float] | None = None
     mujoco: bool = False
-
-    @property
-    def builtin(self) -> bool:
-        """Evaluated by imix's batched evaluator (not through gymnasium)."""
-        return self.evaluator is not None
 
 
 _CARTPOLE_THRESHOLD = 195.0  # CartPole-v0's reward threshold (paper section 4.3: also the continuous ones')
@@ -234,15 +207,15 @@ ENV_SPECS: dict[str, EnvSpec] = {
     for spec in (
         # CartPole-v0 semantics: CartPole-v1 dynamics (compiled), 200 steps, threshold 195
         EnvSpec("cartpole", "CartPole-v0", "CartPole", 200, _CARTPOLE_THRESHOLD,
-                evaluator=_cartpole_evaluator, policy_dims=(4, 2), step_reward=(0.0, 1.0)),
+                builtin=True, policy_dims=(4, 2), step_reward=(0.0, 1.0)),
         # Acrobot-v1 dynamics capped at 200 steps as in the paper (Acrobot-v1 itself allows 500)
         EnvSpec("acrobot", "Acrobot-v1", "Acrobot", 200, -100.0,
-                evaluator=_acrobot_evaluator, policy_dims=(6, 3), step_reward=(-1.0, 0.0)),
+                builtin=True, policy_dims=(6, 3), step_reward=(-1.0, 0.0)),
         EnvSpec("continuous_cartpole", "imix/ContinuousCartPole-v0", "ContinuousCartPole", 200, _CARTPOLE_THRESHOLD,
-                continuous=True, evaluator=_continuous_cartpole_evaluator, policy_dims=(4, 1), step_reward=(0.0, 1.0)),
+                continuous=True, builtin=True, policy_dims=(4, 1), step_reward=(0.0, 1.0)),
         # the sparse (Hard) variant: its episode's sum is the same return as the dense one's
         EnvSpec("continuous_cartpole_hard", "imix/ContinuousCartPoleHard-v0", "ContinuousCartPoleHard", 200, _CARTPOLE_THRESHOLD,
-                continuous=True, evaluator=_continuous_cartpole_hard_evaluator, policy_dims=(4, 1), step_reward=(0.0, 1.0)),
+                continuous=True, builtin=True, policy_dims=(4, 1), step_reward=(0.0, 1.0)),
         # MuJoCo v5 (the mujoco extra), thresholds: a clear sign of learning within the study's budget
         EnvSpec("swimmer", "Swimmer-v5", "Swimmer", _MUJOCO_STEPS, 50.0, continuous=True, mujoco=True),
         EnvSpec("hopper", "Hopper-v5", "Hopper", _MUJOCO_STEPS, 500.0, continuous=True, mujoco=True),

@@ -41,8 +41,11 @@ def test_the_registry_and_the_trainers_hold_objects_not_names():
         assert issubclass(ALGORITHM_SPECS[name].es_class(), EvolutionStrategy) and ALGORITHM_SPECS[name].es_class().name == name
     for trainer in (EVOLUTION_STRATEGY, DDPG):
         assert callable(trainer.run_seeds) and callable(trainer.needs_running)
+    from imix_cli.evaluation import BUILTIN_EVALUATORS
+
+    assert sorted(BUILTIN_EVALUATORS) == sorted(BUILTIN_ENVS)  # each built-in has its evaluator, and no evaluator names an unknown env
     for name in BUILTIN_ENVS:
-        assert type(ENV_SPECS[name].evaluator(None)).__name__.endswith("Evaluator")
+        assert type(BUILTIN_EVALUATORS[name](None)).__name__.endswith("Evaluator")
 
 
 def test_conf_algo_options_are_the_registered_algorithms_with_their_generation_counts():

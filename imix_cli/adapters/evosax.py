@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from imix_cli.distributions import DiagonalGaussian, FullGaussian
+from imix_cli.mirrored import MIRRORED_PAIRS
 
 __all__ = ["DISTRIBUTIONS", "EvosaxES", "from_evosax"]
 
@@ -79,8 +80,8 @@ class EvosaxES:
         self.name = f"evosax {type(algorithm).__name__}"
         self.dim = int(algorithm.num_dims)
         #: antithetic pairs (Open_ES's default): mixed as mirrored pairs (module docstring)
-        self.mirrored = bool(getattr(algorithm, "use_antithetic_sampling", False))
-        if self.mirrored:
+        self.generation_scheme = MIRRORED_PAIRS if getattr(algorithm, "use_antithetic_sampling", False) else None
+        if self.generation_scheme is not None:
             self.directions = algorithm.population_size // 2
         key, k_init = jax.random.split(key)
         self.state = algorithm.init(k_init, algorithm.solution if mean is None else mean, params)

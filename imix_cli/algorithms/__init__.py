@@ -28,7 +28,7 @@ from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES
 
 #: ES name -> class, for every evolution strategy of the registry whose ``tell`` takes any population
 #: (any rows, in any order); ARS's members come in mirrored pairs (:data:`MIRRORED_ALGORITHMS`).
-ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if not getattr(ALGORITHM_SPECS[name].es_class(), "mirrored", False)}
+ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if ALGORITHM_SPECS[name].es_class().generation_scheme is None}
 #: ES name -> class, for the ES whose ``tell`` takes N mirrored pairs ``[plus; minus]`` (imix_cli.mirrored).
 MIRRORED_ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if name not in ALGORITHMS}
 

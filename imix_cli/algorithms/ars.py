@@ -37,6 +37,7 @@ import numpy as np
 
 from imix_cli.algorithms.base import EvolutionStrategy, Params, _array_like
 from imix_cli.distributions import DiagonalGaussian
+from imix_cli.mirrored import MIRRORED_PAIRS, mirror
 
 #: The ARS paper's hyper-parameters for its MuJoCo tasks (-v1 envs) as rl-zoo3 2.9.2's hyperparams/ars.yml
 #: gives them ("Params closest to original paper", for -v4; the paper's own table could not be read
@@ -94,9 +95,9 @@ class ARS(EvolutionStrategy):
 
     name = "ars"
     Params = ARSParams
-    #: Members come in mirrored pairs: :mod:`imix_cli.generation` plans and finishes such an ES's
-    #: generations with :mod:`imix_cli.mirrored`.
-    mirrored = True
+    #: Members come in mirrored pairs: their generations are mixed, evaluated and archived by the pairs'
+    #: scheme (:mod:`imix_cli.mirrored`), which :mod:`imix_cli.generation` calls through this hook.
+    generation_scheme = MIRRORED_PAIRS
 
     def _setup(self) -> None:
         self.directions = self.popsize // 2
@@ -161,8 +162,3 @@ class ARS(EvolutionStrategy):
     def _load_state_dict(self, state: dict) -> None:
         self._mu = _array_like(state["mu"], self._mu, "mu")
         self._dist = DiagonalGaussian(self._mu, self.sigma)
-
-
-def mirror(members: np.ndarray, mean: np.ndarray) -> np.ndarray:
-    """The mirror images 2m - theta of ``members`` through ``mean``: the other half of each pair."""
-    return 2.0 * np.asarray(mean)[None, :] - members

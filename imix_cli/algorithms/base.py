@@ -317,6 +317,9 @@ class EvolutionStrategy(ABC):
     name: str = ""
     #: this ES's parameter record (a subclass of :class:`Params` with its own options)
     Params: type[Params] = Params
+    #: how its generations are mixed and archived (:class:`imix_cli.generation.GenerationScheme`): None, the
+    #: default, for members that are independent draws of :attr:`distribution`; ARS names its mirrored pairs'
+    generation_scheme = None
 
     def __init__(self, dim: int, params: Params | None = None, *, mean=None, **fields):
         if dim < 1:

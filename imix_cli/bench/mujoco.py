@@ -74,23 +74,24 @@ def _gym_loop(env_id: str, params: np.ndarray, seeds: np.ndarray, obs_dim: int, 
 
 def _imix_run(env: str, generations: int, popsize: int) -> tuple[float, int]:
     """``imix run`` (linear policy, no mixing, pool evaluator with one worker) in a temporary folder: (seconds, env steps)
-    of its generations after the first, from the CSV's clock (the first one also starts the worker process)."""
-    import contextlib
-    import io
+    of its generations after the first, from the CSV's clock (the first one also starts the worker process).
+
+    The run is the ``imix`` command in a child process, as a user starts it: the bench is one of that command's
+    subcommands, so it never imports the command line back (the clock is the CSV's, so the child's start-up is not timed)."""
+    import subprocess
+    import sys
     import tempfile
     from pathlib import Path
 
-    from imix_cli.commands.cli import main
     from imix_cli.running.results import read_run_csv
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-mujoco-") as tmp:
         args = ["run", "algo=snes", f"env={env}", "policy.hidden=[]", "evaluator=pool", "evaluator_workers=1", "seeds=1",
                 f"generations={generations}", f"popsize={popsize}", "eval_mean_every=0", "checkpoint_every=0", "progress=false",
                 f"results_dir={tmp}"]  # fmt: skip
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as messages:  # the run's summary: not this table's
-            code = main(args)
-        if code != 0:
-            raise RuntimeError(f"imix {' '.join(args)} failed: {messages.getvalue().strip()}")
+        done = subprocess.run([sys.executable, "-m", "imix_cli.commands.cli", *args], capture_output=True, text=True)  # the run's summary: not this table's
+        if done.returncode != 0:
+            raise RuntimeError(f"imix {' '.join(args)} failed: {done.stderr.strip()}")
         (csv,) = Path(tmp).rglob("seed_0.csv")
         frame = read_run_csv(csv)
         return float(frame["wall_time"].iloc[-1] - frame["wall_time"].iloc[0]), int(frame["env_steps"].iloc[-1] - frame["env_steps"].iloc[0])

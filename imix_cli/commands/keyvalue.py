@@ -9,6 +9,7 @@ settings dict back; a bad argument is one :class:`UsageError` naming the key, re
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 
 class UsageError(ValueError):
@@ -88,6 +89,21 @@ def at_least(minimum: int):
 def folder_name(key: str, value: str) -> str:
     """One folder's name (an experiment, a run): no path."""
     if not value or "/" in value or value in (".", ".."):
+        raise UsageError(f"bad value for {key}: {value!r} (expected a folder name)")
+    return value
+
+
+def results_dir_value(key: str, value: str) -> str:
+    """A results folder's path (any non-empty path)."""
+    if not value:
+        raise UsageError(f"bad value for {key}: empty path")
+    return value
+
+
+def experiment_name(key: str, value: str) -> str:
+    """An experiment's folder below results_dir: a plain name, as ``imix run`` accepts (an absolute path or ".."
+    would put figures outside results_dir)."""
+    if not value or ".." in Path(value).parts or Path(value).is_absolute() or "\\" in value:
         raise UsageError(f"bad value for {key}: {value!r} (expected a folder name)")
     return value
 

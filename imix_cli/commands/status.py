@@ -9,7 +9,7 @@ reading (a partial CSV removed as its seed finishes) is read again as finished o
 Per seed ``k`` of a run folder (``seeds`` from its config.yaml, else the files found):
 
 * done: ``seed_<k>.csv`` is finished -- the same notion as ``imix run``'s, in one place
-  (:func:`imix_cli.running.trainers.es_seed_finished`: all the config's generations, or fewer ending
+  (:func:`imix_cli.running.results.es_seed_finished`: all the config's generations, or fewer ending
   diverged) -- and no partial CSV goes beyond it;
 * running: not done, and a live ``imix run`` holds the run folder's lock
   (:func:`imix_cli.running.run_folder.lock_holder`: the pid in ``.lock``, holding a lock on it): that run

@@ -16,8 +16,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from imix_cli.messages import RunError
 from imix_cli.running.results import episode_row, seed_csv_path, write_run_csv
-from imix_cli.running.run_folder import RunError
 
 
 def ddpg_row(spec, seed: int, episode, wall_time: float) -> dict:

@@ -12,7 +12,7 @@ import re
 import sys
 from pathlib import Path
 
-from imix_cli.commands.keyvalue import UsageError, finite_number, flag, help_requested, parse_key_values
+from imix_cli.commands.keyvalue import UsageError, experiment_name, finite_number, flag, help_requested, parse_key_values, results_dir_value
 
 HELP = """\
 usage: imix plot [key=value ...]
@@ -71,19 +71,6 @@ def _help_text() -> str:
 
 
 # ----------------------------------------------------------------------------- keys (imix_cli.commands.keyvalue)
-def _results_dir(key: str, value: str) -> str:
-    if not value:
-        raise UsageError("bad value for results_dir: empty path")
-    return value
-
-
-def _experiment(key: str, value: str) -> str:
-    # A plain name, as `imix run` accepts: an absolute path or ".." would put figures outside results_dir.
-    if not value or ".." in Path(value).parts or Path(value).is_absolute() or "\\" in value:
-        raise UsageError(f"bad value for experiment: {value!r} (expected a folder name)")
-    return value
-
-
 def _ci(key: str, value: str) -> float:
     level = finite_number(key, value)
     if not 0.0 < level < 1.0:
@@ -118,7 +105,7 @@ def _dpi(key: str, value: str) -> int:
 
 
 _DEFAULTS = {"results_dir": "results", "experiment": "default", "ci": 0.68, "only": None, "formats": ("png", "pdf"), "dpi": 150, "didactic": False}
-_CONVERT = {"results_dir": _results_dir, "experiment": _experiment, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi, "didactic": flag}
+_CONVERT = {"results_dir": results_dir_value, "experiment": experiment_name, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi, "didactic": flag}
 _KNOWN = "results_dir, experiment, threshold.<env>, ci, only, formats, dpi, didactic"
 
 

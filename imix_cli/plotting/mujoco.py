@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.commands.keyvalue import UsageError, at_least, finite_number, help_requested, parse_key_values
+from imix_cli.commands.keyvalue import UsageError, at_least, experiment_name, finite_number, help_requested, parse_key_values, results_dir_value
 from imix_cli.registry import mujoco_thresholds
 from imix_cli.writing import atomic_write_text, csv_text, one_line, write_figure
 
@@ -201,8 +201,6 @@ def draw_env(env: str, runs_of_env: dict, resamples: int):
 
 def parse_args(argv: list) -> dict:
     """``key=value`` arguments (:mod:`imix_cli.commands.keyvalue`, as every ``imix plot`` key) -> settings."""
-    from imix_cli.plotting import _experiment, _results_dir
-
     thresholds = dict(DEFAULT_THRESHOLDS)
 
     def threshold(key: str, value: str) -> None:
@@ -212,7 +210,7 @@ def parse_args(argv: list) -> dict:
 
     settings = parse_key_values(
         argv, "plot mujoco", {"results_dir": "results", "experiment": "mujoco", "resamples": 2000},
-        convert={"results_dir": _results_dir, "experiment": _experiment, "resamples": at_least(100)},
+        convert={"results_dir": results_dir_value, "experiment": experiment_name, "resamples": at_least(100)},
         prefixed={"threshold.": threshold}, known="results_dir, experiment, threshold.<env id>, resamples",
     )  # fmt: skip
     return {**settings, "thresholds": thresholds}

@@ -16,15 +16,14 @@ import dataclasses
 import time
 from pathlib import Path
 
-from imix_cli.messages import warn
+from imix_cli.messages import RunError, warn
 from imix_cli.running import stopping
 from imix_cli.running.checkpoints import checkpoint_path
 from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state, seed_record
+from imix_cli.running.results import es_seed_finished
 from imix_cli.running.resume import can_checkpoint, load_checkpoint
-from imix_cli.running.run_folder import RunError
 from imix_cli.running.run_spec import resume_identity
 from imix_cli.running.run_writer import RunWriter
-from imix_cli.running.trainers import es_seed_finished
 
 
 def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> dict:

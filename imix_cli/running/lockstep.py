@@ -139,8 +139,9 @@ def mixing_settings(spec) -> MixingSettings:
 def generation_row(*, algo: str, env: str, mixing: str, seed: int, generation: int, evaluations: int, env_steps: int,
                    fitness: np.ndarray, reused: int, reused_im: int, reused_eim: int, reevaluated: int, popsize: int,
                    sigma_mean: float) -> dict:  # fmt: skip
-    """The CSV row of one ES generation (its columns: :data:`imix_cli.running.results.COLUMNS`). ``fitness``: one return per member, stored or new; non-finite
-    returns (a user's env may produce them) are left out of the mean and best, and counted.
+    """The CSV row of one ES generation (its columns: :data:`imix_cli.running.results.COLUMNS`).
+    ``fitness``: one return per member, stored or new; non-finite returns (a user's env may produce them)
+    are left out of the mean and best, and counted.
     ``wall_time`` is 0.0, for the caller, which owns the clock, to fill in; the ``mean_policy_*``
     columns are added by whoever measures the distribution mean."""
     finite = np.isfinite(fitness)

@@ -148,6 +148,16 @@ def seed_summary(frame) -> dict:
     }
 
 
+def es_seed_finished(frame, generations: int) -> bool:
+    """Whether an ES seed whose CSV holds ``frame`` is finished in a run of ``generations``: it has them all, or
+    fewer ending in a diverged row (a diverged seed stops there for good).
+
+    The one notion of "finished" of every reader: ``imix run`` skips such a seed and continues (or refuses) any
+    other (:func:`imix_cli.running.es_seeds.needs_running`), ``imix status`` counts it done; a 1-of-30-row CSV is
+    neither's finished seed."""
+    return len(frame) >= generations or (len(frame) > 0 and int(frame["diverged"].iloc[-1]) == 1)
+
+
 def write_run_csv(path, rows) -> dict:
     """Write one seed's rows (dicts, or a frame) atomically to ``path`` (``seed_<k>.csv``); return
     their :func:`seed_summary`.

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imix_cli.generation import scheme_of
 from imix_cli.messages import warn as _warn
 from imix_cli.mixing import variant_spec
 from imix_cli.running.checkpoints import DEFAULT_MAX_BYTES, CheckpointError, checkpoint_path, load_or_warn
@@ -201,9 +202,8 @@ def _validate_es(st, spec, dim: int) -> None:
 
 
 def _validate_archive(st, spec, dim: int, score_ok) -> None:
-    archive, popsize, depth = st.archive, spec.popsize, _archive_depth(spec)
-    if getattr(st.es, "mirrored", False):  # mirrored pairs (ARS): the archive holds the N anchors only (imix_cli.mirrored)
-        popsize //= 2
+    # the rows of each archived generation, by the ES's generation scheme (ARS: the N anchors of its pairs only)
+    archive, popsize, depth = st.archive, scheme_of(st.es).archived_rows(st.es), _archive_depth(spec)
     gens, returns, ages = archive.generations, archive.returns, archive.ages
     if not (isinstance(gens, list) and isinstance(returns, list) and isinstance(ages, list)):
         _fail("archive is not three lists")

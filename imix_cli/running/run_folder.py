@@ -16,16 +16,13 @@ import os
 import reprlib
 import stat
 
+from imix_cli.messages import RunError
 from imix_cli.running.results import CorruptResultError, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
 from imix_cli.running.run_lock import LOCK_NAME
 from imix_cli.running.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.running.seed_checks import SCHEDULE_KEYS, check_seed_csv
 from imix_cli.running.trainers import trainer_for
 from imix_cli.writing import atomic_write_text
-
-
-class RunError(RuntimeError):
-    """A run cannot proceed (existing results conflict, unwritable folder...); one-line message."""
 
 
 def check_run_dir(spec) -> tuple[list[int], bool]:

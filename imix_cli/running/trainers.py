@@ -12,6 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from imix_cli.running.results import es_seed_finished
+
 
 @dataclass(frozen=True)
 class Trainer:
@@ -23,8 +25,7 @@ class Trainer:
     is to be run further (RunError if that CSV does not fit the config). Both are the functions
     below (the ES's ``run_seeds`` also builds the run's evaluator, and closes it), which import
     their trainer's module when called: ``imix status`` and the run folder's
-    checks load neither numba nor the envs, and SB3 loads only for DDPG (and the trainer modules
-    import :mod:`imix_cli.running.run_folder`, which imports this one).
+    checks load neither numba nor the envs, and SB3 loads only for DDPG.
     """
 
     run_seeds: Callable[..., dict]
@@ -72,16 +73,6 @@ def _run_es_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:
             close = getattr(evaluator, "close", None)  # a user's evaluator may have nothing to close
             if close is not None:
                 close()
-
-
-def es_seed_finished(frame, generations: int) -> bool:
-    """Whether an ES seed whose CSV holds ``frame`` is finished in a run of ``generations``: it has them all, or
-    fewer ending in a diverged row (a diverged seed stops there for good).
-
-    The one notion of "finished" of every reader: ``imix run`` skips such a seed and continues (or refuses) any
-    other (:func:`imix_cli.running.es_seeds.needs_running`), ``imix status`` counts it done; a 1-of-30-row CSV is
-    neither's finished seed."""
-    return len(frame) >= generations or (len(frame) > 0 and int(frame["diverged"].iloc[-1]) == 1)
 
 
 def _ddpg_seed_finished(frame, total_steps) -> bool:
