@@ -1,6 +1,6 @@
 """algo=ddpg's config: its settings (conf/algo/ddpg.yaml), its budget ``total_steps`` and a continuous-action env.
 
-The evolution strategies' top-level keys (:data:`imix_cli.running.run_spec.ES_ONLY_KEYS`) are ignored
+The evolution strategies' top-level keys (:data:`imix_cli.running.config_keys.ES_ONLY_KEYS`) are ignored
 and left out of its config.yaml; the RunSpec's ES fields keep their defaults.
 """
 
@@ -9,7 +9,8 @@ from __future__ import annotations
 from imix_cli.env_ids import plain_env_id
 from imix_cli.registry import BUILTIN_ENVS, CONTINUOUS_BUILTIN_ENVS, ENV_SPECS
 from imix_cli.running.config_checks import ConfigError, as_bool, as_float, as_int, as_name, env_of, first_line, is_number, seeds_of, workers_and_experiment
-from imix_cli.running.run_spec import ES_ONLY_KEYS, RunSpec
+from imix_cli.running.config_keys import ES_ONLY_KEYS
+from imix_cli.running.run_spec import RunSpec
 
 
 #: The one line algo=ddpg gives where its extra is not installed (a plain `make install` leaves it out).
