@@ -31,7 +31,7 @@ from pathlib import Path
 from imix_cli.algorithms.base import PARAM_BOUNDS, WEIGHT_DECAY_FORMS, Params
 from imix_cli.generation import MIXING_BOUNDS, MixingSettings
 from imix_cli.mixing import config_variants
-from imix_cli.running.config_checks import ConfigError, as_bool, as_bounded, as_choice, as_float, as_int, as_name, seeds_of
+from imix_cli.running.config_checks import ConfigError, as_bool, as_bounded, as_choice, as_float, as_int, as_name, experiment_of, seeds_of
 
 
 # ----------------------------------------------------------------------------------- checks
@@ -249,8 +249,7 @@ KEYS = (
            names_folder="always"),
     RunKey("workers", None, "processes for the seeds (null: all cores)",
            "processes for the seeds; `null` = all cores. Results do not depend on it", "where episodes run",
-           checked_by="config_checks.workers_and_experiment (its default depends on the launcher and the evaluator)",
-           **_NOT_RESULTS, **_EVERY_ALGO),
+           optional(integer(1)), **_NOT_RESULTS, **_EVERY_ALGO),  # its default and limit: config_checks.workers_of (the launcher, the evaluator)
     RunKey("checkpoint_every", 50, "generations between checkpoints (0: none)",
            "save each seed's state every N generations (0 = never); a killed run resumes there", "run and output",
            integer(0), spec=True, **_NOT_RESULTS),
@@ -273,8 +272,8 @@ KEYS = (
            "name); the CSV stays the record. See the getting-started guide, \"Tracking\"", "run and output", _logger, spec=True,
            absent="none", **_NOT_RESULTS),  # a tracker only copies the CSV's rows
     RunKey("results_dir", "results", "output root", "output root", "run and output", plain_name, spec=True, **_NOT_RESULTS, **_EVERY_ALGO),
-    RunKey("experiment", "default", "sub-folder of results_dir", "sub-folder of `results_dir`", "run and output",
-           checked_by="config_checks.workers_and_experiment", **_NOT_RESULTS, **_EVERY_ALGO),
+    RunKey("experiment", "default", "sub-folder of results_dir", "sub-folder of `results_dir`", "run and output", experiment_of,
+           spec=True, **_NOT_RESULTS, **_EVERY_ALGO),
     RunKey("policy.hidden", (8, 8), "tanh hidden layer sizes ([] = linear policy)", "tanh hidden layer sizes; `[]` = linear policy",
            "the policy", _hidden, absent=(8, 8), shown="[8,8]"),
     RunKey("policy.obs_norm", False, "observation normalisation (gymnasium envs), frozen after the warm-up",

@@ -21,7 +21,7 @@ from imix_cli.running.config_checks import (
     first_line,
     gym_env_bytes,
     parallel_launcher_name,
-    workers_and_experiment,
+    workers_of,
 )
 from imix_cli.running.config_keys import KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS, read_keys
 from imix_cli.running.run_spec import RunSpec, algo_option_fields, resolve_auto_options
@@ -31,42 +31,42 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     """The RunSpec of an evolution strategy: every key checked by its own check (:func:`read_keys`), then together
     (mixing, the ES's hyper-parameters, its policy and evaluator, the machine's limits)."""
     flat = {k: v for k, v in cfg.items() if k != "policy"} | {f"policy.{k}": v for k, v in _policy_keys(cfg).items()}
-    v = read_keys(flat, KEYS_READ)
-    im, eim = v["im"], v["eim"]
+    checked = read_keys(flat, KEYS_READ)
+    im, eim = checked["im"], checked["eim"]
     im_variants, eim_variants = config_variants("im"), config_variants("eim")
     algo_options = _algo_options(algo, algo_cfg)
-    if eim and v["im_variant"] != PAPER_DEFAULTS["im_variant"]:
-        raise ConfigError(f"im_variant={v['im_variant']}: applies to im=true only; with eim=true choose eim_variant={'|'.join(eim_variants)}")
+    if eim and checked["im_variant"] != PAPER_DEFAULTS["im_variant"]:
+        raise ConfigError(f"im_variant={checked['im_variant']}: applies to im=true only; with eim=true choose eim_variant={'|'.join(eim_variants)}")
     mixing = "eim" if eim else ("im" if im else "none")
     algo_options = resolve_auto_options(algo, algo_options, mixing != "none")
-    variant = eim_variants[v["eim_variant"]].name if eim else (im_variants[v["im_variant"]].name if im else None)
-    if v["im_alpha"] != 0.0 and not (variant is not None and variant_spec(variant).uses_alpha):
-        raise ConfigError(f"im_alpha={v['im_alpha']}: only applies with im=true im_variant=sun2009")
-    if mixing == "none" and v["min_fresh"] != PAPER_DEFAULTS["min_fresh"]:
-        raise ConfigError(f"min_fresh={v['min_fresh']}: only applies with im=true or eim=true (fresh members of a mixed generation)")
-    if mixing == "none" and (v["reeval_age"] is not None or v["reeval_prob"] or v["reeval_count"]):
+    variant = eim_variants[checked["eim_variant"]].name if eim else (im_variants[checked["im_variant"]].name if im else None)
+    if checked["im_alpha"] != 0.0 and not (variant is not None and variant_spec(variant).uses_alpha):
+        raise ConfigError(f"im_alpha={checked['im_alpha']}: only applies with im=true im_variant=sun2009")
+    if mixing == "none" and checked["min_fresh"] != PAPER_DEFAULTS["min_fresh"]:
+        raise ConfigError(f"min_fresh={checked['min_fresh']}: only applies with im=true or eim=true (fresh members of a mixed generation)")
+    if mixing == "none" and (checked["reeval_age"] is not None or checked["reeval_prob"] or checked["reeval_count"]):
         raise ConfigError("reeval_age/reeval_prob/reeval_count: only apply with im=true or eim=true (they re-evaluate reused members)")
 
     env_name, env_id, max_steps = env_of(env_cfg)
-    policy = _policy_and_evaluator(v, env_name, launcher)
+    policy = _policy_and_evaluator(checked, env_name, launcher)
     # evaluator=ray: the seeds run in the main process, which alone drives the run's one Ray runtime
     # (seed processes each started a Ray of their own, each sized to every CPU).
-    spreading = v["evaluator"] if v["evaluator"] in ("pool", "ray") else None
-    workers, experiment = workers_and_experiment(cfg, launcher, pool=spreading)
+    spreading = checked["evaluator"] if checked["evaluator"] in ("pool", "ray") else None
+    workers = workers_of(checked["workers"], launcher, pool=spreading)
     if cfg.get("total_steps") is not None:  # silently running `generations` instead would waste the user's budget
         raise ConfigError(
             f"total_steps={cfg['total_steps']!r}: algo=ddpg's budget (environment steps); an evolution strategy (algo={algo}) runs generations= instead"
         )
     config = {k: v for k, v in cfg.items() if k != "total_steps"}  # total_steps: ddpg's budget only
-    popsize, min_fresh = v["popsize"], v["min_fresh"]
+    popsize, min_fresh = checked["popsize"], checked["min_fresh"]
     if algo == "cmaes" and popsize < cmaes.MIN_POPSIZE:
         raise ConfigError(
             f"popsize={popsize}: algo=cmaes needs popsize >= {cmaes.MIN_POPSIZE} (its recombination weights need at least 2 parents and one non-parent)"
         )
     if mixing != "none" and min_fresh > popsize:
         raise ConfigError(f"min_fresh={min_fresh}: more than popsize={popsize} members")
-    if not math.isfinite(v["sigma"] * v["sigma"]):
-        raise ConfigError(f"sigma={v['sigma']!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
+    if not math.isfinite(checked["sigma"] * checked["sigma"]):
+        raise ConfigError(f"sigma={checked['sigma']!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
     _check_params_together(algo, popsize, algo_options)
     _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
     num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"], policy["policy_bias"], policy["policy_output"])
@@ -76,8 +76,8 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
             f"CMA-ES's limit of {cmaes.MAX_DIM} (O(d^2) memory, O(d^3) time); use algo=snes or algo=openes (diagonal), or a smaller policy.hidden"
         )
     env_bytes = 0 if env_name in BUILTIN_ENVS else gym_env_bytes(env_id)  # the built-ins are compiled: no env objects
-    archive_depth = 0 if variant is None else variant_spec(variant).depth(v["eim_generations"])
-    check_memory(popsize, num_params, archive_depth, v["seeds"], env_bytes, env_id)
+    archive_depth = 0 if variant is None else variant_spec(variant).depth(checked["eim_generations"])
+    check_memory(popsize, num_params, archive_depth, checked["seeds"], env_bytes, env_id)
     stored = policy.pop("stored")
     if stored is None:
         config.pop("policy", None)  # the default policy: config.yaml stays as it was before the key existed
@@ -91,15 +91,14 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         mixing=mixing,
         variant=variant,
         workers=workers,
-        experiment=experiment,
         config={**config, "mixing": mixing},
         algo_options=algo_options,
-        **{key.name: v[key.name] for key in KEYS if key.spec},
+        **{key.name: checked[key.name] for key in KEYS if key.spec},
         **policy,
     )
 
 
-#: The keys :func:`es_spec` checks one by one (all but those checked together: workers, experiment, total_steps).
+#: The keys :func:`es_spec` checks one by one (all but ``total_steps``, algo=ddpg's, which an ES refuses).
 KEYS_READ = tuple(key.name for key in KEYS if key.check is not None)
 
 
@@ -163,16 +162,17 @@ def _policy_keys(cfg: dict) -> dict:
     return policy
 
 
-def _policy_and_evaluator(v: dict, env_name: str, launcher: str | None) -> dict:
-    """The checked ``policy.*``, ``evaluator``, ``evaluator_workers``, ``ray_address`` (``v``) together: the RunSpec's
+def _policy_and_evaluator(checked: dict, env_name: str, launcher: str | None) -> dict:
+    """The checked ``policy.*``, ``evaluator``, ``evaluator_workers``, ``ray_address`` (``checked``) together: the RunSpec's
     policy and evaluator fields, and ``stored``, the policy keys config.yaml keeps (None: the default policy)."""
-    hidden, obs_norm, warmup, var_floor = v["policy.hidden"], v["policy.obs_norm"], v["policy.obs_norm_warmup"], v["policy.obs_var_floor"]
+    hidden, obs_norm = checked["policy.hidden"], checked["policy.obs_norm"]
+    warmup, var_floor = checked["policy.obs_norm_warmup"], checked["policy.obs_var_floor"]
     if obs_norm and env_name in BUILTIN_ENVS:
         raise ConfigError(f"policy.obs_norm=true: only on gymnasium environments (env=gym or a MuJoCo env), not the built-in env={env_name}")
-    bias, output = v["policy.bias"], v["policy.output"]
+    bias, output = checked["policy.bias"], checked["policy.output"]
     if output != "tanh" and env_name in BUILTIN_ENVS:
         raise ConfigError(f"policy.output={output}: only on gymnasium environments with continuous actions (a MuJoCo env), not the built-in env={env_name}")
-    evaluator, n_workers, address = v["evaluator"], v["evaluator_workers"], v["ray_address"]
+    evaluator, n_workers, address = checked["evaluator"], checked["evaluator_workers"], checked["ray_address"]
     if n_workers is None and evaluator == "pool":
         n_workers = default_workers()
     if address is not None and evaluator != "ray":
