@@ -10,10 +10,11 @@ key; the CLI prints it and exits with status 2 before anything is written.
 ``-m`` sweep, however many -- before Hydra starts, so a bad value in the 10th sweep point is
 reported before the first point runs.
 
-The checks live by concern: :mod:`imix_cli.running.config_checks` (typed keys, seeds, workers, the
-env), :mod:`imix_cli.running.es_config` (an evolution strategy's keys, policy and evaluator),
-:mod:`imix_cli.ddpg.config` (algo=ddpg), :mod:`imix_cli.running.run_spec` (the RunSpec, the keys and
-a run's identity). The names other modules import from here are re-exported.
+The checks live by concern: :mod:`imix_cli.running.config_keys` (each key declared once: its default, its own
+check, its roles), :mod:`imix_cli.running.config_checks` (typed values, seeds, workers, the env, memory),
+:mod:`imix_cli.running.es_config` (an evolution strategy's keys together: mixing, policy, evaluator),
+:mod:`imix_cli.ddpg.config` (algo=ddpg), :mod:`imix_cli.running.run_spec` (the RunSpec and a run's identity).
+The names other modules import from here are re-exported.
 """
 
 from __future__ import annotations

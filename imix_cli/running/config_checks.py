@@ -1,7 +1,8 @@
-"""The checks every algorithm's config shares: typed keys, seeds, workers, the env, memory.
+"""The checks every algorithm's config shares: typed values, seeds, workers, the env, memory.
 
-Each check takes the plain config dict (as Hydra composes it) and returns the validated value
-or raises :class:`ConfigError`, a one-line message that names the offending key; the CLI prints
+The typed checks take the plain config dict (as Hydra composes it) and a key -- the declarations of
+:mod:`imix_cli.running.config_keys` name which check each key gets -- and return the validated value
+or raise :class:`ConfigError`, a one-line message that names the offending key; the CLI prints
 it and exits with status 2 before anything is written.
 """
 
