@@ -132,3 +132,41 @@ def test_a_config_without_the_newer_keys_reads_them_as_declared_absent():
     declared = {key.name: key.absent for key in KEYS}
     assert (spec.checkpoint_seconds, spec.eval_mean_every, spec.eval_mean_episodes, spec.logger) == (
         declared["checkpoint_seconds"], declared["eval_mean_every"], declared["eval_mean_episodes"], declared["logger"])  # fmt: skip
+
+
+def _other_value(key):
+    """A valid value of ``key`` other than its default, read from its declared check."""
+    bound, choices = getattr(key.check, "bound", None), getattr(key.check, "choices", None)
+    if choices is not None:
+        return next(c for c in choices() if c != key.default)
+    if key.default is None:
+        return bound.low
+    return key.default + 1 if bound.integer else key.default + (0.5 if bound.high == math.inf else (bound.high - key.default) / 2)
+
+
+_MIXING = {"always": [], "mixing": ["eim=true"], "im": ["im=true"], "eim": ["eim=true"]}
+
+
+@pytest.mark.parametrize("key", [k for k in KEYS if k.names_folder], ids=lambda k: k.name)
+def test_a_key_declared_to_name_the_folder_names_it_with_its_mixing_only(key):
+    context = _MIXING[key.names_folder] + (["im_variant=sun2009"] if key.name == "im_alpha" else [])
+    value = _other_value(key)
+    base = validate_overrides(["seeds=2", "generations=2", *context])[0]
+    changed = validate_overrides(["seeds=2", "generations=2", *context, f"{key.name}={value}"])[0]
+    assert f"{key.name}=" in changed.run_name and f"{key.name}=" not in base.run_name, changed.run_name
+    if key.names_folder != "always":  # another mixing: the key does not apply, or does not name the folder
+        other = {"im": ["eim=true"], "eim": ["im=true"], "mixing": []}[key.names_folder]
+        try:
+            elsewhere = validate_overrides(["seeds=2", "generations=2", *other, f"{key.name}={value}"])[0]
+        except ConfigError:
+            return  # refused where it does not apply (min_fresh, reeval_*, im_alpha without mixing)
+        assert f"{key.name}=" not in elsewhere.run_name
+
+
+@pytest.mark.parametrize("key", [k for k in KEYS if k.check is not None and not k.names_folder and not k.name.startswith("policy.")], ids=lambda k: k.name)
+def test_a_key_not_declared_to_name_the_folder_leaves_it(key):
+    if key.name in ("im", "eim", "evaluator", "ray_address", "logger", "results_dir", "experiment"):
+        pytest.skip("names the folder's mixing part, needs an extra, or names a folder above the run's")
+    value = "false" if key.name == "progress" else _other_value(key) if getattr(key.check, "bound", None) else 3
+    base = validate_overrides(["seeds=2", "generations=2", "eim=true"])[0]
+    assert validate_overrides(["seeds=2", "generations=2", "eim=true", f"{key.name}={value}"])[0].run_name == base.run_name
