@@ -21,6 +21,7 @@ from imix_cli.running.config_keys import (
     REFERENCE,
     TOP_LEVEL_KEYS,
     config_yaml_generated,
+    plain_name,
     reference_markdown,
     yaml_value,
 )
@@ -139,6 +140,8 @@ def _other_value(key):
     bound, choices = getattr(key.check, "bound", None), getattr(key.check, "choices", None)
     if choices is not None:
         return next(c for c in choices() if c != key.default)
+    if bound is None:  # a flag, a name, a plain integer or number
+        return str(not key.default).lower() if isinstance(key.default, bool) else f"{key.default}2" if key.check is plain_name else 3
     if key.default is None:
         return bound.low
     return key.default + 1 if bound.integer else key.default + (0.5 if bound.high == math.inf else (bound.high - key.default) / 2)
@@ -167,6 +170,6 @@ def test_a_key_declared_to_name_the_folder_names_it_with_its_mixing_only(key):
 def test_a_key_not_declared_to_name_the_folder_leaves_it(key):
     if key.name in ("im", "eim", "evaluator", "ray_address", "logger", "results_dir", "experiment"):
         pytest.skip("names the folder's mixing part, needs an extra, or names a folder above the run's")
-    value = "false" if key.name == "progress" else _other_value(key) if getattr(key.check, "bound", None) else 3
+    value = _other_value(key)
     base = validate_overrides(["seeds=2", "generations=2", "eim=true"])[0]
     assert validate_overrides(["seeds=2", "generations=2", "eim=true", f"{key.name}={value}"])[0].run_name == base.run_name
