@@ -4,8 +4,8 @@ Why one record: the bounds used to be written twice -- ``imix run``'s config che
 ``sigma=1e300`` while ``MixingES`` and ``make_es`` accepted them and failed later, deep inside, or truncated
 ``popsize=2.5`` to 2. Now :class:`~imix_cli.algorithms.base.Params` (:data:`~imix_cli.algorithms.base.PARAM_BOUNDS`)
 and :class:`~imix_cli.generation.MixingSettings` (:data:`~imix_cli.generation.MIXING_BOUNDS`) check their fields with a
-:class:`Bound` at construction, and :mod:`imix_cli.running.es_config` checks the config keys with the very same ones
-(:func:`imix_cli.running.config_checks.as_bounded`).
+:class:`Bound` at construction, and ``imix run``'s key declarations (:data:`imix_cli.running.config_keys.KEYS`) check
+the config keys with the very same ones (:func:`imix_cli.running.config_checks.as_bounded`).
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ from imix_cli.bounds import Bound
 from imix_cli.mixing import Generation, mix, variant_spec
 
 #: The range of each numeric :class:`MixingSettings` field, checked when one is made and by ``imix run``'s config (its
-#: keys ``eim_generations``, ``im_alpha``, ``reeval_*``: :mod:`imix_cli.running.es_config`): one copy of the numbers.
+#: keys ``eim_generations``, ``im_alpha``, ``reeval_*``, ``min_fresh``: :mod:`imix_cli.running.config_keys`): one copy of the numbers.
 MIXING_BOUNDS = {
     "eim_generations": Bound(1, integer=True),
     "alpha": Bound(0.0, high=1.0),

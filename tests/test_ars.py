@@ -330,7 +330,7 @@ def test_the_variance_floor_is_the_configs_and_survives_a_checkpoint():
     import yaml
 
     from imix_cli.policies import OBS_VAR_FLOOR, ObsNormalizer
-    from imix_cli.running.run_spec import POLICY_DEFAULTS
+    from imix_cli.running.config_keys import POLICY_DEFAULTS
 
     states = np.stack([np.linspace(-1.0, 1.0, 101) * 0.01 * np.sqrt(3.0), np.linspace(-3.0, 3.0, 101)], axis=1)
     for floor, expected in ((1e-8, 0.01), (OBS_VAR_FLOOR, 0.1)):

@@ -29,7 +29,6 @@ LAYERS = [
         "mixing",
         "mixing_kernels",
         "running",
-        "running.config_keys",
         "running.safe_npz",
         "running.results",
         "writing",
@@ -56,7 +55,7 @@ LAYERS = [
         "ddpg.agent",
         "adapters.checkpoint",
     ],
-    ["running.config_checks", "running.run_spec", "running.es_config", "ddpg.config", "running.config"],
+    ["running.config_checks", "running.config_keys", "running.run_spec", "running.es_config", "ddpg.config", "running.config"],
     [
         "running.lockstep",
         "running.compiled_loop",

@@ -31,7 +31,7 @@ record of which draws were made.
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -62,13 +62,21 @@ class ARSParams(Params):
     ``fitness_shaping`` are not used. And ARS's own option:"""
 
     #: b, the number of best directions a step uses ("ARS V1-t / V2-t"); None: all N.
-    top: int | None = None
+    top: int | None = field(default=None, metadata={
+        "short": "b, the best directions a step uses (null: all)",
+        "doc": "`algo=ars` only: b, the number of best directions a step uses (ARS V1-t/V2-t); `null` = all N = popsize/2",
+    })  # fmt: skip
     #: Added to every step's reward during training (ARS's "shift", rl-zoo3's ``alive_bonus_offset``):
     #: -1 on Hopper and Walker2d cancels their survival bonus of 1 per step, so that a policy is not
     #: rewarded for merely standing. A member's fitness is then return + offset x episode length (CSV
     #: columns mean_score/best_score and the archive hold it); the distribution mean's measurements
     #: (mean_policy_score, the thresholds) stay on the env's own return.
-    alive_bonus_offset: float = 0.0
+    alive_bonus_offset: float = field(default=0.0, metadata={
+        "short": "added to each step's reward in training",
+        "doc": "`algo=ars` only: added to every step's reward during training (ARS's shift; `-1` cancels Hopper's and Walker2d's "
+               "survival bonus, as `+ars=hopper` does); the CSV's population columns hold these training returns, `mean_policy_score` "
+               "the env's own",
+    })  # fmt: skip
 
     def __post_init__(self):
         super().__post_init__()

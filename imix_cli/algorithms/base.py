@@ -244,7 +244,7 @@ WEIGHT_DECAY_FORMS: dict[str, WeightDecayForm] = {"paper": PaperWeightDecay(), "
 MAX_SIGMA = 1e154
 
 #: The range of each numeric field of :class:`Params`, checked when a record is made and by ``imix run``'s config
-#: (:mod:`imix_cli.running.es_config`): one copy of the numbers (:mod:`imix_cli.bounds`).
+#: (:mod:`imix_cli.running.config_keys`): one copy of the numbers (:mod:`imix_cli.bounds`).
 PARAM_BOUNDS = {
     "popsize": Bound(2, integer=True),  # an integer: 2.5 members was silently 2
     "sigma": Bound(0, low_inclusive=False, high=MAX_SIGMA),
@@ -257,9 +257,8 @@ PARAM_BOUNDS = {
 class Params:
     """The hyper-parameters every ES shares; the defaults are the paper's (section 4.1).
 
-    This record is the one place those defaults are written down: ``imix run``'s
-    ``PAPER_DEFAULTS`` (:mod:`imix_cli.running.run_spec`) are read from it (``conf/config.yaml`` repeats
-    them for Hydra; a test checks they agree). Each ES extends it with its own options
+    This record is the one place those defaults are written down: ``imix run``'s key declarations
+    (:mod:`imix_cli.running.config_keys`) read them from it, and conf/config.yaml is generated from those. Each ES extends it with its own options
     (``OpenES.Params``, ``CEM.Params``, ...): build one with ``CEM.Params(popsize=20,
     style="cemrl")``, or pass the fields to the ES or to ``make_es`` as keywords. Values are
     checked when the record is made (ValueError naming the field).

@@ -74,7 +74,11 @@ class CEMParams(Params):
     #: "imix": the textbook update (module docstring). "cemrl": the authors' sepCEM: log
     #: weights, extra variance 1e-3 decaying to 1e-5 unless given, variance about the old
     #: mean scaled by 1/K (``algo.style`` of conf/algo/cem.yaml).
-    style: str = field(default="imix", metadata={"choices": STYLES})
+    style: str = field(default="imix", metadata={
+        "choices": STYLES, "short": "imix | cemrl",
+        "doc": "`algo=cem` only: `imix` (maximum-likelihood variance + decaying extra variance) or `cemrl` (the authors' sepCEM: log "
+               "weights, variance about the old mean scaled by 1/K)",
+    })  # fmt: skip
 
     def __post_init__(self):
         super().__post_init__()

@@ -259,7 +259,12 @@ class CMAESParams(Params):
     #: (two-point adaptation: two extra fresh evaluations per generation, :meth:`CMAES.probes`;
     #: module docstring). ``imix run``'s ``algo.step_size_control=auto`` resolves to ``"tpa"``
     #: when the run mixes and to ``"csa"`` otherwise (:func:`step_size_control_for`).
-    step_size_control: str = field(default="csa", metadata={"choices": STEP_SIZE_CONTROLS, "auto": step_size_control_for})
+    step_size_control: str = field(default="csa", metadata={
+        "choices": STEP_SIZE_CONTROLS, "auto": step_size_control_for, "short": "csa | tpa | auto (tpa with im/eim, csa without)",
+        "doc": "`algo=cmaes` only: `csa` (pycma's cumulative step-size adaptation), `tpa` (two-point adaptation: two extra "
+               "fresh episodes per generation along the last move of the mean; its signal does not come from reused members), "
+               "`auto` (`tpa` with `im`/`eim`, `csa` without); docs/research/bias.md",
+    })  # fmt: skip
 
 
 class CMAES(EvolutionStrategy):

@@ -1,6 +1,6 @@
 """algo=ddpg's config: its settings (conf/algo/ddpg.yaml), its budget ``total_steps`` and a continuous-action env.
 
-The evolution strategies' top-level keys (:data:`imix_cli.running.run_spec.ES_ONLY_KEYS`) are ignored
+The evolution strategies' top-level keys (:data:`imix_cli.running.config_keys.ES_ONLY_KEYS`) are ignored
 and left out of its config.yaml; the RunSpec's ES fields keep their defaults.
 """
 
@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from imix_cli.env_ids import plain_env_id
 from imix_cli.registry import BUILTIN_ENVS, CONTINUOUS_BUILTIN_ENVS, ENV_SPECS
-from imix_cli.running.config_checks import ConfigError, as_bool, as_float, as_int, as_name, env_of, first_line, is_number, seeds_of, workers_and_experiment
-from imix_cli.running.run_spec import ES_ONLY_KEYS, RunSpec
+from imix_cli.running.config_checks import ConfigError, as_float, as_int, env_of, first_line, is_number, workers_of
+from imix_cli.running.config_keys import ES_ONLY_KEYS, read_keys
+from imix_cli.running.run_spec import RunSpec
 
 
 #: The one line algo=ddpg gives where its extra is not installed (a plain `make install` leaves it out).
@@ -29,7 +30,7 @@ def ddpg_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str
         total = as_int(cfg, "total_steps", 1)
     if total < episode_cap:
         raise ConfigError(f"total_steps={total}: must be >= the episode cap of {episode_cap} steps, so that every seed finishes an episode")
-    workers, experiment = workers_and_experiment(cfg, launcher)
+    checked = read_keys(cfg, ("seeds", "workers", "progress", "results_dir", "experiment"))  # the keys it shares with the ES
     algo_stored = {k: v for k, v in algo_cfg.items() if k not in ("generations", "default_total_steps")}
     config = {k: v for k, v in cfg.items() if k not in ES_ONLY_KEYS}
     config.update(algo=algo_stored, total_steps=total, mixing="none")
@@ -38,11 +39,11 @@ def ddpg_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str
         env_name=env_name,
         env_id=env_id,
         env_max_steps=max_steps,
-        seeds=seeds_of(cfg),
-        workers=workers,
-        progress=as_bool(cfg, "progress"),
-        results_dir=as_name(cfg, "results_dir"),
-        experiment=experiment,
+        seeds=checked["seeds"],
+        workers=workers_of(checked["workers"], launcher),
+        progress=checked["progress"],
+        results_dir=checked["results_dir"],
+        experiment=checked["experiment"],
         config=config,
         total_steps=total,
         ddpg=settings,

@@ -10,10 +10,11 @@ key; the CLI prints it and exits with status 2 before anything is written.
 ``-m`` sweep, however many -- before Hydra starts, so a bad value in the 10th sweep point is
 reported before the first point runs.
 
-The checks live by concern: :mod:`imix_cli.running.config_checks` (typed keys, seeds, workers, the
-env), :mod:`imix_cli.running.es_config` (an evolution strategy's keys, policy and evaluator),
-:mod:`imix_cli.ddpg.config` (algo=ddpg), :mod:`imix_cli.running.run_spec` (the RunSpec, the keys and
-a run's identity). The names other modules import from here are re-exported.
+The checks live by concern: :mod:`imix_cli.running.config_keys` (each key declared once: its default, its own
+check, its roles), :mod:`imix_cli.running.config_checks` (typed values, seeds, workers, the env, memory),
+:mod:`imix_cli.running.es_config` (an evolution strategy's keys together: mixing, policy, evaluator),
+:mod:`imix_cli.ddpg.config` (algo=ddpg), :mod:`imix_cli.running.run_spec` (the RunSpec and a run's identity).
+The names other modules import from here are re-exported.
 """
 
 from __future__ import annotations
@@ -29,9 +30,9 @@ from pathlib import Path
 from imix_cli.ddpg.config import ddpg_spec
 from imix_cli.registry import ALGO_NAMES, ALGORITHM_SPECS, BUILTIN_ENVS
 from imix_cli.running.config_checks import ConfigError, as_choice, first_line
-from imix_cli.running.config_keys import did_you_mean
+from imix_cli.running.config_keys import PAPER_DEFAULTS, POLICY_DEFAULTS, TOP_LEVEL_KEYS, did_you_mean
 from imix_cli.running.es_config import es_spec
-from imix_cli.running.run_spec import DDPG_DEFAULTS, PAPER_DEFAULTS, TOP_LEVEL_KEYS, RunSpec, algo_option_fields, differing_keys
+from imix_cli.running.run_spec import DDPG_DEFAULTS, RunSpec, algo_option_fields, differing_keys
 
 __all__ = [
     "BUILTIN_ENVS",
@@ -98,8 +99,6 @@ def _refuse_unknown_nested_keys(algo: str, algo_cfg, env_cfg) -> None:
 def all_keys() -> tuple:
     """Every key ``imix run`` reads, dotted (``seeds``, ``policy.hidden``, ``env.max_steps``, ``algo.style`` ...): what a
     mistyped key is compared with for its "did you mean" (:func:`~imix_cli.running.config_keys.did_you_mean`)."""
-    from imix_cli.running.run_spec import POLICY_DEFAULTS
-
     nested = {"algo": sorted({k for name in ALGO_NAMES for k in algo_keys(name)}), "env": ENV_KEYS, "policy": tuple(POLICY_DEFAULTS)}
     return (*TOP_LEVEL_KEYS, *(f"{group}.{k}" for group, keys in nested.items() for k in keys))
 

@@ -1,7 +1,8 @@
-"""The checks every algorithm's config shares: typed keys, seeds, workers, the env, memory.
+"""The checks every algorithm's config shares: typed values, seeds, workers, the env, memory.
 
-Each check takes the plain config dict (as Hydra composes it) and returns the validated value
-or raises :class:`ConfigError`, a one-line message that names the offending key; the CLI prints
+The typed checks take the plain config dict (as Hydra composes it) and a key -- the declarations of
+:mod:`imix_cli.running.config_keys` name which check each key gets -- and return the validated value
+or raise :class:`ConfigError`, a one-line message that names the offending key; the CLI prints
 it and exits with status 2 before anything is written.
 """
 
@@ -105,29 +106,32 @@ def seeds_of(cfg: dict) -> int:
     return seeds
 
 
-def workers_and_experiment(cfg: dict, launcher: str | None, pool: str | None = None) -> tuple[int, str]:
-    """``workers`` (default: all cores; 1 under a parallel launcher or with ``pool``, the name of an
-    evaluator that spreads each generation itself: ``pool`` or ``ray``) and ``experiment``."""
-    workers, parallel = cfg.get("workers"), parallel_launcher_name(launcher)
+def workers_of(workers: int | None, launcher: str | None, pool: str | None = None) -> int:
+    """The checked ``workers`` (None: all cores; 1 under a parallel launcher or with ``pool``, the name of an
+    evaluator that spreads each generation itself: ``pool`` or ``ray``), refused where the launcher or ``pool`` run in parallel."""
+    parallel = parallel_launcher_name(launcher)
     if workers is None:
-        workers = 1 if parallel or pool else default_workers()
-    else:
-        workers = as_int(cfg, "workers", 1)
-        if parallel and workers > 1:
-            raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
-        if pool and workers > 1:
-            raise ConfigError(
-                f"workers={workers}: evaluator={pool} already spreads each generation over evaluator_workers "
-                f"{'processes' if pool == 'pool' else 'Ray actors (one Ray runtime per run)'}; use workers=1 (or leave it null)"
-            )
-    experiment = as_name(cfg, "experiment")
+        return 1 if parallel or pool else default_workers()
+    if parallel and workers > 1:
+        raise ConfigError(f"workers={workers}: hydra/launcher={parallel} already runs jobs in parallel; use workers=1 (or leave it null)")
+    if pool and workers > 1:
+        raise ConfigError(
+            f"workers={workers}: evaluator={pool} already spreads each generation over evaluator_workers "
+            f"{'processes' if pool == 'pool' else 'Ray actors (one Ray runtime per run)'}; use workers=1 (or leave it null)"
+        )
+    return workers
+
+
+def experiment_of(cfg: dict, key: str = "experiment") -> str:
+    """``experiment``: a plain folder name the other commands can name too."""
+    experiment = as_name(cfg, key)
     if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
         raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
     printable = "".join(c for c in experiment if c.isprintable())
     if experiment != printable.strip():  # `imix plot experiment= x` and the other commands strip a value: they could not name this folder
         raise ConfigError(f"experiment={experiment!r}: must be a plain folder name without leading or trailing spaces or control characters "
                           f"(the other commands could not name it), e.g. experiment={printable.strip() or 'default'}")  # fmt: skip
-    return workers, experiment
+    return experiment
 
 
 #: Memory one gymnasium env instance holds (bytes). The generic evaluator keeps one env per member

@@ -1,4 +1,4 @@
-"""The run's specification: :class:`RunSpec`, the keys it is built from, and a run's identity.
+"""The run's specification: :class:`RunSpec` and a run's identity (the keys themselves: :mod:`imix_cli.running.config_keys`).
 
 :func:`imix_cli.running.config.spec_from_config` builds a RunSpec from a validated config; the run
 folder, the checkpoints and the summary compare runs by their identity (:func:`identity_of`:
@@ -12,32 +12,10 @@ import dataclasses
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from imix_cli.algorithms.base import Params
 from imix_cli.ddpg.settings import PAPER_SETTINGS
-from imix_cli.mixing import config_variants, variant_spec
+from imix_cli.mixing import variant_spec
 from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
-
-#: The top-level keys that set an ES's :class:`~imix_cli.algorithms.base.Params`.
-ES_PARAM_KEYS = ("popsize", "sigma", "lr", "weight_decay", "weight_decay_form")
-
-#: The paper's mixing settings (section 4.1), the defaults of conf/config.yaml; each scheme's default
-#: variant is the first it offers (:func:`imix_cli.mixing.config_variants`).
-MIXING_DEFAULTS = {
-    "im_variant": next(iter(config_variants("im"))),
-    "eim_variant": next(iter(config_variants("eim"))),
-    "im_alpha": 0.0,
-    "eim_generations": 3,
-    "min_fresh": 1,
-    "reeval_age": None,
-    "reeval_prob": 0.0,
-    "reeval_count": 0,
-}
-
-#: The paper's setting (section 4.1): the defaults of :class:`~imix_cli.algorithms.base.Params`
-#: and of the mixing schemes (:data:`MIXING_DEFAULTS`). A run folder's name carries, as
-#: ``-key=value,...``, the hyper-parameters that differ from these, so sweep points get folders
-#: of their own.
-PAPER_DEFAULTS = {**{key: getattr(Params, key) for key in ES_PARAM_KEYS}, **MIXING_DEFAULTS}
+from imix_cli.running.config_keys import KEYS, NON_IDENTITY_KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS
 
 
 def algo_option_fields(algo: str) -> dict:
@@ -59,34 +37,6 @@ def resolve_auto_options(algo: str, options: dict, mixing: bool) -> dict:
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
 #: carries, as ``-key=value,...``, the ones that differ from these.
 DDPG_DEFAULTS = PAPER_SETTINGS
-
-#: Top-level keys of the evolution strategies only: algo=ddpg ignores them (and leaves them out
-#: of its config.yaml, so they never make two DDPG runs differ). ``total_steps`` is ddpg's only.
-ES_ONLY_KEYS = (
-    "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "min_fresh", "reeval_age", "reeval_prob", "reeval_count",
-    "generations", "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "checkpoint_every",
-    "checkpoint_seconds", "policy", "evaluator", "evaluator_workers", "ray_address", "logger",
-)  # fmt: skip
-
-#: Keys that do not change a run's results (everything else in config.yaml must match to resume).
-NON_IDENTITY_KEYS = (
-    "seeds", "workers", "progress", "results_dir", "experiment", "checkpoint_every", "checkpoint_seconds",
-    "evaluator", "evaluator_workers", "ray_address",  # where episodes run never changes their results
-    "eval_mean_every", "eval_mean_episodes",  # measuring the distribution mean uses its own random stream
-    "logger",  # a tracker only copies the CSV's rows
-)  # fmt: skip
-
-TOP_LEVEL_KEYS = (
-    "algo", "env", "im", "eim", "im_variant", "eim_variant", "im_alpha", "eim_generations", "min_fresh", "reeval_age",
-    "reeval_prob", "reeval_count", "seeds", "generations",
-    "popsize", "sigma", "lr", "weight_decay", "weight_decay_form", "workers", "checkpoint_every",
-    "checkpoint_seconds", "progress", "results_dir", "experiment", "total_steps", "policy", "evaluator", "evaluator_workers", "ray_address",
-    "eval_mean_every", "eval_mean_episodes", "logger",
-)  # fmt: skip
-
-#: ``policy.*`` defaults (conf/config.yaml): the paper's 8x8 tanh MLP without normalisation, with
-#: biases, continuous actions squashed by tanh.
-POLICY_DEFAULTS = {"hidden": (8, 8), "obs_norm": False, "obs_norm_warmup": 5, "obs_var_floor": 0.01, "bias": True, "output": "tanh"}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -161,21 +111,7 @@ class RunSpec:
         if not ALGORITHM_SPECS[self.algo].is_es:
             changed = {k: v for k, v in (self.ddpg or {}).items() if k in DDPG_DEFAULTS and v != DDPG_DEFAULTS[k]}
             return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
-        values = {
-            "popsize": self.popsize, "sigma": self.sigma, "lr": self.lr, "weight_decay": self.weight_decay,
-            "weight_decay_form": self.weight_decay_form,
-        }  # fmt: skip
-        if self.mixing in ("im", "eim"):
-            values[f"{self.mixing}_variant"] = variant_spec(self.variant).config_name
-        if self.mixing == "im":
-            values["im_alpha"] = self.im_alpha
-        if self.mixing == "eim":
-            values["eim_generations"] = self.eim_generations
-        if self.mixing != "none":
-            values["min_fresh"] = self.min_fresh
-            values["reeval_age"] = self.reeval_age
-            values["reeval_prob"] = self.reeval_prob
-            values["reeval_count"] = self.reeval_count
+        values = {key.name: self._folder_value(key.name) for key in KEYS if key.names_folder_with(self.mixing)}
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
         mixes = self.mixing != "none"  # an "auto" option's default is what auto picks for this run
         defaults = {k: f.metadata["auto"](mixes) if "auto" in f.metadata else f.default for k, f in algo_option_fields(self.algo).items()}
@@ -201,6 +137,10 @@ class RunSpec:
     @property
     def run_dir(self) -> Path:
         return Path(self.results_dir) / self.experiment / self.run_name
+
+    def _folder_value(self, key: str):
+        """A key's value as it names the folder: the RunSpec field of its name, the variant by its config name."""
+        return variant_spec(self.variant).config_name if key.endswith("_variant") else getattr(self, key)
 
     def identity(self) -> dict:
         """The result-determining part of the config (compared with an existing config.yaml)."""
