@@ -21,9 +21,10 @@ accumulating the transformations) and ``tql2`` (implicit QL with Wilkinson shift
 large d (``benchmarks/cmaes_speed.py`` measures it) and, unlike LAPACK, the same on every CPU.
 ``tests/test_linalg_kernels.py`` checks it against ``numpy.linalg.eigh``.
 
-Compilation: ``@njit(cache=True)``, float64 C-contiguous arrays only (the wrappers make them so),
-and everything compiled lives in this one file (numba invalidates a cached function when its
-own file changes, not a callee's).
+Compilation: ``@njit(cache=True)``, float64 C-contiguous arrays only (the wrappers make them so);
+the cache is stamped with every compiled source of the package (:mod:`imix_cli.numba_cache`).
+Python code calls the wrappers through :mod:`imix_cli.numerics`; compiled code calls the kernels
+(``vec_mat_kernel``, ``numpy_sum``, ...).
 """
 
 from __future__ import annotations

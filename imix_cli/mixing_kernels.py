@@ -23,8 +23,9 @@ The log-ratio log(p_new / p_old) is computed with the coefficients of
 row ``x``, ``c - 1/2 sum((q y + l) y)`` with ``y = x - m_old``; for a fresh draw
 ``x = m_new + s_new eps``, ``c' + 1/2 sum((q' eps + l') eps)``.
 
-Compilation: ``@njit(cache=True)``, no ``fastmath`` (IEEE semantics); everything compiled lives
-in this one file, because numba invalidates a cached function when *its* file changes.
+Compilation: ``@njit(cache=True)``, no ``fastmath`` (IEEE semantics); the cache is stamped with
+every compiled source of the package (:mod:`imix_cli.numba_cache`). The compiled generation loop
+plans its generations with :func:`mix_step`.
 """
 
 from __future__ import annotations

@@ -37,9 +37,10 @@ __all__ = ["compile_groups", "warm_up", "warm_all"]
 
 #: Configurations whose kernels together are every compiled kernel of a run on a built-in
 #: environment: each mixing variant's step, both episode kernels (continuous CartPole shares
-#: CartPole's), the diagonal ES update and CMA-ES's linear algebra.
+#: CartPole's), each compiled ES update with its compiled loop (one entry per ES) and CMA-ES's linear algebra.
 INSTALL_CONFIGS = [
     ["algo=snes", "env=cartpole", "eim=true"],
+    ["algo=openes", "env=cartpole", "eim=true"],
     ["algo=snes", "env=acrobot", "im=true"],
     ["algo=snes", "env=cartpole", "im=true", "im_variant=sun2009"],
     ["algo=cmaes", "env=cartpole", "eim=true"],
