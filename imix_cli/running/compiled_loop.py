@@ -57,6 +57,7 @@ from imix_cli.algorithms.base import hash_multipliers
 from imix_cli.distributions import DiagonalGaussian
 from imix_cli.envs import kernels as ek
 from imix_cli.mixing import COMPILED_MAX_ELEMENTS, Generation, variant_spec
+from imix_cli.running.lockstep import generation_row
 
 __all__ = ["applies", "applies_to_run", "advance", "entry", "entry_for", "ENV_VARIABLE"]
 
@@ -93,7 +94,7 @@ def _make_chunk(digest: int):
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
         sample_rng, episode_rng, mean_rng, sizes, continuous, sparse, max_steps, eval_every, eval_episodes, generation0,
         best, best_return, last_u,
-        out_scores, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
+        out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
     ):  # fmt: skip
         """Run ``generations`` generations of one seed (module docstring); ``_UPDATE`` and ``_UTILITIES``
         are the ES's compiled step and utilities (:func:`entry`), ``state``/``counts``/``constants`` its
@@ -190,10 +191,7 @@ def _make_chunk(digest: int):
                     reused += 1
                     if source[i] == 1:
                         from_previous += 1
-            out_scores[g, 0] = lk.numpy_sum(fitness) / popsize  # np.mean (every return is finite here)
-            out_scores[g, 1] = fitness[0]
-            for i in range(1, popsize):
-                out_scores[g, 1] = max(out_scores[g, 1], fitness[i])
+            out_fitness[g] = fitness
             out_reused[g, 0] = reused
             out_reused[g, 1] = from_previous
             out_reused[g, 2] = reused - from_previous
@@ -331,7 +329,7 @@ def advance(st, settings, evaluator, generations: int) -> bool:
     last_u = np.zeros(popsize)
     a_n = np.array([n_arch], dtype=np.int64)
 
-    out_scores = np.empty((generations, 2))  # mean and best return of the generation
+    out_fitness = np.empty((generations, popsize))  # every member's return, stored or new
     out_reused = np.empty((generations, 3), dtype=np.int64)
     out_evaluated = np.empty(generations, dtype=np.int64)
     out_steps = np.empty(generations, dtype=np.int64)
@@ -349,7 +347,7 @@ def advance(st, settings, evaluator, generations: int) -> bool:
         st.sample_rng, st.episode_rng, st.mean_eval_rng, evaluator.layer_sizes(), type(evaluator).__name__ != "CartPoleEvaluator",
         bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps), int(settings.eval_mean_every), int(settings.eval_mean_episodes),
         st.generation, best, best_return, last_u,
-        out_scores, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
+        out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
     )  # fmt: skip
     if done < generations:  # put the generators back: the Python path takes this chunk
         for r, state in zip(rngs, snapshot):
@@ -371,18 +369,17 @@ def advance(st, settings, evaluator, generations: int) -> bool:
     if best_return[0] > st.best_return:
         st.best_params, st.best_return = best, float(best_return[0])
     every, episodes = settings.eval_mean_every, int(settings.eval_mean_episodes)
-    numbers = (out_scores, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
-    for scores, counts, n, steps, sigma_mean, theta in zip(*(a.tolist() for a in numbers)):
+    numbers = (out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
+    for fitness, (counts, n, steps, sigma_mean, theta) in zip(out_fitness, zip(*(a.tolist() for a in numbers))):
         st.evaluations += n
         st.env_steps += steps
         if every and (st.generation + 1) % every == 0:
             st.mean_policy_episodes += episodes
-        # lockstep.generation_row's row, key for key, from the numbers the kernel computed as it does
-        st.rows.append({
-            "algo": settings.algo, "env": settings.env, "mixing": settings.mixing_name, "seed": st.seed, "generation": st.generation,
-            "evaluations": st.evaluations, "env_steps": st.env_steps, "mean_score": scores[0], "best_score": scores[1],
-            "reused": counts[0], "reused_im": counts[1], "reused_eim": counts[2], "reevaluated": 0,
-            "popsize": settings.popsize, "sigma_mean": sigma_mean, "nonfinite": 0, "wall_time": 0.0,
-            "mean_policy_score": theta, "mean_policy_episodes": st.mean_policy_episodes,
-        })  # fmt: skip
+        row = generation_row(
+            algo=settings.algo, env=settings.env, mixing=settings.mixing_name, seed=st.seed, generation=st.generation,
+            evaluations=st.evaluations, env_steps=st.env_steps, fitness=fitness, reused=counts[0], reused_im=counts[1],
+            reused_eim=counts[2], reevaluated=0, popsize=settings.popsize, sigma_mean=sigma_mean,
+        )  # fmt: skip
+        row["mean_policy_score"], row["mean_policy_episodes"] = theta, st.mean_policy_episodes  # as measure_distribution_means
+        st.rows.append(row)
     return True
