@@ -58,18 +58,24 @@ def _same(a: dict, b: dict) -> None:
         np.testing.assert_array_equal(a["arrays"][name], b["arrays"][name], err_msg=name, strict=True)
 
 
-@pytest.mark.parametrize("overrides", CASES, ids=lambda o: " ".join(o))
-def test_compiled_chunks_give_the_python_loops_state_bit_for_bit(overrides):
-    settings, evaluator, python = _seed_state(overrides)
-    _, _, compiled = _seed_state(overrides)
+def _agree_chunk_by_chunk(python, compiled, settings, evaluator, chunks) -> None:
+    """Seed ``python`` through the Python loop and ``compiled`` through compiled chunks of these lengths (the archive
+    carried from one to the next): the same state after every chunk."""
     assert compiled_loop.applies(settings, evaluator, compiled)
-    for chunk in (1, 4, 25, 30):  # chunks of several lengths, the archive carried from one to the next
+    for chunk in chunks:
         for _ in range(chunk):
             advance_lockstep([python], settings, evaluator)
         assert compiled_loop.advance(compiled, settings, evaluator, chunk)
         for row in python.rows + compiled.rows:
             row["wall_time"] = 0.0
         _same(_snapshot(python), _snapshot(compiled))
+
+
+@pytest.mark.parametrize("overrides", CASES, ids=lambda o: " ".join(o))
+def test_compiled_chunks_give_the_python_loops_state_bit_for_bit(overrides):
+    settings, evaluator, python = _seed_state(overrides)
+    _, _, compiled = _seed_state(overrides)
+    _agree_chunk_by_chunk(python, compiled, settings, evaluator, (1, 4, 25, 30))
     reused = sum(row["reused"] for row in python.rows)
     assert python.generation == 60 and (reused == 0 if "eim=false" in overrides else reused > 100)
     assert any(np.isfinite(row["mean_policy_score"]) for row in python.rows)
@@ -121,14 +127,7 @@ def test_any_es_with_a_compiled_step_runs_in_the_compiled_loop():
         st.es = GuardedES(_ToyES(settings.dim, popsize=12, lr=0.5))
         states.append(st)
     python, compiled = states
-    assert compiled_loop.applies(settings, evaluator, compiled)
-    for chunk in (3, 17):
-        for _ in range(chunk):
-            advance_lockstep([python], settings, evaluator)
-        assert compiled_loop.advance(compiled, settings, evaluator, chunk)
-        for row in python.rows + compiled.rows:
-            row["wall_time"] = 0.0
-        _same(_snapshot(python), _snapshot(compiled))
+    _agree_chunk_by_chunk(python, compiled, settings, evaluator, (3, 17))
     assert compiled.es.steps == 20 and sum(row["reused"] for row in compiled.rows) > 20
     assert compiled.rows[-1]["sigma_mean"] == pytest.approx(0.25 * 0.99**19)
 
