@@ -23,10 +23,9 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from imix_cli import linalg_kernels as lk
-from imix_cli.elementary import math_log
+from imix_cli import numerics as xp
 
-_LOG_2PI = math_log(2.0 * np.pi)
+_LOG_2PI = xp.log(2.0 * np.pi)
 # Elements per block in the row-blocked kernels: ~4 MB of float64, small enough
 # to stay in cache, large enough that numpy's per-call overhead is negligible.
 _BLOCK_ELEMENTS = 1 << 19
@@ -54,7 +53,7 @@ def _whitened_sq_norms(x: np.ndarray, rows: np.ndarray, mean: np.ndarray, inv_st
             seg = buf[: min(_CHUNK, dim - c)]
             np.subtract(row[c : c + _CHUNK], mean[c : c + _CHUNK], out=seg)
             seg *= inv_std[c : c + _CHUNK]
-            acc += lk.dot(seg, seg)
+            acc += xp.dot(seg, seg)
         out[k] = acc
     return out
 
@@ -177,7 +176,7 @@ class DiagonalGaussian:
         self._cast = None  # mean and std in the sample dtype, made on first use
         self._inv_std = 1.0 / self.std
         # log of the normalising constant: -d/2 log(2 pi) - sum(log std)
-        self._log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(lk.log(self.std)))
+        self.log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(xp.log(self.std)))
 
     @property
     def dim(self) -> int:
@@ -207,7 +206,7 @@ class DiagonalGaussian:
             block = eps[rows]
             block *= std
             block += mean
-        return eps, self._log_norm - 0.5 * sq_norm
+        return eps, self.log_norm - 0.5 * sq_norm
 
     def log_ratio_to(self, other: DiagonalGaussian) -> DiagonalLogRatio:
         """The log-density ratio log(p_self / p_other), with its per-coordinate coefficients computed once."""
@@ -220,7 +219,7 @@ class DiagonalGaussian:
         """
         x = np.atleast_2d(x)
         rows = np.arange(x.shape[0]) if rows is None else np.asarray(rows)
-        return self._log_norm - 0.5 * _whitened_sq_norms(x, rows, self.mean, self._inv_std)
+        return self.log_norm - 0.5 * _whitened_sq_norms(x, rows, self.mean, self._inv_std)
 
     def _precision(self) -> np.ndarray:
         """1 / std**2, computed once per distribution (it enters every log-ratio it is part of)."""
@@ -268,14 +267,14 @@ class DiagonalLogRatio:
         self._old_mean = old.mean.astype(dtype, copy=False)
         self._row_quad = (w_new - w_old).astype(dtype, copy=False)
         self._row_lin = (-2.0 * delta * w_new).astype(dtype, copy=False)
-        self._row_const = new._log_norm - old._log_norm - 0.5 * lk.dot(delta * delta, w_new)
+        self._row_const = new.log_norm - old.log_norm - 0.5 * xp.dot(delta * delta, w_new)
         # Fresh draws x = m_new + s_new * eps, with a = delta/s_old, b = s_new/s_old:
         # 1/2 sum[-(1 - b^2) eps^2 + 2 a b eps] + 1/2 |a|^2 + const.
         a = delta * old._inv_std
         b = new.std * old._inv_std
         self._noise_quad = (-(1.0 - b * b)).astype(dtype, copy=False)
         self._noise_lin = (2.0 * a * b).astype(dtype, copy=False)
-        self._noise_const = new._log_norm - old._log_norm + 0.5 * lk.dot(a, a)
+        self._noise_const = new.log_norm - old.log_norm + 0.5 * xp.dot(a, a)
 
     def of_rows(self, x: np.ndarray, rows=None) -> np.ndarray:
         """The log-ratio at each row of ``x`` (or of ``x[rows]``, without copying them out first)."""
@@ -305,11 +304,11 @@ class FullGaussian:
             raise ValueError(f"FullGaussian: cov has shape {cov.shape}, expected {(self.dim, self.dim)}")
         self.cov = 0.5 * (cov + cov.T)  # symmetrise round-off
         try:
-            self.chol = lk.cholesky(self.cov)
+            self.chol = xp.cholesky(self.cov)
         except np.linalg.LinAlgError as err:
             raise ValueError("FullGaussian: cov is not positive definite") from err
         self.dtype = np.dtype(dtype)
-        self._log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(lk.log(np.diag(self.chol))))
+        self.log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(xp.log(np.diag(self.chol))))
 
     @property
     def dim(self) -> int:
@@ -331,11 +330,11 @@ class FullGaussian:
     def sample_with_log_prob(self, n: int, rng: np.random.Generator, other=None, out=None):
         """Draw ``n`` samples; return ``(samples, log_prob(samples))``, plus ``other.log_prob(samples)`` if given."""
         eps = rng.standard_normal((n, self.dim))
-        x = (self.mean + lk.lower_times_rows(self.chol, eps)).astype(self.dtype, copy=False)
+        x = (self.mean + xp.lower_times_rows(self.chol, eps)).astype(self.dtype, copy=False)
         if out is not None:
             out[...] = x
             x = out
-        log_prob = self._log_norm - 0.5 * lk.row_sq_norms(eps)
+        log_prob = self.log_norm - 0.5 * xp.row_sq_norms(eps)
         if other is None:
             return x, log_prob
         return x, log_prob, other.log_prob(x)
@@ -346,8 +345,8 @@ class FullGaussian:
         if rows is not None:
             x = x[np.asarray(rows)]
         # Solve L z = x - mean: z is the whitened sample, |z|^2 the squared Mahalanobis distance.
-        z = lk.lower_solve_rows(self.chol, x - self.mean)
-        return self._log_norm - 0.5 * lk.row_sq_norms(z)
+        z = xp.lower_solve_rows(self.chol, x - self.mean)
+        return self.log_norm - 0.5 * xp.row_sq_norms(z)
 
     def to_state(self) -> dict:
         """Mean, covariance and sample dtype (the Cholesky factor is recomputed, bit for bit, on load)."""

@@ -46,18 +46,14 @@ Acrobot's 2.77M against 2.01M (``imix bench rollouts``, batch 2, both versions b
 Compilation: ``exp``, ``log`` and ``tanh_lanes`` are inlined into their callers (they sit in the hot
 loops, and ``tanh_lanes`` must be inlined to be vectorised); the larger functions are compiled once
 and called (inlining ``sin``, ``cos`` and ``pow`` at every call site multiplied the compile time).
-Either way a cached kernel holds these functions' code, so numba's disk cache of a kernel does not
-see a change made here: each file that compiles them therefore names :data:`SOURCE_DIGEST` in a
-comment (``tests/test_elementary.py`` fails until it is updated, ``python -m imix_cli.elementary``
-updates it), and editing that comment invalidates that file's cache.
+Either way a cached kernel holds these functions' code, so numba's disk cache of a kernel would not
+see a change made here: :mod:`imix_cli.numba_cache` (imported below, before the first kernel of the
+package is defined) stamps every imix kernel with a hash of every compiled source, this file included.
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
-import re
-from pathlib import Path
 
 import numpy as np
 from llvmlite import ir
@@ -65,14 +61,12 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 from imix_cli import elementary_tables as _tables
+from imix_cli import numba_cache  # noqa: F401 -- imix's cache locator, in place before the first @njit(cache=True) of the package
 
 __all__ = [
     "exp", "expm1", "log", "log1p", "pow", "tanh", "tanh_lanes", "sin", "cos", "sin32", "cos32", "fma",
-    "math_exp", "math_log", "math_log1p", "math_pow", "SOURCE_DIGEST",
+    "math_exp", "math_log", "math_log1p", "math_pow",
 ]  # fmt: skip
-
-#: The first 16 hex digits of the SHA-256 of this file and its tables: named by every file whose kernels inline these functions.
-SOURCE_DIGEST = hashlib.sha256(b"".join(Path(p).read_bytes() for p in (__file__, _tables.__file__))).hexdigest()[:16]
 
 
 # ----------------------------------------------------------------------------- primitives
@@ -1126,34 +1120,3 @@ def math_log1p(x: float) -> float:
 def math_pow(x: float, y: float) -> float:
     """:func:`pow`, callable from Python (Python's ``x ** y`` on floats calls the C library's pow)."""
     return pow(x, y)
-
-
-# ----------------------------------------------------------------------------- the cache stamp
-#: The modules (paths below ``imix_cli/``) whose cached kernels inline these functions; each names
-#: :data:`SOURCE_DIGEST` in its :func:`stamp` line. (``running/compiled_loop.py`` hashes this file
-#: into its entry point's cache key itself.)
-DEPENDENTS = ("envs/kernels.py", "mixing_kernels.py", "linalg_kernels.py")
-_STAMP = re.compile(r"^# numba cache stamp: imix_cli/elementary\.py [0-9a-f]{16}.*$", re.MULTILINE)
-
-
-def stamp() -> str:
-    """The line a dependent module carries: editing this file changes it, and so that module's cache."""
-    return f"# numba cache stamp: imix_cli/elementary.py {SOURCE_DIGEST} (python -m imix_cli.elementary rewrites it)"
-
-
-def restamp() -> list[Path]:
-    """Rewrite the stamp line of every dependent module that does not carry the current one; the files changed."""
-    changed = []
-    for name in DEPENDENTS:
-        path = Path(__file__).parent / name
-        text = path.read_text()
-        new = _STAMP.sub(stamp(), text) if _STAMP.search(text) else text
-        if new != text:
-            path.write_text(new)
-            changed.append(path)
-    return changed
-
-
-if __name__ == "__main__":
-    for path in restamp():
-        print(f"restamped {path}")

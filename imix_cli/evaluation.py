@@ -177,7 +177,7 @@ class _CompiledEvaluator(BatchEvaluator):
         self._kernels = kernels
         self._no_trace = np.empty((0, 0, 0))
 
-    def _sizes(self) -> np.ndarray:
+    def layer_sizes(self) -> np.ndarray:
         return np.array([self.obs_dim, *self.hidden, self.out_dim], dtype=np.int64)
 
     def _evaluate_checked(self, params, seeds):
@@ -208,7 +208,7 @@ class CartPoleEvaluator(_CompiledEvaluator):
         super().__init__("cartpole", max_steps)
 
     def _episodes(self, params, seeds, returns, steps, trace):
-        self._kernels.cartpole_episodes(params, seeds, self._sizes(), False, False, self.max_steps, returns, steps, trace)
+        self._kernels.cartpole_episodes(params, seeds, self.layer_sizes(), False, False, self.max_steps, returns, steps, trace)
 
 
 class AcrobotEvaluator(_CompiledEvaluator):
@@ -222,7 +222,7 @@ class AcrobotEvaluator(_CompiledEvaluator):
         # float32 cos/sin of numpy's vector kernel, which numpy runs on CPUs with FMA3 only: imix_cli.elementary)
         s32 = self._kernels.seeded_uniform_rows(seeds, -0.1, 0.1, 4).astype(np.float32)
         obs0 = self._kernels.acrobot_first_observations(s32)
-        self._kernels.acrobot_episodes(params, s32.astype(np.float64), obs0, self._sizes(), self.max_steps, returns, steps, trace)
+        self._kernels.acrobot_episodes(params, s32.astype(np.float64), obs0, self.layer_sizes(), self.max_steps, returns, steps, trace)
 
 
 class ContinuousCartPoleEvaluator(_CompiledEvaluator):
@@ -234,7 +234,7 @@ class ContinuousCartPoleEvaluator(_CompiledEvaluator):
         self.hard = bool(hard)
 
     def _episodes(self, params, seeds, returns, steps, trace):
-        self._kernels.cartpole_episodes(params, seeds, self._sizes(), True, self.hard, self.max_steps, returns, steps, trace)
+        self._kernels.cartpole_episodes(params, seeds, self.layer_sizes(), True, self.hard, self.max_steps, returns, steps, trace)
 
 
 #: The built-ins' compiled evaluators, ``env name -> (max_steps -> evaluator)``: one entry per

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imix_cli import linalg_kernels as lk
+from imix_cli import numerics as xp
 from imix_cli.bounds import Bound
 from imix_cli.mixing import Generation, mix, variant_spec
 
@@ -227,7 +227,7 @@ class GenerationScheme:
         if settings.depth:  # the (stored, fresh) pairs, older ones forgotten
             ok = np.isfinite(stored_again) & np.isfinite(fitness[again])
             a, b = stored_again[ok], fitness[again][ok]
-            new = np.array([a.size, lk.dot(np.ones(a.size), a), lk.dot(np.ones(b.size), b), lk.dot(a, a), lk.dot(a, b)]) if a.size else 0.0
+            new = np.array([a.size, xp.dot(np.ones(a.size), a), xp.dot(np.ones(b.size), b), xp.dot(a, a), xp.dot(a, b)]) if a.size else 0.0
             archive.pairs = PAIR_MEMORY * archive.pairs + new
         if settings.reeval_count > 0:
             line = calibration(archive.pairs)

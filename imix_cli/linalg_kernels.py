@@ -21,9 +21,10 @@ accumulating the transformations) and ``tql2`` (implicit QL with Wilkinson shift
 large d (``benchmarks/cmaes_speed.py`` measures it) and, unlike LAPACK, the same on every CPU.
 ``tests/test_linalg_kernels.py`` checks it against ``numpy.linalg.eigh``.
 
-Compilation: ``@njit(cache=True)``, float64 C-contiguous arrays only (the wrappers make them so),
-and everything compiled lives in this one file (numba invalidates a cached function when its
-own file changes, not a callee's).
+Compilation: ``@njit(cache=True)``, float64 C-contiguous arrays only (the wrappers make them so);
+the cache is stamped with every compiled source of the package (:mod:`imix_cli.numba_cache`).
+Python code calls the wrappers through :mod:`imix_cli.numerics`; compiled code calls the kernels
+(``vec_mat_kernel``, ``numpy_sum``, ...).
 """
 
 from __future__ import annotations
@@ -35,9 +36,9 @@ from numba import njit
 
 from imix_cli import elementary as el
 
-# numba cache stamp: imix_cli/elementary.py 139c5148f7bf817e (python -m imix_cli.elementary rewrites it)
-
 __all__ = [
+    "numpy_sum",
+    "vec_mat_kernel",
     "dot",
     "vec_mat",
     "mat_vec",
@@ -74,6 +75,88 @@ def _vec_mat(w, x):
         for j in range(d):
             out[j] += wi * x[i, j]
     return out
+
+
+#: ``_vec_mat`` for other compiled code (the ES updates): the kernel itself, no argument conversion.
+vec_mat_kernel = _vec_mat
+
+
+# numpy's own summation order, for compiled code that must give the bits of a Python path's np.sum/np.mean
+@njit(cache=True)
+def _block_sum(a, lo, n):
+    """numpy's pairwise_sum (numpy/_core/src/umath/loops_utils.h.src) of n <= 128 numbers: one loop
+    below 8, else eight accumulators combined as a tree, then the remainder."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    last = n - n % 8
+    while i < last:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _half(n):
+    half = n // 2
+    return half - half % 8
+
+
+@njit(cache=True)
+def _pairwise(a, lo, n):
+    """numpy's pairwise_sum of ``a[lo:lo + n]``: above 128 numbers, the sum of the two halves (the
+    first rounded down to a multiple of 8), each summed the same way. Written with an explicit
+    stack: numba's on-disk cache does not reload self-recursive functions safely."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    los = np.empty(64, dtype=np.int64)
+    ns = np.empty(64, dtype=np.int64)
+    right = np.zeros(64, dtype=np.bool_)  # the pending node's left half is summed; its right is running
+    left = np.empty(64)
+    los[0], ns[0], right[0], top = lo, n, False, 1
+    while True:
+        i = top - 1
+        if ns[i] > 128:  # descend into the left half
+            los[top], ns[top], right[top] = los[i], _half(ns[i]), False
+            top += 1
+            continue
+        v = _block_sum(a, los[i], ns[i])
+        top -= 1
+        while True:  # hand v up: a left half starts its sibling, a right half completes its parent
+            if top == 0:
+                return v
+            p = top - 1
+            if not right[p]:
+                left[p], right[p] = v, True
+                half = _half(ns[p])
+                los[top], ns[top], right[top] = los[p] + half, ns[p] - half, False
+                top += 1
+                break
+            v = left[p] + v
+            top -= 1
+
+
+@njit(cache=True)
+def numpy_sum(a):
+    """``np.sum(a)`` of a contiguous (n,) float64 array, the same bits (numpy's pairwise summation), for
+    compiled code; ``numpy_sum(a) / n`` is ``np.mean(a)``."""
+    return _pairwise(a, 0, a.shape[0])
 
 
 @njit(cache=True)
@@ -409,6 +492,10 @@ def _eigh(a):
 
 
 # ------------------------------------------------------------------------------------ wrappers
+#: The kernels themselves, for compiled callers and for the warm-up's cache check (:mod:`imix_cli.running.warmup`).
+eigh_kernel, cholesky_kernel, tanh_kernel = _eigh, _cholesky, _tanh_inplace
+
+
 def _f64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float64)
 

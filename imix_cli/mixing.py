@@ -193,9 +193,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imix_cli import linalg_kernels as lk
+from imix_cli import numerics as xp
 from imix_cli.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
-from imix_cli.elementary import math_log1p
 
 __all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "Variant", "VARIANT_SPECS", "VARIANTS", "config_variants", "mix", "variant_spec"]
 
@@ -210,7 +209,7 @@ _SCRATCH_ELEMENTS = 1 << 20
 _UPFRONT_ELEMENTS = 1 << 16
 # Up to this many archived numbers, float64 diagonal steps are compiled (mixing_kernels; it copies
 # the archive into one array, 8 MB at most); above, numpy's vectorised step costs little more.
-_COMPILED_MAX_ELEMENTS = 1 << 20
+COMPILED_MAX_ELEMENTS = 1 << 20
 
 
 @dataclass
@@ -384,7 +383,7 @@ class _Builder:
 
 
 def _log_uniform(rng: np.random.Generator, n: int) -> np.ndarray:
-    return lk.log(rng.random(n))  # log(0) = -inf is a valid, always-accepting draw; libm's log, as on every CPU
+    return xp.log(rng.random(n))  # log(0) = -inf is a valid, always-accepting draw; libm's log, as on every CPU
 
 
 def _alternate_rules(builder: _Builder, new_dist, old_dist, old_samples, entry_number, rng) -> int:
@@ -423,7 +422,7 @@ def _alternate_rules(builder: _Builder, new_dist, old_dist, old_samples, entry_n
         else:
             accept_old = eligible[rows] & (log_u1[step:stop] < log_ratio.of_rows(old_samples, rows))  # rule 1
         candidates, cand_log_ratio = log_ratio.sample(size, rng, out=scratch[:size])
-        accept_new = u2[step:stop] < -lk.expm1(-np.maximum(cand_log_ratio, 0.0))  # rule 2: 1 - p_old/p_new
+        accept_new = u2[step:stop] < -xp.expm1(-np.maximum(cand_log_ratio, 0.0))  # rule 2: 1 - p_old/p_new
         filled = np.cumsum(accept_old.astype(np.int64) + accept_new)
         taken = min(size, int(np.searchsorted(filled, missing)) + 1)  # steps until full
         kept_old = rows[:taken][accept_old[:taken]]
@@ -439,7 +438,7 @@ def _sun2009(builder: _Builder, new_dist, old_dist, old_samples, alpha, rng) -> 
     n_old = old_samples.shape[0]
     log_ratio = _log_ratio(new_dist, old_dist)
     with np.errstate(divide="ignore"):
-        log_keep = math_log1p(-alpha)
+        log_keep = xp.log1p(-alpha)
     accepted = np.flatnonzero(_log_uniform(rng, n_old) < log_keep + log_ratio.of_rows(old_samples, np.arange(n_old)))
     if accepted.size > builder.popsize:  # only possible if the old generation was larger
         accepted = np.sort(rng.choice(accepted, builder.popsize, replace=False))
@@ -449,7 +448,7 @@ def _sun2009(builder: _Builder, new_dist, old_dist, old_samples, alpha, rng) -> 
     while builder.missing > 0 and trials < max_trials:
         n = builder.missing
         candidates, cand_log_ratio = log_ratio.sample(n, rng)
-        accept_prob = np.maximum(alpha, -lk.expm1(-np.maximum(cand_log_ratio, 0.0)))
+        accept_prob = np.maximum(alpha, -xp.expm1(-np.maximum(cand_log_ratio, 0.0)))
         accept_new = np.flatnonzero(rng.random(n) < accept_prob)[: builder.missing]
         builder.add(candidates[accept_new])
         trials += n
@@ -536,7 +535,7 @@ def _whitened(dist, x: np.ndarray) -> np.ndarray:
     if type(dist) is DiagonalGaussian:
         return (x - dist.mean) / dist.std
     if type(dist) is FullGaussian:
-        return lk.lower_solve_rows(dist.chol, x - dist.mean)
+        return xp.lower_solve_rows(dist.chol, x - dist.mean)
     raise ValueError(f'variant "conditional" needs Gaussian search distributions, got {type(dist).__name__}')
 
 
@@ -554,17 +553,17 @@ def _conditional(builder: _Builder, new_dist, entry, rng: np.random.Generator) -
         if weights.shape != (n,):
             raise ValueError(f"mean_weights has shape {weights.shape}, expected ({n},)")
         z = _whitened(old_dist, x)
-        total = lk.dot(weights, weights)
+        total = xp.dot(weights, weights)
         pull = weights / total  # a_i
         known = np.minimum(weights * weights / total, 1.0 - 1e-12)  # b_i < 1: q_i stays a density
-        move = lk.vec_mat(weights, z)  # s
+        move = xp.vec_mat(weights, z)  # s
 
     def log_q_over_old(slots, z_rows):
         """log q_i(x) - log p_old(x) for slot i = slots[k] at the whitened row z_rows[k]."""
         if not informed:
             return np.zeros(len(slots))
         dev = z_rows - pull[slots, None] * move
-        return -0.5 * lk.row_sq_norms(dev) / (1.0 - known[slots]) + 0.5 * lk.row_sq_norms(z_rows) - 0.5 * dim * lk.log(1.0 - known[slots])
+        return -0.5 * xp.row_sq_norms(dev) / (1.0 - known[slots]) + 0.5 * xp.row_sq_norms(z_rows) - 0.5 * dim * xp.log(1.0 - known[slots])
 
     slots = np.sort(rng.permutation(n)[: builder.popsize]) if n > builder.popsize else np.arange(n)
     r_old = ratio.of_rows(x, slots)
@@ -711,7 +710,7 @@ def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool
         if type(dist) is not DiagonalGaussian or samples.dtype != np.float64 or samples.shape[0] > popsize:
             return False
         archived += samples.size
-    return archived <= _COMPILED_MAX_ELEMENTS
+    return archived <= COMPILED_MAX_ELEMENTS
 
 
 def mix(

@@ -23,8 +23,9 @@ The log-ratio log(p_new / p_old) is computed with the coefficients of
 row ``x``, ``c - 1/2 sum((q y + l) y)`` with ``y = x - m_old``; for a fresh draw
 ``x = m_new + s_new eps``, ``c' + 1/2 sum((q' eps + l') eps)``.
 
-Compilation: ``@njit(cache=True)``, no ``fastmath`` (IEEE semantics); everything compiled lives
-in this one file, because numba invalidates a cached function when *its* file changes.
+Compilation: ``@njit(cache=True)``, no ``fastmath`` (IEEE semantics); the cache is stamped with
+every compiled source of the package (:mod:`imix_cli.numba_cache`). The compiled generation loop
+plans its generations with :func:`mix_step`.
 """
 
 from __future__ import annotations
@@ -33,8 +34,7 @@ import numpy as np
 from numba import njit
 
 from imix_cli import elementary as el
-
-# numba cache stamp: imix_cli/elementary.py 139c5148f7bf817e (python -m imix_cli.elementary rewrites it)
+from imix_cli import linalg_kernels as lk
 
 try:
     # The bounded integer draw of NumPy's Generator.shuffle (masked rejection on 32- or 64-bit
@@ -46,7 +46,7 @@ try:
 except ImportError:  # pragma: no cover - exercised by tests/test_mixing.py with the import removed
     random_interval = None
 
-__all__ = ["mix_diagonal"]
+__all__ = ["mix_diagonal", "mix_step", "diagonal_log_norm", "fill_plain", "put_row"]
 
 # As imix_cli.mixing: rule-2 draws per missing member before the rest is filled plainly.
 _MAX_TRIALS_PER_MEMBER = 200
@@ -387,6 +387,52 @@ def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, co
 KERNELS = {1: _mix_paper, 2: _mix_sun2009, 3: _mix_exact}
 
 
+#: For other compiled code (the compiled generation loop): the kernels themselves.
+put_row = _put
+fill_plain = _fill_plain
+_LOG_2PI = el.math_log(2.0 * np.pi)
+
+
+@njit(cache=True)
+def diagonal_log_norm(std):
+    """:attr:`imix_cli.distributions.DiagonalGaussian.log_norm` of standard deviations ``std`` compiled:
+    -d/2 log(2 pi) - np.sum(log std), numpy's summation order (:func:`imix_cli.linalg_kernels.numpy_sum`)."""
+    d = std.shape[0]
+    logs = np.empty(d)
+    for j in range(d):
+        logs[j] = el.log(std[j])
+    return -0.5 * d * _LOG_2PI - lk.numpy_sum(logs)
+
+
+@njit(cache=True)
+def mix_step(kernel, rng, mean, std, log_norm, means, stds, log_norms, xs, heights, heights_drawn, used, popsize, log_keep, alpha, min_fresh):
+    """One generation of ``popsize`` members of N(mean, std^2) for compiled code, as :func:`imix_cli.mixing.mix`
+    gives it: plain draws when ``kernel`` is 0 (no mixing) or ``used`` (the archived generations it may
+    reuse, newest first, the first ``used`` rows of ``means`` ... ``heights``) is 0, else the variant's
+    step (:data:`KERNELS`). ``"exact"`` (kernel 3) draws each generation's log-heights once, the first
+    time it is mixed from (``heights_drawn``), as :func:`imix_cli.mixing._heights` does.
+    Returns ``(samples, source, index, trials)``."""
+    d = mean.shape[0]
+    if kernel == 0 or used == 0:
+        x = np.empty((popsize, d))
+        _fill_plain(rng, mean, std, x, 0, popsize)
+        return x, np.zeros(popsize, dtype=np.int64), np.full(popsize, -1, dtype=np.int64), 0
+    if kernel == 3:
+        for k in range(used):
+            if not heights_drawn[k]:
+                for i in range(popsize):
+                    r = rng.random()
+                    heights[k, i] = el.log(r) if r > 0.0 else -np.inf
+                heights_drawn[k] = True
+    counts = np.full(used, popsize, dtype=np.int64)
+    m, s, ln, x, h = means[:used], stds[:used], log_norms[:used], xs[:used], heights[:used]
+    if kernel == 1:
+        return _mix_paper(rng, mean, std, log_norm, m, s, ln, x, h, counts, popsize, log_keep, alpha, min_fresh)
+    if kernel == 2:
+        return _mix_sun2009(rng, mean, std, log_norm, m, s, ln, x, h, counts, popsize, log_keep, alpha, min_fresh)
+    return _mix_exact(rng, mean, std, log_norm, m, s, ln, x, h, counts, popsize, log_keep, alpha, min_fresh)
+
+
 def _stacked(arrays, rows: int) -> np.ndarray:
     """The arrays (each ``rows`` long or shorter) as one array; shorter ones padded with zeros, never read."""
     if all(a.shape[0] == rows for a in arrays):
@@ -411,9 +457,9 @@ def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random
     counts = np.array([x.shape[0] for x in samples], dtype=np.int64)
     means = np.stack([dist.mean for dist in dists])
     stds = np.stack([dist.std for dist in dists])
-    log_norms = np.array([dist._log_norm for dist in dists])
+    log_norms = np.array([dist.log_norm for dist in dists])
     log_keep = el.math_log1p(-alpha)  # -inf for alpha = 1
     return KERNELS[kernel](
-        rng, new_dist.mean, new_dist.std, float(new_dist._log_norm),
+        rng, new_dist.mean, new_dist.std, float(new_dist.log_norm),
         means, stds, log_norms, xs, h, counts, popsize, log_keep, float(alpha), int(min_fresh),
     )  # fmt: skip

@@ -78,7 +78,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from imix_cli import linalg_kernels as lk
+from imix_cli import numerics as xp
 
 HIDDEN: tuple[int, ...] = (8, 8)
 
@@ -247,7 +247,7 @@ class BatchPolicy:
             np.einsum("ijb,ib->jb", W, x, out=y)
             np.add(y, b, out=y)
             if i < last:
-                lk.tanh(y, out=y)  # libm's: numpy's tanh differs between its AVX2 and baseline versions
+                xp.tanh(y, out=y)  # libm's: numpy's tanh differs between its AVX2 and baseline versions
             x = y
         return x if n > 1 else x[:, :1]
 
@@ -261,7 +261,7 @@ class BatchPolicy:
             return _argmax_cols(y)
         if self.output == "clip":
             return np.ascontiguousarray(np.clip(y, *self._clip).T)
-        a = lk.tanh(y)
+        a = xp.tanh(y)
         if self._offset is not None:  # low + (tanh + 1) * (high - low) / 2
             a += 1.0
             a *= self._scale

@@ -15,7 +15,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from numba import njit
 
+from imix_cli.algorithms.base import CompiledStep, EvolutionStrategy
+from imix_cli.distributions import DiagonalGaussian
+from imix_cli.divergence import GuardedES
+from imix_cli.linalg_kernels import numpy_sum
 from imix_cli.parallel_evaluation import build_evaluator
 from imix_cli.running import compiled_loop
 from imix_cli.running.checkpoints import _encode, _read_npz
@@ -53,21 +58,78 @@ def _same(a: dict, b: dict) -> None:
         np.testing.assert_array_equal(a["arrays"][name], b["arrays"][name], err_msg=name, strict=True)
 
 
-@pytest.mark.parametrize("overrides", CASES, ids=lambda o: " ".join(o))
-def test_compiled_chunks_give_the_python_loops_state_bit_for_bit(overrides):
-    settings, evaluator, python = _seed_state(overrides)
-    _, _, compiled = _seed_state(overrides)
+def _agree_chunk_by_chunk(python, compiled, settings, evaluator, chunks) -> None:
+    """Seed ``python`` through the Python loop and ``compiled`` through compiled chunks of these lengths (the archive
+    carried from one to the next): the same state after every chunk."""
     assert compiled_loop.applies(settings, evaluator, compiled)
-    for chunk in (1, 4, 25, 30):  # chunks of several lengths, the archive carried from one to the next
+    for chunk in chunks:
         for _ in range(chunk):
             advance_lockstep([python], settings, evaluator)
         assert compiled_loop.advance(compiled, settings, evaluator, chunk)
         for row in python.rows + compiled.rows:
             row["wall_time"] = 0.0
         _same(_snapshot(python), _snapshot(compiled))
+
+
+@pytest.mark.parametrize("overrides", CASES, ids=lambda o: " ".join(o))
+def test_compiled_chunks_give_the_python_loops_state_bit_for_bit(overrides):
+    settings, evaluator, python = _seed_state(overrides)
+    _, _, compiled = _seed_state(overrides)
+    _agree_chunk_by_chunk(python, compiled, settings, evaluator, (1, 4, 25, 30))
     reused = sum(row["reused"] for row in python.rows)
     assert python.generation == 60 and (reused == 0 if "eim=false" in overrides else reused > 100)
     assert any(np.isfinite(row["mean_policy_score"]) for row in python.rows)
+
+
+@njit
+def _toy_update(samples, utilities, state, counts, constants):
+    """mu += lr * mean_i u_i (x_i - mu); sigma *= 0.99 every generation (a made-up ES: not OpenES's or SNES's update)."""
+    n, d = samples.shape
+    for j in range(d):
+        g = 0.0
+        for i in range(n):
+            g += utilities[i] * (samples[i, j] - state[0, j])
+        state[0, j] += constants[0] * g / n
+        state[1, j] *= 0.99
+    counts[0] += 1
+
+
+class _ToyES(EvolutionStrategy):
+    """An ES of the documented recipe with a compiled step (docs/development.md, "An ES")."""
+
+    name = "toy"
+
+    def _setup(self):
+        self._dist, self.steps = DiagonalGaussian(self.initial_mean, self.sigma), 0
+
+    @property
+    def distribution(self):
+        return self._dist
+
+    def _update(self, samples, utilities):
+        self._update_compiled(samples, utilities)
+
+    def compiled_step(self):
+        state = np.stack([self._dist.mean, self._dist.std])
+        return CompiledStep(_toy_update, state, np.array([self.steps], dtype=np.int64), np.array([self.lr]))
+
+    def load_compiled_state(self, state, counts):
+        self._dist, self.steps = DiagonalGaussian(state[0], state[1]), int(counts[0])
+
+    def _state_dict(self):
+        return {"mu": self._dist.mean.copy(), "std": self._dist.std.copy(), "steps": self.steps}
+
+
+def test_any_es_with_a_compiled_step_runs_in_the_compiled_loop():
+    states = []
+    for _ in range(2):
+        settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=12"])
+        st.es = GuardedES(_ToyES(settings.dim, popsize=12, lr=0.5))
+        states.append(st)
+    python, compiled = states
+    _agree_chunk_by_chunk(python, compiled, settings, evaluator, (3, 17))
+    assert compiled.es.steps == 20 and sum(row["reused"] for row in compiled.rows) > 20
+    assert compiled.rows[-1]["sigma_mean"] == pytest.approx(0.25 * 0.99**19)
 
 
 def test_a_chunk_that_diverges_changes_nothing_and_is_left_to_the_python_loop():
@@ -104,9 +166,9 @@ def test_numpy_sum_is_numpys_pairwise_sum():
     for n in [*range(0, 300), 1000, 1023, 1024, 4097, 70001]:
         for _ in range(5):
             a = rng.standard_normal(n) * 10.0 ** rng.uniform(-4, 4, n)
-            assert compiled_loop._numpy_sum(a) == np.sum(a), n
+            assert numpy_sum(a) == np.sum(a), n
             if n:
-                assert compiled_loop._numpy_sum(a) / n == np.mean(a), n
+                assert numpy_sum(a) / n == np.mean(a), n
 
 
 def _run(args, results_dir, **env):

@@ -187,17 +187,6 @@ def test_the_exp_table_is_its_definition_in_decimal():
             assert abs(Decimal(high) * (1 + Decimal(tail)) - exact) <= abs(Decimal(high) - exact)
 
 
-def test_every_module_that_compiles_these_functions_names_this_version():
-    """numba's disk cache of a kernel is invalidated when the kernel's own file changes, not when an inlined
-    function of another file does: each module compiling :mod:`imix_cli.elementary` carries its digest, so that a
-    change there changes them too (``python -m imix_cli.elementary`` rewrites the lines)."""
-    package = Path(el.__file__).parent
-    stale = [name for name in el.DEPENDENTS if el.stamp() not in (package / name).read_text().splitlines()]
-    assert not stale, f"run `python -m imix_cli.elementary` (stale: {stale})"
-    compiled_here = sorted(str(p.relative_to(package)) for p in package.rglob("*.py") if "elementary as el" in p.read_text() and p.name != "compiled_loop.py")
-    assert compiled_here == sorted(el.DEPENDENTS), "a module compiling imix_cli.elementary must be listed in elementary.DEPENDENTS"
-
-
 def _numpy_has_fma3_kernels() -> bool:
     from numpy._core._multiarray_umath import __cpu_features__
 

@@ -56,7 +56,7 @@ def test_full_covariance_3d_mahalanobis_is_chi2(variant):
         pooled.append(g.samples)
         reused += g.reused
     x = np.concatenate(pooled)
-    d2 = -2.0 * (new.log_prob(x) - new._log_norm)  # squared Mahalanobis distance
+    d2 = -2.0 * (new.log_prob(x) - new.log_norm)  # squared Mahalanobis distance
     assert stats.kstest(d2, "chi2", args=(3,)).pvalue > KS_P_MIN
     # and each coordinate's marginal
     for i in range(3):

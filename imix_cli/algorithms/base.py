@@ -32,15 +32,19 @@ Non-finite fitness (NaN, +-inf from a user's environment) is ranked last
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from dataclasses import fields as fields_of
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
+from imix_cli import elementary as el
+from imix_cli import linalg_kernels as lk
 from imix_cli.bounds import Bound
-from imix_cli.elementary import math_pow
 
 
 def _tie_groups(values: np.ndarray):
@@ -131,6 +135,55 @@ def member_keys(samples: np.ndarray, salt: int = 0) -> np.ndarray:
     return h
 
 
+@njit(cache=True)
+def member_keys_kernel(samples, mult, salt_term):
+    """:func:`member_keys` compiled: ``mult`` is :func:`hash_multipliers`, ``salt_term`` the uint64 ``salt *
+    0x9E3779B97F4A7C15`` (wrapping uint64 arithmetic: the same keys)."""
+    n, d = samples.shape
+    bits = samples.view(np.uint64)
+    out = np.empty(n, dtype=np.uint64)
+    for i in range(n):
+        h = np.uint64(0)
+        for j in range(d):
+            h += bits[i, j] * mult[j]
+        h += salt_term
+        h ^= h >> np.uint64(30)
+        h *= np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(27)
+        h *= np.uint64(0x94D049BB133111EB)
+        h ^= h >> np.uint64(31)
+        out[i] = h
+    return out
+
+
+@njit(cache=True)
+def estool_centered_ranks_kernel(samples, fitness, generation, weight_decay, mult):
+    """:meth:`EvolutionStrategy.utilities` compiled, for ``fitness_shaping="centered_ranks"`` and
+    ``weight_decay_form="estool"`` and finite ``fitness``: centred ranks (ties ordered by :func:`member_keys`
+    salted with ``generation + 1``) minus ``weight_decay * mean(x_i^2)``, with numpy's own summation order
+    in the mean (:func:`imix_cli.linalg_kernels.numpy_sum`): the same bits as the Python method."""
+    n, d = samples.shape
+    keys = member_keys_kernel(samples, mult, np.uint64(generation + 1) * np.uint64(0x9E3779B97F4A7C15))
+    # np.lexsort((keys, fitness)): ascending fitness, ties by ascending key, stable (insertion sort)
+    order = np.arange(n)
+    for i in range(1, n):
+        k = order[i]
+        j = i - 1
+        while j >= 0 and (fitness[order[j]] > fitness[k] or (fitness[order[j]] == fitness[k] and keys[order[j]] > keys[k])):
+            order[j + 1] = order[j]
+            j -= 1
+        order[j + 1] = k
+    u = np.empty(n)
+    sq = np.empty(d)
+    for r in range(n):
+        u[order[r]] = float(r) / (n - 1) - 0.5
+    for i in range(n):
+        for j in range(d):
+            sq[j] = samples[i, j] * samples[i, j]
+        u[i] = u[i] - weight_decay * (lk.numpy_sum(sq) / d)
+    return u
+
+
 def rank_weights(utilities: np.ndarray, weights_by_rank: np.ndarray) -> np.ndarray:
     """The weight of each member when the best gets ``weights_by_rank[0]``, the next ``[1]``, ...
 
@@ -153,6 +206,21 @@ def rank_weights(utilities: np.ndarray, weights_by_rank: np.ndarray) -> np.ndarr
     return weights
 
 
+@njit(cache=True)
+def adam_step(m, v, counts, slot, lr, beta1, beta2, epsilon, grad):
+    """One Adam step (Kingma & Ba 2015): the moments ``m``, ``v`` and the step count ``counts[slot]`` in place;
+    returns the increment to *add* to the parameters. :class:`Adam` and every compiled ES update call it."""
+    counts[slot] += 1
+    t = float(counts[slot])
+    step_size = lr * math.sqrt(1.0 - el.pow(beta2, t)) / (1.0 - el.pow(beta1, t))
+    out = np.empty(grad.shape[0])
+    for j in range(grad.shape[0]):
+        m[j] = beta1 * m[j] + (1.0 - beta1) * grad[j]
+        v[j] = beta2 * v[j] + (1.0 - beta2) * grad[j] * grad[j]
+        out[j] = step_size * m[j] / (math.sqrt(v[j]) + epsilon)
+    return out
+
+
 class Adam:
     """Adam ascent on a parameter vector (Kingma & Ba 2015), as used by OpenES and SNES.
 
@@ -166,11 +234,11 @@ class Adam:
         self.t = 0
 
     def step(self, grad: np.ndarray) -> np.ndarray:
-        self.t += 1
-        self.m = self.beta1 * self.m + (1.0 - self.beta1) * grad
-        self.v = self.beta2 * self.v + (1.0 - self.beta2) * grad * grad
-        step_size = self.lr * np.sqrt(1.0 - math_pow(self.beta2, float(self.t))) / (1.0 - math_pow(self.beta1, float(self.t)))
-        return step_size * self.m / (np.sqrt(self.v) + self.epsilon)
+        counts = np.array([self.t], dtype=np.int64)
+        m, v, grad = self.m.copy(), self.v.copy(), np.ascontiguousarray(grad, dtype=np.float64)
+        out = adam_step(m, v, counts, 0, float(self.lr), float(self.beta1), float(self.beta2), float(self.epsilon), grad)
+        self.m, self.v, self.t = m, v, int(counts[0])
+        return out
 
     def state_dict(self) -> dict:
         """The moments and step count (the hyper-parameters come from the constructor)."""
@@ -286,6 +354,30 @@ class Params:
             raise ValueError(f"weight_decay_form must be one of {tuple(WEIGHT_DECAY_FORMS)}, got {self.weight_decay_form!r}")
         if self.fitness_shaping not in FITNESS_SHAPINGS:
             raise ValueError(f"fitness_shaping must be one of {tuple(FITNESS_SHAPINGS)}, got {self.fitness_shaping!r}")
+
+
+class CompiledStep(NamedTuple):
+    """An ES's update as a numba function over flat arrays (:meth:`EvolutionStrategy.compiled_step`).
+
+    Why: the compiled generation loop (:mod:`imix_cli.running.compiled_loop`) runs many generations of
+    a seed in one compiled call, so it needs the ES's update as compiled code; the ES's own
+    :meth:`~EvolutionStrategy._update` calls the same function, so the update is written once and
+    both loops give the same bits.
+
+    ``update(samples, utilities, state, counts, constants)`` moves the search distribution, in place of
+    ``state`` and ``counts``:
+
+    ``state``: float64, shape (rows, d). Row 0 is the mean, row 1 the standard deviations of the
+        diagonal Gaussian searched (the loop mixes and archives with them); further rows are the
+        ES's own (Adam's moments, SNES's log sigma, ...).
+    ``counts``: int64, the ES's integer state (Adam's step counts).
+    ``constants``: float64, the hyper-parameters the update reads (never written).
+    """
+
+    update: Callable
+    state: np.ndarray
+    counts: np.ndarray
+    constants: np.ndarray
 
 
 class EvolutionStrategy(ABC):
@@ -430,7 +522,34 @@ class EvolutionStrategy(ABC):
     # ------------------------------------------------------------ for subclasses
     @abstractmethod
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
-        """Move the search distribution; ``utilities`` are higher-is-better, one per row of ``samples``."""
+        """Move the search distribution; ``utilities`` are higher-is-better, one per row of ``samples``.
+        An ES with a :meth:`compiled_step` implements it as ``self._update_compiled(samples, utilities)``."""
+
+    # ------------------------------------------------------------ the compiled step
+    def compiled_step(self) -> CompiledStep | None:
+        """This ES's update as compiled code over its state, packed as :class:`CompiledStep` describes
+        (fresh arrays: changing them changes nothing until :meth:`load_compiled_state`); None: it has
+        none, and its seeds run in the Python loop. An ES that gives one also gives
+        :meth:`load_compiled_state` and runs its own :meth:`_update` through it (:meth:`_update_compiled`)."""
+        return None
+
+    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
+        """Take back the ``state`` and ``counts`` arrays of :meth:`compiled_step` after its update ran on them."""
+        raise NotImplementedError(f"{type(self).__name__} has no compiled step")
+
+    def _update_compiled(self, samples: np.ndarray, utilities: np.ndarray) -> None:
+        """:meth:`_update` through :meth:`compiled_step`: the one copy of the update."""
+        step = self.compiled_step()
+        step.update(np.ascontiguousarray(samples, dtype=np.float64), np.ascontiguousarray(utilities, dtype=np.float64), step.state, step.counts, step.constants)
+        self.load_compiled_state(step.state, step.counts)
+
+    def compiled_utilities(self):
+        """:meth:`utilities` as compiled code -- ``utilities(samples, fitness, generation, weight_decay,
+        hash_multipliers(d))`` for finite fitness -- when the ES's shaping and weight-decay form have one
+        (centred ranks with the estool form: :func:`estool_centered_ranks_kernel`); None otherwise."""
+        if self.params.fitness_shaping == "centered_ranks" and self.params.weight_decay_form == "estool":
+            return estool_centered_ranks_kernel
+        return None
 
     def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:
         """The weight c_j of each member of the generation just told in the mean's move.

@@ -45,10 +45,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imix_cli import linalg_kernels as lk
+from imix_cli import numerics as xp
 from imix_cli.algorithms.base import EvolutionStrategy, Params, prefixed, rank_weights, unprefixed
 from imix_cli.distributions import DiagonalGaussian
-from imix_cli.elementary import math_pow
 
 ELITE_WEIGHTS = ("equal", "log")
 STYLES = ("imix", "cemrl")
@@ -115,7 +114,7 @@ class CEM(EvolutionStrategy):
             if extra_variance_init is None:
                 extra_variance_init = 1e-3  # CEM-RL's damp
         if extra_variance_init is None:
-            extra_variance_init = math_pow(self.sigma, 2.0)
+            extra_variance_init = xp.power(self.sigma, 2.0)
         self.elite_fraction = float(p.elite_fraction)
         self.extra_variance_decay = float(p.extra_variance_decay)
         self.extra_variance_floor = float(p.extra_variance_floor)
@@ -130,7 +129,7 @@ class CEM(EvolutionStrategy):
     def _weights(self, k: int) -> np.ndarray:
         if self.elite_weights == "equal":
             return np.full(k, 1.0 / k)
-        w = lk.log((k + 1) / np.arange(1, k + 1))
+        w = xp.log((k + 1) / np.arange(1, k + 1))
         return w / w.sum()
 
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
@@ -141,12 +140,12 @@ class CEM(EvolutionStrategy):
         w = rank_weights(utilities, by_rank)  # elites' weights, ties sharing theirs; 0 for the rest
         self._told_mean_weights = w  # the new mean is sum_i w_i x_i
         old_mu = self._dist.mean
-        mu = lk.vec_mat(w, samples)  # one fixed summation order (not BLAS's): same bits on every CPU
+        mu = xp.vec_mat(w, samples)  # one fixed summation order (not BLAS's): same bits on every CPU
         self.extra_variance = self.extra_variance_decay * self.extra_variance + (1.0 - self.extra_variance_decay) * self.extra_variance_floor
         if self.style == "cemrl":
-            var = lk.vec_mat(w, (samples - old_mu) ** 2) / k + self.extra_variance
+            var = xp.vec_mat(w, (samples - old_mu) ** 2) / k + self.extra_variance
         else:
-            var = lk.vec_mat(w, (samples - mu) ** 2) + self.extra_variance
+            var = xp.vec_mat(w, (samples - mu) ** 2) + self.extra_variance
         self._dist = DiagonalGaussian(mu, np.sqrt(var))
 
     def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:

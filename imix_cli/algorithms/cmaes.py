@@ -74,20 +74,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imix_cli import linalg_kernels as lk
+from imix_cli import numerics as xp
 from imix_cli.algorithms.base import EvolutionStrategy, Params
 from imix_cli.distributions import FullGaussian
-from imix_cli.elementary import math_exp, math_log, math_pow
 
 
 def _pow(x, y) -> float:
     """``x ** y`` of Python or numpy scalars as Python and numpy compute it (the C library's pow), but with
     :func:`imix_cli.elementary.pow`: the same bits on every CPU (pycma's formulas are kept as they are)."""
-    return math_pow(float(x), float(y))
+    return xp.power(float(x), float(y))
 
 
 def _log(x) -> float:
-    return math_log(float(x))
+    return xp.log(float(x))
 
 
 #: Largest dimension CMAES accepts. Each seed keeps four d x d float64 matrices (C, its
@@ -173,11 +172,11 @@ def _gamma(x: float) -> float:
     y = x + _LANCZOS_G_MINUS_HALF
     z = (y - x) - _LANCZOS_G_MINUS_HALF if x > _LANCZOS_G_MINUS_HALF else (y - _LANCZOS_G_MINUS_HALF) - x
     z = z * _LANCZOS_G / y
-    r = num / den / math_exp(y)
+    r = num / den / xp.exp(y)
     r += z * r
     if x < 140.0:
-        return r * math_pow(y, x - 0.5)
-    half = math_pow(y, x / 2.0 - 0.25)
+        return r * xp.power(y, x - 0.5)
+    half = xp.power(y, x / 2.0 - 0.25)
     return r * half * half
 
 
@@ -314,7 +313,7 @@ class CMAES(EvolutionStrategy):
         # until the 1e12 condition alleviation sets it
         self.step_size = self.sigma  # pycma's sigma; self.sigma stays sigma0
         self.mean_geno = self.initial_mean.copy()
-        self.C = np.diag(lk.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
+        self.C = np.diag(xp.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
         self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()  # D, ascending; C = B D^2 B^T
         self.eigenvectors = np.eye(d)  # B, columns
         self.scaling = np.ones(d)  # pycma's sigma_vec (coordinate condition alleviation)
@@ -343,8 +342,8 @@ class CMAES(EvolutionStrategy):
         cov = self.C * (_pow(self.step_size, 2) * np.outer(self.scaling, self.scaling))
         mean = self.mean_geno
         if self.transform is not None:
-            mean = lk.mat_vec(self.transform, mean)
-            cov = lk.mat_mat(lk.mat_mat(self.transform, cov), self.transform.T)
+            mean = xp.mat_vec(self.transform, mean)
+            cov = xp.mat_mat(xp.mat_mat(self.transform, cov), self.transform.T)
         self._dist = FullGaussian(mean, cov)
 
     # ------------------------------------------------------------------ TPA
@@ -360,12 +359,12 @@ class CMAES(EvolutionStrategy):
         with CSA, and before the mean has moved."""
         if self.params.step_size_control != "tpa" or not np.any(self.tpa_move):
             return None
-        whitened = lk.vec_mat(self.tpa_move / self.scaling, self.eigenvectors) / self.eigenvalues_sqrt / self.step_size
+        whitened = xp.vec_mat(self.tpa_move / self.scaling, self.eigenvectors) / self.eigenvalues_sqrt / self.step_size
         draw = rng.standard_normal(self.dim)
         # lengths by the fixed-order kernel, not numpy's BLAS dot: the same bits under every CPU kernel
-        y = self.tpa_move * math.sqrt(lk.dot(draw, draw) / lk.dot(whitened, whitened))
+        y = self.tpa_move * math.sqrt(xp.dot(draw, draw) / xp.dot(whitened, whitened))
         points = np.vstack([self.mean_geno + y, self.mean_geno - y])
-        return points if self.transform is None else lk.mat_mat(points, self.transform.T)
+        return points if self.transform is None else xp.mat_mat(points, self.transform.T)
 
     def tell(self, samples, fitness, probe_fitness=None) -> None:
         """:meth:`EvolutionStrategy.tell`; with TPA, ``probe_fitness`` holds the returns of the two
@@ -408,7 +407,7 @@ class CMAES(EvolutionStrategy):
         p, weights = self._parameters(n)
         d, sigma, cs, cc = self.dim, self.step_size, self.cs, p.cc
         B, D, scaling = self.eigenvectors, self.eigenvalues_sqrt, self.scaling
-        x = samples if self.transform is None else lk.mat_mat(samples, self.transform_inverse.T)  # genotypes
+        x = samples if self.transform is None else xp.mat_mat(samples, self.transform_inverse.T)  # genotypes
         self.countiter += 1
 
         # Selection: best first. Tied utilities share their positions' weights, separately
@@ -422,12 +421,12 @@ class CMAES(EvolutionStrategy):
         # [T] (9): m' = sum_i w_i x_{i:lambda} over the positive weights (pycma: cmean = 1)
         mean_old = self.mean_geno
         k = int(np.flatnonzero(w_pos)[-1]) + 1  # without ties: mu
-        self.mean_geno = lk.vec_mat(w_pos[:k], x[:k])
+        self.mean_geno = xp.vec_mat(w_pos[:k], x[:k])
         dm = self.mean_geno - mean_old
 
         # [T] (43): p_sigma <- (1 - cs) p_sigma + sqrt(cs (2 - cs) mueff) C^-1/2 (m' - m) / sigma,
         # C^-1/2 = B D^-1 B^T from the decomposition before this update
-        z = lk.mat_vec(B, lk.vec_mat(dm / scaling, B) / D)
+        z = xp.mat_vec(B, xp.vec_mat(dm / scaling, B) / D)
         z *= _pow(p.mueff, 0.5) / sigma / 1.0
         self.p_sigma *= 1 - cs
         self.p_sigma += math.sqrt(cs * (2 - cs)) * z
@@ -449,12 +448,12 @@ class CMAES(EvolutionStrategy):
         coef = cmu * w_pos
         negative = np.flatnonzero(w_neg)
         if negative.size:
-            whitened = lk.mat_mat(y[negative], B) / D  # B^T y / D, row by row
-            norms = np.sqrt(lk.row_sq_norms(whitened))
+            whitened = xp.mat_mat(y[negative], B) / D  # B^T y / D, row by row
+            norms = np.sqrt(xp.row_sq_norms(whitened))
             coef[negative] += (cmu * w_neg[negative]) * (d / (norms + 1e-9) ** 2)
         vectors = np.vstack((_pow(c1 / (c1a + 1e-23), 0.5) * self.p_c, y))
         self.C *= decay
-        self.C += lk.weighted_gram(np.concatenate(([c1a], coef)), vectors)
+        self.C += xp.weighted_gram(np.concatenate(([c1a], coef)), vectors)
 
         # [T] (44): sigma <- sigma exp(cs / damps (||p_sigma|| / E||N(0, I)|| - 1)), change of
         # log sigma clipped to +-1 (pycma's max_delta_log_sigma)
@@ -464,7 +463,7 @@ class CMAES(EvolutionStrategy):
         else:
             s = np.sqrt(np.sum(np.square(self.p_sigma))) / self.chi_d - 1
             s *= cs / self.damps
-        self.step_size *= math_exp(min(max(float(s), -1), 1))
+        self.step_size *= xp.exp(min(max(float(s), -1), 1))
         # pycma moves a huge sigma into C (_redistribute_sigma_above = 1e9), same distribution
         if self.step_size > 1e9 * self.sigma:
             alpha = float(self.step_size / _pow(np.max(np.diag(self.C)), 0.5))
@@ -488,7 +487,7 @@ class CMAES(EvolutionStrategy):
         for _ in range(_MAX_EIGEN_REPAIRS):
             self.C = (self.C + self.C.T) / 2
             try:
-                eigenvalues, eigenvectors = lk.eigh(self.C)
+                eigenvalues, eigenvectors = xp.eigh(self.C)
                 if np.all(eigenvalues > 0):
                     break
             except np.linalg.LinAlgError:
@@ -500,7 +499,7 @@ class CMAES(EvolutionStrategy):
             previous = (previous**2 + shift) ** 0.5
         else:
             raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
-        if np.any(np.diff(eigenvalues) < 0):  # lk.eigh returns them ascending; pycma sorts anyway
+        if np.any(np.diff(eigenvalues) < 0):  # xp.eigh returns them ascending; pycma sorts anyway
             idx = np.argsort(eigenvalues)
             eigenvalues, eigenvectors = eigenvalues[idx], eigenvectors[:, idx]
         self.eigenvectors = eigenvectors
@@ -533,17 +532,17 @@ class CMAES(EvolutionStrategy):
         D = self.eigenvalues_sqrt
         if self.transform is None and limit and _pow(D[-1] / D[0], 2) >= limit:
             B = self.eigenvectors
-            tf_inv = lk.mat_mat(B / D, B.T)
-            tf = lk.mat_mat(B * D, B.T)
+            tf_inv = xp.mat_mat(B / D, B.T)
+            tf = xp.mat_mat(B * D, B.T)
             d = self.dim
-            self.C = np.diag(lk.exp((1e-4 / d) * np.arange(d)))  # sampler reset, not decomposed again
+            self.C = np.diag(xp.exp((1e-4 / d) * np.arange(d)))  # sampler reset, not decomposed again
             self.eigenvectors = np.eye(d)
             self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()
-            self.p_c = lk.mat_vec(tf_inv, self.p_c)
+            self.p_c = xp.mat_vec(tf_inv, self.p_c)
             self.transform = self.scaling[:, None] * tf
             self.transform_inverse = tf_inv / self.scaling[None, :]
             self.scaling = np.ones(d)
-            self.mean_geno = lk.mat_vec(self.transform_inverse, self.mean_geno)
+            self.mean_geno = xp.mat_vec(self.transform_inverse, self.mean_geno)
             decomposed = True
         return decomposed
 

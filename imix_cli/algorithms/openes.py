@@ -20,10 +20,32 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from imix_cli import linalg_kernels as lk
-from imix_cli.algorithms.base import Adam, EvolutionStrategy, Params, _array_like, prefixed, unprefixed
+from imix_cli.algorithms.base import Adam, CompiledStep, EvolutionStrategy, Params, _array_like, adam_step, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
+
+
+@njit(cache=True)
+def openes_update(samples, utilities, state, counts, constants):
+    """One generation of OpenES (module docstring), in place: ``state`` rows mu, sigma (per coordinate),
+    Adam's m and v; ``counts`` Adam's step count; ``constants`` sigma, lr, beta1, beta2, epsilon.
+    The one copy of the update (:class:`~imix_cli.algorithms.base.CompiledStep`): :meth:`OpenES._update`
+    and the compiled generation loop both run it."""
+    n, d = samples.shape
+    mu, sigma = state[0], constants[0]
+    eps = np.empty((n, d))
+    for i in range(n):
+        for j in range(d):
+            eps[i, j] = (samples[i, j] - mu[j]) / sigma
+    grad = lk.vec_mat_kernel(utilities, eps)  # one fixed summation order (not BLAS's): same bits on every CPU
+    scale = n * sigma
+    for j in range(d):
+        grad[j] = grad[j] / scale
+    step = adam_step(state[2], state[3], counts, 0, constants[1], constants[2], constants[3], constants[4], grad)
+    for j in range(d):
+        mu[j] = mu[j] + step[j]
 
 
 @dataclass(frozen=True)
@@ -57,10 +79,17 @@ class OpenES(EvolutionStrategy):
         return self._dist
 
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
-        n = samples.shape[0]
-        eps = (samples - self._mu) / self.sigma
-        grad = lk.vec_mat(utilities, eps) / (n * self.sigma)  # one fixed summation order (not BLAS's): same bits on every CPU
-        self._mu = self._mu + self.optimizer.step(grad)
+        self._update_compiled(samples, utilities)
+
+    def compiled_step(self) -> CompiledStep:
+        o = self.optimizer
+        state = np.stack([self._mu, self._dist.std, o.m, o.v])
+        constants = np.array([self.sigma, o.lr, o.beta1, o.beta2, o.epsilon], dtype=np.float64)
+        return CompiledStep(openes_update, state, np.array([o.t], dtype=np.int64), constants)
+
+    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
+        self._mu = state[0].copy()
+        self.optimizer.m, self.optimizer.v, self.optimizer.t = state[2].copy(), state[3].copy(), int(counts[0])
         self._dist = DiagonalGaussian(self._mu, self.sigma)
 
     def _state_dict(self) -> dict:

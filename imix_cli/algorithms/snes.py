@@ -35,11 +35,41 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
+from imix_cli import elementary as el
 from imix_cli import linalg_kernels as lk
-from imix_cli.algorithms.base import Adam, EvolutionStrategy, Params, _array_like, prefixed, unprefixed
+from imix_cli import numerics as xp
+from imix_cli.algorithms.base import Adam, CompiledStep, EvolutionStrategy, Params, _array_like, adam_step, prefixed, unprefixed
 from imix_cli.distributions import DiagonalGaussian
-from imix_cli.elementary import math_log
+
+
+@njit(cache=True)
+def snes_update(samples, utilities, state, counts, constants):
+    """One generation of SNES (module docstring), in place: ``state`` rows mu, sigma, log sigma, Adam's m
+    and v for mu, then for log sigma; ``counts`` the two Adams' step counts; ``constants`` lr, sigma_lr,
+    beta1, beta2 and the two Adams' epsilons. The one copy of the update
+    (:class:`~imix_cli.algorithms.base.CompiledStep`): :meth:`SNES._update` and the compiled generation
+    loop both run it."""
+    n, d = samples.shape
+    mu, sigma, log_sigma = state[0], state[1], state[2]
+    s = np.empty((n, d))
+    sq = np.empty((n, d))
+    for i in range(n):
+        for j in range(d):
+            s[i, j] = (samples[i, j] - mu[j]) / sigma[j]
+            sq[i, j] = s[i, j] * s[i, j] - 1.0
+    grad_mu = lk.vec_mat_kernel(utilities, s)  # sums in one fixed order (not BLAS's): same bits on every CPU
+    grad_log_sigma = lk.vec_mat_kernel(utilities, sq)
+    for j in range(d):
+        grad_mu[j] = sigma[j] * grad_mu[j]
+        grad_log_sigma[j] = grad_log_sigma[j] / 2.0
+    step_mu = adam_step(state[3], state[4], counts, 0, constants[0], constants[2], constants[3], constants[4], grad_mu)
+    step_log_sigma = adam_step(state[5], state[6], counts, 1, constants[1], constants[2], constants[3], constants[5], grad_log_sigma)
+    for j in range(d):
+        mu[j] = mu[j] + step_mu[j]
+        log_sigma[j] = log_sigma[j] + step_log_sigma[j]
+        sigma[j] = el.exp(log_sigma[j])
 
 
 @dataclass(frozen=True)
@@ -74,23 +104,29 @@ class SNES(EvolutionStrategy):
         beta1, beta2 = self.params.beta1, self.params.beta2
         self.sigma_lr = self.lr if self.params.sigma_lr is None else float(self.params.sigma_lr)
         self._mu = self.initial_mean.copy()
-        self._log_sigma = np.full(self.dim, math_log(self.sigma))
+        self._log_sigma = np.full(self.dim, xp.log(self.sigma))
         self.mu_optimizer = Adam(self.dim, lr=self.lr, beta1=beta1, beta2=beta2)
         self.sigma_optimizer = Adam(self.dim, lr=self.sigma_lr, beta1=beta1, beta2=beta2)
-        self._dist = DiagonalGaussian(self._mu, lk.exp(self._log_sigma))
+        self._dist = DiagonalGaussian(self._mu, xp.exp(self._log_sigma))
 
     @property
     def distribution(self) -> DiagonalGaussian:
         return self._dist
 
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
-        sigma = self._dist.std
-        s = (samples - self._mu) / sigma
-        grad_mu = sigma * lk.vec_mat(utilities, s)  # sums in one fixed order (not BLAS's): same bits on every CPU
-        grad_log_sigma = lk.vec_mat(utilities, s * s - 1.0) / 2.0
-        self._mu = self._mu + self.mu_optimizer.step(grad_mu)
-        self._log_sigma = self._log_sigma + self.sigma_optimizer.step(grad_log_sigma)
-        self._dist = DiagonalGaussian(self._mu, lk.exp(self._log_sigma))
+        self._update_compiled(samples, utilities)
+
+    def compiled_step(self) -> CompiledStep:
+        m, s = self.mu_optimizer, self.sigma_optimizer
+        state = np.stack([self._mu, self._dist.std, self._log_sigma, m.m, m.v, s.m, s.v])
+        constants = np.array([m.lr, s.lr, m.beta1, m.beta2, m.epsilon, s.epsilon], dtype=np.float64)
+        return CompiledStep(snes_update, state, np.array([m.t, s.t], dtype=np.int64), constants)
+
+    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
+        self._mu, self._log_sigma = state[0].copy(), state[2].copy()
+        self.mu_optimizer.m, self.mu_optimizer.v, self.mu_optimizer.t = state[3].copy(), state[4].copy(), int(counts[0])
+        self.sigma_optimizer.m, self.sigma_optimizer.v, self.sigma_optimizer.t = state[5].copy(), state[6].copy(), int(counts[1])
+        self._dist = DiagonalGaussian(self._mu, state[1])
 
     def _state_dict(self) -> dict:
         return {
@@ -105,4 +141,4 @@ class SNES(EvolutionStrategy):
         self._log_sigma = _array_like(state["log_sigma"], self._log_sigma, "log_sigma")
         self.mu_optimizer.load_state_dict(unprefixed("mu_optimizer", state))
         self.sigma_optimizer.load_state_dict(unprefixed("sigma_optimizer", state))
-        self._dist = DiagonalGaussian(self._mu, lk.exp(self._log_sigma))
+        self._dist = DiagonalGaussian(self._mu, xp.exp(self._log_sigma))

@@ -39,10 +39,9 @@ multiply-adds written out in :mod:`imix_cli.elementary`.
 Compilation: ``@njit(cache=True)``: the machine code is written to numba's on-disk cache on
 first use (``__pycache__`` next to this file, or the user's cache directory when that is not
 writable, e.g. a root-owned site-packages) and loaded from there by every later process,
-spawned workers included. Everything compiled lives in this one file on purpose: numba
-invalidates a cached function when *its* file changes, not when a callee in another file does --
-hence the stamp below, which names the version of :mod:`imix_cli.elementary` compiled in
-(``tests/test_elementary.py`` fails until it is updated: ``python -m imix_cli.elementary``).
+spawned workers included. numba invalidates a cached function when *its* file changes, not when
+a callee in another file does (:mod:`imix_cli.elementary`'s functions are compiled in): imix's
+cache locator (:mod:`imix_cli.numba_cache`) stamps these kernels with every compiled source of the package.
 """
 
 from __future__ import annotations
@@ -56,8 +55,6 @@ from numba import njit
 
 from imix_cli import elementary as el
 from imix_cli.envs.continuous_cartpole import FORCE_MAG
-
-# numba cache stamp: imix_cli/elementary.py 139c5148f7bf817e (python -m imix_cli.elementary rewrites it)
 
 __all__ = [
     "uniform_row",

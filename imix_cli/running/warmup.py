@@ -37,9 +37,10 @@ __all__ = ["compile_groups", "warm_up", "warm_all"]
 
 #: Configurations whose kernels together are every compiled kernel of a run on a built-in
 #: environment: each mixing variant's step, both episode kernels (continuous CartPole shares
-#: CartPole's), the diagonal ES update and CMA-ES's linear algebra.
+#: CartPole's), each compiled ES update with its compiled loop (one entry per ES) and CMA-ES's linear algebra.
 INSTALL_CONFIGS = [
     ["algo=snes", "env=cartpole", "eim=true"],
+    ["algo=openes", "env=cartpole", "eim=true"],
     ["algo=snes", "env=acrobot", "im=true"],
     ["algo=snes", "env=cartpole", "im=true", "im_variant=sun2009"],
     ["algo=cmaes", "env=cartpole", "eim=true"],
@@ -65,12 +66,11 @@ def _mixing_group(spec) -> None:
 def _policy_group(spec) -> None:
     """The elementary functions (imix_cli.elementary) of the gymnasium policies, of the numpy mixing path
     (CMA-ES) and of the ES's Python side (CMA-ES's constants, Adam's bias correction)."""
-    from imix_cli import elementary
-    from imix_cli import linalg_kernels as lk
+    from imix_cli import numerics as xp
 
-    lk.tanh(np.zeros((2, 2)))
-    lk.expm1(np.zeros(2))
-    elementary.math_exp(0.5), elementary.math_log(0.5), elementary.math_log1p(0.5), elementary.math_pow(0.5, 0.5)
+    xp.tanh(np.zeros((2, 2)))
+    xp.expm1(np.zeros(2))
+    xp.exp(0.5), xp.log(0.5), xp.log1p(0.5), xp.power(0.5, 0.5)
 
 
 def _episodes_group(spec) -> None:
@@ -97,10 +97,16 @@ def compile_groups(spec) -> list:
     """The groups of kernels (functions of ``spec``) whose compile the run can spread over cores, and
     the compiled entry points whose presence in the cache says a group is already compiled."""
     from imix_cli import linalg_kernels, mixing_kernels
+    from imix_cli.algorithms import make_es
     from imix_cli.mixing import variant_spec
 
     groups = []
-    entries = [linalg_kernels._vec_mat] if spec.algo != "cmaes" else [linalg_kernels._eigh, linalg_kernels._cholesky]
+    es = make_es(spec.algo, 1)
+    step = es.compiled_step()  # the ES's compiled update, which its tell runs (imix_cli.algorithms.base.CompiledStep)
+    if step is not None:
+        entries = [step.update]
+    else:
+        entries = [linalg_kernels.vec_mat_kernel] if spec.algo != "cmaes" else [linalg_kernels.eigh_kernel, linalg_kernels.cholesky_kernel]
     kernel = variant_spec(spec.variant).kernel if spec.variant is not None else 0
     if kernel and spec.algo != "cmaes":
         entries.append(mixing_kernels.KERNELS[kernel])
@@ -117,7 +123,7 @@ def compile_groups(spec) -> list:
             from imix_cli.running.lockstep import loop_settings
 
             if compiled_loop.applies_to_run(loop_settings(spec, evaluator), evaluator):
-                groups.append((_compiled_loop_group, [compiled_loop.entry()]))
+                groups.append((_compiled_loop_group, [compiled_loop.entry_for(es)]))
         elif isinstance(evaluator, AcrobotEvaluator):
             groups.append((_episodes_group, [kernels.acrobot_episodes]))
     return groups
@@ -169,7 +175,7 @@ def warm_all(workers: int | None = None) -> int:
     from imix_cli import elementary, linalg_kernels
     from imix_cli.running.config import validate_overrides
 
-    policy_entries = [linalg_kernels._tanh_inplace, elementary.math_exp, elementary.math_log, elementary.math_log1p, elementary.math_pow]
+    policy_entries = [linalg_kernels.tanh_kernel, elementary.math_exp, elementary.math_log, elementary.math_log1p, elementary.math_pow]
     jobs, seen = [(_policy_group, None)] if not all(_cached(e) for e in policy_entries) else [], set()
     for overrides in INSTALL_CONFIGS:
         (spec,) = validate_overrides(overrides)

@@ -1,0 +1,79 @@
+"""imix's numba cache stamp (imix_cli.numba_cache): computed from every compiled source, used by every cached kernel.
+
+What must hold: editing a function recompiles its callers in other files (numba alone keeps their stale
+machine code); every cached kernel of the package carries the computed stamp; no stamp is written by hand.
+"""
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+from imix_cli import numba_cache
+
+_CALLEE = "from numba import njit\n\n\n@njit(cache=True)\ndef f(x):\n    return x + {}\n"
+_CALLER = textwrap.dedent(
+    """
+    from numba import njit
+    {}
+    from pkg import callee
+
+
+    @njit(cache=True)
+    def g(x):
+        return callee.f(x) * 2.0
+    """
+)
+
+
+def _run_twice(tmp_path: Path, stamped: bool) -> tuple[str, str]:
+    """``g(1.0)`` in a fresh process, before and after ``f`` (another file) changes from x + 1 to x + 2."""
+    pkg = tmp_path / ("stamped" if stamped else "plain") / "pkg"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "numba_cache.py").write_text(Path(numba_cache.__file__).read_text())  # stamps its own folder's sources
+    (pkg / "caller.py").write_text(_CALLER.format("from pkg import numba_cache  # noqa: F401" if stamped else ""))
+    out = []
+    for term in ("1.0", "2.0"):
+        (pkg / "callee.py").write_text(_CALLEE.format(term))
+        done = subprocess.run([sys.executable, "-c", "from pkg import caller; print(caller.g(1.0))"], cwd=pkg.parent, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr[-2000:]
+        out.append(done.stdout.strip())
+    return tuple(out)
+
+
+def test_an_edit_of_a_callee_in_another_file_recompiles_its_callers(tmp_path):
+    assert _run_twice(tmp_path, stamped=False) == ("4.0", "4.0")  # numba alone: the caller's stale machine code
+    assert _run_twice(tmp_path, stamped=True) == ("4.0", "6.0")
+
+
+_CHECK = """
+import importlib, sys
+modules = [importlib.import_module(name) for name in sys.argv[1:]]  # the package's own imports, in a fresh process
+from numba.core.caching import FunctionCache
+from numba.core.registry import CPUDispatcher
+from imix_cli import numba_cache
+assert numba_cache.SOURCE_DIGEST == numba_cache.source_digest()
+cached = 0
+for module in modules:
+    for value in vars(module).values():
+        if isinstance(value, CPUDispatcher) and value.py_func.__module__ == module.__name__ and isinstance(value._cache, FunctionCache):
+            cached += 1
+            locator = value._cache._impl.locator
+            assert isinstance(locator, numba_cache._PackageLocator), f"{module.__name__}.{value.__name__} is not stamped"
+            assert locator.get_source_stamp()[1] == numba_cache.SOURCE_DIGEST
+assert cached > 50, cached  # the elementary functions, the linear algebra, mixing, episodes, the ES updates
+"""
+
+
+def test_every_cached_kernel_of_the_package_carries_the_computed_stamp():
+    package = numba_cache.PACKAGE
+    names = [".".join(("imix_cli", *p.relative_to(package).with_suffix("").parts)).removesuffix(".__init__") for p in numba_cache.compiled_sources()]
+    assert "imix_cli.elementary" in names and "imix_cli.algorithms.snes" in names and "imix_cli.running.compiled_loop" in names
+    done = subprocess.run([sys.executable, "-c", _CHECK, *sorted(names, key=lambda n: "numba_cache" in n)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_no_stamp_is_written_by_hand():
+    hand_written = [p.name for p in numba_cache.PACKAGE.rglob("*.py") if "numba cache stamp:" in p.read_text()]
+    assert not hand_written, hand_written
