@@ -31,8 +31,15 @@ from numba.core import caching
 
 __all__ = ["PACKAGE", "SOURCE_DIGEST", "compiled_sources", "source_digest"]
 
-#: The package whose functions this locator stamps.
-PACKAGE = Path(__file__).resolve().parent
+def _top_package(folder: Path) -> Path:
+    """The outermost package holding ``folder`` (this module may sit in a subpackage: the stamp covers the whole package)."""
+    while (folder.parent / "__init__.py").is_file():
+        folder = folder.parent
+    return folder
+
+
+#: The package whose functions this locator stamps: the top package this module is in (``imix_cli``).
+PACKAGE = _top_package(Path(__file__).resolve().parent)
 
 
 _IMPORT = re.compile(r"^\s*(?:from ([\w.]+) import \(?([\w, ]+)|import ([\w.]+))", re.MULTILINE)

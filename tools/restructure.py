@@ -1,7 +1,7 @@
 """Move imix_cli's modules into their layers' folders, and rewrite every reference to them. Idempotent.
 
-``python tools/restructure.py`` (from the repository root, with the project's venv: it ends with ruff
-and the numba cache stamp, which import the package) does, for every row of :data:`MOVES`:
+``python tools/restructure.py`` (from the repository root, with the project's venv: it ends with its
+ruff) does, for every row of :data:`MOVES`:
 
 1. ``git mv`` the module (or the whole folder) to its new place -- skipped when it is there already; a
    file that another branch added at an old place of a moved folder afterwards is moved in after it;
@@ -11,8 +11,8 @@ and the numba cache stamp, which import the package) does, for every row of :dat
    paths (``imix_cli/mixing.py``, ``running/config.py``, the regex-escaped path of the cache stamp),
    and pyproject's list of packages;
 3. write the ``__init__.py`` of every new folder (:data:`NEW_PACKAGES`), sort the imports it changed
-   (``ruff check --select I --fix``, ``ruff format``) and rewrite the numba cache stamp that names
-   ``elementary.py``'s path (``python -m imix_cli.core.elementary``);
+   (``ruff check --select I --fix``, ``ruff format``); the numba cache stamp is computed
+   (:mod:`imix_cli.core.numba_cache`), so nothing else is rewritten;
 4. report what the table does not place: a module at the top of ``imix_cli/`` or ``imix_cli/running/``
    that is neither moved nor meant to stay there (:data:`STAYS`) -- a module another branch added since.
    Add a row for it and run the script again.
@@ -55,6 +55,8 @@ MOVES = [
     ("registry.py", "core/registry.py"),
     ("env_ids.py", "core/env_ids.py"),
     ("bounds.py", "core/bounds.py"),
+    ("numerics.py", "core/numerics.py"),
+    ("numba_cache.py", "core/numba_cache.py"),
     ("algorithms", "core/algorithms"),
     ("envs", "core/envs"),
     ("adapters/checkpoint.py", "running/files/mixing_checkpoint.py"),  # MixingES's checkpoint: a file, written by the one writer
@@ -364,11 +366,7 @@ def tidy() -> list[str]:
         except FileNotFoundError:
             notes.append("ruff not found: sort the imports with `ruff check --select I --fix` and `ruff format`")
             break
-    stamp = subprocess.run([sys.executable, "-m", f"{PACKAGE}.core.elementary"], cwd=ROOT, capture_output=True, text=True)
-    if stamp.returncode != 0:
-        notes.append(f"numba cache stamp not rewritten (python -m {PACKAGE}.core.elementary failed): {stamp.stderr.strip()[-300:]}")
-    else:
-        notes += [line for line in stamp.stdout.splitlines() if line]
+    # the numba cache stamp is computed (core/numba_cache.py), nothing to rewrite
     return notes
 
 
