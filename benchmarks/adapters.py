@@ -1,4 +1,4 @@
-"""Importance mixing for pycma and evosax (imix_cli.adapters): the measurements of docs/adapters.md.
+"""Importance mixing for pycma and evosax (imix_cli.core.adapters): the measurements of docs/adapters.md.
 
     python benchmarks/adapters.py all                    # every section, the docs' tables (full seeds)
     python benchmarks/adapters.py cma --seeds 15 --dims 10,40
@@ -56,7 +56,7 @@ def pycma_run(fname, d, seed, arm, max_generations=100_000):
     import cma
 
     import imix_cli
-    from imix_cli.adapters.pycma import PycmaES
+    from imix_cli.core.adapters.pycma import PycmaES
 
     _quiet()
     f = getattr(cma.ff, fname)
@@ -208,16 +208,16 @@ def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
     from evosax.algorithms import SNES, Open_ES
 
     import imix_cli
-    from imix_cli.adapters.evosax import from_evosax
     from imix_cli.bench.peers import PEER_LR, PEER_POPSIZE, PEER_SIGMA
-    from imix_cli.policies import num_params
+    from imix_cli.core.adapters.evosax import from_evosax
+    from imix_cli.core.policies import num_params
 
     environment, env_params = gymnax.make("CartPole-v1")
     env_params = env_params.replace(max_steps_in_episode=200)
     sizes = [4, 8, 8, 2]
     dim = num_params(4, 2)
 
-    def policy(flat, obs):  # imix_cli.policies' layout, as imix bench peers
+    def policy(flat, obs):  # imix_cli.core.policies' layout, as imix bench peers
         k, x = 0, obs
         for layer, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
             W, bias = flat[k : k + a * b].reshape(a, b), flat[k + a * b : k + a * b + b]

@@ -19,11 +19,11 @@ import sys
 import numpy as np
 import pandas as pd
 
-from imix_cli.parallel_evaluation import build_evaluator
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import loop_settings, new_seed_state
-from imix_cli.running.resume import load_checkpoint
-from imix_cli.running.run_spec import resume_identity
+from imix_cli.core.parallel_evaluation import build_evaluator
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.config.run_spec import resume_identity
+from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
+from imix_cli.running.loop.resume import load_checkpoint
 
 #: env -> (step sizes, generations, warm-up generations that do not mix), as in the sweeps above
 SWEEPS = {"hopper": (("0.01", "0.001", "0.0001"), 12, 5), "swimmer": (("0.02", "0.005", "0.002", "0.0005"), 40, 0)}

@@ -51,14 +51,14 @@ SWIMMER, OBS, ACT, THRESHOLD = "Swimmer-v5", 8, 2, 325.0
 
 
 def _imix_evaluator():
-    from imix_cli.evaluation import make_evaluator
+    from imix_cli.core.evaluation import make_evaluator
 
     return make_evaluator(SWIMMER, None, hidden=(), output="clip")
 
 
 def _as_imix(weights) -> np.ndarray:
     """sb3-contrib's LinearPolicy weights (nn.Linear(8, 2).weight, (2, 8), flattened) as imix parameters."""
-    from imix_cli.policies import with_zero_biases
+    from imix_cli.core.policies import with_zero_biases
 
     w = np.asarray(weights, dtype=np.float64).reshape(-1, ACT, OBS).transpose(0, 2, 1).reshape(-1, OBS * ACT)
     return with_zero_biases(w, OBS, ACT, ())
@@ -123,7 +123,7 @@ def policy() -> None:
 def pairs(trained: str | None = None) -> None:
     from stable_baselines3.common.evaluation import evaluate_policy
 
-    from imix_cli.running.policy_files import read_policy
+    from imix_cli.running.files.policy_files import read_policy
 
     evaluator, model, rng = _imix_evaluator(), _sb3_model(), np.random.default_rng(3)
     points = [("theta = 0", np.zeros(OBS * ACT))] + ([("trained", read_policy(trained).params[: OBS * ACT])] if trained else [])
@@ -235,10 +235,10 @@ class _Feed:
 
 def _imix_lockstep(seed: int, lr: float):
     """One seed of ``imix run env=swimmer +ars=swimmer algo=ars lr=<lr>``, a generation per call of the
-    returned function (:func:`imix_cli.running.lockstep.advance_lockstep`: plan the mirrored pairs, roll
+    returned function (:func:`imix_cli.running.loop.lockstep.advance_lockstep`: plan the mirrored pairs, roll
     them out, tell); returns ``(generation, feed)``, the generation giving the pair's returns [r+, r-]."""
-    from imix_cli.generation import MixingSettings
-    from imix_cli.running.lockstep import LoopSettings, advance_lockstep, new_seed_state
+    from imix_cli.core.generation import MixingSettings
+    from imix_cli.running.loop.lockstep import LoopSettings, advance_lockstep, new_seed_state
 
     es_options = dict(popsize=2, sigma=0.01, lr=lr, weight_decay=0.0, weight_decay_form="estool", top=1)
     settings = LoopSettings(

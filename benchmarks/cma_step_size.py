@@ -18,7 +18,7 @@ mixing, under constant fitness (where any drift of sigma is the loop's own) and 
 ``tpa``          CMAES with ``step_size_control="tpa"``: two-point step-size adaptation (Hansen
                  2008; pycma 4.5's constants), two extra fresh episodes per generation along the
                  last move of the mean; its signal comes from those two evaluations only
-                 (imix_cli/algorithms/cmaes.py). ``imix run`` uses it when it mixes.
+                 (imix_cli/core/algorithms/cmaes.py). ``imix run`` uses it when it mixes.
 
 What it showed (docs/research/bias.md, "CMA-ES's step size"): ``permutation`` removes the
 constant-fitness drift but fails the sphere even without mixing (centring on the generation's
@@ -44,9 +44,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from imix_cli import linalg_kernels as lk
-from imix_cli.algorithms.cmaes import CMAES
-from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core import linalg_kernels as lk
+from imix_cli.core.algorithms.cmaes import CMAES
+from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
 
 DIM, POPSIZE, SIGMA0 = 130, 50, 0.25
 CONTROLS = ("csa", "permutation", "tpa")
@@ -124,9 +124,9 @@ def _one(job):
 def run_task(env: str, control: str, mixing: str, seed: int, generations: int | None = None) -> dict:
     """One seed of ``imix run algo=cmaes env=<env> [eim=true]`` with the run's own settings (the paper's), the
     loop written out here so that TPA's two points can be evaluated; theta: the mean on 5 fresh episodes."""
-    from imix_cli.evaluation import make_evaluator
-    from imix_cli.running.config import validate_overrides
-    from imix_cli.running.lockstep import loop_settings
+    from imix_cli.core.evaluation import make_evaluator
+    from imix_cli.running.config.compose import validate_overrides
+    from imix_cli.running.loop.lockstep import loop_settings
 
     spec = validate_overrides(["algo=cmaes", f"env={env}", f"eim={mixing != 'none'}"])[0]
     evaluator = make_evaluator(spec.env_name, spec.env_max_steps)

@@ -2,7 +2,7 @@
 
 Both run in the same process, interleaved generation by generation on the same samples
 (a sphere, lambda = 50 by default), so the ratio is meaningful on a loaded machine. The
-baseline is what the former wrapper (imix_cli/algorithms/cmaes.py before the rewrite) did
+baseline is what the former wrapper (imix_cli/core/algorithms/cmaes.py before the rewrite) did
 per generation: pycma's ``tell(check_points=False)`` after its ask bookkeeping, the
 pre-sampling steps of pycma's ``ask`` (condition alleviation, eigendecomposition), and the
 FullGaussian of the new distribution. Ours: ``CMAES.tell`` (the same steps, FullGaussian
@@ -24,8 +24,8 @@ import time
 
 import numpy as np
 
-from imix_cli.algorithms.cmaes import CMAES
-from imix_cli.distributions import FullGaussian
+from imix_cli.core.algorithms.cmaes import CMAES
+from imix_cli.core.distributions import FullGaussian
 
 
 class PycmaWrapperUpdate:

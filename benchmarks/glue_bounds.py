@@ -37,7 +37,7 @@ def _per_call(fn, calls: int) -> float:
 
 
 def bench_update(seeds: int = 13, dim: int = 130, popsize: int = 50) -> None:
-    from imix_cli.algorithms import make_es
+    from imix_cli.core.algorithms import make_es
 
     rng = np.random.default_rng(0)
     ess = [make_es("snes", dim, popsize=popsize, sigma=0.1, lr=0.01) for _ in range(seeds)]
@@ -69,9 +69,9 @@ def bench_update(seeds: int = 13, dim: int = 130, popsize: int = 50) -> None:
 
 
 def bench_mixing() -> None:
-    from imix_cli import mixing_kernels
-    from imix_cli.distributions import DiagonalGaussian
-    from imix_cli.mixing import Generation, mix
+    from imix_cli.core import mixing_kernels
+    from imix_cli.core.distributions import DiagonalGaussian
+    from imix_cli.core.mixing import Generation, mix
 
     rng = np.random.default_rng(0)
 
@@ -91,8 +91,8 @@ def bench_mixing() -> None:
 
 
 def _kernels_copy(identity_hidden: bool):
-    """A fresh, uncached copy of imix_cli/envs/kernels.py (hidden units tanh or identity)."""
-    import imix_cli.envs.kernels as kernels
+    """A fresh, uncached copy of imix_cli/core/envs/kernels.py (hidden units tanh or identity)."""
+    import imix_cli.core.envs.kernels as kernels
 
     source = Path(kernels.__file__).read_text().replace("cache=True", "cache=False")
     if identity_hidden:

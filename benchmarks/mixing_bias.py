@@ -15,7 +15,7 @@ import argparse
 import numpy as np
 from scipy import stats
 
-from imix_cli.mixing import DiagonalGaussian, mix
+from imix_cli.core.mixing import DiagonalGaussian, mix
 
 
 def main():

@@ -21,7 +21,7 @@ import argparse
 import numpy as np
 from scipy import stats
 
-from imix_cli.mixing import VARIANTS, DiagonalGaussian, mix, variant_spec
+from imix_cli.core.mixing import VARIANTS, DiagonalGaussian, mix, variant_spec
 
 
 def chains(variant, drift, chains=100, generations=200, popsize=50, k=3, step=0.125, seed=0, burn_in=20, min_fresh=0):

@@ -37,8 +37,8 @@ def raw_rate(env_id: str, seconds: float = 1.0) -> float:
 
 
 def main() -> None:
-    from imix_cli.evaluation import make_evaluator
-    from imix_cli.parallel_evaluation import PoolEvaluator
+    from imix_cli.core.evaluation import make_evaluator
+    from imix_cli.core.parallel_evaluation import PoolEvaluator
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("envs", nargs="?", default=",".join(ENVS))

@@ -47,9 +47,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from imix_cli.algorithms import make_es
-from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
-from imix_cli.mixing import _whitened
+from imix_cli.core.algorithms import make_es
+from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core.mixing import _whitened
 
 ALGOS = ("openes", "snes", "cem", "cmaes")
 RULES = {

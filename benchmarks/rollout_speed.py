@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from imix_cli.bench import bench_policies
-from imix_cli.evaluation import make_evaluator
+from imix_cli.core.evaluation import make_evaluator
 
 
 def rate(ev, params, seeds, min_seconds=1.5, min_repeats=3):

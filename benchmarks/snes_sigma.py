@@ -11,7 +11,7 @@ row changes one thing against the default (``exact``, ``min_fresh`` 1):
 * ``momentum-0``: Adam's beta1 = 0 for log sigma, with and without mixing;
 * ``min_fresh=k``: k random slots per generation drawn fresh -- members live shorter, reuse drops;
 * ``conditional``: each reused member taken for what it is given the move it took part in (exact
-  for the loop under neutral ranks; :mod:`imix_cli.mixing`, "Reuse inside the loop").
+  for the loop under neutral ranks; :mod:`imix_cli.core.mixing`, "Reuse inside the loop").
 
 Next to the final sigma, each generation's sigma gradient (SNES's grad log sigma, averaged over the
 coordinates) is compared with the gradient of a *shadow* generation: ``popsize`` fresh draws from the
@@ -38,7 +38,7 @@ import time
 import numpy as np
 
 from imix_cli import MixingES
-from imix_cli.algorithms.snes import SNES
+from imix_cli.core.algorithms.snes import SNES
 
 POPSIZE = 20
 #: task -> (generations, what it is)
@@ -76,7 +76,7 @@ class RecordingSNES(SNES):
 def objective(task: str, stream: int):
     """(dim, f) with f(x) -> returns (maximised); ``stream`` seeds the episodes' resets."""
     if task in GYM:
-        from imix_cli.evaluation import GymEvaluator
+        from imix_cli.core.evaluation import GymEvaluator
 
         env = GymEvaluator(*GYM[task])
         rng = np.random.default_rng(stream)

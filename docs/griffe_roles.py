@@ -1,5 +1,5 @@
 """A griffe extension for the API page (mkdocs.yml: mkdocstrings' ``extensions``): imix's docstrings name
-other objects with Sphinx roles (``:class:`~imix_cli.generation.MixingSettings```), as its numerical core
+other objects with Sphinx roles (``:class:`~imix_cli.core.generation.MixingSettings```), as its numerical core
 is written; mkdocstrings renders Markdown, where a role would show raw. Each role becomes inline code
 with the name as Sphinx would print it (``~`` keeps the last component), before the docstring is parsed.
 """
@@ -12,7 +12,7 @@ ROLE = re.compile(r":(?:py:)?(?:class|func|data|mod|meth|attr|obj|exc|const|type
 
 
 def plain(docstring: str) -> str:
-    """Each role as inline code: ``:func:`~imix_cli.mixing.mix``` -> ```mix```, ``:class:`Params``` -> ```Params```."""
+    """Each role as inline code: ``:func:`~imix_cli.core.mixing.mix``` -> ```mix```, ``:class:`Params``` -> ```Params```."""
 
     def name(match: re.Match) -> str:
         tilde, target, _ = match.groups()

@@ -9,11 +9,11 @@ The public API (:data:`__all__`), loaded on first use::
 Importing ``imix_cli`` loads nothing heavy (no numpy, no gymnasium) and changes nothing in the
 importing process: each name of :data:`__all__` imports its module when first read, and every
 subcommand imports what it uses. imix's gymnasium environments (``imix/ContinuousCartPole-v0``,
-``imix/ContinuousCartPoleHard-v0``) are registered by ``import imix_cli.envs`` (or
-``gym.make("imix_cli.envs:imix/ContinuousCartPole-v0")``); imix's own modules that make them do so.
+``imix/ContinuousCartPoleHard-v0``) are registered by ``import imix_cli.core.envs`` (or
+``gym.make("imix_cli.core.envs:imix/ContinuousCartPole-v0")``); imix's own modules that make them do so.
 
 One BLAS thread per process is imix's default only in its own processes -- the ``imix`` command
-and the worker processes it spawns (:func:`imix_cli.processes.one_blas_thread`) -- never in a
+and the worker processes it spawns (:func:`imix_cli.core.processes.one_blas_thread`) -- never in a
 user's Python that imports the library.
 """
 
@@ -33,13 +33,13 @@ def _stop_before_anything_is_written(signum, frame):
 # bytecode cache, SIGINT 0.2 s after start let a whole sweep run). Nothing is written before the
 # run starts, so until then a Ctrl-C ends the process at once; imix_cli.commands.cli hands SIGINT back to
 # Python's handler before anything runs. The same process gets imix's one-BLAS-thread default here,
-# before any module loads numpy (imix_cli.processes says why). Library imports are unaffected.
+# before any module loads numpy (imix_cli.core.processes says why). Library imports are unaffected.
 if _os.path.basename(_sys.argv[0] if _sys.argv else "") == "imix":
     _signal.signal(_signal.SIGINT, _stop_before_anything_is_written)
     # SIGTERM too: `imix run`'s handlers are set only once its imports (numba: seconds on a loaded
     # machine) are done, and a SIGTERM before that ended the process without a word (exit -15).
     _signal.signal(_signal.SIGTERM, _stop_before_anything_is_written)
-    from imix_cli.processes import set_one_blas_thread as _set_one_blas_thread
+    from imix_cli.core.processes import set_one_blas_thread as _set_one_blas_thread
 
     _set_one_blas_thread()
 
@@ -47,22 +47,22 @@ __version__ = "0.1.0"
 
 #: name -> module of the public API; ``imix_cli.<name>`` imports the module when first read.
 _API = {
-    "MixingES": "imix_cli.ask_tell",
+    "MixingES": "imix_cli.core.ask_tell",
     "run": "imix_cli.experiment",
     "Experiment": "imix_cli.experiment",
-    "make_es": "imix_cli.algorithms",
-    "OpenES": "imix_cli.algorithms",
-    "SNES": "imix_cli.algorithms",
-    "CEM": "imix_cli.algorithms",
-    "CMAES": "imix_cli.algorithms",
-    "mix": "imix_cli.mixing",
-    "Generation": "imix_cli.mixing",
-    "DiagonalGaussian": "imix_cli.mixing",
-    "FullGaussian": "imix_cli.mixing",
-    "make_evaluator": "imix_cli.evaluation",
-    "policy_action": "imix_cli.policies",
-    "policy_output": "imix_cli.policies",
-    "ConfigError": "imix_cli.running.config_checks",
+    "make_es": "imix_cli.core.algorithms",
+    "OpenES": "imix_cli.core.algorithms",
+    "SNES": "imix_cli.core.algorithms",
+    "CEM": "imix_cli.core.algorithms",
+    "CMAES": "imix_cli.core.algorithms",
+    "mix": "imix_cli.core.mixing",
+    "Generation": "imix_cli.core.mixing",
+    "DiagonalGaussian": "imix_cli.core.mixing",
+    "FullGaussian": "imix_cli.core.mixing",
+    "make_evaluator": "imix_cli.core.evaluation",
+    "policy_action": "imix_cli.core.policies",
+    "policy_output": "imix_cli.core.policies",
+    "ConfigError": "imix_cli.running.config.checks",
     "RunError": "imix_cli.messages",
 }
 

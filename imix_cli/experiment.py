@@ -1,7 +1,7 @@
 """Run an experiment from Python and get its results as a DataFrame: ``imix run`` without the shell.
 
 Why: a notebook or a script that compares settings wants the rows, not a folder to parse. This
-is ``imix run`` itself -- the same validation (:func:`imix_cli.running.config.validate_overrides`), the
+is ``imix run`` itself -- the same validation (:func:`imix_cli.running.config.compose.validate_overrides`), the
 same runner (:func:`imix_cli.running.runner.run`: run folder, seeds over processes, checkpoints, resume,
 summary) and the same CSVs -- with the CSV rows read back and returned::
 
@@ -20,7 +20,7 @@ Without ``experiment=``, results go to ``<results_dir>/library/`` (:data:`DEFAUL
 ``imix run``'s ``default/``: the command line's main job (1,000 generations) must not turn a later
 ``run(..., generations=50)`` into "a run is never shortened" error. A script may call ``run`` at its
 top level, without ``if __name__ == "__main__":``: the worker processes never re-run the script
-(:func:`imix_cli.processes.spawn_context`).
+(:func:`imix_cli.core.processes.spawn_context`).
 """
 
 from __future__ import annotations
@@ -64,11 +64,11 @@ class Experiment:
 
     ``Experiment(algo="cem", eim=True, seeds=5).run()`` runs it and returns every seed's rows;
     :meth:`results` reads what exists without running anything. Bad keys or values raise
-    :class:`~imix_cli.running.config_checks.ConfigError` (a ValueError) with ``imix run``'s one-line message.
+    :class:`~imix_cli.running.config.checks.ConfigError` (a ValueError) with ``imix run``'s one-line message.
     """
 
     def __init__(self, *overrides: str, progress: bool = False, **keys):
-        from imix_cli.running.config import validate_overrides
+        from imix_cli.running.config.compose import validate_overrides
 
         self.overrides = [str(o) for o in overrides]
         # progress=False: a library call prints the summary, not a progress bar (progress=True restores it)
@@ -100,10 +100,10 @@ class Experiment:
 
     def results(self):
         """The rows of every finished seed of every point, as one DataFrame: the CSV columns
-        (:data:`imix_cli.running.results.COLUMNS`) and ``run``, the run folder's name."""
+        (:data:`imix_cli.running.files.results.COLUMNS`) and ``run``, the run folder's name."""
         import pandas as pd
 
-        from imix_cli.running.results import read_run_csv, seed_csv_path
+        from imix_cli.running.files.results import read_run_csv, seed_csv_path
 
         frames = []
         for spec in self.specs:
@@ -112,7 +112,7 @@ class Experiment:
                 if path.exists():
                     frames.append(read_run_csv(path).assign(run=spec.run_name))
         if not frames:
-            from imix_cli.running.results import COLUMNS
+            from imix_cli.running.files.results import COLUMNS
 
             return pd.DataFrame(columns=[*COLUMNS, "run"])
         return pd.concat(frames, ignore_index=True)

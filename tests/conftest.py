@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from imix_cli.processes import set_one_blas_thread
+from imix_cli.core.processes import set_one_blas_thread
 
 set_one_blas_thread()
 
@@ -19,7 +19,7 @@ set_one_blas_thread()
 @pytest.fixture
 def csv_disk_full(monkeypatch):
     """Every fsync of a seed CSV being written (its ``.seed_*.csv.*`` temporary; not a checkpoint's) fails with ENOSPC, as on a full disk."""
-    import imix_cli.running.results as results_module
+    import imix_cli.running.files.results as results_module
 
     real_fsync = results_module.os.fsync
 

@@ -1,4 +1,4 @@
-"""Tests of the four evolution strategies (imix_cli.algorithms).
+"""Tests of the four evolution strategies (imix_cli.core.algorithms).
 
 * API contract, looped over every entry of ALGORITHMS.
 * Optimisation on sphere / rotated ellipsoid / Rastrigin (maximising -f, weight_decay=0):
@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from objectives import RotatedEllipsoid, rastrigin, sphere
 
-from imix_cli.algorithms import ALGORITHMS, CEM, CMAES, SNES, EvolutionStrategy, OpenES, make_es
-from imix_cli.distributions import DiagonalGaussian, FullGaussian
+from imix_cli.core.algorithms import ALGORITHMS, CEM, CMAES, SNES, EvolutionStrategy, OpenES, make_es
+from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
 
 DIM = 8
 POPSIZE = 20

@@ -1,6 +1,6 @@
 """ARS (algo=ars): the step is the paper's, and mixing keeps its mirrored pairs exactly ARS's pairs.
 
-Mixing for pairs (imix_cli.mirrored): the anchors are mixed from earlier anchors, each mirror is
+Mixing for pairs (imix_cli.core.mirrored): the anchors are mixed from earlier anchors, each mirror is
 drawn fresh around the new mean. The statistical tests check what must then hold: every pair is
 (m + nu delta, m - nu delta) with the N directions delta independent N(0, I) -- in one step (KS,
 pooled over many independent steps) and along chains of hundreds of generations whose mean moves
@@ -21,10 +21,10 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from imix_cli.algorithms import ARS, make_es
-from imix_cli.distributions import DiagonalGaussian
-from imix_cli.generation import Archive, MixingSettings, finish_generation, plan_generation
-from imix_cli.mirrored import mix_pairs
+from imix_cli.core.algorithms import ARS, make_es
+from imix_cli.core.distributions import DiagonalGaussian
+from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core.mirrored import mix_pairs
 
 KS_P_MIN = 1e-3
 IMIX = str(Path(sys.executable).parent / "imix")
@@ -252,7 +252,7 @@ def test_bad_ars_settings_are_one_line_errors(tmp_path, capsys):
 
 def test_algo_top_is_checked_against_the_runs_own_popsize():
     """algo.top <= popsize/2 with the popsize of the run (200: top up to 100), not the default popsize's 25."""
-    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.config.compose import validate_overrides
 
     (spec,) = validate_overrides(["algo=ars", "popsize=200", "algo.top=80"])
     assert spec.algo_options == {"top": 80, "alive_bonus_offset": 0.0} and spec.popsize == 200
@@ -262,7 +262,7 @@ def test_algo_top_is_checked_against_the_runs_own_popsize():
 def test_clip_output_is_the_outputs_clipped_to_the_action_bounds():
     """policy.output=clip: the action is the network's output itself, cut at the bounds (ARS,
     sb3-contrib's ARSLinearPolicy) -- not tanh of it, which bends even small outputs."""
-    from imix_cli.policies import BatchPolicy, forward, num_params
+    from imix_cli.core.policies import BatchPolicy, forward, num_params
 
     rng = np.random.default_rng(0)
     obs = rng.normal(size=(7, 5))
@@ -280,7 +280,7 @@ def test_clip_output_is_the_outputs_clipped_to_the_action_bounds():
 def test_a_bias_free_policy_is_its_weights_with_zero_biases():
     """policy.bias=false: the ES's point is the weights alone, in layout order; the policy they make
     has every bias 0 (a linear one is obs @ W, a hidden layer tanh(obs @ W1) @ W2)."""
-    from imix_cli.policies import forward, num_params, weight_columns, with_zero_biases
+    from imix_cli.core.policies import forward, num_params, weight_columns, with_zero_biases
 
     rng = np.random.default_rng(1)
     obs = rng.normal(size=(4, 6))
@@ -305,8 +305,8 @@ def test_with_obs_norm_the_bias_free_weights_act_on_normalised_observations():
     before the normaliser is folded in (the fold gives the layer the bias -M mu / sd)."""
     from types import SimpleNamespace
 
-    from imix_cli.policies import ObsNormalizer, forward
-    from imix_cli.running.lockstep import policy_params, search_dim
+    from imix_cli.core.policies import ObsNormalizer, forward
+    from imix_cli.running.loop.lockstep import policy_params, search_dim
 
     rng = np.random.default_rng(2)
     norm = ObsNormalizer(3, 1)
@@ -329,8 +329,8 @@ def test_the_variance_floor_is_the_configs_and_survives_a_checkpoint():
     without it, had 0.01)."""
     import yaml
 
-    from imix_cli.policies import OBS_VAR_FLOOR, ObsNormalizer
-    from imix_cli.running.config_keys import POLICY_DEFAULTS
+    from imix_cli.core.policies import OBS_VAR_FLOOR, ObsNormalizer
+    from imix_cli.running.config.keys import POLICY_DEFAULTS
 
     states = np.stack([np.linspace(-1.0, 1.0, 101) * 0.01 * np.sqrt(3.0), np.linspace(-3.0, 3.0, 101)], axis=1)
     for floor, expected in ((1e-8, 0.01), (OBS_VAR_FLOOR, 0.1)):
@@ -353,8 +353,8 @@ def test_the_ars_presets_variance_floor_names_the_run_and_reaches_each_seed():
     the default floor keeps the folder name runs had before the key. Validating env=hopper needs MuJoCo."""
     from types import SimpleNamespace
 
-    from imix_cli.running.config import validate_overrides
-    from imix_cli.running.lockstep import loop_settings, new_seed_state
+    from imix_cli.running.config.compose import validate_overrides
+    from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
 
     for env in ("hopper", "halfcheetah", "walker2d"):
         (spec,) = validate_overrides(["algo=ars", f"env={env}", f"+ars={env}"])
@@ -372,9 +372,9 @@ def test_the_ars_presets_run_the_papers_policy_and_eval_acts_with_it(tmp_path):
     policies keep zero biases and say "clip", and imix eval acts with the clip."""
     from imix_cli.commands.cli import main
     from imix_cli.commands.eval_command import evaluator_for
-    from imix_cli.evaluation import make_evaluator
-    from imix_cli.running.config import validate_overrides
-    from imix_cli.running.policy_files import read_policy
+    from imix_cli.core.evaluation import make_evaluator
+    from imix_cli.running.config.compose import validate_overrides
+    from imix_cli.running.files.policy_files import read_policy
 
     for env in ("swimmer", "hopper", "halfcheetah", "walker2d"):
         (spec,) = validate_overrides(["algo=ars", f"env={env}", f"+ars={env}"])
@@ -435,7 +435,7 @@ def test_a_bias_free_shifted_ars_run_resumes_from_its_checkpoint(tmp_path, capsy
 
 
 def test_policy_files_written_before_the_output_field_read_as_tanh(tmp_path):
-    from imix_cli.running.policy_files import HEADER_FIELDS, read_policy, write_policy
+    from imix_cli.running.files.policy_files import HEADER_FIELDS, read_policy, write_policy
 
     header = {k: None for k in HEADER_FIELDS}
     header.update(format="imix-policy/1", env_name="swimmer", env_id="Swimmer-v5", max_steps=1000, obs_dim=8, out_dim=2, hidden=[],

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import imix_cli
-from imix_cli.evaluation import make_evaluator
+from imix_cli.core.evaluation import make_evaluator
 
 GENERATIONS = 6
 
@@ -22,7 +22,7 @@ def cartpole():
 def test_the_wrapper_gives_the_runners_rows_for_every_es(algo, cartpole, tmp_path):
     frame = imix_cli.run(algo=algo, env="cartpole", eim=True, seeds=1, generations=GENERATIONS, workers=1, eval_mean_every=0,
                          checkpoint_every=0, results_dir=str(tmp_path), experiment="same", echo=None)  # fmt: skip
-    # The runner's streams for seed 0 (imix_cli.running.lockstep.new_seed_state): one for mixing, one for episode seeds.
+    # The runner's streams for seed 0 (imix_cli.running.loop.lockstep.new_seed_state): one for mixing, one for episode seeds.
     sample_seq, episode_seq = np.random.SeedSequence(0).spawn(2)
     episode_rng = np.random.default_rng(episode_seq)
     options = {"step_size_control": "tpa"} if algo == "cmaes" else {}  # what imix run's algo.step_size_control=auto picks with mixing
@@ -92,7 +92,7 @@ def test_run_returns_the_csv_rows_and_a_sweep_has_one_run_per_point(tmp_path):
     assert sorted(frame["run"].unique()) == ["cem-cartpole-eim-popsize=10", "cem-cartpole-eim-popsize=12"]
     assert len(frame) == 2 * 2 * 3
     on_disk = imix_cli.Experiment(algo="cem", env="cartpole", eim=True, seeds=2, generations=3, popsize=10, results_dir=str(tmp_path), experiment="api")
-    from imix_cli.running.results import read_run_csv
+    from imix_cli.running.files.results import read_run_csv
 
     csv = read_run_csv(on_disk.run_dirs[0] / "seed_1.csv")
     mine = frame[(frame["run"] == "cem-cartpole-eim-popsize=10") & (frame["seed"] == 1)].drop(columns="run").reset_index(drop=True)
@@ -105,7 +105,7 @@ def test_run_refuses_a_bad_key_with_the_cli_message(tmp_path):
 
 
 def test_single_policy_helpers_match_the_batched_forward():
-    from imix_cli.policies import forward, num_params
+    from imix_cli.core.policies import forward, num_params
 
     rng = np.random.default_rng(0)
     params = rng.normal(size=num_params(4, 2))

@@ -18,8 +18,8 @@ from conftest import extra_installed
 from process_tree import alive, children_of, cmdline
 
 from imix_cli.commands.cli import main
-from imix_cli.running.config import ConfigError, validate_overrides
-from imix_cli.running.results import read_run_csv
+from imix_cli.running.config.compose import ConfigError, validate_overrides
+from imix_cli.running.files.results import read_run_csv
 from imix_cli.running.run_folder import run_dir_lock
 
 IMIX = str(Path(sys.executable).parent / "imix")
@@ -206,7 +206,7 @@ def test_fast_validation_composes_what_hydra_composes(tmp_path):
     from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf, open_dict
 
-    from imix_cli.running.config import config_dir, spec_from_config
+    from imix_cli.running.config.compose import config_dir, spec_from_config
 
     points = [
         ["algo=cem", "popsize=12", "sigma=0.5", "env.max_steps=50", "generations=4"],

@@ -1,4 +1,4 @@
-"""Checkpoints are data that cannot lie or run code (imix_cli.running.checkpoints).
+"""Checkpoints are data that cannot lie or run code (imix_cli.running.files.checkpoints).
 
 A checkpoint read back is either exactly what was saved, or refused with one warning line
 naming the file -- whatever happened to the file: truncation, random bit flips, another seed's
@@ -19,12 +19,12 @@ import pandas as pd
 import pytest
 
 from imix_cli.commands.cli import main
-from imix_cli.evaluation import make_evaluator
-from imix_cli.running import checkpoints
-from imix_cli.running.checkpoints import checkpoint_path, save_checkpoint
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
-from imix_cli.running.resume import load_checkpoint
+from imix_cli.core.evaluation import make_evaluator
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.files import checkpoints
+from imix_cli.running.files.checkpoints import checkpoint_path, save_checkpoint
+from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state
+from imix_cli.running.loop.resume import load_checkpoint
 from imix_cli.running.run_folder import prepare_run_dir
 from imix_cli.running.runner import run_seeds
 
@@ -258,10 +258,10 @@ def test_checkpoint_is_a_plain_zip_of_npy_files(tmp_path):
 
 def test_archived_generations_are_saved_field_by_field_whatever_their_fields(tmp_path, monkeypatch):
     """A Generation with one more array field (as the lead is adding) round-trips without any change
-    to imix_cli.running.checkpoints: fields are found with dataclasses.fields, not listed."""
+    to imix_cli.running.files.checkpoints: fields are found with dataclasses.fields, not listed."""
     import dataclasses
 
-    import imix_cli.mixing as mixing
+    import imix_cli.core.mixing as mixing
 
     Extended = dataclasses.make_dataclass("Generation", [("weights", np.ndarray, dataclasses.field(default=None))], bases=(mixing.Generation,))
     monkeypatch.setattr(checkpoints, "Generation", Extended)
@@ -320,7 +320,7 @@ def test_a_periodic_checkpoint_waits_for_checkpoint_seconds_and_the_final_state_
     """checkpoint_every=4 over 12 generations falls due at generations 4 and 8 (and the final state at 12);
     with checkpoint_seconds=3600 the periodic ones are skipped (the run takes a second), the final one is not.
     The final state is written durably (fsync), the periodic ones are not (a kill leaves them whole anyway)."""
-    from imix_cli.running import run_writer
+    from imix_cli.running.files import run_writer
 
     saved = []
     real = run_writer.save_checkpoint

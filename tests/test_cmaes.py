@@ -1,4 +1,4 @@
-"""Tests of imix's own CMA-ES (imix_cli.algorithms.cmaes) against pycma 4.5.
+"""Tests of imix's own CMA-ES (imix_cli.core.algorithms.cmaes) against pycma 4.5.
 
 * Trajectory: pycma samples and updates in its own ask/tell loop; our CMAES is told the
   same samples and fitness. Mean, sigma, C, p_sigma and p_c must agree to round-off
@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from objectives import RotatedEllipsoid, sphere
 
-from imix_cli.algorithms.cmaes import CMAES, MAX_DIM, _Parameters, check_dimension
+from imix_cli.core.algorithms.cmaes import CMAES, MAX_DIM, _Parameters, check_dimension
 
 #: state tolerance: relative to the largest entry of each quantity (round-off grows
 #: slowly over generations; observed <= 1e-12 after 300 generations)

@@ -1,4 +1,4 @@
-"""The compiled generation loop (imix_cli.running.compiled_loop) against the Python loop, its reference.
+"""The compiled generation loop (imix_cli.running.loop.compiled_loop) against the Python loop, its reference.
 
 What must hold: the same rows, the same ES and archive state, the same random generators, the same
 best member -- bit for bit -- after any number of chunks; whole runs through `imix run` (CSVs,
@@ -17,15 +17,15 @@ import pandas as pd
 import pytest
 from numba import njit
 
-from imix_cli.algorithms.base import CompiledStep, EvolutionStrategy
-from imix_cli.distributions import DiagonalGaussian
-from imix_cli.divergence import GuardedES
-from imix_cli.linalg_kernels import numpy_sum
-from imix_cli.parallel_evaluation import build_evaluator
-from imix_cli.running import compiled_loop
-from imix_cli.running.checkpoints import _encode, _read_npz
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
+from imix_cli.core.algorithms.base import CompiledStep, EvolutionStrategy
+from imix_cli.core.distributions import DiagonalGaussian
+from imix_cli.core.divergence import GuardedES
+from imix_cli.core.linalg_kernels import numpy_sum
+from imix_cli.core.parallel_evaluation import build_evaluator
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.files.checkpoints import _encode, _read_npz
+from imix_cli.running.loop import compiled_loop
+from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state
 
 CASES = [
     ["algo=snes", "env=cartpole", "eim=true"],  # the main job
@@ -133,7 +133,7 @@ def test_any_es_with_a_compiled_step_runs_in_the_compiled_loop():
 
 
 def test_a_chunk_that_diverges_changes_nothing_and_is_left_to_the_python_loop():
-    # lr=100: SNES's log sigma overflows within a few generations (imix_cli.divergence)
+    # lr=100: SNES's log sigma overflows within a few generations (imix_cli.core.divergence)
     settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "lr=100", "weight_decay=0"])
     before = _snapshot(st)
     assert not compiled_loop.advance(st, settings, evaluator, 200)
@@ -228,7 +228,7 @@ def test_runs_are_identical_with_the_python_loop_continued_runs_included(tmp_pat
 
 
 def test_the_live_csv_text_is_pandas_text_in_pieces():
-    from imix_cli.running.results import csv_text, rows_csv_text, rows_to_frame
+    from imix_cli.running.files.results import csv_text, rows_csv_text, rows_to_frame
 
     settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10"])
     compiled_loop.advance(st, settings, evaluator, 40)
@@ -245,7 +245,7 @@ def test_the_live_csv_text_is_pandas_text_in_pieces():
 
 
 def test_a_seed_csv_of_plain_rows_is_written_and_summed_up_as_pandas_does(tmp_path):
-    from imix_cli.running.results import csv_text, rows_to_frame, seed_summary, write_run_csv
+    from imix_cli.running.files.results import csv_text, rows_to_frame, seed_summary, write_run_csv
 
     settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=10", "eval_mean_every=7"])
     compiled_loop.advance(st, settings, evaluator, 40)
@@ -267,8 +267,8 @@ def test_a_worker_writes_a_seed_csv_without_pandas(tmp_path):
     CSV of plain rows must not need it."""
     code = (
         "import sys\n"
-        "import imix_cli.running.runner, imix_cli.running.es_seeds, imix_cli.running.compiled_loop\n"
-        "from imix_cli.running.results import write_run_csv\n"
+        "import imix_cli.running.runner, imix_cli.running.loop.es_seeds, imix_cli.running.loop.compiled_loop\n"
+        "from imix_cli.running.files.results import write_run_csv\n"
         "row = dict(algo='snes', env='cartpole', mixing='eim', seed=0, generation=0, evaluations=5, env_steps=50, mean_score=1.5,\n"
         "           best_score=2.0, reused=0, reused_im=0, reused_eim=0, reevaluated=0, popsize=5, sigma_mean=0.1, nonfinite=0, wall_time=0.1)\n"
         f"write_run_csv({str(tmp_path / 'seed_0.csv')!r}, [row])\n"

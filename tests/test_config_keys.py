@@ -1,4 +1,4 @@
-"""Each `imix run` key is declared once (imix_cli/running/config_keys.py); conf/config.yaml's values, `imix run --help`'s
+"""Each `imix run` key is declared once (imix_cli/running/config/keys.py); conf/config.yaml's values, `imix run --help`'s
 keys, docs/configuration.md and the checks are derived from that declaration, and these tests fail when any of them
 drifts from it: a default edited in the YAML or a line edited in the docs, a key accepted but not declared, a bound
 the CLI does not enforce."""
@@ -9,9 +9,9 @@ import math
 import pytest
 import yaml
 
-from imix_cli.registry import ALGORITHM_SPECS
-from imix_cli.running.config import ConfigError, config_dir, spec_from_config, validate_overrides
-from imix_cli.running.config_keys import (
+from imix_cli.core.registry import ALGORITHM_SPECS
+from imix_cli.running.config.compose import ConfigError, config_dir, spec_from_config, validate_overrides
+from imix_cli.running.config.keys import (
     CONFIG_YAML,
     GROUP,
     KEYS,
@@ -26,7 +26,7 @@ from imix_cli.running.config_keys import (
     yaml_value,
 )
 
-FIX = "run `python -m imix_cli.running.config_keys write` and commit"
+FIX = "run `python -m imix_cli.running.config.keys write` and commit"
 
 
 def test_the_yaml_the_help_and_the_reference_are_generated_from_the_keys():

@@ -13,13 +13,13 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from test_envs import reference_outputs
 
-import imix_cli.envs  # noqa: F401  (registers the ids)
+import imix_cli.core.envs  # noqa: F401  (registers the ids)
 from imix_cli.commands.cli import main
-from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
-from imix_cli.evaluation import make_evaluator
-from imix_cli.policies import BatchPolicy
-from imix_cli.running.config import BUILTIN_ENVS, ConfigError, config_dir, validate_overrides
-from imix_cli.running.results import read_run_csv
+from imix_cli.core.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
+from imix_cli.core.evaluation import make_evaluator
+from imix_cli.core.policies import BatchPolicy
+from imix_cli.running.config.compose import BUILTIN_ENVS, ConfigError, config_dir, validate_overrides
+from imix_cli.running.files.results import read_run_csv
 
 IDS = [CONTINUOUS_CARTPOLE_ID, CONTINUOUS_CARTPOLE_HARD_ID]
 NAMES = {"continuous_cartpole": CONTINUOUS_CARTPOLE_ID, "continuous_cartpole_hard": CONTINUOUS_CARTPOLE_HARD_ID}

@@ -12,9 +12,9 @@ import yaml
 from conftest import extra_installed
 
 from imix_cli.commands.cli import main
-from imix_cli.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
-from imix_cli.running.config import DDPG_DEFAULTS, ConfigError, config_dir, validate_overrides
-from imix_cli.running.results import COLUMNS, read_run_csv
+from imix_cli.core.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
+from imix_cli.running.config.compose import DDPG_DEFAULTS, ConfigError, config_dir, validate_overrides
+from imix_cli.running.files.results import COLUMNS, read_run_csv
 
 pytestmark = pytest.mark.ddpg  # the whole module: its imports need torch and stable-baselines3
 
@@ -22,7 +22,7 @@ if extra_installed("ddpg"):  # collected, and skipped by the marker, without the
     import torch as th
     from stable_baselines3.common.noise import OrnsteinUhlenbeckActionNoise
 
-    from imix_cli.ddpg.agent import PAPER_SETTINGS, TwoRateDDPG, make_ddpg, train_ddpg
+    from imix_cli.core.ddpg.agent import PAPER_SETTINGS, TwoRateDDPG, make_ddpg, train_ddpg
 
 
 def layer_sizes(sequential) -> list[tuple[int, int]]:

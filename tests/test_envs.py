@@ -9,9 +9,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from imix_cli.envs import kernels, seeded_uniform
-from imix_cli.evaluation import make_evaluator
-from imix_cli.policies import BatchPolicy, act, forward, num_params
+from imix_cli.core.envs import kernels, seeded_uniform
+from imix_cli.core.evaluation import make_evaluator
+from imix_cli.core.policies import BatchPolicy, act, forward, num_params
 
 MAX_VEL = np.array([4 * np.pi, 9 * np.pi])
 
@@ -129,7 +129,7 @@ def test_seeded_uniform_matches_numpy():
 # ---------------------------------------------------------------------------------- policy (compiled)
 @pytest.mark.parametrize("sizes", [(4, 8, 8, 2), (6, 8, 8, 3), (4, 8, 8, 1), (3, 5, 2), (4, 16, 7, 9, 2)])
 def test_compiled_mlp_is_the_documented_layout(sizes):
-    """kernels.mlp_forward == the flat layout of imix_cli.policies, evaluated in plain Python,
+    """kernels.mlp_forward == the flat layout of imix_cli.core.policies, evaluated in plain Python,
     bit for bit (any layer sizes); and to round-off the numpy BatchPolicy of the generic path."""
     rng = np.random.default_rng(9)
     sizes_arr = np.array(sizes, dtype=np.int64)
@@ -388,7 +388,7 @@ def test_cartpole_episodes_in_lanes_equal_one_at_a_time(continuous, sparse):
     member): every member's return, length and states must be those of its episode run alone, bit for bit. Made
     to fail by not resetting a reused lane's running total (the sparse return) and by reading the member's
     parameters from the wrong lane."""
-    from imix_cli.envs import kernels
+    from imix_cli.core.envs import kernels
 
     rng = np.random.default_rng(12)
     sizes = np.array([4, 8, 8, 1 if continuous else 2], dtype=np.int64)

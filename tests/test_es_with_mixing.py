@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from objectives import sphere
 
-from imix_cli.algorithms import make_es
-from imix_cli.mixing import mix
+from imix_cli.core.algorithms import make_es
+from imix_cli.core.mixing import mix
 
 # per ES: (target f(mean), generation budget, sigma, lr)
 SETTINGS = {

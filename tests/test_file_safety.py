@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from imix_cli.commands.cli import main
-from imix_cli.running.policy_files import policy_path, read_policy, write_policy
+from imix_cli.running.files.policy_files import policy_path, read_policy, write_policy
 
 RUN = "cem-cartpole-none-popsize=6"
 IMIX = str(Path(sys.executable).parent / "imix")
@@ -254,7 +254,7 @@ def test_a_policy_zip_bomb_is_refused_before_inflating(copied, tmp_path):
     assert path.stat().st_size < 2 << 20
     peak, out = peak_rss_mib(
         f"""
-        from imix_cli.running.policy_files import PolicyFileError, read_policy
+        from imix_cli.running.files.policy_files import PolicyFileError, read_policy
         try:
             read_policy({str(path)!r})
         except PolicyFileError as err:
@@ -281,13 +281,13 @@ def test_a_checkpoint_zip_bomb_is_refused_before_inflating(tmp_path):
     assert path.stat().st_size < 2 << 20
     peak, out = peak_rss_mib(
         f"""
-        from imix_cli.running.config import validate_overrides
-        from imix_cli.evaluation import make_evaluator
-        from imix_cli.running.lockstep import loop_settings, new_seed_state
-        from imix_cli.running.resume import load_checkpoint
+        from imix_cli.running.config.compose import validate_overrides
+        from imix_cli.core.evaluation import make_evaluator
+        from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
+        from imix_cli.running.loop.resume import load_checkpoint
         (spec,) = validate_overrides({[*args[1:], "generations=6", f"results_dir={root}"]!r})
         fresh = new_seed_state(loop_settings(spec, make_evaluator("cartpole")), 0)
-        from imix_cli.running.run_spec import resume_identity
+        from imix_cli.running.config.run_spec import resume_identity
         st = load_checkpoint(spec.run_dir, 0, resume_identity(spec.identity()), fresh, warn=lambda m: print("refused:", m), spec=spec)
         assert st is None
         """,
@@ -304,7 +304,7 @@ FORGE_RUN = ["run", "algo=cem", "env=cartpole", "seeds=1", "popsize=6", "checkpo
 def forge_checkpoint(path, change) -> None:
     """Rewrite a checkpoint with ``change(header, arrays)`` applied and its checksum recomputed: a forgery
     that passes every integrity check, only the values are wrong."""
-    from imix_cli.running import checkpoints
+    from imix_cli.running.files import checkpoints
 
     with np.load(path, allow_pickle=False) as npz:
         arrays = {name: npz[name] for name in npz.files}
@@ -610,7 +610,7 @@ def test_eval_bounds_episodes_and_runs_them_in_batches(copied, capsys, monkeypat
 
 
 def test_eval_of_a_read_only_results_folder_prints_the_numbers_and_one_line(copied, capsys, monkeypatch):
-    import imix_cli.writing as writing_module
+    import imix_cli.running.files.writing as writing_module
 
     root, run_dir = copied
 
@@ -627,7 +627,7 @@ def test_eval_of_a_read_only_results_folder_prints_the_numbers_and_one_line(copi
 def test_a_seed_csv_holding_another_seeds_rows_is_refused_by_the_reader(two_seeds, tmp_path):
     """The reader run, plot and status share refuses a copy under another seed's name (its seed column
     says whose rows they are), so ``imix run`` does not take seed 1's rows as seed 0's result either."""
-    from imix_cli.running.results import CorruptResultError, read_run_csv
+    from imix_cli.running.files.results import CorruptResultError, read_run_csv
 
     run_dir = _copy_experiment(two_seeds, tmp_path)
     (run_dir / "seed_0.csv").write_text((run_dir / "seed_1.csv").read_text())
@@ -640,9 +640,9 @@ def test_a_seed_csv_holding_another_seeds_rows_is_refused_by_the_reader(two_seed
 READ_SPECIAL = """
 import sys
 sys.path[:0] = {paths!r}
-from imix_cli.running.checkpoints import CheckpointError, read_checkpoint
-from imix_cli.running.policy_files import PolicyFileError, read_policy
-from imix_cli.running.results import CorruptResultError, read_run_csv
+from imix_cli.running.files.checkpoints import CheckpointError, read_checkpoint
+from imix_cli.running.files.policy_files import PolicyFileError, read_policy
+from imix_cli.running.files.results import CorruptResultError, read_run_csv
 from imix_cli.running.run_folder import RunError, prepare_run_dir
 name, target = {name!r}, {target!r}
 try:
@@ -651,7 +651,7 @@ try:
     elif name == "policy_0_mean.npz":
         read_policy(target)
     elif name == "config.yaml":
-        from imix_cli.running.config import validate_overrides
+        from imix_cli.running.config.compose import validate_overrides
 
         (spec,) = validate_overrides({overrides!r})
         prepare_run_dir(spec)

@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imix_cli.algorithms import CEM, make_es
-from imix_cli.algorithms.base import centered_ranks
-from imix_cli.registry import ES_NAMES
+from imix_cli.core.algorithms import CEM, make_es
+from imix_cli.core.algorithms.base import centered_ranks
+from imix_cli.core.registry import ES_NAMES
 
 # --------------------------------------------------------------------------- centred ranks
 # rank r in 0..n-1 (worst 0) maps to r / (n - 1) - 0.5; a single member gets 0.

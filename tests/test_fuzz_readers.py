@@ -37,15 +37,15 @@ import pandas as pd
 import pytest
 
 from imix_cli.commands.cli import main
-from imix_cli.evaluation import make_evaluator
-from imix_cli.running.checkpoints import CheckpointError, _canonical, _encode, read_checkpoint
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import loop_settings, new_seed_state
-from imix_cli.running.policy_files import PolicyFileError, num_params_of, read_policy
-from imix_cli.running.results import COLUMNS, CorruptResultError, read_run_csv
-from imix_cli.running.resume import checkpoint_byte_limit, validate_seed_state
+from imix_cli.core.evaluation import make_evaluator
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.config.run_spec import resume_identity
+from imix_cli.running.files.checkpoints import CheckpointError, _canonical, _encode, read_checkpoint
+from imix_cli.running.files.policy_files import PolicyFileError, num_params_of, read_policy
+from imix_cli.running.files.results import COLUMNS, CorruptResultError, read_run_csv
+from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
+from imix_cli.running.loop.resume import checkpoint_byte_limit, validate_seed_state
 from imix_cli.running.run_folder import RunError, prepare_run_dir
-from imix_cli.running.run_spec import resume_identity
 
 MUTATIONS = 1000
 INT_COLUMNS = (
@@ -251,7 +251,7 @@ def test_fuzz_checkpoint_reader(run):
 
 def recompute_checksum(data: bytes) -> bytes:
     """The checkpoint ``data`` with its checksum made to match its (forged) content, if its header still parses."""
-    from imix_cli.running.checkpoints import _checksum
+    from imix_cli.running.files.checkpoints import _checksum
 
     members = npz_members(data)
     arrays = {name[:-4]: np.load(io.BytesIO(raw), allow_pickle=False) for name, raw in members.items()}
@@ -382,7 +382,7 @@ def test_fuzz_config_yaml_reader(run, tmp_path):
         return yaml.safe_load(text)
 
     def accepted_ok(config):
-        from imix_cli.running.run_spec import identity_of
+        from imix_cli.running.config.run_spec import identity_of
 
         # imix compares identities key by key with None for a missing key (run_spec.differing_keys), so a
         # key whose value is null is the same as no key: compare what imix compares
@@ -456,7 +456,7 @@ EXTRA_KEYS = ["algo", "env", "hydra.job.chdir", "hydra.run.dir", "hydra.sweep.di
 def random_command_line(rng: random.Random, keys: tuple, root: Path) -> list:
     """One ``imix run`` command line: 1-5 overrides of keys of the table (or mistyped, or unknown, or Hydra's), each with a
     typed, a valid-choice or a hostile value, some with ``+``/``++``/``~``, sometimes ``-m`` and Hydra's flags."""
-    from imix_cli.registry import ALGO_NAMES
+    from imix_cli.core.registry import ALGO_NAMES
 
     choices = [*ALGO_NAMES, "cartpole", "acrobot", "gym", "exact", "paper", "sun2009", "csa", "cemrl", "local", "pool", "ray", "tensorboard"]
     args = [f"results_dir={root}", "seeds=1", "workers=1"]
@@ -485,7 +485,7 @@ def test_fuzz_the_command_line_validation(tmp_path, monkeypatch):
     each is accepted or refused with one line (ConfigError, exit 2; RunError, exit 1) -- never another exception, never a
     hang -- and nothing is written, wherever its results_dir, experiment or Hydra folders point."""
     from imix_cli.commands.cli import validate_run_args
-    from imix_cli.running.config import ConfigError, all_keys
+    from imix_cli.running.config.compose import ConfigError, all_keys
 
     monkeypatch.chdir(tmp_path)
     root = tmp_path / "results"

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from imix_cli.commands.cli import main
-from imix_cli.running.results import read_run_csv
+from imix_cli.running.files.results import read_run_csv
 
 IMIX = str(Path(sys.executable).parent / "imix")
 pytestmark = pytest.mark.cluster  # the launcher plugins come with the cluster extra

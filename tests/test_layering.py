@@ -1,7 +1,7 @@
 """Import layering: ``import imix_cli`` stays light, and no module imports a layer above its own.
 
 Made to fail by putting ``from imix_cli import envs`` back into ``imix_cli/__init__.py`` (gymnasium
-loads) and by importing :mod:`imix_cli.running.config` from :mod:`imix_cli.parallel_evaluation`."""
+loads) and by importing :mod:`imix_cli.running.config.compose` from :mod:`imix_cli.core.parallel_evaluation`."""
 
 import ast
 import subprocess
@@ -12,7 +12,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "imix_cli"
 
 #: Lowest first; a module may import its own layer and those before it. An entry names a module or a
 #: subpackage by its dotted path below ``imix_cli``; a module's layer is that of the longest entry its
-#: dotted path starts with. The library is the top-level modules (``imix_cli.mixing``, ...);
+#: dotted path starts with. The library is the top-level modules (``imix_cli.core.mixing``, ...);
 #: ``running`` (what ``imix run`` does) and ``ddpg`` (the DDPG baseline) span several layers module by
 #: module, and their own entries (their ``__init__``, and any module not listed yet) are the lowest.
 LAYERS = [
@@ -79,7 +79,7 @@ LAYERS = [
 
 #: Upward imports a module may make inside a function only (when called, never when the module loads), and why:
 #: the registry names each ES class and each built-in's evaluator by a loader function that imports it.
-DEFERRED_ONLY = {"imix_cli.registry": ("imix_cli.algorithms.", "imix_cli.evaluation")}
+DEFERRED_ONLY = {"imix_cli.core.registry": ("imix_cli.core.algorithms.", "imix_cli.core.evaluation")}
 
 
 def _layer(module: str) -> int | None:
@@ -94,7 +94,7 @@ def _layer(module: str) -> int | None:
 
 def _imports(path: Path, top_level: bool = False) -> set[str]:
     """What ``path`` imports of imix_cli, as ``imix_cli.<module>.<name>`` (``top_level``: what its body
-    imports when it loads). ``from imix_cli.running import config`` is ``imix_cli.running.config``: the
+    imports when it loads). ``from imix_cli.running import config`` is ``imix_cli.running.config.compose``: the
     name imported may be a module, so it is part of the path whose layer counts."""
     tree = ast.parse(path.read_text())
     found = set()
@@ -144,7 +144,7 @@ def test_import_imix_cli_leaves_the_users_blas_threads_alone_and_imix_workers_ge
 
     code = (
         "import os, multiprocessing as mp, imix_cli; imix_cli.MixingES; imix_cli.run\n"
-        "from imix_cli.processes import one_blas_thread\n"
+        "from imix_cli.core.processes import one_blas_thread\n"
         "print(sorted(v for v in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS') if v in os.environ))\n"
         "if __name__ == '__main__':\n"
         "    ctx = mp.get_context('spawn')\n"

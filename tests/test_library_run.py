@@ -11,7 +11,7 @@ import pytest
 import imix_cli
 from imix_cli.commands.cli import main
 from imix_cli.experiment import DEFAULT_EXPERIMENT, Experiment
-from imix_cli.running.results import read_run_csv
+from imix_cli.running.files.results import read_run_csv
 
 SMALL = {"algo": "cem", "env": "cartpole", "seeds": 2, "generations": 3, "popsize": 8, "eval_mean_every": 0}
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from imix_cli.mixing import VARIANTS, DiagonalGaussian, FullGaussian, Generation, mix
+from imix_cli.core.mixing import VARIANTS, DiagonalGaussian, FullGaussian, Generation, mix
 
 KS_P_MIN = 1e-3
 
@@ -249,7 +249,7 @@ def chain_statistics(variant, drift, seed, min_fresh=0):
 @pytest.mark.parametrize("drift", [0.0, 0.1], ids=["random-walk", "drift"])
 @pytest.mark.parametrize("variant", ["paper", "sun2009", "exact"])
 def test_chains_of_generations_stay_distributed_as_their_distribution(variant, drift, min_fresh):
-    """Also with the minimal refresh (imix_cli.mixing, "A minimal refresh"): slots drawn independently
+    """Also with the minimal refresh (imix_cli.core.mixing, "A minimal refresh"): slots drawn independently
     of the members keep every generation's law, over chains too."""
     z_mean, z_var, ks_p, second = chain_statistics(variant, drift, seed=2024, min_fresh=min_fresh)
     assert abs(z_mean) < 4 and abs(z_var) < 4, (z_mean, z_var, second)
@@ -311,7 +311,7 @@ def _walk_steps(rng, dim, generations):
 @pytest.mark.parametrize("variant", ["paper", "sun2009", "exact"])
 @pytest.mark.parametrize("dim,popsize", [(1, 50), (130, 50), (2, 3)])
 def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize, min_fresh):
-    """imix_cli.mixing_kernels draws the same random numbers in the same order as the numpy step:
+    """imix_cli.core.mixing_kernels draws the same random numbers in the same order as the numpy step:
     along 100-generation chains, every generation has the same members (source, index, samples to
     1e-12), the same trial count, the same heights, and leaves the Generator in the same state.
     This equality is what lets the statistical tests above, which run on the compiled step (the
@@ -350,11 +350,11 @@ def test_the_compiled_step_takes_smaller_generations_and_refuses_what_it_does_no
 
 
 def _kernels_without_random_interval(tmp_path):
-    """A copy of imix_cli.mixing_kernels whose import of numba's ``random_interval`` fails, as it
+    """A copy of imix_cli.core.mixing_kernels whose import of numba's ``random_interval`` fails, as it
     would with a numba release that moved it."""
     import importlib.util
 
-    import imix_cli.mixing_kernels as kernels
+    import imix_cli.core.mixing_kernels as kernels
 
     line = "from numba.np.random.random_methods import random_interval"
     source = Path(kernels.__file__).read_text()
@@ -376,7 +376,7 @@ def test_the_compiled_permutation_is_numpys(fallback, tmp_path):
     if fallback:
         _permutation = _kernels_without_random_interval(tmp_path)._permutation
     else:
-        from imix_cli.mixing_kernels import _permutation
+        from imix_cli.core.mixing_kernels import _permutation
 
     for seed in range(40):
         for n in (0, 1, 2, 3, 7, 8, 9, 50, 150, 1025):
@@ -402,7 +402,7 @@ class _Laplace:
 def test_any_search_distribution_mixes_through_the_generic_path(variant):
     """mix needs only the SearchDistribution protocol: Laplace generations mixed from a shifted
     Laplace are Laplace(0.3) (KS p > 1e-3 on each coordinate's pooled members) and reuse most."""
-    from imix_cli.distributions import SearchDistribution
+    from imix_cli.core.distributions import SearchDistribution
 
     old, new = _Laplace(0.0), _Laplace(0.3)
     assert isinstance(new, SearchDistribution)
@@ -419,10 +419,10 @@ def test_any_search_distribution_mixes_through_the_generic_path(variant):
 
 
 def test_a_registered_variant_is_what_mix_and_the_settings_read(monkeypatch):
-    """A variant is one object (imix_cli.mixing.VARIANT_SPECS): mix() runs its own step over the generations
+    """A variant is one object (imix_cli.core.mixing.VARIANT_SPECS): mix() runs its own step over the generations
     its look-back rule allows, and MixingSettings keeps that many in the archive."""
-    from imix_cli import mixing
-    from imix_cli.generation import MixingSettings
+    from imix_cli.core import mixing
+    from imix_cli.core.generation import MixingSettings
 
     depths = []
 

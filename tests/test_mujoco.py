@@ -14,14 +14,14 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from imix_cli.algorithms.cmaes import MAX_DIM as CMAES_MAX_DIM
 from imix_cli.commands.cli import main
-from imix_cli.evaluation import MUJOCO_EXTRA_HINT, make_evaluator
-from imix_cli.policies import BatchPolicy, ObsNormalizer, fold_normalizer, num_params
-from imix_cli.registry import MUJOCO_ENVS
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
-from imix_cli.running.results import read_run_csv
+from imix_cli.core.algorithms.cmaes import MAX_DIM as CMAES_MAX_DIM
+from imix_cli.core.evaluation import MUJOCO_EXTRA_HINT, make_evaluator
+from imix_cli.core.policies import BatchPolicy, ObsNormalizer, fold_normalizer, num_params
+from imix_cli.core.registry import MUJOCO_ENVS
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.files.results import read_run_csv
+from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state
 
 needs_mujoco = pytest.mark.mujoco
 
@@ -256,7 +256,7 @@ def test_bootstrap_interval_covers_the_mean_and_shrinks_with_more_seeds():
 
 def test_study_table_counts_episodes_and_wall_time_to_threshold(tmp_path):
     from imix_cli.plotting.mujoco import main as plot_main
-    from imix_cli.running.results import write_run_csv
+    from imix_cli.running.files.results import write_run_csv
 
     def rows(algo, mixing, seed, scores, per_gen):
         out, evaluations = [], 0
@@ -292,7 +292,7 @@ def test_resume_mid_warm_up_equals_not_stopping(tmp_path):
     at generation 2 of 3) and resumed, a run writes the same CSV as one that never stopped."""
     import pandas as pd
 
-    from imix_cli.running.checkpoints import checkpoint_path
+    from imix_cli.running.files.checkpoints import checkpoint_path
     from imix_cli.running.run_folder import prepare_run_dir
     from imix_cli.running.runner import run_seeds
 
@@ -321,7 +321,7 @@ def test_resume_mid_warm_up_equals_not_stopping(tmp_path):
 def test_policy_files_of_a_normalised_linear_run_are_raw_observation_policies(tmp_path):
     """The written policies have the statistics folded in (the files carry no normaliser) and
     ``imix eval`` rebuilds the run's linear architecture from them."""
-    from imix_cli.running.policy_files import read_policy
+    from imix_cli.running.files.policy_files import read_policy
 
     args = ["env=gym", "env.id=Pendulum-v1", "algo=snes", "seeds=1", "generations=4", "popsize=6", "policy.hidden=[]",
             "policy.obs_norm=true", "policy.obs_norm_warmup=2", "progress=false", "workers=1"]  # fmt: skip

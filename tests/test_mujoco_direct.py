@@ -1,4 +1,4 @@
-"""The direct MuJoCo path (imix_cli/envs/mujoco_direct.py) against gymnasium's own v5 envs.
+"""The direct MuJoCo path (imix_cli/core/envs/mujoco_direct.py) against gymnasium's own v5 envs.
 
 Everything is compared bit for bit (``np.array_equal``, ``==``): the direct path runs the same
 engine on the same model with the same inputs, and computes every quantity as gymnasium does,
@@ -19,7 +19,7 @@ DIRECT_IDS = ("Swimmer-v5", "Hopper-v5", "HalfCheetah-v5", "Walker2d-v5", "Ant-v
 def _gym_env(env_id: str, **kwargs):
     import gymnasium as gym
 
-    from imix_cli.evaluation import missing_extra_message
+    from imix_cli.core.evaluation import missing_extra_message
 
     missing_extra_message(env_id)  # routes MuJoCo's warnings (HalfCheetah's model) as imix does
     with warnings.catch_warnings():
@@ -28,8 +28,8 @@ def _gym_env(env_id: str, **kwargs):
 
 
 def test_the_direct_ids_are_the_evaluations_own():
-    from imix_cli.envs.mujoco_direct import DIRECT_ENV_IDS
-    from imix_cli.registry import MUJOCO_ENVS
+    from imix_cli.core.envs.mujoco_direct import DIRECT_ENV_IDS
+    from imix_cli.core.registry import MUJOCO_ENVS
 
     assert DIRECT_ENV_IDS == DIRECT_IDS and set(DIRECT_IDS) == set(MUJOCO_ENVS.values())
 
@@ -43,8 +43,8 @@ def test_direct_steps_equal_gymnasium_step_by_step(env_id, compiled):
     """Random float32 actions, several seeds, members ending at different times: reset
     observations (the seeded noise), then every step's observation, reward and termination
     equal gymnasium's, bit for bit; gymnasium truncates exactly at its 1000-step limit. For the
-    compiled step (imix_cli/envs/mujoco_kernels.py) and the Python one."""
-    from imix_cli.envs.mujoco_direct import DirectEpisodes
+    compiled step (imix_cli/core/envs/mujoco_kernels.py) and the Python one."""
+    from imix_cli.core.envs.mujoco_direct import DirectEpisodes
 
     seeds = [0, 5, 123, 2**40 + 7]
     direct = DirectEpisodes(env_id, compiled=compiled)
@@ -96,7 +96,7 @@ def test_health_checks_at_chosen_states(env_id, qpos_changes, qvel_changes, term
     """Each health check, and its bounds, decides as gymnasium's: one zero-action step from a
     state set by hand (as ``set_state``) gives the same observation, reward and termination on
     every path."""
-    from imix_cli.envs.mujoco_direct import DirectEpisodes
+    from imix_cli.core.envs.mujoco_direct import DirectEpisodes
 
     env = _gym_env(env_id)
     env.reset(seed=1)
@@ -125,7 +125,7 @@ def test_health_checks_at_chosen_states(env_id, qpos_changes, qvel_changes, term
 def test_direct_evaluator_equals_the_gymnasium_evaluator(env_id, hidden, max_steps):
     """Returns, episode lengths and the observation statistics of MujocoDirectEvaluator equal
     GymEvaluator's (gymnasium's env) bit for bit, in a batch and alone; a given cap truncates both alike."""
-    from imix_cli.evaluation import GymEvaluator, MujocoDirectEvaluator, make_evaluator
+    from imix_cli.core.evaluation import GymEvaluator, MujocoDirectEvaluator, make_evaluator
 
     direct, gym_ev = make_evaluator(env_id, max_steps, hidden), make_evaluator(env_id, max_steps, hidden, backend="gymnasium")
     assert type(direct) is MujocoDirectEvaluator and type(gym_ev) is GymEvaluator
@@ -145,7 +145,7 @@ def test_direct_evaluator_equals_the_gymnasium_evaluator(env_id, hidden, max_ste
 
 
 def test_the_backend_is_chosen_by_argument_or_environment_variable(monkeypatch):
-    from imix_cli.evaluation import GymEvaluator, MujocoDirectEvaluator, make_evaluator
+    from imix_cli.core.evaluation import GymEvaluator, MujocoDirectEvaluator, make_evaluator
 
     assert type(make_evaluator("Hopper-v5", hidden=())) is MujocoDirectEvaluator
     assert type(make_evaluator("Hopper-v5", hidden=(), backend="gymnasium")) is GymEvaluator
@@ -164,7 +164,7 @@ def test_a_bad_backend_variable_stops_imix_run_in_one_line(tmp_path, capsys, mon
     from imix_cli.commands.cli import main
 
     monkeypatch.setenv("IMIX_MUJOCO_BACKEND", "fast")
-    monkeypatch.setattr("imix_cli.running.es_config._EVALUATOR_SHAPES", {})  # the config check caches its probe's error per process
+    monkeypatch.setattr("imix_cli.running.config.es_config._EVALUATOR_SHAPES", {})  # the config check caches its probe's error per process
     code = main(["run", "algo=snes", "env=hopper", "policy.hidden=[]", "generations=1", "popsize=4", "seeds=1", "workers=1", "progress=false",
                  f"results_dir={tmp_path}"])  # fmt: skip
     err = capsys.readouterr().err.strip()
@@ -177,7 +177,7 @@ def test_an_imix_run_on_hopper_is_the_same_on_both_backends(tmp_path, monkeypatc
     normalisation: every CSV column but the wall time is identical whichever backend ran the
     episodes (the direct one in the pool evaluator's worker process)."""
     from imix_cli.commands.cli import main
-    from imix_cli.running.results import read_run_csv
+    from imix_cli.running.files.results import read_run_csv
 
     common = ["algo=snes", "env=hopper", "eim=true", "policy.hidden=[]", "policy.obs_norm=true", "policy.obs_norm_warmup=1", "generations=4",
               "popsize=8", "seeds=1", "progress=false", "checkpoint_every=0"]  # fmt: skip
@@ -210,7 +210,7 @@ def test_bench_mujoco_prints_its_table(capsys):
 def test_the_compiled_step_refuses_rows_and_actions_it_would_read_past():
     """The kernel reads MjData buffers by address: an index past the reset batch or actions of
     the wrong shape are refused in Python rather than read from other memory."""
-    from imix_cli.envs.mujoco_direct import DirectEpisodes
+    from imix_cli.core.envs.mujoco_direct import DirectEpisodes
 
     direct = DirectEpisodes("Hopper-v5", compiled=True)
     direct.reset([0, 1])

@@ -5,7 +5,7 @@ import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
 from imix_cli.commands.cli import main
-from imix_cli.running.results import read_run_csv
+from imix_cli.running.files.results import read_run_csv
 
 
 class FaultyRewardCartPole(CartPoleEnv):

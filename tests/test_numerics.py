@@ -1,4 +1,4 @@
-"""The numerics rule in one place (imix_cli.numerics): Python code takes exp, log, products ... from the facade.
+"""The numerics rule in one place (imix_cli.core.numerics): Python code takes exp, log, products ... from the facade.
 
 What must hold: no module computes on a run's path with numpy's, math's or BLAS's versions of what the facade
 gives (their last bits depend on the CPU), nor reaches past the facade for the Python-callable kernels; and the
@@ -12,8 +12,8 @@ import numpy as np
 from numba.core.registry import CPUDispatcher
 
 import imix_cli
-from imix_cli import elementary, linalg_kernels
-from imix_cli import numerics as xp
+from imix_cli.core import elementary, linalg_kernels
+from imix_cli.core import numerics as xp
 
 PACKAGE = Path(imix_cli.__file__).parent
 #: The numerical library itself: the kernels and the facade (they define what the others call).
@@ -44,7 +44,7 @@ def _violations(name: str, tree: ast.AST) -> list[str]:
     # compiled code (@njit functions) calls the kernels themselves: the numba functions of the two modules
     compiled_only = {alias: {n for n, v in vars(m).items() if isinstance(v, CPUDispatcher)} for alias, m in (("lk", linalg_kernels), ("el", elementary))}
     for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module in ("imix_cli.elementary", "imix_cli.linalg_kernels"):
+        if isinstance(node, ast.ImportFrom) and node.module in ("imix_cli.core.elementary", "imix_cli.core.linalg_kernels"):
             found.append(f"from {node.module} import ...")
         elif isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult):
             found.append("@")

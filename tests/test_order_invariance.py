@@ -11,8 +11,8 @@ a generation gives the same update, to round-off -- for every ES, with and witho
 import numpy as np
 import pytest
 
-from imix_cli.algorithms import ALGORITHMS, make_es
-from imix_cli.algorithms.base import centered_ranks, member_keys, rank_weights
+from imix_cli.core.algorithms import ALGORITHMS, make_es
+from imix_cli.core.algorithms.base import centered_ranks, member_keys, rank_weights
 
 
 def population_with_ties(rng, dim=8, popsize=20):

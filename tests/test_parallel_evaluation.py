@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from imix_cli.commands.cli import main
-from imix_cli.evaluation import make_evaluator
-from imix_cli.parallel_evaluation import PoolEvaluator, RayEvaluator
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.results import read_run_csv
+from imix_cli.core.evaluation import make_evaluator
+from imix_cli.core.parallel_evaluation import PoolEvaluator, RayEvaluator
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.files.results import read_run_csv
 
 # CartPole-v1 through the generic path: episodes of very different lengths, cheap to run.
 ENV = "CartPole-v1"
@@ -100,7 +100,7 @@ def test_ray_evaluator_on_a_local_ray_equals_local(tmp_path):
 
 @pytest.mark.cluster
 def test_pool_is_refused_under_a_parallel_hydra_launcher():
-    from imix_cli.running.config import ConfigError
+    from imix_cli.running.config.compose import ConfigError
 
     with pytest.raises(ConfigError, match="evaluator=pool.*joblib"):
         validate_overrides(["hydra/launcher=joblib", "env=gym", f"env.id={ENV}", "evaluator=pool"])

@@ -19,7 +19,7 @@ from imix_cli.plotting.data import (
     threshold_stats,
 )
 from imix_cli.plotting.didactic import Gauss1D, extended_importance_mixing
-from imix_cli.running.results import run_dir_name, write_run_csv
+from imix_cli.running.files.results import run_dir_name, write_run_csv
 
 EXPERIMENT = "synthetic"
 
@@ -304,7 +304,7 @@ def test_grid_search_points_left_out_of_main_figures_are_named(tmp_path, capsys)
 
 
 def test_running_seeds_are_read_from_partial_csvs_and_curves_reach_the_longest(tmp_path, capsys):
-    from imix_cli.running.results import partial_csv_path
+    from imix_cli.running.files.results import partial_csv_path
 
     run_dir = write_group(tmp_path, "snes", "cartpole", "none", range(2), gens=40)
     write_run_csv(partial_csv_path(run_dir, 2), run_rows("snes", "cartpole", "none", 2, np.linspace(20, 60, 12)))

@@ -12,9 +12,9 @@ import pytest
 
 from imix_cli.commands.cli import main
 from imix_cli.commands.eval_command import EVAL_STREAM, eval_episode_seeds
-from imix_cli.evaluation import make_evaluator
-from imix_cli.running.policy_files import HEADER_FIELDS, PolicyFileError, policy_path, read_policy
-from imix_cli.running.results import read_run_csv
+from imix_cli.core.evaluation import make_evaluator
+from imix_cli.running.files.policy_files import HEADER_FIELDS, PolicyFileError, policy_path, read_policy
+from imix_cli.running.files.results import read_run_csv
 
 RUN = "snes-cartpole-eim-popsize=8"
 TINY = ["algo=snes", "env=cartpole", "eim=true", "generations=5", "seeds=2", "popsize=8", "progress=false", "workers=1"]
@@ -152,8 +152,8 @@ class _DecliningEvaluator:
 
 
 def test_runner_tracks_the_best_ever_member_not_the_last_generations():
-    from imix_cli.running.config import validate_overrides
-    from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
+    from imix_cli.running.config.compose import validate_overrides
+    from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state
 
     spec = validate_overrides(["algo=snes", "env=cartpole", "popsize=6", "seeds=1", "generations=4", "workers=1"])[0]
     evaluator = _DecliningEvaluator()

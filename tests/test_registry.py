@@ -1,4 +1,4 @@
-"""The registry (imix_cli/registry.py) and the ES parameter records (algorithms/base.py Params).
+"""The registry (imix_cli/core/registry.py) and the ES parameter records (algorithms/base.py Params).
 
 Hydra reads conf/*.yaml, so the YAML files repeat a few registry values (generation counts,
 gymnasium ids, episode caps, the paper's hyper-parameters); these tests are what keeps the
@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 import yaml
 
-import imix_cli.algorithms.base as base
-from imix_cli.algorithms import ALGORITHMS, CEM, MIRRORED_ALGORITHMS, SNES, EvolutionStrategy, OpenES, Params, make_es
-from imix_cli.evaluation import make_evaluator
-from imix_cli.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS, ES_NAMES, MIXING_SPECS
-from imix_cli.running.config import PAPER_DEFAULTS, config_dir
+import imix_cli.core.algorithms.base as base
+from imix_cli.core.algorithms import ALGORITHMS, CEM, MIRRORED_ALGORITHMS, SNES, EvolutionStrategy, OpenES, Params, make_es
+from imix_cli.core.evaluation import make_evaluator
+from imix_cli.core.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS, ES_NAMES, MIXING_SPECS
+from imix_cli.running.config.compose import PAPER_DEFAULTS, config_dir
 
 
 def conf(*parts):
@@ -41,7 +41,7 @@ def test_the_registry_and_the_trainers_hold_objects_not_names():
         assert issubclass(ALGORITHM_SPECS[name].es_class(), EvolutionStrategy) and ALGORITHM_SPECS[name].es_class().name == name
     for trainer in (EVOLUTION_STRATEGY, DDPG):
         assert callable(trainer.run_seeds) and callable(trainer.needs_running)
-    from imix_cli.evaluation import BUILTIN_EVALUATORS
+    from imix_cli.core.evaluation import BUILTIN_EVALUATORS
 
     assert sorted(BUILTIN_EVALUATORS) == sorted(BUILTIN_ENVS)  # each built-in has its evaluator, and no evaluator names an unknown env
     for name in BUILTIN_ENVS:
@@ -73,7 +73,7 @@ def test_conf_config_yaml_holds_the_paper_defaults_of_params_and_mixing():
 
 @pytest.mark.filterwarnings("ignore:.*CartPole-v0 is out of date")
 def test_builtin_envs_match_their_evaluators_and_gymnasium():
-    import imix_cli.envs  # noqa: F401  (registers imix/ ids)
+    import imix_cli.core.envs  # noqa: F401  (registers imix/ ids)
 
     for name, gym_id in BUILTIN_ENVS.items():
         spec = ENV_SPECS[name]
@@ -91,8 +91,8 @@ def test_builtin_envs_match_their_evaluators_and_gymnasium():
 def test_the_config_selects_variants_by_what_the_variant_objects_say():
     """im_variant/eim_variant -> variant comes from the Variant objects alone (selected_by, config_name): each
     value is the variant's own name but eim_variant=paper (Algorithm 3, "eim_paper"); every variant is offered."""
-    from imix_cli.mixing import VARIANT_SPECS, VARIANTS, config_variants
-    from imix_cli.running.config import validate_overrides
+    from imix_cli.core.mixing import VARIANT_SPECS, VARIANTS, config_variants
+    from imix_cli.running.config.compose import validate_overrides
 
     assert VARIANTS == ("paper", "sun2009", "exact", "conditional", "eim_paper")
     assert list(MIXING_SPECS) == ["none", "im", "eim"]
@@ -164,7 +164,7 @@ def test_fitness_shaping_and_weight_decay_forms_are_pluggable(monkeypatch):
 
 def test_algo_options_come_from_the_es_params():
     """``algo.style`` of CEM: default, choices and the folder name come from ``CEM.Params``."""
-    from imix_cli.running.config import ConfigError, validate_overrides
+    from imix_cli.running.config.compose import ConfigError, validate_overrides
 
     (default,) = validate_overrides(["algo=cem"])
     assert default.algo_options == {"style": "imix"} and default.run_name == "cem-cartpole-none"
@@ -178,7 +178,7 @@ def test_algo_options_come_from_the_es_params():
 
 def test_only_envs_marked_mujoco_are_mujoco_envs(monkeypatch):
     # a preset of another gymnasium id (no compiled evaluator) is not a MuJoCo env
-    from imix_cli import registry
+    from imix_cli.core import registry
 
     spec = registry.EnvSpec("mountaincar", "MountainCar-v0", "MountainCar", 200, -110.0)
     assert not spec.builtin and not spec.mujoco

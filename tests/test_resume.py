@@ -21,9 +21,9 @@ import pandas as pd
 import pytest
 
 from imix_cli.commands.cli import main
-from imix_cli.running.checkpoints import checkpoint_path
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.results import read_run_csv
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.files.checkpoints import checkpoint_path
+from imix_cli.running.files.results import read_run_csv
 from imix_cli.running.run_folder import prepare_run_dir
 from imix_cli.running.runner import run_seeds
 
@@ -127,7 +127,7 @@ def test_kill_minus_9_at_random_points_then_resume_gives_identical_csvs(tmp_path
 @pytest.mark.parametrize("algo", ["openes", "snes", "cem", "cmaes"])
 def test_resume_from_checkpoint_equals_not_stopping(tmp_path, algo, capfd):
     """In-process: interrupt after 7 generations (checkpoint at 6), resume, compare."""
-    from imix_cli.algorithms import CMAES
+    from imix_cli.core.algorithms import CMAES
 
     if algo == "cmaes" and "_state_dict" not in vars(CMAES) and "state_dict" not in vars(CMAES):
         pytest.skip("CMAES has no state_dict in this branch (wired at merge)")

@@ -8,8 +8,8 @@ import re
 import numpy as np
 
 from imix_cli.commands.cli import main
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.results import partial_csv_path, read_run_csv
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.files.results import partial_csv_path, read_run_csv
 from imix_cli.running.runner import run_seeds
 
 TINY = ["algo=cem", "env=cartpole", "generations=4", "popsize=8", "progress=false", "workers=1"]

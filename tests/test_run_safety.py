@@ -18,8 +18,8 @@ import pytest
 from process_tree import alive, descendants
 
 from imix_cli.commands.cli import main
-from imix_cli.running.config import ConfigError, validate_overrides
-from imix_cli.running.results import read_run_csv
+from imix_cli.running.config.compose import ConfigError, validate_overrides
+from imix_cli.running.files.results import read_run_csv
 from imix_cli.running.run_folder import run_dir_lock
 
 IMIX = str(Path(sys.executable).parent / "imix")

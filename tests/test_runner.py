@@ -18,8 +18,8 @@ import pytest
 import yaml
 
 from imix_cli.commands.cli import main
-from imix_cli.running.config import config_dir, validate_overrides
-from imix_cli.running.results import COLUMNS, read_run_csv
+from imix_cli.running.config.compose import config_dir, validate_overrides
+from imix_cli.running.files.results import COLUMNS, read_run_csv
 
 TINY = ["generations=4", "seeds=2", "popsize=8", "progress=false", "workers=1"]
 
@@ -120,16 +120,16 @@ PAPER_GENERATIONS = {"openes": 1000, "snes": 1000, "cem": 400, "cmaes": 400}
 def test_each_point_of_imix_run_is_validated_once(tmp_path, monkeypatch):
     """`imix run` validates every point up front (before any runs); the Hydra task then runs the point's
     RunSpec from that validation instead of validating its config again."""
-    import imix_cli.running.config
+    import imix_cli.running.config.compose
 
     validated = []
-    real = imix_cli.running.config.spec_from_config
+    real = imix_cli.running.config.compose.spec_from_config
 
     def counting(cfg, launcher=None):
         validated.append(cfg["sigma"])
         return real(cfg, launcher)
 
-    monkeypatch.setattr(imix_cli.running.config, "spec_from_config", counting)
+    monkeypatch.setattr(imix_cli.running.config.compose, "spec_from_config", counting)
     assert imix("-m", "algo=cem", "sigma=0.25,0.5", *TINY, results_dir=tmp_path) == 0
     assert sorted(validated) == [0.25, 0.5]
     assert len(list(tmp_path.glob("default/cem-cartpole-none-popsize=8*/seed_*.csv"))) == 4

@@ -4,7 +4,7 @@ the help's examples are ones that learn."""
 import subprocess
 from pathlib import Path
 
-from imix_cli.running.config import validate_overrides
+from imix_cli.running.config.compose import validate_overrides
 
 ROOT = Path(__file__).resolve().parent.parent
 

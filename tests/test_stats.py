@@ -1,4 +1,4 @@
-"""imix_cli.stats: IQM, stratified bootstrap CIs, probability of improvement, performance profiles.
+"""imix_cli.core.stats: IQM, stratified bootstrap CIs, probability of improvement, performance profiles.
 
 Known values are computed by hand in the comments; where rliable's ``metrics`` module imports
 (it needs only scipy; its bootstrap needs arch, which does not import with pandas 3), the same
@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from imix_cli.stats import (
+from imix_cli.core.stats import (
     iqm,
     iqm_ci,
     mean_bootstrap_ci,

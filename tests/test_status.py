@@ -17,7 +17,7 @@ import yaml
 
 from imix_cli.commands.cli import main
 from imix_cli.commands.status import run_status
-from imix_cli.running.results import partial_csv_path, rows_to_frame, seed_csv_path, write_run_csv
+from imix_cli.running.files.results import partial_csv_path, rows_to_frame, seed_csv_path, write_run_csv
 
 IMIX = str(Path(sys.executable).parent / "imix")
 
@@ -83,7 +83,7 @@ def test_status_bad_experiment_is_one_line(tmp_path, capsys):
 def test_a_live_run_holding_the_lock_makes_every_unfinished_seed_running(tmp_path, capsys):
     """The lock's holder is what tells running from stopped: every unfinished seed of a folder a live run holds is
     being run (those with nothing on disk yet included); the same files without it are a stopped run's."""
-    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.config.compose import validate_overrides
     from imix_cli.running.run_folder import run_dir_lock
 
     run_dir = make_run(tmp_path)
@@ -101,7 +101,7 @@ def test_a_live_run_holding_the_lock_makes_every_unfinished_seed_running(tmp_pat
 def test_a_csv_short_of_the_configs_generations_is_not_done_as_imix_run_refuses_it(tmp_path, capsys):
     """Issue 36 item 7: a 1-of-30-row CSV without a final state to continue from: imix run refuses the folder,
     and status says so instead of counting it done."""
-    from imix_cli.running.results import read_run_csv
+    from imix_cli.running.files.results import read_run_csv
 
     args = ["algo=cem", "seeds=2", "generations=30", "popsize=8", "workers=1", "progress=false", "checkpoint_every=0", f"results_dir={tmp_path}"]
     assert main(["run", *args]) == 0
@@ -122,7 +122,7 @@ def _truth(run_dir, seeds: int, generations: int) -> tuple[list, list, dict]:
     """What the files say, read apart from status: finished seeds, unfinished ones, and each seed's generations on
     disk (its CSV's rows, or its partial CSV's, or its checkpoint's header)."""
     from imix_cli.commands.status import _checkpoint_generation
-    from imix_cli.running.results import read_run_csv
+    from imix_cli.running.files.results import read_run_csv
 
     done, unfinished, gens = [], [], {}
     for seed in range(seeds):

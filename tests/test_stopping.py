@@ -15,8 +15,8 @@ import pandas as pd
 import pytest
 
 from imix_cli.commands.cli import main
-from imix_cli.running.config import validate_overrides
-from imix_cli.running.results import read_run_csv
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.files.results import read_run_csv
 from imix_cli.running.run_folder import prepare_run_dir
 from imix_cli.running.runner import resume_line, run_seeds
 
@@ -139,7 +139,7 @@ def test_ctrl_c_to_the_whole_group_with_two_workers_keeps_each_seeds_current_gen
 def test_in_process_a_step_that_does_not_end_is_given_up_after_the_grace_period(tmp_path, monkeypatch):
     """In-process nobody else bounds the wait: a step that outlasts STOP_GRACE_SECONDS (a first run compiling its
     kernels takes minutes) is cut, as a second Ctrl-C would cut it; the seeds keep what was saved before."""
-    from imix_cli.running import stopping
+    from imix_cli.running.loop import stopping
 
     monkeypatch.setattr(stopping, "STOP_GRACE_SECONDS", 0.5)
     (spec,) = validate_overrides([*COMMON, f"results_dir={tmp_path}"])

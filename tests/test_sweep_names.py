@@ -2,7 +2,7 @@
 from the paper's, so the sweep's table shows, next to each name, the swept values the name leaves out."""
 
 from imix_cli.commands.cli import main
-from imix_cli.running.config import validate_overrides
+from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.summary import hidden_values
 
 

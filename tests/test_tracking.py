@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import imix_cli
-from imix_cli.running.results import read_run_csv
-from imix_cli.running.tracking import TRACKED_COLUMNS, tensorboard_dir
+from imix_cli.running.files.results import read_run_csv
+from imix_cli.running.files.tracking import TRACKED_COLUMNS, tensorboard_dir
 
 
 def _scalars(directory):
@@ -119,8 +119,8 @@ def test_wandb_offline_gets_one_run_per_seed(tmp_path, monkeypatch):
 def test_a_tracker_gets_each_float_as_the_csv_writes_it():
     """The CSV keeps 10 significant digits; a tracker that got the unrounded value could store another
     float32 than the CSV's (this value is one: it rounds to different float32s with and without)."""
-    from imix_cli.running.results import FLOAT_FORMAT
-    from imix_cli.running.tracking import scalars
+    from imix_cli.running.files.results import FLOAT_FORMAT
+    from imix_cli.running.files.tracking import scalars
 
     value = 0.0016486371752648665
     written = float(FLOAT_FORMAT % value)

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from imix_cli.commands.cli import main
-from imix_cli.running.config import ConfigError, validate_overrides
+from imix_cli.running.config.compose import ConfigError, validate_overrides
 
 TINY = ["algo=snes", "env=cartpole", "seeds=1", "generations=2", "popsize=4", "workers=1", "progress=false"]
 
@@ -119,7 +119,7 @@ def test_config_dir_flag_errors_are_one_line(tmp_path, capsys, monkeypatch):
 
 
 def test_a_config_dir_file_that_imix_conf_would_hide_is_refused(tmp_path):
-    from imix_cli.running.config import config_dir as imix_conf
+    from imix_cli.running.config.compose import config_dir as imix_conf
 
     (tmp_path / "algo").mkdir()
     (tmp_path / "algo" / "snes.yaml").write_text("name: snes\ngenerations: 7\n")  # the run would use conf/algo/snes.yaml
@@ -257,7 +257,7 @@ def test_the_readers_accept_the_runs_own_csvs(runs, run_dir, tmp_path, capsys):
 def test_a_changed_schedule_does_not_continue_a_csv_on_another_one(run_dir, tmp_path, capsys):
     """eval_mean_every changed between a run and its continuation (a changed default looks the same): refused with one
     line; continued with the recorded schedule, the CSV follows one schedule to the end."""
-    from imix_cli.running.results import read_run_csv
+    from imix_cli.running.files.results import read_run_csv
     from imix_cli.running.seed_checks import check_seed_csv
 
     csv = run_dir / "seed_0.csv"
@@ -293,8 +293,8 @@ def test_a_finished_run_is_still_summarised_under_another_schedule(run_dir, tmp_
     ],
 )
 def test_mixing_es_refuses_a_bad_argument_at_construction(kwargs, error, named):
-    from imix_cli.algorithms import make_es
-    from imix_cli.ask_tell import MixingES
+    from imix_cli.core.algorithms import make_es
+    from imix_cli.core.ask_tell import MixingES
 
     with pytest.raises(error, match=named):
         MixingES(make_es("snes", 3, popsize=6), **kwargs)
@@ -306,7 +306,7 @@ def test_mixing_es_refuses_a_bad_argument_at_construction(kwargs, error, named):
      ({"sigma": float("nan")}, ValueError, "sigma"), ({"lr": 0}, ValueError, "lr")],
 )  # fmt: skip
 def test_make_es_refuses_rather_than_truncates(kwargs, error, named):
-    from imix_cli.algorithms import make_es
+    from imix_cli.core.algorithms import make_es
 
     with pytest.raises(error, match=named):
         make_es("snes", 3, **kwargs)
@@ -327,14 +327,14 @@ SHARED_BOUNDS = [
 
 @pytest.mark.parametrize("key, argument, good, bad", SHARED_BOUNDS, ids=[c[0] for c in SHARED_BOUNDS])
 def test_the_library_and_the_cli_refuse_the_same_values(key, argument, good, bad):
-    from imix_cli.algorithms import make_es
-    from imix_cli.ask_tell import MixingES
+    from imix_cli.core.algorithms import make_es
+    from imix_cli.core.ask_tell import MixingES
 
     def library(value):
         if argument in ("popsize", "sigma", "lr", "weight_decay"):
             return make_es("snes", 3, **{argument: value})
         if argument == "reeval_count":  # MixingES does not take it; the runner's MixingSettings does
-            from imix_cli.generation import MixingSettings
+            from imix_cli.core.generation import MixingSettings
 
             return MixingSettings("exact", reeval_count=value)
         return MixingES(make_es("snes", 3, popsize=6), "exact", **{argument: value})

@@ -28,7 +28,7 @@ print(sorted({e.data["dispatcher"].py_func.__qualname__ for _, e in rec.buffer i
 
 WARM_UP = """
 import sys
-from imix_cli.running.config import validate_overrides
+from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.warmup import warm_up
 (spec,) = validate_overrides(sys.argv[1:])
 print(warm_up(spec, 2))

@@ -1,4 +1,4 @@
-"""Issue 36, items 1-3 and 9: every file a command writes goes through the one writer (imix_cli.writing).
+"""Issue 36, items 1-3 and 9: every file a command writes goes through the one writer (imix_cli.running.files.writing).
 
 Each test plants what a received results folder could hold -- a symbolic link at a file a command writes,
 or at a folder above it, a CSV cell with a newline or a formula -- or cuts a write short (a full disk, a
@@ -261,7 +261,7 @@ def test_formula_cells_are_quoted_in_every_written_table_and_numbers_stay_number
 
 
 def test_safe_cell_neutralises_text_only():
-    from imix_cli.writing import safe_cell, safe_frame
+    from imix_cli.running.files.writing import safe_cell, safe_frame
 
     assert safe_cell("=1+1") == "'=1+1" and safe_cell("@SUM(A1)") == "'@SUM(A1)" and safe_cell("+x") == "'+x" and safe_cell("-x") == "'-x"
     assert safe_cell("-12.5") == "-12.5" and safe_cell(-12.5) == -12.5 and safe_cell("cem") == "cem"

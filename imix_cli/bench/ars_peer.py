@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.registry import ENV_SPECS
+from imix_cli.core.registry import ENV_SPECS
 
 #: rl-zoo3 2.9.2, hyperparams/ars.yml, "Params closest to original paper" (the -v4 entries).
 ZOO_ARS = {
@@ -118,7 +118,7 @@ def main(argv=None) -> int:
         parser.error(f"sb3-contrib is not installed: {INSTALL}")
     import pandas as pd
 
-    from imix_cli.running.results import atomic_write_bytes
+    from imix_cli.running.files.results import atomic_write_bytes
 
     for env_name in args.envs:
         for seed in range(args.seeds) if args.seed is None else [args.seed]:

@@ -2,7 +2,7 @@
 ES update of a lockstep run in this process (the seeds of one worker, paper dimensions).
 
 Nothing is patched: the timed evaluator, the timed planning step (which mixes, or samples
-without mixing) and the timed ES updates are handed to :func:`imix_cli.running.lockstep.advance_lockstep`.
+without mixing) and the timed ES updates are handed to :func:`imix_cli.running.loop.lockstep.advance_lockstep`.
 """
 
 from __future__ import annotations
@@ -37,10 +37,10 @@ class _TimedEvaluator:
 
 def breakdown_rows(configs, seeds: int, generations: int | None) -> list[dict]:
     """Lockstep runs in this process: seconds in evaluation, mixing/sampling and ES update."""
-    from imix_cli.evaluation import make_evaluator
-    from imix_cli.generation import plan_generation
-    from imix_cli.running.config import validate_overrides
-    from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
+    from imix_cli.core.evaluation import make_evaluator
+    from imix_cli.core.generation import plan_generation
+    from imix_cli.running.config.compose import validate_overrides
+    from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state
 
     rows = []
     for overrides in configs:

@@ -1,7 +1,7 @@
 """``imix bench [section ...] [key=value ...]``: the command line of the benchmarks (see :mod:`imix_cli.bench`).
 
 Sections are words, settings ``key=value`` (lists comma-separated), as every imix command takes them
-(:mod:`imix_cli.commands.keyvalue`); a bad one is one line naming it, exit status 2.
+(:mod:`imix_cli.keyvalue`); a bad one is one line naming it, exit status 2.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from imix_cli.bench.mixing import format_mixing, mixing_rows
 from imix_cli.bench.mujoco import MUJOCO_BENCH_ENVS, format_mujoco, mujoco_rows
 from imix_cli.bench.peers import QUICK_PEERS, format_peer_ratios, format_peers, peer_rows, peers_available
 from imix_cli.bench.rollouts import format_rollouts, rollout_rows
-from imix_cli.commands.keyvalue import UsageError, at_least, flag, help_requested, parse_key_values
-from imix_cli.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS, MUJOCO_ENVS, PAPER_ES_NAMES
+from imix_cli.core.registry import ALGORITHM_SPECS, ES_NAMES, MAIN_GRID_ENVS, MUJOCO_ENVS, PAPER_ES_NAMES
+from imix_cli.keyvalue import UsageError, at_least, flag, help_requested, parse_key_values
 
 #: The body of ``imix bench --help``: the sections and what each measures.
 HELP = """``imix bench``: speed benchmarks, each next to its baseline measured in the same run.
@@ -141,7 +141,7 @@ def help_text() -> str:
 
 def parse_args(argv: list[str]) -> SimpleNamespace:
     """Section words and ``key=value`` settings -> the settings (``sections``: the sections to run, in order).
-    :class:`~imix_cli.commands.keyvalue.UsageError` naming the bad argument."""
+    :class:`~imix_cli.keyvalue.UsageError` naming the bad argument."""
     sections, settings = [], []
     for arg in argv:
         if "=" in arg:
@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
             import importlib.util
 
             if importlib.util.find_spec("mujoco") is None:
-                from imix_cli.evaluation import MUJOCO_EXTRA_HINT
+                from imix_cli.core.evaluation import MUJOCO_EXTRA_HINT
 
                 echo(f"(mujoco: skipped, the mujoco package is not installed: {MUJOCO_EXTRA_HINT})")
                 continue

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from imix_cli.registry import ENV_SPECS, MAIN_GRID_ENVS
+from imix_cli.core.registry import ENV_SPECS, MAIN_GRID_ENVS
 
 # Gymnasium ids of the baselines: the -v1 ids of the registry's envs (same physics as the -v0 the
 # registry names for CartPole, without its deprecation warning), capped at the registry's episode length.

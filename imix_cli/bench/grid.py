@@ -5,14 +5,14 @@ from __future__ import annotations
 import tempfile
 
 from imix_cli.bench.common import cpu_seconds, table
-from imix_cli.registry import MAIN_GRID_ENVS, PAPER_ES_NAMES
+from imix_cli.core.registry import MAIN_GRID_ENVS, PAPER_ES_NAMES
 
 PAPER_GRID = [f"algo={','.join(PAPER_ES_NAMES)}", f"env={','.join(MAIN_GRID_ENVS)}"]  # as `make reproduce` (estool weight decay: the default)
 
 
 def grid_rows(seeds: int | None, generations: int | None, algos, envs, extra: list[str], echo=None) -> list[dict]:
     """The paper's main grid, without mixing and with EIM, through imix_cli.running.runner.run."""
-    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.config.compose import validate_overrides
     from imix_cli.running.runner import run
 
     rows = []

@@ -1,8 +1,8 @@
 """``imix bench loop``: the compiled generation loop against the Python loop, in this process.
 
-The same seeds of the same run advance through :func:`imix_cli.running.lockstep.advance_lockstep` (the
-reference: one generation of all seeds per call) and through :func:`imix_cli.running.compiled_loop.advance`
-(chunks of :data:`imix_cli.running.es_seeds.CHUNK` generations per seed); the table gives each one's time
+The same seeds of the same run advance through :func:`imix_cli.running.loop.lockstep.advance_lockstep` (the
+reference: one generation of all seeds per call) and through :func:`imix_cli.running.loop.compiled_loop.advance`
+(chunks of :data:`imix_cli.running.loop.es_seeds.CHUNK` generations per seed); the table gives each one's time
 per seed-generation, their ratio, and whether their rows are the same (wall times aside).
 """
 
@@ -26,11 +26,11 @@ def _rows_without_times(states) -> str:
 
 
 def loop_rows(configs, seeds: int, generations: int) -> list[dict]:
-    from imix_cli.parallel_evaluation import build_evaluator
-    from imix_cli.running import compiled_loop
-    from imix_cli.running.config import validate_overrides
-    from imix_cli.running.es_seeds import CHUNK
-    from imix_cli.running.lockstep import advance_lockstep, loop_settings, new_seed_state
+    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.running.config.compose import validate_overrides
+    from imix_cli.running.loop import compiled_loop
+    from imix_cli.running.loop.es_seeds import CHUNK
+    from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state
 
     rows = []
     for overrides in configs:

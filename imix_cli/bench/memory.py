@@ -1,5 +1,5 @@
 """``imix bench memory``: wall time, CPU time and peak RSS of a 25-seed ``imix run`` in a subprocess
-(:mod:`imix_cli.bench.memory_child`)."""
+(:mod:`imix_cli.commands.bench_memory_child`)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def memory_row(overrides: list[str], seeds: int, generations: int | None, worker
         if workers is not None:
             args.append(f"workers={workers}")
         started = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "imix_cli.bench.memory_child", *args], capture_output=True, text=True, check=False)
+        proc = subprocess.run([sys.executable, "-m", "imix_cli.commands.bench_memory_child", *args], capture_output=True, text=True, check=False)
         wall = time.perf_counter() - started
     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("IMIX_BENCH ")), None)
     if proc.returncode != 0 or line is None:

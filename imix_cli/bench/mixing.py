@@ -15,7 +15,7 @@ def mixing_times(dim: int, popsize: int = 50, generations: int = 3, repeats: int
     search distribution between them (high overlap, as OpenES/SNES see in the paper). Samples
     are float32 from d = 10^5 on (both sides), as the library recommends for memory.
     """
-    from imix_cli.mixing import DiagonalGaussian, mix
+    from imix_cli.core.mixing import DiagonalGaussian, mix
 
     rng = np.random.default_rng(seed)
     dtype = np.float32 if dim >= 100_000 else np.float64
@@ -27,7 +27,7 @@ def mixing_times(dim: int, popsize: int = 50, generations: int = 3, repeats: int
         archive.insert(0, mix(dist, archive, popsize, rng, variant="exact"))
     new = dists[-1]
     # Small steps (tens of microseconds at d = 130) are timed over batches of calls; the compiled
-    # steps (imix_cli.mixing_kernels) are loaded or compiled by a first, untimed call.
+    # steps (imix_cli.core.mixing_kernels) are loaded or compiled by a first, untimed call.
     calls = max(1, 200_000 // (popsize * dim))
 
     def per_call(fn):

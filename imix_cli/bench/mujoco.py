@@ -12,7 +12,7 @@ state; the ratio is the median of the repeats' ratios), for a linear policy with
   physics: this is the floor, up to the binding calls (imix's compiled step calls MuJoCo's C
   functions directly, so it can land a little below it);
 * ``imix evaluator``: the same parameters and episode seeds through imix's pool evaluator with
-  one worker (:class:`imix_cli.parallel_evaluation.PoolEvaluator`, the direct MuJoCo path;
+  one worker (:class:`imix_cli.core.parallel_evaluation.PoolEvaluator`, the direct MuJoCo path;
   the episodes are the loop's, bit for bit: the step counts are checked equal), and the same
   pool evaluator on gymnasium's env (``IMIX_MUJOCO_BACKEND=gymnasium``: imix before the direct path);
 * ``imix run``: ``imix run algo=snes env=<env> policy.hidden=[] evaluator=pool
@@ -83,7 +83,7 @@ def _imix_run(env: str, generations: int, popsize: int) -> tuple[float, int]:
     import tempfile
     from pathlib import Path
 
-    from imix_cli.running.results import read_run_csv
+    from imix_cli.running.files.results import read_run_csv
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-mujoco-") as tmp:
         args = ["run", "algo=snes", f"env={env}", "policy.hidden=[]", "evaluator=pool", "evaluator_workers=1", "seeds=1",
@@ -101,8 +101,8 @@ def _gymnasium_backend_pool(env_id: str):
     """A pool evaluator (one worker) running gymnasium's env (``IMIX_MUJOCO_BACKEND=gymnasium`` while its worker starts), warmed up."""
     import os
 
-    from imix_cli.evaluation import MUJOCO_BACKEND_VARIABLE
-    from imix_cli.parallel_evaluation import PoolEvaluator
+    from imix_cli.core.evaluation import MUJOCO_BACKEND_VARIABLE
+    from imix_cli.core.parallel_evaluation import PoolEvaluator
 
     saved = os.environ.get(MUJOCO_BACKEND_VARIABLE)
     os.environ[MUJOCO_BACKEND_VARIABLE] = "gymnasium"
@@ -119,8 +119,8 @@ def _gymnasium_backend_pool(env_id: str):
 
 def mujoco_rows(envs=MUJOCO_BENCH_ENVS, popsize: int = 50, repeats: int = 3, run_generations: int = 5, echo=None) -> list[dict]:
     """One dict per env: per-step costs (seconds) and the pairwise ratios' medians."""
-    from imix_cli.parallel_evaluation import PoolEvaluator
-    from imix_cli.registry import ENV_SPECS
+    from imix_cli.core.parallel_evaluation import PoolEvaluator
+    from imix_cli.core.registry import ENV_SPECS
 
     rows = []
     run_generations = max(int(run_generations), 2)

@@ -11,8 +11,8 @@ from functools import partial
 
 import numpy as np
 
-from imix_cli.algorithms.base import Params
 from imix_cli.bench.common import EPISODE_CAP, table
+from imix_cli.core.algorithms.base import Params
 
 QUICK_PEERS = (3, 100)  # --quick: seeds, generations
 # imix's defaults (the paper's): population size, initial std, Adam's learning rate
@@ -44,7 +44,7 @@ def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
     import optax
     from evosax.algorithms import SNES, Open_ES
 
-    from imix_cli.policies import num_params
+    from imix_cli.core.policies import num_params
 
     environment, env_params = gymnax.make(PEER_IDS[env])
     env_params = env_params.replace(max_steps_in_episode=EPISODE_CAP)
@@ -53,7 +53,7 @@ def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
     sizes = [obs_dim, 8, 8, n_act]
     dim = num_params(obs_dim, n_act)
 
-    def policy(flat, obs):  # imix_cli.policies' layout: W1 (in x 8), b1, W2, b2, W3, b3
+    def policy(flat, obs):  # imix_cli.core.policies' layout: W1 (in x 8), b1, W2, b2, W3, b3
         k, x = 0, obs
         for layer, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
             W, bias = flat[k : k + a * b].reshape(a, b), flat[k + a * b : k + a * b + b]
@@ -118,7 +118,7 @@ def _imix_overrides(env: str, eim: bool, seeds: int, generations: int, results_d
 def _imix_run(env: str, eim: bool, seeds: int, generations: int, extra: tuple = (), label: str | None = None) -> dict:
     """``imix run algo=snes env=<env> eim=<eim> [extra]`` in this process (its worker pool, all cores).
     ``label``: the row's name in the ratios, for the runs compared with the others (imix SNES + EIM)."""
-    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.config.compose import validate_overrides
     from imix_cli.running.runner import run
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
@@ -139,7 +139,7 @@ def _imix_first_run(env: str, seeds: int, generations: int) -> dict:
     imix_cli.commands.cli``) with an empty numba cache (``NUMBA_CACHE_DIR``), so every kernel it needs is
     compiled, in each worker, before it runs. Its ``compile`` is filled in by :func:`peer_rows`:
     this wall time minus the same run's with the cache warm (process start-up included)."""
-    from imix_cli.running.config import validate_overrides
+    from imix_cli.running.config.compose import validate_overrides
     from imix_cli.running.summary import summarize
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:

@@ -10,7 +10,7 @@ from imix_cli.bench.common import EPISODE_CAP, ROLLOUT_ENVS, median_rate, si, ta
 
 def bench_policies(env: str, batch: int) -> np.ndarray:
     """The fixed parameter matrices (batch, d) of the rollout benchmark (module docstring)."""
-    from imix_cli.evaluation import make_evaluator
+    from imix_cli.core.evaluation import make_evaluator
 
     d = make_evaluator(env).num_params
     rng = np.random.default_rng(0)
@@ -30,7 +30,7 @@ def _naive_rollouts(env: str, params: np.ndarray, seeds: np.ndarray) -> tuple[in
     """One episode at a time: gymnasium.make + a numpy MLP forward pass per step. (Env steps, None)."""
     import gymnasium as gym
 
-    from imix_cli.policies import unpack
+    from imix_cli.core.policies import unpack
 
     e = gym.make(ROLLOUT_ENVS[env], max_episode_steps=EPISODE_CAP)
     obs_dim, n_act = e.observation_space.shape[0], e.action_space.n
@@ -69,7 +69,7 @@ def _make_sync_vector_env(env: str, batch: int):
 
 def _sync_vector_rollouts(venv, params: np.ndarray, seeds: np.ndarray):
     """gymnasium's SyncVectorEnv stepping the same batched policy until every episode ended."""
-    from imix_cli.policies import BatchPolicy
+    from imix_cli.core.policies import BatchPolicy
 
     obs_dim, n_act = venv.single_observation_space.shape[0], venv.single_action_space.n
     policy = BatchPolicy(params, obs_dim, n_act)
@@ -86,7 +86,7 @@ def _sync_vector_rollouts(venv, params: np.ndarray, seeds: np.ndarray):
 def rollout_rows(sizes=(2, 50, 1250), envs=("cartpole", "acrobot"), repeats: int = 3, min_seconds: float = 1.0,
                  naive_members: int = 20, echo=None) -> list[dict]:  # fmt: skip
     """Measure the batched evaluator and both baselines; one dict per (env, batch size)."""
-    from imix_cli.evaluation import make_evaluator
+    from imix_cli.core.evaluation import make_evaluator
 
     rows = []
     for env in envs:

@@ -3,14 +3,14 @@
 Why: a user who presses Ctrl-C, pipes into ``head``, or runs an env of their own that raises must get one
 line saying what happened, never a 40-line traceback (which buries the one line that matters: which env,
 what it said). Files are never half-written whatever ends the command: every write goes through
-:mod:`imix_cli.writing` (a temporary file, renamed only when complete).
+:mod:`imix_cli.running.files.writing` (a temporary file, renamed only when complete).
 
 Exit statuses (docs/reliability.md):
 
 ====  ==========================================================================================
 0     done
 1     failed: a run folder refused, a file that cannot be written, an env of the user's that raised
-      (:class:`imix_cli.evaluation.UserEnvError`), out of memory (MemoryError), an internal error
+      (:class:`imix_cli.core.evaluation.UserEnvError`), out of memory (MemoryError), an internal error
 2     bad command line (the key or value named)
 130   interrupted (Ctrl-C, SIGINT): 128 + 2, as a shell reports it
 141   the reader of the output went away (``imix status | head -1``: EPIPE): 128 + SIGPIPE, what a
@@ -80,7 +80,7 @@ def guard(command: str, body) -> int:
 
 def report(command: str, err: BaseException) -> int:
     """One line on stderr for ``err`` (the full traceback first under ``--debug``); returns the exit status."""
-    evaluation = sys.modules.get("imix_cli.evaluation")  # not imported: the error cannot be one of its (and gymnasium stays unloaded)
+    evaluation = sys.modules.get("imix_cli.core.evaluation")  # not imported: the error cannot be one of its (and gymnasium stays unloaded)
     user_env_error = getattr(evaluation, "UserEnvError", ())
     if isinstance(err, BrokenPipeError):
         return broken_pipe()

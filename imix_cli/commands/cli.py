@@ -127,7 +127,7 @@ def _run_handles_signals() -> None:
 #: Sweep points of this process's ``imix run -m`` refused by their run folder (in use by another run,
 #: say): the others still run, and these are reported at the end, one line each, with exit status 1.
 _SKIPPED_POINTS: list[str] = []
-#: The RunSpecs that :func:`run_command` validated up front, by :func:`imix_cli.running.config.point_key`: the Hydra task
+#: The RunSpecs that :func:`run_command` validated up front, by :func:`imix_cli.running.config.compose.point_key`: the Hydra task
 #: takes its point's from here, so each point is validated once. A task run in another process (a launcher such
 #: as joblib) finds none there and validates its point itself.
 _VALIDATED: dict = {}
@@ -142,7 +142,7 @@ def _error(message: str, code: int) -> int:
 
 def run_command(args: list[str]) -> int:
     """``imix run [hydra flags] [overrides]``."""
-    from imix_cli.running.config import ConfigError
+    from imix_cli.running.config.compose import ConfigError
     from imix_cli.running.run_folder import RunError
 
     info_only = any(a in _HYDRA_INFO_FLAGS or a.startswith("--cfg=") for a in args)
@@ -195,11 +195,11 @@ def run_command(args: list[str]) -> int:
 
 def validate_run_args(args: list[str], validated: dict | None = None) -> list:
     """Everything ``imix run ARGS`` checks before anything runs or is written, and nothing else: the flags, every point's
-    composed config (:func:`imix_cli.running.config.validate_overrides`) and run folder (read only); returns the RunSpecs.
+    composed config (:func:`imix_cli.running.config.compose.validate_overrides`) and run folder (read only); returns the RunSpecs.
 
     ConfigError (exit status 2) or RunError (1), each a one-line message. ``imix run`` calls it first; the command-line
     fuzzer (tests/test_fuzz_readers.py) calls it alone, in-process: validation without an episode."""
-    from imix_cli.running.config import ConfigError, validate_overrides
+    from imix_cli.running.config.compose import ConfigError, validate_overrides
 
     dashed = next((a for a in args if a.startswith("--") and a.split("=", 1)[0] not in _HYDRA_RUN_FLAGS), None)
     if dashed is not None:  # `--seeds 3` or `--seeds=3`: keys are Hydra overrides, key=value
@@ -227,7 +227,7 @@ def _parse_hydra_args(args: list[str]) -> _HydraArgs:
     is not there."""
     from hydra.main import get_args_parser
 
-    from imix_cli.running.config import ConfigError, config_dir
+    from imix_cli.running.config.compose import ConfigError, config_dir
 
     parser = get_args_parser()
 
@@ -268,13 +268,13 @@ def _check_run_folders(specs) -> None:
     a folder holding another config, a corrupt CSV or a link stops the sweep before its first point."""
     from pathlib import Path
 
+    from imix_cli.running.files.writing import LinkRefusedError
     from imix_cli.running.run_folder import RunError, check_run_dir
-    from imix_cli.writing import LinkRefusedError
 
     for spec in specs:
         check_run_dir(spec)
         # Hydra writes a sweep's multirun.yaml and job folders below <experiment>/.multirun itself (not through
-        # imix_cli.writing); the folder it makes there is new (named by the second and the pid), so refusing a
+        # imix_cli.running.files.writing); the folder it makes there is new (named by the second and the pid), so refusing a
         # linked .multirun (the experiment folder: check_run_dir) keeps those writes inside results_dir.
         multirun = Path(spec.results_dir) / spec.experiment / ".multirun"
         if multirun.is_symlink():
@@ -296,7 +296,7 @@ def _own_sweep_folder(args: list[str]) -> list[str]:
 def _hydra_run() -> None:
     import hydra
 
-    from imix_cli.running.config import config_dir
+    from imix_cli.running.config.compose import config_dir
 
     hydra.main(version_base="1.3", config_path=config_dir(), config_name="config")(_task)()
 
@@ -318,7 +318,7 @@ def _task(cfg) -> None:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
-    from imix_cli.running.config import ConfigError, point_key, spec_from_config
+    from imix_cli.running.config.compose import ConfigError, point_key, spec_from_config
 
     try:
         launcher = OmegaConf.select(HydraConfig.get(), "launcher._target_")
@@ -329,7 +329,7 @@ def _task(cfg) -> None:
     from hydra.types import RunMode
 
     from imix_cli.commands.boundary import broken_pipe
-    from imix_cli.parallel_evaluation import EvaluatorError
+    from imix_cli.core.parallel_evaluation import EvaluatorError
     from imix_cli.running.runner import RunError, run
 
     _run_handles_signals()
@@ -364,7 +364,7 @@ def _task(cfg) -> None:
 
 
 if __name__ == "__main__":  # python -m imix_cli.commands.cli: imix's own process, as the `imix` script (imix_cli/__init__.py)
-    from imix_cli.processes import set_one_blas_thread
+    from imix_cli.core.processes import set_one_blas_thread
 
     set_one_blas_thread()
     sys.exit(main())

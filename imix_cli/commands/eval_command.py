@@ -2,7 +2,7 @@
 
 Why: training scores are the population's on the episodes it was trained on; the number to
 report for a learned policy is its return on episodes it never saw. This reads the policy files
-of each run (:mod:`imix_cli.running.policy_files`), runs ``episodes`` episodes per seed with the batched
+of each run (:mod:`imix_cli.running.files.policy_files`), runs ``episodes`` episodes per seed with the batched
 evaluator the run trained with, prints mean ± 95 % CI over seeds per run and writes
 ``<run>/eval.csv`` (one row per seed and ``which``).
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.commands.keyvalue import UsageError, at_least, folder_name, help_requested, one_of, parse_key_values
+from imix_cli.keyvalue import UsageError, at_least, folder_name, help_requested, one_of, parse_key_values
 
 HELP = """\
 usage: imix eval [key=value ...]
@@ -55,7 +55,7 @@ _NOT_RUNS = {"figures"}
 
 
 def _modules(key: str, value: str) -> tuple:
-    from imix_cli.env_ids import EnvIdError, user_modules
+    from imix_cli.core.env_ids import EnvIdError, user_modules
 
     try:
         return user_modules(value)
@@ -64,7 +64,7 @@ def _modules(key: str, value: str) -> tuple:
 
 
 #: The keys that choose policy files, shared by ``imix eval`` and ``imix render``: defaults and checks.
-#: ``import``: the modules the user allows a policy's ``module:Id`` env id to name (imix_cli.env_ids).
+#: ``import``: the modules the user allows a policy's ``module:Id`` env id to name (imix_cli.core.env_ids).
 POLICY_KEYS = {"results_dir": "results", "experiment": "default", "run": None, "which": "mean", "import": ()}
 POLICY_KEY_CHECKS = {"experiment": folder_name, "run": folder_name, "which": one_of("mean", "best"), "import": _modules}
 
@@ -107,12 +107,12 @@ def eval_episode_seeds(seed: int, episodes: int) -> np.ndarray:
 
 
 def policy_env(header: dict, allowed_modules=(), where: str = "policy file") -> str:
-    """The env a policy acts in, as :func:`imix_cli.evaluation.make_evaluator` takes it: a built-in's
+    """The env a policy acts in, as :func:`imix_cli.core.evaluation.make_evaluator` takes it: a built-in's
     name, or a registered gymnasium id (plain, without ``module:``). A ``module:Id`` in the file is
     refused unless the user named that module (``import=``): files never import code."""
-    from imix_cli.env_ids import EnvIdError, file_env_id
-    from imix_cli.registry import BUILTIN_ENVS
-    from imix_cli.running.policy_files import PolicyFileError
+    from imix_cli.core.env_ids import EnvIdError, file_env_id
+    from imix_cli.core.registry import BUILTIN_ENVS
+    from imix_cli.running.files.policy_files import PolicyFileError
 
     name = header["env_name"]
     if ":" in header["env_id"] or name not in BUILTIN_ENVS:  # a module named in the file: refused unless the user named it
@@ -130,7 +130,7 @@ def policy_env(header: dict, allowed_modules=(), where: str = "policy file") -> 
 
 def episode_cap(header: dict, env: str, run_dir=None) -> int:
     """The longest episode the policy's run used: its config.yaml's ``env.max_steps``, else the env's own cap."""
-    from imix_cli.registry import BUILTIN_ENVS, ENV_SPECS
+    from imix_cli.core.registry import BUILTIN_ENVS, ENV_SPECS
 
     configured = _config_max_steps(run_dir)
     if configured is not None:
@@ -139,7 +139,7 @@ def episode_cap(header: dict, env: str, run_dir=None) -> int:
         return ENV_SPECS[env].max_steps
     import gymnasium as gym
 
-    from imix_cli.running.policy_files import MAX_STEPS
+    from imix_cli.running.files.policy_files import MAX_STEPS
 
     return gym.spec(env).max_episode_steps or MAX_STEPS
 
@@ -162,8 +162,8 @@ def _config_max_steps(run_dir) -> int | None:
 
 def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), run_dir=None, where: str = "policy file"):
     """The batched evaluator a policy was trained with (from its header, checked against the env)."""
-    from imix_cli.evaluation import make_evaluator
-    from imix_cli.running.policy_files import PolicyFileError
+    from imix_cli.core.evaluation import make_evaluator
+    from imix_cli.running.files.policy_files import PolicyFileError
 
     if header.get("obs_normalizer") is not None:
         raise UsageError(
@@ -193,7 +193,7 @@ def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), r
 
 
 def evaluate_policy(policy, episodes: int, cache: dict | None = None, allowed_modules=(), run_dir=None, where: str = "policy file") -> dict:
-    """Statistics of ``episodes`` fresh episodes of a :class:`~imix_cli.running.policy_files.PolicyFile`:
+    """Statistics of ``episodes`` fresh episodes of a :class:`~imix_cli.running.files.policy_files.PolicyFile`:
     ``mean``, ``std`` (ddof 1, NaN for one episode), ``min``, ``max`` of the returns, ``mean_steps``.
 
     Episodes run in batches (at most ~64 MB of parameter copies), so memory does not grow with
@@ -223,7 +223,7 @@ def evaluate_policy(policy, episodes: int, cache: dict | None = None, allowed_mo
 
 def evaluate_run(run_dir: Path, which: str, episodes: int, cache: dict | None = None, allowed_modules=()):
     """Rows (dicts with :data:`EVAL_COLUMNS`) of every seed of one run folder, or [] without policy files."""
-    from imix_cli.running.policy_files import PolicyFileError, read_policy
+    from imix_cli.running.files.policy_files import PolicyFileError, read_policy
 
     rows = []
     policies = policy_files(run_dir, which)
@@ -251,7 +251,7 @@ def check_finished_seeds(run_dir: Path, seeds) -> None:
     (:func:`imix_cli.running.seed_checks.check_seed_csv`): its policies would be reported as the run's. A seed without a
     CSV (unfinished, its policy from a checkpoint) or a run without config.yaml is not checked."""
     from imix_cli.plotting.data import read_run_config
-    from imix_cli.running.results import read_run_csv, seed_csv_path
+    from imix_cli.running.files.results import read_run_csv, seed_csv_path
     from imix_cli.running.seed_checks import check_seed_csv
 
     def warn(message: str) -> None:
@@ -267,12 +267,12 @@ def check_finished_seeds(run_dir: Path, seeds) -> None:
 
 
 def write_eval_csv(run_dir: Path, rows: list, root=None) -> Path:
-    """Write ``<run_dir>/eval.csv`` through the one writer (:mod:`imix_cli.writing`: atomic, no link followed below
+    """Write ``<run_dir>/eval.csv`` through the one writer (:mod:`imix_cli.running.files.writing`: atomic, no link followed below
     ``root``, text cells neutralised), keeping the rows of the other ``which`` already there."""
     import pandas as pd
 
-    from imix_cli.running.results import regular_file_size
-    from imix_cli.writing import atomic_write_text, csv_text
+    from imix_cli.running.files.results import regular_file_size
+    from imix_cli.running.files.writing import atomic_write_text, csv_text
 
     path = Path(run_dir) / "eval.csv"
     frame = pd.DataFrame(rows, columns=list(EVAL_COLUMNS))
@@ -292,7 +292,7 @@ def write_eval_csv(run_dir: Path, rows: list, root=None) -> Path:
 
 def format_estimate(values, level: float = 0.95) -> str:
     """``mean ± half-width`` over seeds (Student t), or the bare value with one seed."""
-    from imix_cli.stats import mean_ci
+    from imix_cli.core.stats import mean_ci
 
     mean, half, n = mean_ci(values, level)
     return f"{mean:.2f}" if n < 2 or not math.isfinite(half) else f"{mean:.2f} ± {half:.2f}"
@@ -307,8 +307,8 @@ def main(argv: list | None = None) -> int:
         if s["episodes"] > MAX_EPISODES:
             raise UsageError(f"bad value for episodes: {s['episodes']} (at most {MAX_EPISODES:,} per seed: they run in batches, but more would take days)")
         folders = run_folders(s["results_dir"], s["experiment"], s["run"])
-        from imix_cli.running.policy_files import PolicyFileError
-        from imix_cli.running.results import CorruptResultError
+        from imix_cli.running.files.policy_files import PolicyFileError
+        from imix_cli.running.files.results import CorruptResultError
 
         cache, results = {}, []
         for run_dir in folders:

@@ -17,7 +17,7 @@ Backends (what to install):
 * GIFs are written with Pillow (a matplotlib dependency, always present); ``.mp4`` pipes raw
   frames to the ``ffmpeg`` executable, which must be on PATH.
 
-The output file is written by the one writer (:mod:`imix_cli.writing`: a temporary file, then a rename;
+The output file is written by the one writer (:mod:`imix_cli.running.files.writing`: a temporary file, then a rename;
 no link followed inside the results folder), frame by frame: memory does not grow with the episode.
 Without ``out=`` it goes into the run folder, next to the policy it shows.
 """
@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from imix_cli.commands.eval_command import POLICY_KEY_CHECKS, POLICY_KEYS, eval_episode_seeds, run_folders
-from imix_cli.commands.keyvalue import UsageError, at_least, help_requested, parse_key_values
-from imix_cli.writing import atomic_writer
+from imix_cli.keyvalue import UsageError, at_least, help_requested, parse_key_values
+from imix_cli.running.files.writing import atomic_writer
 
 HELP = """\
 usage: imix render [key=value ...]
@@ -88,7 +88,7 @@ def make_render_env(header: dict, env_id: str):
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # pygame draws to a surface, no display
     import gymnasium as gym
 
-    import imix_cli.envs  # noqa: F401  (registers imix/ ids)
+    import imix_cli.core.envs  # noqa: F401  (registers imix/ ids)
 
     if ":" in env_id:
         raise UsageError(f"cannot render {env_id}: resolve the id first (a module: prefix is never imported here)", 1)
@@ -107,8 +107,8 @@ def make_render_env(header: dict, env_id: str):
 def render_env_id(policy, allowed_modules=(), run_dir=None, where: str = "policy file") -> str:
     """The registered gymnasium id to render the policy in, its header checked as ``imix eval`` checks it."""
     from imix_cli.commands.eval_command import evaluator_for
-    from imix_cli.env_ids import plain_env_id
-    from imix_cli.registry import BUILTIN_ENVS
+    from imix_cli.core.env_ids import plain_env_id
+    from imix_cli.core.registry import BUILTIN_ENVS
 
     evaluator_for(policy.header, None, allowed_modules, run_dir, where)  # the same checks as eval: env, cap, shapes
     name = policy.header["env_name"]
@@ -145,7 +145,7 @@ def policy_frames(policy, frames: int | None = None, env_id: str | None = None):
         for _ in range(limit - 1):
             flat = np.asarray(obs, dtype=np.float64).reshape(-1)
             if flat.size != int(h["obs_dim"]):
-                from imix_cli.evaluation import UserEnvError
+                from imix_cli.core.evaluation import UserEnvError
 
                 raise UserEnvError(env_id, f"step returned an observation of shape {np.shape(obs)}; the policy takes {h['obs_dim']} numbers")
             a = act(flat.reshape(1, -1))
@@ -157,7 +157,7 @@ def policy_frames(policy, frames: int | None = None, env_id: str | None = None):
                 obs, _, terminated, truncated, _ = env.step(action)
                 frame = np.asarray(env.render())
             except Exception as err:  # noqa: BLE001 - the env's own code: one line naming it (imix_cli.commands.boundary)
-                from imix_cli.evaluation import UserEnvError
+                from imix_cli.core.evaluation import UserEnvError
 
                 raise UserEnvError.wrap(env_id, "step", err) from err
             yield frame
@@ -269,7 +269,7 @@ def main(argv: list | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if help_requested(argv, HELP):
         return 0
-    from imix_cli.running.policy_files import PolicyFileError, policy_path, read_policy
+    from imix_cli.running.files.policy_files import PolicyFileError, policy_path, read_policy
 
     try:
         s = parse_key_values(

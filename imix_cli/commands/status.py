@@ -9,7 +9,7 @@ reading (a partial CSV removed as its seed finishes) is read again as finished o
 Per seed ``k`` of a run folder (``seeds`` from its config.yaml, else the files found):
 
 * done: ``seed_<k>.csv`` is finished -- the same notion as ``imix run``'s, in one place
-  (:func:`imix_cli.running.results.es_seed_finished`: all the config's generations, or fewer ending
+  (:func:`imix_cli.running.files.results.es_seed_finished`: all the config's generations, or fewer ending
   diverged) -- and no partial CSV goes beyond it;
 * running: not done, and a live ``imix run`` holds the run folder's lock
   (:func:`imix_cli.running.run_folder.lock_holder`: the pid in ``.lock``, holding a lock on it): that run
@@ -40,9 +40,9 @@ import sys
 from pathlib import Path
 
 from imix_cli.commands.eval_command import run_folders
-from imix_cli.commands.keyvalue import UsageError, folder_name, help_requested, parse_key_values
-from imix_cli.running.results import MAX_CONFIG_BYTES, ResultMismatchError, read_small_text, regular_file_size
-from imix_cli.running.run_lock import lock_holder
+from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key_values
+from imix_cli.running.files.results import MAX_CONFIG_BYTES, ResultMismatchError, read_small_text, regular_file_size
+from imix_cli.running.files.run_lock import lock_holder
 from imix_cli.running.seed_checks import check_seed_csv
 from imix_cli.running.trainers import trainer_named
 
@@ -66,7 +66,7 @@ _SEED_FILE = re.compile(r"^seed_(\d+)(\.partial)?\.csv$")
 def _read_rows(path: Path, corrupt: dict | None = None):
     """The rows of a seed's CSV, or None (absent, being replaced); a file that does not follow the
     CSV contract is noted in ``corrupt`` (name -> reason) when given."""
-    from imix_cli.running.results import CorruptResultError, read_run_csv
+    from imix_cli.running.files.results import CorruptResultError, read_run_csv
 
     try:
         return read_run_csv(path)
@@ -95,7 +95,7 @@ def _checkpoint_generation(run_dir: Path, seed: int):
                     return None
             with np.load(npz, allow_pickle=False) as data:
                 header = data["header"]
-                # imix's checkpoints: the JSON's UTF-8 bytes as a uint8 array (imix_cli.running.checkpoints); else a string
+                # imix's checkpoints: the JSON's UTF-8 bytes as a uint8 array (imix_cli.running.files.checkpoints); else a string
                 text = header.tobytes().decode() if header.dtype == np.uint8 else str(header[()])
                 return int(json.loads(text)["generation"])
     except Exception:  # noqa: BLE001 - another helper's format, a write in progress: not our business

@@ -1,7 +1,7 @@
 """`imix plot`: figures and tables of the paper from the run CSVs of one experiment.
 
 Reads ``<results_dir>/<experiment>/<run>/seed_<k>.csv`` through the CSV
-contract (:mod:`imix_cli.running.results`; the runner is never imported) and writes
+contract (:mod:`imix_cli.running.files.results`; the runner is never imported) and writes
 ``<results_dir>/<experiment>/figures/``. What is drawn is listed in two
 registries: :data:`.figures.FIGURES` and :data:`.tables.TABLES`.
 """
@@ -12,7 +12,7 @@ import re
 import sys
 from pathlib import Path
 
-from imix_cli.commands.keyvalue import UsageError, experiment_name, finite_number, flag, help_requested, parse_key_values, results_dir_value
+from imix_cli.keyvalue import UsageError, experiment_name, finite_number, flag, help_requested, parse_key_values, results_dir_value
 
 HELP = """\
 usage: imix plot [key=value ...]
@@ -70,7 +70,7 @@ def _help_text() -> str:
     return HELP.format(names=", ".join(_registry_names()))
 
 
-# ----------------------------------------------------------------------------- keys (imix_cli.commands.keyvalue)
+# ----------------------------------------------------------------------------- keys (imix_cli.keyvalue)
 def _ci(key: str, value: str) -> float:
     level = finite_number(key, value)
     if not 0.0 < level < 1.0:
@@ -214,7 +214,7 @@ def main(argv: list | None = None) -> int:
 
 
 def _cannot_write(err: OSError | MemoryError) -> int:
-    """One line for a file that could not be written (a link refused by :mod:`imix_cli.writing`, a full disk); exit status 1.
+    """One line for a file that could not be written (a link refused by :mod:`imix_cli.running.files.writing`, a full disk); exit status 1.
     What was written before stays, and the file named keeps its old content. (A closed stdout is not a file: the
     command's boundary, imix_cli.commands.boundary, ends it silently; MemoryError too goes to it.)"""
     if isinstance(err, (BrokenPipeError, MemoryError)):

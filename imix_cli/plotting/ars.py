@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.commands.keyvalue import UsageError, at_least, help_requested, parse_key_values
+from imix_cli.keyvalue import UsageError, at_least, help_requested, parse_key_values
 from imix_cli.plotting.mujoco import bootstrap_ci, hold_on_grid
-from imix_cli.writing import atomic_write_text, csv_text, one_line, write_figure
+from imix_cli.running.files.writing import atomic_write_text, csv_text, one_line, write_figure
 
 #: The ARS paper's thresholds (Mania et al. 2018, on the -v1 envs), by gymnasium id of the v5 env.
 THRESHOLDS = {"Swimmer-v5": 325.0, "Hopper-v5": 3120.0, "HalfCheetah-v5": 3430.0, "Walker2d-v5": 4390.0}

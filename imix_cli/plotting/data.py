@@ -1,7 +1,7 @@
 """Load run CSVs into groups, and the statistics every figure and table shares.
 
-Only :mod:`imix_cli.running.results` touches result files; this module goes through
-:func:`~imix_cli.running.results.read_run_csv` and never imports the runner (the CSV
+Only :mod:`imix_cli.running.files.results` touches result files; this module goes through
+:func:`~imix_cli.running.files.results.read_run_csv` and never imports the runner (the CSV
 contract is the seam between running and plotting).
 
 Grouping
@@ -64,10 +64,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from imix_cli.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
-from imix_cli.running.results import CorruptResultError, ResultMismatchError, read_run_csv, read_small_text, run_dir_name, seed_csv_path
+from imix_cli.core.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
+from imix_cli.core.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
+from imix_cli.running.files.results import CorruptResultError, ResultMismatchError, read_run_csv, read_small_text, run_dir_name, seed_csv_path
 from imix_cli.running.seed_checks import check_seed_csv
-from imix_cli.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 
 __all__ = [
     "PlotOptions",
@@ -85,7 +85,7 @@ __all__ = [
 ]
 
 #: Default thresholds on the population mean return (``threshold.<env>=`` overrides, ``=none`` removes):
-#: the built-in environments' (:data:`imix_cli.registry.ENV_SPECS`).
+#: the built-in environments' (:data:`imix_cli.core.registry.ENV_SPECS`).
 DEFAULT_THRESHOLDS = builtin_thresholds()
 
 #: Algorithms whose rows are episodes (one per finished episode within an env-step budget): their

@@ -16,7 +16,7 @@
   pairing Rule 1 on the archived generation with Rule 2 against its density.
 
 The accept/reject rules are implemented here directly (this module does not
-depend on :mod:`imix_cli.mixing`) with fixed seeds, so the figures are identical
+depend on :mod:`imix_cli.core.mixing`) with fixed seeds, so the figures are identical
 on every run. For Fig 3 the seed is the first one, counting from 0, whose draw
 actually needs the second pass and reuses a sample from it -- the case the
 figure is meant to show (on average the first pass fills the generation about

@@ -41,9 +41,9 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
 
-from imix_cli.registry import ALGORITHM_SPECS, MIXING_NAMES, OKABE_ITO, algo_label, env_label, mixing_suffix, mixing_title
-from imix_cli.registry import NON_ES_NAMES as NON_ES
-from imix_cli.writing import atomic_write_bytes, write_figure
+from imix_cli.core.registry import ALGORITHM_SPECS, MIXING_NAMES, OKABE_ITO, algo_label, env_label, mixing_suffix, mixing_title
+from imix_cli.core.registry import NON_ES_NAMES as NON_ES
+from imix_cli.running.files.writing import atomic_write_bytes, write_figure
 
 from . import didactic
 from .data import (
@@ -62,7 +62,7 @@ from .data import (
 # --------------------------------------------------------------------------- style
 
 #: Okabe & Ito (2008) colour-blind-safe palette.
-#: The colour of each algorithm in every figure (:data:`imix_cli.registry.ALGORITHM_SPECS`).
+#: The colour of each algorithm in every figure (:data:`imix_cli.core.registry.ALGORITHM_SPECS`).
 ALGO_COLORS = {name: spec.color for name, spec in ALGORITHM_SPECS.items()}
 _SPARE_COLORS = (OKABE_ITO["orange"], OKABE_ITO["sky_blue"], "#7F7F7F")
 
@@ -127,7 +127,7 @@ def new_figure(width: float, height: float) -> Figure:
 
 def save_figure(fig: Figure, out_dir: Path, stem: str, formats=("png", "pdf"), dpi: int = 150, root=None) -> list:
     """Write ``<out_dir>/<stem>.<fmt>`` for each format (no timestamps, so reruns give identical files) through the
-    one writer (:mod:`imix_cli.writing`; ``root``: the results folder, below which no link is followed)."""
+    one writer (:mod:`imix_cli.running.files.writing`; ``root``: the results folder, below which no link is followed)."""
     out_dir = Path(out_dir)
     paths = []
     for fmt in formats:
@@ -490,10 +490,10 @@ def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
     """Performance profiles (Agarwal et al. 2021) of the final population mean return, per env.
 
     For each return tau, the fraction of runs (seeds) whose final population mean return exceeds
-    tau, with a 95 % stratified-bootstrap band (:func:`imix_cli.stats.performance_profile_ci`).
+    tau, with a 95 % stratified-bootstrap band (:func:`imix_cli.core.stats.performance_profile_ci`).
     A curve further up and right is better everywhere, not only on average.
     """
-    from imix_cli.stats import performance_profile_ci
+    from imix_cli.core.stats import performance_profile_ci
 
     groups = select_main_groups(exp.groups)
     for env in sorted({g.env for g in groups}):

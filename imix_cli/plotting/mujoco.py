@@ -5,7 +5,7 @@ Usage::
     python -m imix_cli.plotting.mujoco [results_dir=results] [experiment=mujoco]
                                        [threshold.<env id>=RETURN ...] [resamples=2000]
 
-Reads ``<results_dir>/<experiment>/<run>/seed_<k>.csv`` through :mod:`imix_cli.running.results`
+Reads ``<results_dir>/<experiment>/<run>/seed_<k>.csv`` through :mod:`imix_cli.running.files.results`
 and writes into ``<results_dir>/<experiment>/figures/``:
 
 * ``mujoco_<env>.png`` / ``.pdf``: the population's mean return (``mean_score``) against
@@ -40,12 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.commands.keyvalue import UsageError, at_least, experiment_name, finite_number, help_requested, parse_key_values, results_dir_value
-from imix_cli.registry import mujoco_thresholds
-from imix_cli.writing import atomic_write_text, csv_text, one_line, write_figure
+from imix_cli.core.registry import mujoco_thresholds
+from imix_cli.keyvalue import UsageError, at_least, experiment_name, finite_number, help_requested, parse_key_values, results_dir_value
+from imix_cli.running.files.writing import atomic_write_text, csv_text, one_line, write_figure
 
 #: Return thresholds of the to-threshold columns: a clear sign of learning in the study's budget.
-#: Keyed by gymnasium id (MuJoCo runs are named by it), from :data:`imix_cli.registry.ENV_SPECS`.
+#: Keyed by gymnasium id (MuJoCo runs are named by it), from :data:`imix_cli.core.registry.ENV_SPECS`.
 DEFAULT_THRESHOLDS = mujoco_thresholds()
 AXES = (("evaluations", "episodes"), ("env_steps", "environment steps"), ("wall_time", "wall time (s)"))
 GRID_POINTS = 200
@@ -77,7 +77,7 @@ def hold_on_grid(x: np.ndarray, y: np.ndarray, grid: np.ndarray) -> np.ndarray:
 
 def load_runs(exp_dir: Path) -> dict:
     """``{env: {run name: [frames of its seeds]}}`` for every run folder holding seed CSVs."""
-    from imix_cli.running.results import CorruptResultError, read_run_csv
+    from imix_cli.running.files.results import CorruptResultError, read_run_csv
 
     runs: dict = {}
     for run_dir in sorted(p for p in exp_dir.iterdir() if p.is_dir() and not p.name.startswith(".") and p.name != "figures"):
@@ -200,7 +200,7 @@ def draw_env(env: str, runs_of_env: dict, resamples: int):
 
 
 def parse_args(argv: list) -> dict:
-    """``key=value`` arguments (:mod:`imix_cli.commands.keyvalue`, as every ``imix plot`` key) -> settings."""
+    """``key=value`` arguments (:mod:`imix_cli.keyvalue`, as every ``imix plot`` key) -> settings."""
     thresholds = dict(DEFAULT_THRESHOLDS)
 
     def threshold(key: str, value: str) -> None:

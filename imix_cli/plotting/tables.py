@@ -30,11 +30,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from imix_cli.registry import NON_ES_NAMES as NON_ES
-from imix_cli.registry import algo_label as _algo
-from imix_cli.registry import env_label as _env
-from imix_cli.registry import mixing_label
-from imix_cli.writing import atomic_write_text, csv_text, one_line
+from imix_cli.core.registry import NON_ES_NAMES as NON_ES
+from imix_cli.core.registry import algo_label as _algo
+from imix_cli.core.registry import env_label as _env
+from imix_cli.core.registry import mixing_label
+from imix_cli.running.files.writing import atomic_write_text, csv_text, one_line
 
 from .data import (
     HYPERPARAMS,
@@ -313,7 +313,7 @@ def _interval(point, lo, hi, digits=0) -> str:
 def iqm_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     """IQM with 95 % stratified-bootstrap CIs of the final return and of the episodes to the threshold,
     beside the mean ± 95 % Student-t CI (Agarwal et al. 2021)."""
-    from imix_cli.stats import iqm_ci, mean_ci
+    from imix_cli.core.stats import iqm_ci, mean_ci
 
     groups = [g for g in select_main_groups(exp.groups) if g.algo not in NON_ES]
     if not groups:
@@ -359,7 +359,7 @@ def iqm_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
 
 def improvement_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     """P(a run with mixing needs fewer episodes to the threshold than its no-mixing twin), with a 95 % CI."""
-    from imix_cli.stats import probability_of_improvement_ci
+    from imix_cli.core.stats import probability_of_improvement_ci
 
     groups = [g for g in select_main_groups(exp.groups) if g.algo not in NON_ES and opts.thresholds.get(g.env) is not None]
     baselines = {_twin_key(g): g for g in groups if g.mixing == "none"}
@@ -478,9 +478,9 @@ TABLES = [
 
 
 def write_table(table: Table, out_dir, root=None) -> list:
-    """Write ``<stem>.csv``, ``.md`` and ``.tex`` through the one writer (:mod:`imix_cli.writing`; ``root``: the results
+    """Write ``<stem>.csv``, ``.md`` and ``.tex`` through the one writer (:mod:`imix_cli.running.files.writing`; ``root``: the results
     folder, below which no link is followed); returns the paths. Text cells come from CSVs a results folder carries:
-    a formula-looking one is quoted for spreadsheets and none can start a line of its own (:func:`imix_cli.writing.safe_cell`)."""
+    a formula-looking one is quoted for spreadsheets and none can start a line of its own (:func:`imix_cli.running.files.writing.safe_cell`)."""
     out_dir = Path(out_dir)
     paths = []
     for suffix, text in (("csv", csv_text(table.frame, float_format="%.6g")), ("md", table.markdown), ("tex", table.latex)):

@@ -2,5 +2,5 @@
 the generation loop (Python and compiled), the process pool, checkpoints and resuming, the run
 folder, the CSVs and policy files, and the summary. Built on the library modules of
 :mod:`imix_cli` (the ES classes, mixing, evaluators, policies, registry); the DDPG baseline's
-counterparts are in :mod:`imix_cli.ddpg`, the other subcommands in :mod:`imix_cli.commands`.
+counterparts are in :mod:`imix_cli.core.ddpg`, the other subcommands in :mod:`imix_cli.commands`.
 """

@@ -4,8 +4,8 @@
 own process and returns their results. Workers report progress through :func:`report_progress`
 (a queue drained into ``bar``); they ignore SIGINT (the main process alone decides, and stops
 them with SIGTERM, after which each checkpoints its seeds' current generation: at most
-:data:`imix_cli.running.stopping.STOP_GRACE_SECONDS`), and exit within a second if the main process dies (kill -9), so that none lingers.
-Workers are spawned with one BLAS thread each (:func:`imix_cli.processes.one_blas_thread`).
+:data:`imix_cli.running.loop.stopping.STOP_GRACE_SECONDS`), and exit within a second if the main process dies (kill -9), so that none lingers.
+Workers are spawned with one BLAS thread each (:func:`imix_cli.core.processes.one_blas_thread`).
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from imix_cli.processes import one_blas_thread, spawn_context, start_orphan_watchdog
-from imix_cli.running import stopping
+from imix_cli.core.processes import one_blas_thread, spawn_context, start_orphan_watchdog
+from imix_cli.running.loop import stopping
 
 _progress_queue = None
 
@@ -101,7 +101,7 @@ def _exit_without_teardown() -> None:
 
 def _terminate_workers(pool: ProcessPoolExecutor, grace: float = 5.0) -> None:
     """SIGTERM to every worker, then up to ``grace`` seconds in all for them to exit (a run's workers checkpoint
-    first: :mod:`imix_cli.running.stopping`); those still alive are killed, at once on a second Ctrl-C."""
+    first: :mod:`imix_cli.running.loop.stopping`); those still alive are killed, at once on a second Ctrl-C."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
     for process in processes:
         process.terminate()

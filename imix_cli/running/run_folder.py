@@ -17,12 +17,12 @@ import reprlib
 import stat
 
 from imix_cli.messages import RunError
-from imix_cli.running.results import CorruptResultError, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
-from imix_cli.running.run_lock import LOCK_NAME
-from imix_cli.running.run_spec import differing_keys, identity_of, resume_identity
+from imix_cli.running.config.run_spec import differing_keys, identity_of, resume_identity
+from imix_cli.running.files.results import CorruptResultError, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
+from imix_cli.running.files.run_lock import LOCK_NAME
+from imix_cli.running.files.writing import atomic_write_text
 from imix_cli.running.seed_checks import SCHEDULE_KEYS, check_seed_csv
 from imix_cli.running.trainers import trainer_for
-from imix_cli.writing import atomic_write_text
 
 
 def check_run_dir(spec) -> tuple[list[int], bool]:
@@ -120,7 +120,7 @@ def prepare_run_dir(spec) -> list[int]:
     return todo
 
 
-#: Where a run's checkpoints live (imix_cli.running.checkpoints.checkpoint_path).
+#: Where a run's checkpoints live (imix_cli.running.files.checkpoints.checkpoint_path).
 CHECKPOINT_AREA = ".checkpoints"
 
 

@@ -4,13 +4,13 @@ It wires the other modules together and does nothing else: the run folder is loc
 checked (:mod:`imix_cli.running.run_folder`), the seeds still to run are split over ``workers``
 processes (:mod:`imix_cli.running.pool`, spawn-safe), each process trains its share with the run's
 trainer (:mod:`imix_cli.running.trainers`: the evolution strategies in lockstep with checkpoints,
-:mod:`imix_cli.running.es_seeds`; the DDPG baseline, :mod:`imix_cli.ddpg.seeds`), and the summary is
+:mod:`imix_cli.running.loop.es_seeds`; the DDPG baseline, :mod:`imix_cli.running.loop.ddpg_seeds`), and the summary is
 printed (:mod:`imix_cli.running.summary`) from what the seeds returned and the CSVs of seeds finished
 earlier.
 
 Re-running the same command skips finished seeds and resumes the others from their
-checkpoints (:mod:`imix_cli.running.resume`); a seed's CSV is identical whatever the worker count, the
-other seeds sharing its batch, or whether it was resumed (:mod:`imix_cli.running.lockstep`).
+checkpoints (:mod:`imix_cli.running.loop.resume`); a seed's CSV is identical whatever the worker count, the
+other seeds sharing its batch, or whether it was resumed (:mod:`imix_cli.running.loop.lockstep`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ __all__ = ["RunError", "run", "run_seeds"]
 
 
 def run(spec, echo=print) -> dict:
-    """Run every unfinished seed of ``spec`` (a :class:`imix_cli.running.run_spec.RunSpec`); print and return the summary.
+    """Run every unfinished seed of ``spec`` (a :class:`imix_cli.running.config.run_spec.RunSpec`); print and return the summary.
 
     The run folder is checked first (:func:`imix_cli.running.run_folder.check_run_dir`: a refused run
     writes nothing, not even its lock), then locked for the whole run

@@ -1,8 +1,8 @@
 """A finished seed's CSV checked against the config of its run: the one check run, plot, eval and status share.
 
-:func:`imix_cli.running.results.read_run_csv` checks that a CSV follows the contract; :func:`check_seed_csv` checks
+:func:`imix_cli.running.files.results.read_run_csv` checks that a CSV follows the contract; :func:`check_seed_csv` checks
 that it is a seed of *this* run -- the run folder's config.yaml (or, for ``imix run``, the command's config) -- and raises
-:class:`~imix_cli.running.results.ResultMismatchError`, a :class:`~imix_cli.running.results.CorruptResultError`, so that
+:class:`~imix_cli.running.files.results.ResultMismatchError`, a :class:`~imix_cli.running.files.results.CorruptResultError`, so that
 every reader's handling of a corrupt CSV applies to it.
 """
 
@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from imix_cli.env_ids import plain_env_id
-from imix_cli.registry import BUILTIN_ENVS
-from imix_cli.running.results import COLUMNS, ResultMismatchError
+from imix_cli.core.env_ids import plain_env_id
+from imix_cli.core.registry import BUILTIN_ENVS
+from imix_cli.running.files.results import COLUMNS, ResultMismatchError
 from imix_cli.running.trainers import trainer_named
 
 __all__ = ["SCHEDULE_KEYS", "check_seed_csv", "csv_env_name"]

@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.running.results import CorruptResultError, read_run_csv, read_small_text, seed_csv_path, seed_summary
-from imix_cli.running.run_spec import identity_of
+from imix_cli.core.stats import mean_ci
+from imix_cli.running.config.run_spec import identity_of
+from imix_cli.running.files.results import CorruptResultError, read_run_csv, read_small_text, seed_csv_path, seed_summary
 from imix_cli.running.trainers import trainer_for
-from imix_cli.stats import mean_ci
 
 #: Config keys that only say how (and whether) mixing is done: runs that differ in these alone are
 #: "the same config with and without mixing", compared in the summary.
@@ -18,7 +18,7 @@ MIXING_KEYS = ("im", "eim", "im_variant", "im_alpha", "eim_generations", "min_fr
 
 def prepare_summary() -> None:
     """Import what :func:`summarize` needs beyond what a run has imported: scipy.special, for the CI
-    (:func:`imix_cli.stats.mean_ci`), ~0.2 s. Why apart: the runner calls it while the last worker
+    (:func:`imix_cli.core.stats.mean_ci`), ~0.2 s. Why apart: the runner calls it while the last worker
     finishes its seeds, rather than after every worker is done."""
     import scipy.special  # noqa: F401
 
@@ -27,7 +27,7 @@ def summarize(spec, run_dir: Path | None = None, known: dict | None = None) -> d
     """Final mean score +- 68 % CI over seeds, evaluations and env steps (total over seeds and per
     seed), reuse %, non-finite returns -- of ``spec``'s run folder, or of ``run_dir`` (a sibling).
 
-    ``known``: seed -> :func:`imix_cli.running.results.seed_summary` of the seeds just run, whose CSVs
+    ``known``: seed -> :func:`imix_cli.running.files.results.seed_summary` of the seeds just run, whose CSVs
     need not be read back; the other seeds' CSVs are read."""
     run_dir = spec.run_dir if run_dir is None else Path(run_dir)
     known = {} if known is None or run_dir != spec.run_dir else known

@@ -2,7 +2,7 @@
 
 The runner, the run folder's validation and the summary ask the run's :class:`Trainer`
 (:func:`trainer_for`) instead of testing the algorithm's name: the evolution strategies
-(:mod:`imix_cli.running.es_seeds`) and the DDPG baseline (:mod:`imix_cli.ddpg.seeds`) share the run
+(:mod:`imix_cli.running.loop.es_seeds`) and the DDPG baseline (:mod:`imix_cli.running.loop.ddpg_seeds`) share the run
 folder, process pool and CSV contract, and differ only in what is declared here.
 """
 
@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from imix_cli.running.results import es_seed_finished
+from imix_cli.running.files.results import es_seed_finished
 
 
 @dataclass(frozen=True)
@@ -60,10 +60,10 @@ class Trainer:
 def _run_es_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:
     """The run's evaluator, then its seeds on it: the evaluator's processes (pool, Ray) end with the
     seeds, a Ctrl-C or SIGTERM included. A Ctrl-C or SIGTERM stops the seeds between two generations,
-    checkpointed, and acts once the evaluator is closed (:mod:`imix_cli.running.stopping`)."""
-    from imix_cli.parallel_evaluation import build_evaluator
-    from imix_cli.running.es_seeds import run_es_seeds
-    from imix_cli.running.stopping import stops_between_generations
+    checkpointed, and acts once the evaluator is closed (:mod:`imix_cli.running.loop.stopping`)."""
+    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.running.loop.es_seeds import run_es_seeds
+    from imix_cli.running.loop.stopping import stops_between_generations
 
     evaluator = build_evaluator(spec)
     with stops_between_generations():
@@ -80,19 +80,19 @@ def _ddpg_seed_finished(frame, total_steps) -> bool:
 
 
 def _es_needs_running(spec, seed: int, path: Path, frame) -> bool:
-    from imix_cli.running.es_seeds import needs_running
+    from imix_cli.running.loop.es_seeds import needs_running
 
     return needs_running(spec, seed, path, frame)
 
 
 def _run_ddpg_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:  # a DDPG seed is never resumed
-    from imix_cli.ddpg.seeds import run_ddpg_seeds
+    from imix_cli.running.loop.ddpg_seeds import run_ddpg_seeds
 
     return run_ddpg_seeds(spec, seeds, progress)
 
 
 def _ddpg_needs_running(spec, seed: int, path: Path, frame) -> bool:
-    from imix_cli.ddpg.seeds import needs_running
+    from imix_cli.running.loop.ddpg_seeds import needs_running
 
     return needs_running(spec, seed, path, frame)
 

@@ -31,7 +31,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from imix_cli.processes import spawn_context
+from imix_cli.core.processes import spawn_context
 
 __all__ = ["compile_groups", "warm_up", "warm_all"]
 
@@ -50,9 +50,9 @@ INSTALL_CONFIGS = [
 def _mixing_group(spec) -> None:
     """A few generations of the run's ES with the run's mixing, on made-up returns: compiles the ES
     update and the mixing step (the run's variant), with the run's dimension and population."""
-    from imix_cli.generation import Archive, finish_generation, plan_generation
-    from imix_cli.parallel_evaluation import build_evaluator
-    from imix_cli.running.lockstep import loop_settings, new_seed_state
+    from imix_cli.core.generation import Archive, finish_generation, plan_generation
+    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
 
     settings = loop_settings(spec, build_evaluator(spec))
     st = new_seed_state(settings, 0)
@@ -64,9 +64,9 @@ def _mixing_group(spec) -> None:
 
 
 def _policy_group(spec) -> None:
-    """The elementary functions (imix_cli.elementary) of the gymnasium policies, of the numpy mixing path
+    """The elementary functions (imix_cli.core.elementary) of the gymnasium policies, of the numpy mixing path
     (CMA-ES) and of the ES's Python side (CMA-ES's constants, Adam's bias correction)."""
-    from imix_cli import numerics as xp
+    from imix_cli.core import numerics as xp
 
     xp.tanh(np.zeros((2, 2)))
     xp.expm1(np.zeros(2))
@@ -75,18 +75,18 @@ def _policy_group(spec) -> None:
 
 def _episodes_group(spec) -> None:
     """One episode of one member through the run's evaluator: compiles its episode kernel."""
-    from imix_cli.parallel_evaluation import build_evaluator
+    from imix_cli.core.parallel_evaluation import build_evaluator
 
     evaluator = build_evaluator(spec)
     evaluator.evaluate(np.zeros((1, evaluator.num_params)), np.zeros(1, dtype=np.int64))
 
 
 def _compiled_loop_group(spec) -> None:
-    """One generation of one seed through the compiled loop (:mod:`imix_cli.running.compiled_loop`): compiles
+    """One generation of one seed through the compiled loop (:mod:`imix_cli.running.loop.compiled_loop`): compiles
     its entry point, which holds its own copy of the mixing, episode and update kernels."""
-    from imix_cli.parallel_evaluation import build_evaluator
-    from imix_cli.running import compiled_loop
-    from imix_cli.running.lockstep import loop_settings, new_seed_state
+    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.running.loop import compiled_loop
+    from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
 
     evaluator = build_evaluator(spec)
     settings = loop_settings(spec, evaluator)
@@ -96,13 +96,13 @@ def _compiled_loop_group(spec) -> None:
 def compile_groups(spec) -> list:
     """The groups of kernels (functions of ``spec``) whose compile the run can spread over cores, and
     the compiled entry points whose presence in the cache says a group is already compiled."""
-    from imix_cli import linalg_kernels, mixing_kernels
-    from imix_cli.algorithms import make_es
-    from imix_cli.mixing import variant_spec
+    from imix_cli.core import linalg_kernels, mixing_kernels
+    from imix_cli.core.algorithms import make_es
+    from imix_cli.core.mixing import variant_spec
 
     groups = []
     es = make_es(spec.algo, 1)
-    step = es.compiled_step()  # the ES's compiled update, which its tell runs (imix_cli.algorithms.base.CompiledStep)
+    step = es.compiled_step()  # the ES's compiled update, which its tell runs (imix_cli.core.algorithms.base.CompiledStep)
     if step is not None:
         entries = [step.update]
     else:
@@ -112,15 +112,15 @@ def compile_groups(spec) -> list:
         entries.append(mixing_kernels.KERNELS[kernel])
     groups.append((_mixing_group, entries))
     if spec.evaluator == "local":
-        from imix_cli.envs import kernels
-        from imix_cli.evaluation import AcrobotEvaluator, CartPoleEvaluator, ContinuousCartPoleEvaluator
-        from imix_cli.parallel_evaluation import build_evaluator
+        from imix_cli.core.envs import kernels
+        from imix_cli.core.evaluation import AcrobotEvaluator, CartPoleEvaluator, ContinuousCartPoleEvaluator
+        from imix_cli.core.parallel_evaluation import build_evaluator
 
         evaluator = build_evaluator(spec)
         if isinstance(evaluator, (CartPoleEvaluator, ContinuousCartPoleEvaluator)):
             groups.append((_episodes_group, [kernels.cartpole_episodes]))
-            from imix_cli.running import compiled_loop
-            from imix_cli.running.lockstep import loop_settings
+            from imix_cli.running.loop import compiled_loop
+            from imix_cli.running.loop.lockstep import loop_settings
 
             if compiled_loop.applies_to_run(loop_settings(spec, evaluator), evaluator):
                 groups.append((_compiled_loop_group, [compiled_loop.entry_for(es)]))
@@ -172,8 +172,8 @@ def _run_groups(jobs, workers: int) -> None:
 def warm_all(workers: int | None = None) -> int:
     """Compile every kernel of :data:`INSTALL_CONFIGS` not yet in numba's cache, over ``workers``
     processes (default: all cores); return the number of groups compiled."""
-    from imix_cli import elementary, linalg_kernels
-    from imix_cli.running.config import validate_overrides
+    from imix_cli.core import elementary, linalg_kernels
+    from imix_cli.running.config.compose import validate_overrides
 
     policy_entries = [linalg_kernels.tanh_kernel, elementary.math_exp, elementary.math_log, elementary.math_log1p, elementary.math_pow]
     jobs, seen = [(_policy_group, None)] if not all(_cached(e) for e in policy_entries) else [], set()
@@ -191,7 +191,7 @@ def warm_all(workers: int | None = None) -> int:
 
 if __name__ == "__main__":
     # Through the module's own name: the compile groups are pickled to spawned processes by reference, and the
-    # processes imix starts never import the parent's __main__ (imix_cli.processes.spawn_context), where they
+    # processes imix starts never import the parent's __main__ (imix_cli.core.processes.spawn_context), where they
     # would otherwise be looked up (`make install` failed: "Can't pickle <function _mixing_group>").
     from imix_cli.running import warmup as _warmup
 

@@ -1,0 +1,267 @@
+"""pycma's ``CMAEvolutionStrategy`` as an ES that :class:`~imix_cli.MixingES` mixes for.
+
+Why an adapter and not pycma's own ask: importance mixing must know the density the next
+generation is drawn from, draw the fresh members itself (rule 2 keeps a fresh draw only where the
+new density exceeds the old) and tell the ES members it never asked for. pycma allows the last
+(``tell`` takes any solutions), so the adapter reads the distribution from pycma's state after
+each tell and hands pycma the whole mixed generation::
+
+    es = cma.CMAEvolutionStrategy(10 * [1.0], 0.5, {"seed": 1, "verbose": -9})
+    m = imix_cli.MixingES(es, "exact", rng=0)        # the one new line: wraps es in PycmaES
+    while not m.stop():
+        x = m.ask()                                   # only the points that need an evaluation
+        m.tell(x, [cma.ff.sphere(xi) for xi in x])    # pycma's convention: minimised values
+
+The distribution read is the one pycma's ``ask`` would sample from, computed by pycma's own
+code: what ``ask_geno`` does before drawing (alleviating the conditioning of C, the sampler's
+lazy eigendecomposition), then the sampler applied to the identity (its linear map, B D for the
+full sampler, the square root of the diagonal for ``CMA_diagonal``), scaled by ``sigma_vec`` and
+``sigma`` and mapped through pycma's genotype-phenotype map (``scaling_of_variables``,
+``typical_x`` and the linear map ``alleviate_conditioning`` moves into it: all affine). Where
+pycma's samples are not an independent Gaussian sample, reuse cannot be exact, and the adapter
+refuses with one line (:data:`REFUSED_OPTIONS`).
+
+pycma counts every member told in ``countevals``; the adapter sets it back to the evaluations
+made (fresh and re-evaluated members, and the two TPA points), so ``maxfevals`` and
+``es.result.evaluations`` count real evaluations.
+
+Step size under reuse (``step_size=``). pycma's CSA reads sigma from the members' steps; reused
+members are not fresh draws given the loop (imix_cli/core/algorithms/cmaes.py, "Two-point step-size
+adaptation"; docs/research/bias.md), and CSA misreads them. Offered:
+
+``"pycma"`` (the default: measured below)
+    pycma's step-size control as configured: CSA by default; with ``AdaptSigma=
+    cma.sigma_adaptation.CMAAdaptSigmaTPA`` pycma's TPA, whose two points pycma itself places as
+    the first two members it is told (they are evaluated afresh and never reused or archived:
+    the mixed generation is the other popsize - 2 members).
+``"tpa"``
+    imix's remedy for its own CMA-ES: two points m +- sigma r u per generation (u the last move of
+    the mean, unit length in sigma^2 C's metric, r the length of a fresh N(0, I) draw), evaluated
+    afresh beside the members, never told to pycma as members, never reused; sigma changes by
+    pycma 4.5's TPA rule from their ranks among the generation, and pycma's own change of sigma in
+    that tell is discarded (its CSA path still runs: hsig reads it).
+
+Measured (docs/adapters.md, ``benchmarks/adapters.py stepsize``; d = 10, default popsize, 5
+seeds, evaluations to f(mean) <= 1e-8, median): pycma's CSA with mixing needs the fewest --
+sphere 768 (pycma alone 1,350), elli 3,336 (3,870) -- against pycma's TPA with mixing (1,133;
+3,922) and imix's TPA (1,948; 4,770), which imix chose for its own CMA-ES on RL tasks where CSA
+collapsed under reuse; it costs two evaluations per generation. Whether CSA with mixing also
+holds on such tasks with pycma was not measured here: ``step_size="tpa"`` is there for them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
+
+__all__ = ["PycmaES", "REFUSED_OPTIONS", "STEP_SIZES", "is_pycma"]
+
+#: ``step_size`` values (module docstring); the first is the default.
+STEP_SIZES = ("pycma", "tpa")
+
+
+def _truthy_list(value) -> bool:
+    return value is not None and len(value) > 0
+
+
+#: pycma options under which its samples are not N(m, sigma^2 C) drawn independently, and why:
+#: option -> (is it set?, reason). Checked once, when the adapter is made.
+REFUSED_OPTIONS = {
+    "bounds": (lambda es: es.boundary_handler is not None and es.boundary_handler.has_bounds(), "bounded samples are repaired or penalised"),
+    "integer_variables": (lambda es: _truthy_list(es.opts["integer_variables"]), "integer variables are rounded and get an extra mutation"),
+    "fixed_variables": (lambda es: bool(es.opts["fixed_variables"]), "fixed variables are not sampled"),
+    "transformation": (lambda es: es.opts["transformation"] is not None, "a user transformation is not affine"),
+    "CMA_mirrors": (lambda es: es.sp.lam_mirr > 0, "mirrored samples are not independent (pycma mirrors by default when popsize < 6: set CMA_mirrors=0)"),
+    "CMA_elitist": (lambda es: bool(es.opts["CMA_elitist"]), "the elitist is injected, not sampled"),
+    "mean_shift_line_samples": (lambda es: bool(es.opts["mean_shift_line_samples"]), "line samples along the mean shift are not sampled"),
+}
+
+
+def is_pycma(es) -> bool:
+    """Whether ``es`` is a pycma ``CMAEvolutionStrategy`` (checked without importing cma)."""
+    return any(c.__module__.startswith("cma.") and c.__name__ == "CMAEvolutionStrategy" for c in type(es).__mro__)
+
+
+class PycmaES:
+    """A ``cma.CMAEvolutionStrategy`` with imix's ES protocol (``ask(rng)``, ``tell(samples, fitness)``,
+    ``distribution``, ``popsize``, ``probes(rng)``); fitness is pycma's (minimised).
+
+    Parameters
+    ----------
+    es : cma.CMAEvolutionStrategy
+        Built by the user, not yet asked (pycma's own options as usual); refused with one line
+        (ValueError) under the options of :data:`REFUSED_OPTIONS`.
+    step_size : {"pycma", "tpa"}
+        Step-size control under reuse (module docstring).
+    """
+
+    name = "pycma"
+
+    def __init__(self, es, step_size: str = STEP_SIZES[0]):
+        if not is_pycma(es):
+            raise TypeError(f"PycmaES takes a cma.CMAEvolutionStrategy, got {type(es).__name__}")
+        if step_size not in STEP_SIZES:
+            raise ValueError(f"step_size={step_size!r}: must be one of {STEP_SIZES}")
+        for option, (is_set, why) in REFUSED_OPTIONS.items():
+            if is_set(es):
+                raise ValueError(f"pycma option {option}={es.opts[option]!r}: {why}, so reuse cannot be exact; importance mixing refuses it")
+        if es.countiter:
+            raise ValueError(f"the CMAEvolutionStrategy has already been told {es.countiter} generations: wrap it before its first ask")
+        from cma.sigma_adaptation import CMAAdaptSigmaTPA
+
+        self.es = es
+        self.step_size = step_size
+        self.dim = int(es.N)
+        self.pycma_tpa = isinstance(es.adapt_sigma, CMAAdaptSigmaTPA)
+        if self.pycma_tpa and step_size == "tpa":
+            raise ValueError("step_size='tpa' with pycma's AdaptSigma=CMAAdaptSigmaTPA: two TPAs; use step_size='pycma' for pycma's")
+        self.generation = 0
+        self.mean_weights = None  # "conditional" mixing has no weights for pycma's update: the other variants only
+        # imix's TPA (step_size="tpa"): pycma 4.5's CMAAdaptSigmaTPA constants, its state s and the last move
+        self.tpa_damp = 0.7 + 2 * math.log(self.dim) + 2 * math.log(max(1, es.popsize - self.dim))
+        self.tpa_s = 0.0
+        self.tpa_move = np.zeros(self.dim)
+        self._dist = None
+        self._probes = None
+        self._countevals = None
+
+    # ------------------------------------------------------------------ the ES protocol
+    @property
+    def popsize(self) -> int:
+        """Members mixed per generation: pycma's popsize, less pycma's two TPA points when it runs TPA."""
+        return int(self.es.popsize) - (2 if self.pycma_tpa else 0)
+
+    @property
+    def probe_count(self) -> int:
+        return 2 if (self.step_size == "tpa" or self.pycma_tpa) else 0
+
+    @property
+    def distribution(self):
+        """The Gaussian pycma's next ``ask`` samples from (module docstring): a DiagonalGaussian when
+        its covariance is diagonal (``CMA_diagonal``), else a FullGaussian."""
+        if self._dist is None:
+            self._dist = self._read_distribution()
+        return self._dist
+
+    def ask(self, rng: np.random.Generator) -> np.ndarray:
+        return self.distribution.sample(self.popsize, rng)
+
+    def probes(self, rng: np.random.Generator) -> np.ndarray | None:
+        """The two TPA points of this generation (imix's or pycma's, ``step_size``), or None."""
+        self._probes = None
+        if self.pycma_tpa:  # pycma's own: its ask of 2 gives them (2 plain draws before the mean has moved)
+            self._probes = np.vstack(self.es.ask(2))
+            if not np.all(np.isfinite(self._probes)):  # the mean did not move (a fully reused generation): no direction
+                self._probes[:] = self.distribution.mean  # two equal points tie: sigma stays
+        elif self.step_size == "tpa" and np.any(self.tpa_move):
+            dist = self.distribution
+            length = _mahalanobis(dist, self.tpa_move)
+            draw = rng.standard_normal(self.dim)
+            y = self.tpa_move * (math.sqrt(float(draw @ draw)) / length)
+            self._probes = np.vstack([dist.mean + y, dist.mean - y])
+        return self._probes
+
+    def tell(self, samples, fitness, probe_fitness=None) -> None:
+        """pycma's ``tell`` of the whole generation (pycma's TPA points first when it runs TPA)."""
+        es = self.es
+        samples = np.asarray(samples, dtype=np.float64)
+        fitness = np.asarray(fitness, dtype=np.float64).reshape(-1)
+        solutions, values = list(samples), list(fitness)
+        if self.pycma_tpa and probe_fitness is not None:
+            solutions, values = [*self._probes, *solutions], [*np.asarray(probe_fitness, dtype=np.float64), *values]
+        mean_before, sigma_before = self.distribution.mean.copy(), float(es.sigma)
+        self._countevals = int(es.countevals)
+        # what pycma's ask would have recorded: the members were drawn here, independently
+        es._flgtelldone = False
+        if not hasattr(es, "timer"):  # pycma's ask starts its clock
+            from cma.utilities.utils import ElapsedWCTime
+
+            es.timer = ElapsedWCTime()
+        elif not self.pycma_tpa:
+            es.timer.tic  # noqa: B018 (a property that restarts the clock)
+        if not es.number_of_solutions_asked:
+            es.number_of_injections = 0
+        es.number_of_solutions_asked += samples.shape[0]
+        es.evaluations_per_f_value = 1
+        es._is_independent_sample = [False] * (len(solutions) - samples.shape[0]) + [True] * samples.shape[0]
+        es.tell(solutions, values)
+        if self.step_size == "tpa" and not self.pycma_tpa:
+            step = self._tpa_step(probe_fitness, fitness)
+            es.sigma = sigma_before * math.exp(min(max(step, -1.0), 1.0))
+        self._dist = None
+        self._probes = None
+        if self.step_size == "tpa" and not self.pycma_tpa:
+            self.tpa_move = self.distribution.mean - mean_before
+        self.generation += 1
+
+    def count_evaluations(self, evaluated: int) -> None:
+        """Set pycma's ``countevals`` to the evaluations made for the generation just told (MixingES calls it)."""
+        if self._countevals is not None:
+            self.es.countevals = self._countevals + int(evaluated)
+            self._countevals = None
+
+    def stop(self):
+        """pycma's termination criteria (a dict, empty while none holds)."""
+        return self.es.stop()
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.distribution.mean
+
+    # ------------------------------------------------------------------ internals
+    def _tpa_step(self, probe_fitness, fitness) -> float:
+        """log sigma's change (before clipping) from the two points' values (pycma 4.5's
+        CMAAdaptSigmaTPA.update2, minimising): z = (#{f < f_behind} - #{f < f_ahead}) / (n - 1)."""
+        if probe_fitness is None:
+            return 0.0
+        f = np.concatenate([np.asarray(probe_fitness, dtype=np.float64).reshape(-1), fitness])
+        f = np.where(np.isnan(f), np.inf, f)
+        z = (np.count_nonzero(f < f[1]) - np.count_nonzero(f < f[0])) / (f.size - 1)
+        self.tpa_s = (1 - 0.3) * self.tpa_s + 0.3 * math.copysign(abs(z) ** 0.5, z)
+        return self.tpa_s / self.tpa_damp
+
+    def _read_distribution(self):
+        es = self.es
+        # what ask_geno does before it draws (it may move conditioning from C into sigma_vec or the phenotype map)
+        if es.opts["conditioncov_alleviate"]:
+            es.alleviate_conditioning_in_coordinates(es.opts["conditioncov_alleviate"][0])
+            es.alleviate_conditioning(es.opts["conditioncov_alleviate"][-1])
+        rows = np.asarray(_sampler_map(es.sm, self.dim), dtype=np.float64)  # row i: the draw for z = e_i
+        es._updateBDfromSM(es.sm)
+        rows = np.asarray(es.sigma_vec * rows, dtype=np.float64) * float(es.sigma)
+        mean_geno = np.asarray(es.mean, dtype=np.float64)
+        mean = np.asarray(es.gp.pheno(mean_geno), dtype=np.float64)
+        if not es.gp.isidentity:  # an affine phenotype map: the images of the columns
+            rows = np.array([np.asarray(es.gp.pheno(mean_geno + r), dtype=np.float64) - mean for r in rows])
+        cov = rows.T @ rows
+        off = cov - np.diag(np.diag(cov))
+        if not np.any(off):
+            return DiagonalGaussian(mean, np.sqrt(np.diag(cov)))
+        return FullGaussian(mean, cov)
+
+
+def _sampler_map(sm, dim: int) -> np.ndarray:
+    """The linear map pycma's sampler applies to its N(0, I) draws, as rows (row i: the draw for
+    z = e_i), computed by the sampler itself (its lazy update included) with an identity in place
+    of its random numbers."""
+    had_own = "randn" in vars(sm)
+    own = vars(sm).get("randn")
+    sm.randn = lambda n, d: np.eye(dim)
+    try:
+        return sm.sample(dim)
+    finally:
+        if had_own:
+            sm.randn = own
+        else:
+            del sm.randn
+
+
+def _mahalanobis(dist, v: np.ndarray) -> float:
+    """Length of ``v`` in ``dist``'s metric (sqrt(v^T cov^-1 v))."""
+    if isinstance(dist, DiagonalGaussian):
+        return float(np.sqrt(np.sum((v / dist.std) ** 2)))
+    z = np.linalg.solve(dist.chol, v)
+    return float(np.sqrt(z @ z))

@@ -1,0 +1,48 @@
+"""The four evolution strategies of the paper (section 2.1), one module each.
+
+=========  ======================  =========================================
+name       class                   search distribution
+=========  ======================  =========================================
+openes     :class:`OpenES`         N(mu, sigma^2 I), sigma fixed
+snes       :class:`SNES`           N(mu, diag(sigma^2)), sigma adapted
+cem        :class:`CEM`            N(mu, diag(sigma^2)), refitted to elites
+cmaes      :class:`CMAES`          N(mu, sigma^2 C), full C (pycma)
+ars        :class:`ARS`            N(mu, nu^2 I) in mirrored pairs (Mania et al. 2018)
+=========  ======================  =========================================
+
+``make_es("snes", dim=130, popsize=50)`` builds one by name; the names are those of
+:data:`imix_cli.core.registry.ALGORITHM_SPECS` (where a new ES is registered). Each class takes
+its parameter record, ``SNES(130, SNES.Params(popsize=50))``, or the record's fields as
+keywords (:class:`~imix_cli.core.algorithms.base.Params`).
+"""
+
+from __future__ import annotations
+
+from imix_cli.core.algorithms.ars import ARS
+from imix_cli.core.algorithms.base import EvolutionStrategy, Params
+from imix_cli.core.algorithms.cem import CEM
+from imix_cli.core.algorithms.cmaes import CMAES
+from imix_cli.core.algorithms.openes import OpenES
+from imix_cli.core.algorithms.snes import SNES
+from imix_cli.core.registry import ALGORITHM_SPECS, ES_NAMES
+
+#: ES name -> class, for every evolution strategy of the registry whose ``tell`` takes any population
+#: (any rows, in any order); ARS's members come in mirrored pairs (:data:`MIRRORED_ALGORITHMS`).
+ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if ALGORITHM_SPECS[name].es_class().generation_scheme is None}
+#: ES name -> class, for the ES whose ``tell`` takes N mirrored pairs ``[plus; minus]`` (imix_cli.core.mirrored).
+MIRRORED_ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if name not in ALGORITHMS}
+
+
+def make_es(name: str, dim: int, **kwargs) -> EvolutionStrategy:
+    """Build the evolution strategy called ``name`` (a key of :data:`ALGORITHMS`) in dimension ``dim``.
+
+    ``kwargs``: ``mean`` and the fields of the class's ``Params`` (popsize, sigma, lr, ...).
+    """
+    try:
+        cls = {**ALGORITHMS, **MIRRORED_ALGORITHMS}[name]
+    except KeyError:
+        raise ValueError(f"unknown algorithm {name!r}; valid names: {', '.join(sorted([*ALGORITHMS, *MIRRORED_ALGORITHMS]))}") from None
+    return cls(dim, **kwargs)
+
+
+__all__ = ["EvolutionStrategy", "Params", "OpenES", "SNES", "CEM", "CMAES", "ARS", "ALGORITHMS", "MIRRORED_ALGORITHMS", "make_es"]

@@ -1,0 +1,569 @@
+"""The ask/tell base class shared by every evolution strategy in imix.
+
+An ES here sees only two things: its current search distribution, and the
+(samples, fitness) of the generation it is told. It never knows whether a
+member was freshly drawn or reused by importance mixing -- that is what lets
+:mod:`imix_cli.core.mixing` stay independent of the algorithms.
+
+Fitness is *maximised*. Before an ES sees it, :meth:`EvolutionStrategy.tell`
+turns raw fitness into per-member *utilities* (higher is better) through
+weight decay and centred-rank fitness shaping, as in the paper's section 4.1:
+
+``weight_decay_form="estool"`` (default)
+    The authors' estool-derived code: centred ranks of the raw fitness, then
+    -w * mean(theta^2) is added to the ranks. The paper's published curves come from
+    this form (README, "Which weight decay").
+``weight_decay_form="paper"``
+    The paper's text: the penalty -w * ||theta||^2 is added to each raw fitness,
+    then the penalised fitness is turned into centred ranks.
+
+Both forms, and the fitness shaping (centred ranks), are pieces registered by name
+(:data:`WEIGHT_DECAY_FORMS`, :data:`FITNESS_SHAPINGS`) and chosen by the ES's :class:`Params`,
+the one record of the hyper-parameters every ES shares (documented field by field, with the
+paper's values as defaults); each ES extends it with its own options.
+
+Tied fitness values are ranked in a random order keyed on the members' parameters
+(:func:`centered_ranks`, :func:`member_keys`), so no ES depends on the order of the
+population it is told, and no tiny term (the estool penalty) decides every tie.
+
+Non-finite fitness (NaN, +-inf from a user's environment) is ranked last
+(worst) and counted in :attr:`EvolutionStrategy.nonfinite_fitness_count`.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from dataclasses import fields as fields_of
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from imix_cli.core import elementary as el
+from imix_cli.core import linalg_kernels as lk
+from imix_cli.core.bounds import Bound
+
+
+def _tie_groups(values: np.ndarray):
+    """``order, starts, ends, group_of``: ``values[order]`` ascending, tied runs ``[starts[g], ends[g])``.
+
+    ``group_of[i]`` is the run holding position i of the sorted order.
+    """
+    order = np.argsort(values, kind="stable")
+    ascending = values[order]
+    first = np.ones(values.shape[0], dtype=bool)
+    first[1:] = ascending[1:] != ascending[:-1]
+    starts = np.flatnonzero(first)
+    ends = np.append(starts[1:], values.shape[0])
+    return order, starts, ends, np.cumsum(first) - 1
+
+
+def centered_ranks(values: np.ndarray, tie_break: np.ndarray | None = None) -> np.ndarray:
+    """Map values to ranks scaled into [-0.5, 0.5] (the worst gets -0.5, the best +0.5).
+
+    Ties never depend on the order of the values. Without ``tie_break``, tied values get
+    the average of the ranks they span ("fractional ranking"). With ``tie_break`` (one key
+    per value), tied values are ordered by their keys -- :meth:`EvolutionStrategy.utilities`
+    passes a hash of each member's parameters, i.e. a random order that is a function of the
+    members, not of where they stand in the population.
+
+    Why it matters: with importance mixing a generation lists its reused members first, and
+    on CartPole ~40 of 50 members tie at the maximum return; breaking ties by position put
+    the reused members at the bottom of the tie, i.e. made the fresh rule-2 draws (which sit
+    where the new density exceeds the old) the elites, and pushed the distribution outward
+    (issue 11: CMA-ES + EIM ended at 181.8 instead of 196, sigma 3x too large). And why the
+    ES breaks ties at random rather than sharing ranks: the estool weight decay is then added
+    to the ranks, and between exactly equal ranks that tiny penalty decides the order --
+    CEM and CMA-ES then select the smallest members of every tie, which pulled CMA-ES on
+    CartPole to a mean return of 60 (measured, 5 seeds).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    n = values.shape[0]
+    if n == 1:
+        return np.zeros(1)
+    ranks = np.empty(n, dtype=np.float64)
+    if tie_break is not None:
+        ranks[np.lexsort((tie_break, values))] = np.arange(n, dtype=np.float64)
+    else:
+        order, starts, ends, group_of = _tie_groups(values)
+        ranks[order] = ((starts + ends - 1) / 2.0)[group_of]
+    return ranks / (n - 1) - 0.5
+
+
+_HASH_MULTIPLIERS: dict[int, np.ndarray] = {}
+
+
+def hash_multipliers(dim: int) -> np.ndarray:
+    """:func:`member_keys`' fixed random odd multiplier per coordinate, for rows of ``dim`` numbers
+    (drawn once per dimension and kept; :mod:`imix_cli.running.loop.compiled_loop` hashes with the same array)."""
+    mult = _HASH_MULTIPLIERS.get(dim)
+    if mult is None:
+        mult = np.random.default_rng(0x5EED).integers(0, 2**64, size=dim, dtype=np.uint64, endpoint=False) | np.uint64(1)
+        _HASH_MULTIPLIERS[dim] = mult
+    return mult
+
+
+def member_keys(samples: np.ndarray, salt: int = 0) -> np.ndarray:
+    """A pseudo-random 64-bit key per row that depends only on the row's values (its float64 bits) and ``salt``.
+
+    A fixed random odd multiplier per coordinate, a wrapping sum over the row, ``salt`` times
+    splitmix64's increment added, then splitmix64's finaliser: two members get the same key
+    only if their parameters are equal (or by a 2^-64 accident), and the keys carry no
+    information about the members' size or position, so ordering tied members by them is a
+    random tie-break that no reordering of the population can change.
+
+    Why a salt. :meth:`EvolutionStrategy.utilities` passes ``generation + 1``, so a member's
+    place inside a tie is drawn anew every generation. With the parameters alone as the key, a
+    member reused by importance mixing kept the same place in every tie it entered, generation
+    after generation -- on CartPole, where ~40 of 50 members tie at the maximum return, the same
+    few reused members stayed the elites and kept pulling the mean the same way. Measured
+    (defaults, 25 seeds, CartPole): CMA-ES + EIM's step size collapsed in 25/25 seeds (median
+    final sigma 8.7e-7, three seeds stuck near 100); with the salt it stays near the no-mixing
+    value (README, "Reused returns and the search").
+    """
+    bits = np.ascontiguousarray(samples, dtype=np.float64).view(np.uint64)
+    h = (bits * hash_multipliers(bits.shape[1])).sum(axis=1, dtype=np.uint64)
+    h += np.uint64((salt * 0x9E3779B97F4A7C15) % 2**64)  # splitmix64's increment, salt times (Python ints: no overflow warning)
+    h ^= h >> np.uint64(30)
+    h *= np.uint64(0xBF58476D1CE4E5B9)
+    h ^= h >> np.uint64(27)
+    h *= np.uint64(0x94D049BB133111EB)
+    h ^= h >> np.uint64(31)
+    return h
+
+
+@njit(cache=True)
+def member_keys_kernel(samples, mult, salt_term):
+    """:func:`member_keys` compiled: ``mult`` is :func:`hash_multipliers`, ``salt_term`` the uint64 ``salt *
+    0x9E3779B97F4A7C15`` (wrapping uint64 arithmetic: the same keys)."""
+    n, d = samples.shape
+    bits = samples.view(np.uint64)
+    out = np.empty(n, dtype=np.uint64)
+    for i in range(n):
+        h = np.uint64(0)
+        for j in range(d):
+            h += bits[i, j] * mult[j]
+        h += salt_term
+        h ^= h >> np.uint64(30)
+        h *= np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(27)
+        h *= np.uint64(0x94D049BB133111EB)
+        h ^= h >> np.uint64(31)
+        out[i] = h
+    return out
+
+
+@njit(cache=True)
+def estool_centered_ranks_kernel(samples, fitness, generation, weight_decay, mult):
+    """:meth:`EvolutionStrategy.utilities` compiled, for ``fitness_shaping="centered_ranks"`` and
+    ``weight_decay_form="estool"`` and finite ``fitness``: centred ranks (ties ordered by :func:`member_keys`
+    salted with ``generation + 1``) minus ``weight_decay * mean(x_i^2)``, with numpy's own summation order
+    in the mean (:func:`imix_cli.core.linalg_kernels.numpy_sum`): the same bits as the Python method."""
+    n, d = samples.shape
+    keys = member_keys_kernel(samples, mult, np.uint64(generation + 1) * np.uint64(0x9E3779B97F4A7C15))
+    # np.lexsort((keys, fitness)): ascending fitness, ties by ascending key, stable (insertion sort)
+    order = np.arange(n)
+    for i in range(1, n):
+        k = order[i]
+        j = i - 1
+        while j >= 0 and (fitness[order[j]] > fitness[k] or (fitness[order[j]] == fitness[k] and keys[order[j]] > keys[k])):
+            order[j + 1] = order[j]
+            j -= 1
+        order[j + 1] = k
+    u = np.empty(n)
+    sq = np.empty(d)
+    for r in range(n):
+        u[order[r]] = float(r) / (n - 1) - 0.5
+    for i in range(n):
+        for j in range(d):
+            sq[j] = samples[i, j] * samples[i, j]
+        u[i] = u[i] - weight_decay * (lk.numpy_sum(sq) / d)
+    return u
+
+
+def rank_weights(utilities: np.ndarray, weights_by_rank: np.ndarray) -> np.ndarray:
+    """The weight of each member when the best gets ``weights_by_rank[0]``, the next ``[1]``, ...
+
+    ``weights_by_rank`` has one entry per member (pad with zeros for non-elites). Members with
+    tied utilities share equally the weights of the rank positions they occupy, so the
+    result does not depend on the order of the members (see :func:`centered_ranks`). This
+    is what selection-based ES (CEM's elites, CMA-ES's recombination) use instead of an
+    ``argsort`` that would break ties by position.
+    """
+    utilities = np.asarray(utilities, dtype=np.float64)
+    n = utilities.shape[0]
+    weights_by_rank = np.asarray(weights_by_rank, dtype=np.float64)
+    if weights_by_rank.shape != (n,):
+        raise ValueError(f"weights_by_rank must have shape ({n},), got {weights_by_rank.shape}")
+    order, starts, ends, group_of = _tie_groups(-utilities)  # best first
+    cumulative = np.concatenate([[0.0], np.cumsum(weights_by_rank)])
+    group_mean = (cumulative[ends] - cumulative[starts]) / (ends - starts)
+    weights = np.empty(n, dtype=np.float64)
+    weights[order] = group_mean[group_of]
+    return weights
+
+
+@njit(cache=True)
+def adam_step(m, v, counts, slot, lr, beta1, beta2, epsilon, grad):
+    """One Adam step (Kingma & Ba 2015): the moments ``m``, ``v`` and the step count ``counts[slot]`` in place;
+    returns the increment to *add* to the parameters. :class:`Adam` and every compiled ES update call it."""
+    counts[slot] += 1
+    t = float(counts[slot])
+    step_size = lr * math.sqrt(1.0 - el.pow(beta2, t)) / (1.0 - el.pow(beta1, t))
+    out = np.empty(grad.shape[0])
+    for j in range(grad.shape[0]):
+        m[j] = beta1 * m[j] + (1.0 - beta1) * grad[j]
+        v[j] = beta2 * v[j] + (1.0 - beta2) * grad[j] * grad[j]
+        out[j] = step_size * m[j] / (math.sqrt(v[j]) + epsilon)
+    return out
+
+
+class Adam:
+    """Adam ascent on a parameter vector (Kingma & Ba 2015), as used by OpenES and SNES.
+
+    ``step(grad)`` returns the increment to *add* to the parameters (gradient ascent).
+    """
+
+    def __init__(self, dim: int, lr: float, beta1: float = 0.99, beta2: float = 0.999, epsilon: float = 1e-8):
+        self.lr, self.beta1, self.beta2, self.epsilon = lr, beta1, beta2, epsilon
+        self.m = np.zeros(dim)
+        self.v = np.zeros(dim)
+        self.t = 0
+
+    def step(self, grad: np.ndarray) -> np.ndarray:
+        counts = np.array([self.t], dtype=np.int64)
+        m, v, grad = self.m.copy(), self.v.copy(), np.ascontiguousarray(grad, dtype=np.float64)
+        out = adam_step(m, v, counts, 0, float(self.lr), float(self.beta1), float(self.beta2), float(self.epsilon), grad)
+        self.m, self.v, self.t = m, v, int(counts[0])
+        return out
+
+    def state_dict(self) -> dict:
+        """The moments and step count (the hyper-parameters come from the constructor)."""
+        return {"m": self.m.copy(), "v": self.v.copy(), "t": int(self.t)}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.m = _array_like(state["m"], self.m, "m")
+        self.v = _array_like(state["v"], self.v, "v")
+        self.t = int(state["t"])
+
+
+def _array_like(value, reference: np.ndarray, name: str) -> np.ndarray:
+    """``value`` as a float64 copy with ``reference``'s shape; ValueError (naming ``name``) otherwise.
+
+    A state dict is read back from a file: a wrong shape must be refused here rather than
+    surface generations later as a broadcasting error.
+    """
+    value = np.array(value, dtype=np.float64, copy=True)
+    if value.shape != np.shape(reference):
+        raise ValueError(f"state {name!r} has shape {value.shape}, expected {np.shape(reference)}")
+    return value
+
+
+def prefixed(prefix: str, state: dict) -> dict:
+    """``state`` with every key prefixed ``prefix.`` (to nest an optimiser's or distribution's state)."""
+    return {f"{prefix}.{k}": v for k, v in state.items()}
+
+
+def unprefixed(prefix: str, state: dict) -> dict:
+    """The entries of ``state`` under ``prefix.``, without it (the inverse of :func:`prefixed`)."""
+    head = f"{prefix}."
+    return {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}
+
+
+# ------------------------------------------------------------------------ pluggable pieces
+#: Fitness shaping: ``shape(values, tie_break) -> utilities`` (higher is better), by name
+#: (:attr:`Params.fitness_shaping`). Register another one here to select it by name.
+FITNESS_SHAPINGS: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {"centered_ranks": centered_ranks}
+
+
+class WeightDecayForm(ABC):
+    """How the weight-decay penalty enters the utilities (:attr:`Params.weight_decay_form`)."""
+
+    @abstractmethod
+    def apply(self, samples: np.ndarray, fitness: np.ndarray, weight_decay: float, shape: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """The utilities of ``samples`` from their fitness (-inf where non-finite); ``shape`` is the fitness shaping."""
+
+
+class PaperWeightDecay(WeightDecayForm):
+    """The paper's text: -w * ||theta||^2 is added to each raw fitness, then the result is shaped."""
+
+    def apply(self, samples, fitness, weight_decay, shape):
+        return shape(fitness - weight_decay * np.einsum("ij,ij->i", samples, samples))
+
+
+class EstoolWeightDecay(WeightDecayForm):
+    """The authors' estool-derived code: the raw fitness is shaped, then -w * mean(theta^2) is added."""
+
+    def apply(self, samples, fitness, weight_decay, shape):
+        return shape(fitness) - weight_decay * np.mean(samples * samples, axis=1)
+
+
+#: ``weight_decay_form`` name -> its form (the config's choices, in this order). Register
+#: another one here to select it by name.
+WEIGHT_DECAY_FORMS: dict[str, WeightDecayForm] = {"paper": PaperWeightDecay(), "estool": EstoolWeightDecay()}
+
+
+# ------------------------------------------------------------------------------ parameters
+#: The largest initial standard deviation: the initial variance sigma^2 must be a finite float64 (sqrt(max) ~ 1.34e154);
+#: above it the first tell divided by an infinite variance and raised deep inside, losing the generation.
+MAX_SIGMA = 1e154
+
+#: The range of each numeric field of :class:`Params`, checked when a record is made and by ``imix run``'s config
+#: (:mod:`imix_cli.running.config.keys`): one copy of the numbers (:mod:`imix_cli.core.bounds`).
+PARAM_BOUNDS = {
+    "popsize": Bound(2, integer=True),  # an integer: 2.5 members was silently 2
+    "sigma": Bound(0, low_inclusive=False, high=MAX_SIGMA),
+    "lr": Bound(0, low_inclusive=False),
+    "weight_decay": Bound(0),
+}
+
+
+@dataclass(frozen=True)
+class Params:
+    """The hyper-parameters every ES shares; the defaults are the paper's (section 4.1).
+
+    This record is the one place those defaults are written down: ``imix run``'s key declarations
+    (:mod:`imix_cli.running.config.keys`) read them from it, and conf/config.yaml is generated from those. Each ES extends it with its own options
+    (``OpenES.Params``, ``CEM.Params``, ...): build one with ``CEM.Params(popsize=20,
+    style="cemrl")``, or pass the fields to the ES or to ``make_es`` as keywords. Values are
+    checked when the record is made (ValueError naming the field).
+    """
+
+    #: Population size N (paper 4.1); >= 2.
+    popsize: int = 50
+    #: Initial standard deviation; the initial covariance is sigma^2 I (paper 4.1); > 0.
+    sigma: float = 0.25
+    #: Adam learning rate of the gradient-based ES (OpenES, SNES); ignored by CEM and CMA-ES; > 0.
+    lr: float = 0.01
+    #: Weight-decay coefficient w; 0 disables it; >= 0.
+    weight_decay: float = 0.05
+    #: How the penalty enters the utilities, a key of :data:`WEIGHT_DECAY_FORMS`: "estool" (the
+    #: authors' code: the paper's published curves) or "paper" (the paper's text); see the
+    #: module docstring.
+    weight_decay_form: str = "estool"
+    #: Fitness shaping, a key of :data:`FITNESS_SHAPINGS`; "centered_ranks" (:func:`centered_ranks`).
+    fitness_shaping: str = "centered_ranks"
+
+    def __post_init__(self):
+        for name, bound in PARAM_BOUNDS.items():  # the bounds imix run checks its keys with
+            bound.check(name, getattr(self, name))
+        if self.weight_decay_form not in WEIGHT_DECAY_FORMS:
+            raise ValueError(f"weight_decay_form must be one of {tuple(WEIGHT_DECAY_FORMS)}, got {self.weight_decay_form!r}")
+        if self.fitness_shaping not in FITNESS_SHAPINGS:
+            raise ValueError(f"fitness_shaping must be one of {tuple(FITNESS_SHAPINGS)}, got {self.fitness_shaping!r}")
+
+
+class CompiledStep(NamedTuple):
+    """An ES's update as a numba function over flat arrays (:meth:`EvolutionStrategy.compiled_step`).
+
+    Why: the compiled generation loop (:mod:`imix_cli.running.loop.compiled_loop`) runs many generations of
+    a seed in one compiled call, so it needs the ES's update as compiled code; the ES's own
+    :meth:`~EvolutionStrategy._update` calls the same function, so the update is written once and
+    both loops give the same bits.
+
+    ``update(samples, utilities, state, counts, constants)`` moves the search distribution, in place of
+    ``state`` and ``counts``:
+
+    ``state``: float64, shape (rows, d). Row 0 is the mean, row 1 the standard deviations of the
+        diagonal Gaussian searched (the loop mixes and archives with them); further rows are the
+        ES's own (Adam's moments, SNES's log sigma, ...).
+    ``counts``: int64, the ES's integer state (Adam's step counts).
+    ``constants``: float64, the hyper-parameters the update reads (never written).
+    """
+
+    update: Callable
+    state: np.ndarray
+    counts: np.ndarray
+    constants: np.ndarray
+
+
+class EvolutionStrategy(ABC):
+    """Base class: owns the constructor and the public ``ask``/``tell``; a subclass gives its
+    ``Params``, ``_setup``, ``distribution`` and ``_update``.
+
+    ``ES(dim, params=None, *, mean=None, **fields)``
+
+    Parameters
+    ----------
+    dim : int
+        Number of optimised parameters d.
+    params : ES.Params, optional
+        The hyper-parameters (:class:`Params` and the subclass's own fields); default
+        ``ES.Params()``, the paper's.
+    mean : array-like of shape (d,), optional
+        Initial mean; zeros by default.
+    **fields
+        Fields of ``ES.Params`` that replace those of ``params``, e.g. ``popsize=20``.
+
+    Notes
+    -----
+    Every field is also an attribute of the ES (``es.popsize``, ``es.sigma``, ...; ``es.sigma``
+    stays the initial value when the ES adapts its step size).
+    """
+
+    #: short name used by configs and CSVs ("openes", "snes", "cem", "cmaes")
+    name: str = ""
+    #: this ES's parameter record (a subclass of :class:`Params` with its own options)
+    Params: type[Params] = Params
+    #: how its generations are mixed and archived (:class:`imix_cli.core.generation.GenerationScheme`): None, the
+    #: default, for members that are independent draws of :attr:`distribution`; ARS names its mirrored pairs'
+    generation_scheme = None
+
+    def __init__(self, dim: int, params: Params | None = None, *, mean=None, **fields):
+        if dim < 1:
+            raise ValueError(f"dim must be >= 1, got {dim}")
+        if params is None:
+            params = self.Params(**fields)
+        elif not isinstance(params, self.Params):
+            raise TypeError(f"{type(self).__name__} takes a {self.Params.__qualname__}, got {type(params).__name__}")
+        elif fields:
+            params = replace(params, **fields)
+        self.params = params
+        for f in fields_of(params):
+            setattr(self, f.name, getattr(params, f.name))
+        self.dim = int(dim)
+        self.popsize = int(params.popsize)
+        self.sigma = float(params.sigma)
+        self.lr = float(params.lr)
+        self.weight_decay = float(params.weight_decay)
+        self._weight_decay = WEIGHT_DECAY_FORMS[params.weight_decay_form]
+        self._shaping = FITNESS_SHAPINGS[params.fitness_shaping]
+        self.initial_mean = np.zeros(self.dim) if mean is None else np.array(mean, dtype=np.float64).reshape(self.dim)
+        self.generation = 0
+        self.nonfinite_fitness_count = 0
+        #: c_j of each member of the last generation told, in the mean's move (:meth:`_mean_weights`); None before
+        self.mean_weights: np.ndarray | None = None
+        self._setup()
+
+    @abstractmethod
+    def _setup(self) -> None:
+        """Build the initial search state from ``self.params`` (the shared attributes are set)."""
+
+    # ------------------------------------------------------------------ public API
+    @property
+    @abstractmethod
+    def distribution(self):
+        """The current search distribution (a DiagonalGaussian or FullGaussian)."""
+
+    def ask(self, rng: np.random.Generator) -> np.ndarray:
+        """Draw a fresh generation of ``popsize`` independent samples (no antithetic pairs)."""
+        return self.distribution.sample(self.popsize, rng)
+
+    #: Points :meth:`probes` gives per generation (once it gives any): episodes besides the members.
+    probe_count = 0
+
+    def probes(self, rng: np.random.Generator) -> np.ndarray | None:
+        """Points to evaluate afresh with the next generation besides its members -- never members,
+        never reused -- whose returns :meth:`tell` then takes as ``probe_fitness`` (CMA-ES's
+        two-point step-size adaptation). None: none (every ES but CMA-ES with TPA)."""
+        return None
+
+    def training_fitness(self, returns: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """The fitness the runner tells (and archives) for episodes of these ``returns`` and lengths
+        ``steps``: the return itself, unless an ES trains on a reshaped reward (ARS's survival-bonus
+        offset). Measurements of the distribution mean always report the env's own return."""
+        return returns
+
+    def tell(self, samples, fitness) -> None:
+        """Update the search distribution from a generation's samples and their raw fitness (maximised).
+
+        ``samples`` may mix fresh draws and members reused from earlier generations; the
+        ES treats them alike. Its number of rows may differ from ``popsize``.
+        """
+        samples = np.asarray(samples, dtype=np.float64)
+        fitness = np.asarray(fitness, dtype=np.float64).reshape(-1)
+        if samples.ndim != 2 or samples.shape[1] != self.dim:
+            raise ValueError(f"samples must have shape (n, {self.dim}), got {samples.shape}")
+        if samples.shape[0] != fitness.shape[0]:
+            raise ValueError(f"got {samples.shape[0]} samples but {fitness.shape[0]} fitness values")
+        if samples.shape[0] < 2:
+            raise ValueError("tell needs at least 2 samples")
+        utilities = self.utilities(samples, fitness)
+        self._update(samples, utilities)
+        self.mean_weights = self._mean_weights(utilities)
+        self.generation += 1
+
+    def utilities(self, samples: np.ndarray, fitness: np.ndarray) -> np.ndarray:
+        """Weight decay + fitness shaping (``params.weight_decay_form``, ``params.fitness_shaping``);
+        non-finite fitness ranks last. Higher is better."""
+        finite = np.isfinite(fitness)
+        self.nonfinite_fitness_count += int(np.count_nonzero(~finite))
+        fitness = np.where(finite, fitness, -np.inf)
+        # ties: a random order that the population's order cannot change, drawn anew each generation
+        keys = member_keys(samples, salt=self.generation + 1)
+        return self._weight_decay.apply(samples, fitness, self.weight_decay, lambda values: self._shaping(values, keys))
+
+    # ------------------------------------------------------------ checkpoints
+    # A state dict is flat: numpy arrays and JSON scalars under string keys (nested parts use
+    # dotted prefixes), so a checkpoint is plain data (.npz + JSON) and never a pickle. It holds
+    # only what changes during a run; the constructor's arguments come from the run's config.
+    def state_dict(self) -> dict:
+        """The ES's mutable state: counters here, the search state from :meth:`_state_dict`."""
+        return {"generation": int(self.generation), "nonfinite_fitness_count": int(self.nonfinite_fitness_count), **self._state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore what :meth:`state_dict` returned (on an ES built with the same arguments).
+
+        Raises ValueError or KeyError if ``state`` does not fit this ES.
+        """
+        self._load_state_dict(state)
+        self.generation = int(state["generation"])
+        self.nonfinite_fitness_count = int(state["nonfinite_fitness_count"])
+
+    def _state_dict(self) -> dict:
+        raise NotImplementedError(f"{type(self).__name__} cannot be checkpointed")
+
+    def _load_state_dict(self, state: dict) -> None:
+        raise NotImplementedError(f"{type(self).__name__} cannot be checkpointed")
+
+    # ------------------------------------------------------------ for subclasses
+    @abstractmethod
+    def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
+        """Move the search distribution; ``utilities`` are higher-is-better, one per row of ``samples``.
+        An ES with a :meth:`compiled_step` implements it as ``self._update_compiled(samples, utilities)``."""
+
+    # ------------------------------------------------------------ the compiled step
+    def compiled_step(self) -> CompiledStep | None:
+        """This ES's update as compiled code over its state, packed as :class:`CompiledStep` describes
+        (fresh arrays: changing them changes nothing until :meth:`load_compiled_state`); None: it has
+        none, and its seeds run in the Python loop. An ES that gives one also gives
+        :meth:`load_compiled_state` and runs its own :meth:`_update` through it (:meth:`_update_compiled`)."""
+        return None
+
+    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
+        """Take back the ``state`` and ``counts`` arrays of :meth:`compiled_step` after its update ran on them."""
+        raise NotImplementedError(f"{type(self).__name__} has no compiled step")
+
+    def _update_compiled(self, samples: np.ndarray, utilities: np.ndarray) -> None:
+        """:meth:`_update` through :meth:`compiled_step`: the one copy of the update."""
+        step = self.compiled_step()
+        step.update(np.ascontiguousarray(samples, dtype=np.float64), np.ascontiguousarray(utilities, dtype=np.float64), step.state, step.counts, step.constants)
+        self.load_compiled_state(step.state, step.counts)
+
+    def compiled_utilities(self):
+        """:meth:`utilities` as compiled code -- ``utilities(samples, fitness, generation, weight_decay,
+        hash_multipliers(d))`` for finite fitness -- when the ES's shaping and weight-decay form have one
+        (centred ranks with the estool form: :func:`estool_centered_ranks_kernel`); None otherwise."""
+        if self.params.fitness_shaping == "centered_ranks" and self.params.weight_decay_form == "estool":
+            return estool_centered_ranks_kernel
+        return None
+
+    def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:
+        """The weight c_j of each member of the generation just told in the mean's move.
+
+        The move of the mean caused by this generation is, in the coordinates whitened by the
+        distribution the members were drawn from, proportional to ``sum_j c_j z_j`` (any scale:
+        only ratios of the weights matter). Importance mixing's ``"conditional"`` rule reads it
+        as :attr:`mean_weights` after :meth:`tell` (:mod:`imix_cli.core.mixing`, "Reuse inside the
+        loop"). The gradient ES (OpenES, SNES) move the mean along ``sum_j u_j z_j``, so the
+        default is the utilities themselves; selection-based ES override it.
+        """
+        return np.array(utilities, dtype=np.float64)
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Mean of the current search distribution."""
+        return self.distribution.mean

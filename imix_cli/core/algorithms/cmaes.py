@@ -1,0 +1,621 @@
+"""CMA-ES in numpy: pycma 4.5's update, written out, for populations it did not sample.
+
+Hansen & Ostermeier (2001), "Completely derandomized self-adaptation in evolution
+strategies", Evolutionary Computation 9(2); Hansen (2016), "The CMA Evolution Strategy:
+A Tutorial", arXiv:1604.00772 (cited below as [T], with equation numbers). Paper
+section 2.1.4 of Pourchot, Perrin & Sigaud (2018): full covariance, rank-based
+recombination weights, evolution paths, step-size control.
+
+Why our own and not pycma (``cma``): driving pycma with samples it did not draw worked
+(the previous version of this module did it), but its ``tell`` cost ~2.5 ms per generation
+at d = 130, lambda = 50 -- 57-72 % of a CMA-ES + importance-mixing run -- mostly Python
+bookkeeping around two O(d^3) steps, and its state is a Python object that can only be
+pickled, while checkpoints are data. This module does the same maths in a few numpy calls
+and keeps its state in arrays (:meth:`CMAES.state_dict`).
+
+Same maths as pycma: every constant and every formula below was read from pycma 4.5's
+source (``cma/evolution_strategy.py`` ``tell``/``ask_geno``, ``cma/sampler.py``
+``GaussFullSampler``, ``cma/recombination_weights.py``, ``cma/options_parameters.py``
+``CMAParameters``, ``cma/sigma_adaptation.py`` ``CMAAdaptSigmaCSA``) with the options the
+pycma wrapper used: default weights with active CMA (negative weights), CSA, rank-one +
+rank-mu, hsig, no mirrors, ``updatecovwait=0`` (eigendecomposition after every update),
+``conditioncov_alleviate=[1e8, 1e12]``, pycma's initial C = diag(exp(1e-4 k / d)) (a
+tie-breaking hack for its eigensolver, kept for equality). ``tests/test_cmaes.py`` drives
+pycma's own ask/tell loop and tells the same samples to this class: mean, sigma, C, p_sigma
+and p_c agree to round-off over hundreds of generations at d = 10 and d = 130.
+
+Where we differ from pycma, on purpose:
+
+* Ties. pycma ranks by ``np.argsort`` (order among equal values: whatever the sort does).
+  Here a group of tied utilities shares the weights of the rank positions it occupies
+  (fractional ranking), so the update does not depend on the order of tied members. On
+  CartPole ~40 of 50 members tie at the maximum return. A position's weight enters the
+  covariance update through two parts -- positive weights as is, negative weights times
+  the member's Mahalanobis rescaling d / ||C^-1/2 y||^2 -- so each member gets the mean
+  positive part and the mean negative part of its group's positions: the expectation of
+  pycma's update over all orders of the tied members. Without ties this is pycma's update.
+* Step-size control is CSA at every d (pycma switches to TPA for d >= 300), unless
+  ``step_size_control="tpa"`` (below).
+* Two-point step-size adaptation (``step_size_control="tpa"``; ``imix run``'s ``auto`` picks it
+  when the run mixes, CSA otherwise). Why: CSA compares the mean's step with the step of
+  *fresh* randomly ranked members. Under importance mixing a third of CMA-ES's members are
+  reused, and given the loop they are not fresh draws of the current distribution (they sit
+  nearer its mean and ahead along the last move: constant fitness, d = 130, N = 50, E[z^2] 0.977,
+  offset +0.05 spreads), so CSA misreads their steps: sigma shrank to 0.57x the run without
+  mixing under constant fitness, collapsed on Acrobot (median final sigma 2.3e-4 against 0.19),
+  and stayed 2.9x too large on the noise-free sphere, where the reused elites that pulled the
+  mean keep pulling it. Normalising CSA's step by its length under random ranks of the same
+  members fixed constant fitness and failed the sphere even without mixing
+  (benchmarks/cma_step_size.py; docs/research/bias.md, "CMA-ES's step size"). TPA's signal
+  does not come from the members at all: each generation two extra points m +- sigma r u are
+  evaluated afresh, u the last move of the mean (unit length in sigma^2 C's metric) and r the
+  length of a fresh N(0, I) draw, and sigma grows when the point ahead ranks better than the
+  one behind, shrinks otherwise (Hansen 2008, "CMA-ES with two-point step-size adaptation";
+  the constants, c = 0.3, |z|^0.5 and damp = 0.7 + 2 ln d + 2 ln max(1, lambda - d), are pycma
+  4.5's ``CMAAdaptSigmaTPA``). Under random ranks the two points are exchangeable, so log sigma
+  does not drift, whatever the members; under constant fitness they tie and sigma stays. The
+  price: 2 episodes per generation. Measured on the paper's tasks (25 seeds,
+  benchmarks/cma_step_size.py --tasks): docs/research/bias.md. Unlike pycma, the two points are
+  not members of the generation: they take no part in the mean or covariance update and are
+  never reused, so the generation stays a draw of the distribution. The z of a generation is
+  computed on the raw fitness (stored returns for reused members), not on the weight-decayed
+  utilities, whose decay term the points do not have.
+* No termination criteria, no logging, no bounds, no integer variables, no elitism.
+* Linear algebra: products, the eigendecomposition (EISPACK's tred2 + tql2 instead of LAPACK's
+  dsyevd) and the sampler's Cholesky factor are :mod:`imix_cli.core.linalg_kernels`' compiled loops,
+  whose order of summation does not depend on the BLAS kernel the CPU selects (so neither do a
+  run's bits); they differ from pycma's numpy/LAPACK results by round-off only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from imix_cli.core import numerics as xp
+from imix_cli.core.algorithms.base import EvolutionStrategy, Params
+from imix_cli.core.distributions import FullGaussian
+
+
+def _pow(x, y) -> float:
+    """``x ** y`` of Python or numpy scalars as Python and numpy compute it (the C library's pow), but with
+    :func:`imix_cli.core.elementary.pow`: the same bits on every CPU (pycma's formulas are kept as they are)."""
+    return xp.power(float(x), float(y))
+
+
+def _log(x) -> float:
+    return xp.log(float(x))
+
+
+#: Largest dimension CMAES accepts. Each seed keeps four d x d float64 matrices (C, its
+#: eigenvectors, the distribution's covariance and Cholesky factor: 128 MB at d = 2000) and
+#: eigendecomposes C every generation, O(d^3). Measured ``tell`` per generation, lambda = 50
+#: (benchmarks/cmaes_speed.py --big, shared 2-core VM, one BLAS thread): d = 500 0.33 s, 1000
+#: 3.0 s, i.e. ~2.8 h per seed for the paper's 400 generations at d = 2000 (d^3 from 1000). The
+#: eigensolver (linalg_kernels.eigh: the same bits on every CPU) is unblocked: LAPACK's took
+#: 0.03 s and 0.26 s in the same session. Above the limit SNES/OpenES (O(d) per member) are the tools.
+MAX_DIM = 2000
+
+#: Smallest population CMAES accepts (lambda): its recombination weights need at least 2 parents and one non-parent.
+MIN_POPSIZE = 3
+
+#: CMA options this class implements (pycma option names and defaults).
+SUPPORTED_OPTIONS = {
+    # active CMA: negative recombination weights in the covariance update
+    "CMA_active": True,
+    # [coordinate condition, condition] of C above which pycma re-parametrises (see
+    # CMAES._alleviate_conditioning); a false value switches it off
+    "conditioncov_alleviate": (1e8, 1e12),
+}
+
+#: Values of :attr:`CMAESParams.step_size_control` (``"auto"``: resolved by the runner, see the field).
+STEP_SIZE_CONTROLS = ("csa", "tpa", "auto")
+
+
+def step_size_control_for(mixing: bool) -> str:
+    """What ``algo.step_size_control=auto`` means: TPA when members are reused (module docstring), CSA (pycma's) otherwise."""
+    return "tpa" if mixing else "csa"
+
+
+# pycma's GaussFullSampler raises when an eigenvalue is <= 0 and retries after adding the
+# smallest previous eigenvalue to the diagonal; it recurses without limit, we give up here.
+_MAX_EIGEN_REPAIRS = 20
+
+
+def check_dimension(dim: int) -> None:
+    """Raise ValueError (one line) if CMA-ES is unreasonable in ``dim`` dimensions."""
+    if dim > MAX_DIM:
+        raise ValueError(
+            f"algo=cmaes: d = {dim} parameters exceeds CMA-ES's limit of {MAX_DIM} "
+            f"(a {dim}x{dim} covariance, O(d^3) per generation); use algo=snes or algo=openes (or cem)"
+        )
+
+
+def expected_norm(dim: int) -> float:
+    """E||N(0, I_d)||, as pycma's ``Mh.chiN``: exact for d <= 100 (sqrt(2) Gamma((d+1)/2) / Gamma(d/2)),
+    sqrt(d) (1 - 1/(4d) + 1/(32 d^2)) above (pycma's approximation, relative error < 1e-5)."""
+    if dim <= 100:
+        return math.sqrt(2.0) * _gamma((dim + 1) / 2) / _gamma(dim / 2)
+    return _pow(dim, 0.5) * (1 - 1.0 / (4 * dim) + 1.0 / (32 * dim**2))
+
+
+# Python's math.gamma for 0 < x <= 200 (CPython's m_tgamma: exact factorials for integers up to 23, else
+# Lanczos' approximation with g = 6.0247, N = 13), with exp and pow from imix_cli.core.elementary instead of the
+# C library's: the same values here, the same bits on every CPU.
+_LANCZOS_G = 6.024680040776729583740234375
+_LANCZOS_G_MINUS_HALF = 5.524680040776729583740234375
+_LANCZOS_NUM = (
+    23531376880.410759688572007674451636754734846804940, 42919803642.649098768957899047001988850926355848959,
+    35711959237.355668049440185451547166705960488635843, 17921034426.037209699919755754458931112671403265390,
+    6039542586.3520280050642916443072979210699388420708, 1439720407.3117216736632230727949123939715485786772,
+    248874557.86205415651146038641322942321632125127801, 31426415.585400194380614231628318205362874684987640,
+    2876370.6289353724412254090516208496135991145378768, 186056.26539522349504029498971604569928220784236328,
+    8071.6720023658162106380029022722506138218516325024, 210.82427775157934587250973392071336271166969580291,
+    2.5066282746310002701649081771338373386264310793408,
+)  # fmt: skip
+_LANCZOS_DEN = (0.0, 39916800.0, 120543840.0, 150917976.0, 105258076.0, 45995730.0, 13339535.0, 2637558.0, 357423.0, 32670.0, 1925.0, 66.0, 1.0)
+
+
+def _gamma(x: float) -> float:
+    """Gamma(x) for 0 < x <= 200, as Python's ``math.gamma`` computes it."""
+    if x == math.floor(x) and x <= 23:
+        return float(math.factorial(int(x) - 1))
+    num = den = 0.0
+    if x < 5.0:
+        for a, b in zip(reversed(_LANCZOS_NUM), reversed(_LANCZOS_DEN)):
+            num, den = num * x + a, den * x + b
+    else:
+        for a, b in zip(_LANCZOS_NUM, _LANCZOS_DEN):
+            num, den = num / x + a, den / x + b
+    y = x + _LANCZOS_G_MINUS_HALF
+    z = (y - x) - _LANCZOS_G_MINUS_HALF if x > _LANCZOS_G_MINUS_HALF else (y - _LANCZOS_G_MINUS_HALF) - x
+    z = z * _LANCZOS_G / y
+    r = num / den / xp.exp(y)
+    r += z * r
+    if x < 140.0:
+        return r * xp.power(y, x - 0.5)
+    half = xp.power(y, x / 2.0 - 0.25)
+    return r * half * half
+
+
+class _Parameters:
+    """Strategy parameters for population size ``lam`` in dimension ``dim`` (pycma's values).
+
+    Attributes: ``weights`` (lam values, decreasing; positive ones sum to 1), ``mu`` (number
+    of positive weights), ``mueff``, ``cc``, ``c1``, ``cmu``.
+    """
+
+    def __init__(self, dim: int, lam: int, active: bool):
+        # [T] (49): w'_i = ln((lam + 1) / 2) - ln i; pycma normalises the positive ones to
+        # sum 1 and the negative ones to sum -1 (RecombinationWeights.__init__), in Python
+        # floats, summed left to right as pycma does.
+        w = [_log((lam + 1) / 2.0) - _log(i) for i in range(1, lam + 1)]
+        mu = sum(x > 0 for x in w)
+        spos = sum(w[:mu])
+        w = [x / spos for x in w]
+        mueff = 1 / sum(_pow(x, 2) for x in w[:mu])  # [T] (8): variance effective selection mass
+        sneg = sum(w[mu:])
+        if sneg != 0:
+            w[mu:] = [x / -sneg for x in w[mu:]]
+        n = float(dim)
+        # learning rates as pycma's sampler gives them (interfaces.parameters), [T] (56), (57)
+        c1 = min((1, lam / 6)) * 2 / (_pow(n + 1.3, 2.0) + mueff)
+        cmu = min((1 - c1, 2 * (0.25 + mueff - 2 + 1 / mueff) / (_pow(n + 2, 2) + 2 * mueff / 2)))
+        # [T] (56) with pycma's limit_fac_cc = 4: cc = (4 + mueff/n) / (n + 4 + 2 mueff/n)
+        cc = 1.0 * _pow(4.0 + mueff / n, 1.0) / (_pow(n, 1.0) + _pow(4.0 + 2 * mueff / n, 1.0))
+        if w[-1] < 0:
+            if active and cmu > 0:
+                # RecombinationWeights.finalize_negative_weights, [T] (53): scale the negative
+                # weights to sum -(1 + c1/cmu) (no decay of C), then cap their sum so that C
+                # stays positive definite, and by 1 + 2 mueff^- / (mueff + 2).
+                w = self._set_negative_sum(w, mu, 1 + c1 / cmu)
+                w = self._limit_negative_sum(w, mu, (1 - c1 - cmu) / cmu / n)
+                sneg = sum(w[mu:])
+                mueff_minus = 0 if sneg == 0 else _pow(sneg, 2) / sum(_pow(x, 2) for x in w[mu:])
+                w = self._limit_negative_sum(w, mu, 1 + 2 * mueff_minus / (mueff + 2))
+            elif not active:
+                w = [x if x >= 0 else 0.0 * x for x in w]  # zero_negative_weights
+        self.lam, self.mu, self.mueff = lam, mu, mueff
+        self.weights = w
+        self.cc, self.c1, self.cmu = cc, c1, cmu
+
+    @staticmethod
+    def _set_negative_sum(w, mu, value):
+        factor = abs(abs(value) / sum(w[mu:]))
+        return w[:mu] + [x * factor for x in w[mu:]]
+
+    @staticmethod
+    def _limit_negative_sum(w, mu, value):
+        value = abs(value)
+        if sum(w[mu:]) >= -value:
+            return w
+        factor = abs(value / sum(w[mu:]))
+        return w if factor >= 1 else w[:mu] + [x * factor for x in w[mu:]]
+
+    def resized(self, n: int) -> list:
+        """pycma's ``RecombinationWeights.__call__``: ``n`` weights for a population of ``n``
+        (n >= mu): the mu positive weights, then the most negative ones, zeros padded in."""
+        w, mu, lam = self.weights, self.mu, self.lam
+        if n < lam:
+            return w[:mu] + w[mu - n :]
+        if n > lam:
+            return w[:mu] + (n - lam) * [0] + w[mu:]
+        return w
+
+
+@dataclass(frozen=True)
+class CMAESParams(Params):
+    """:class:`~imix_cli.core.algorithms.base.Params` (``popsize`` is lambda, mu = lambda // 2
+    positive weights; ``sigma`` the initial step size sigma0; ``lr`` is ignored) and CMA-ES's own options."""
+
+    #: The pycma options of :data:`SUPPORTED_OPTIONS`, e.g. ``{"CMA_active": False}``; any
+    #: other key is refused. None: pycma's defaults.
+    cma_options: dict | None = None
+
+    #: Step-size control: ``"csa"`` (pycma's cumulative step-size adaptation) or ``"tpa"``
+    #: (two-point adaptation: two extra fresh evaluations per generation, :meth:`CMAES.probes`;
+    #: module docstring). ``imix run``'s ``algo.step_size_control=auto`` resolves to ``"tpa"``
+    #: when the run mixes and to ``"csa"`` otherwise (:func:`step_size_control_for`).
+    step_size_control: str = field(default="csa", metadata={
+        "choices": STEP_SIZE_CONTROLS, "auto": step_size_control_for, "short": "csa | tpa | auto (tpa with im/eim, csa without)",
+        "doc": "`algo=cmaes` only: `csa` (pycma's cumulative step-size adaptation), `tpa` (two-point adaptation: two extra "
+               "fresh episodes per generation along the last move of the mean; its signal does not come from reused members), "
+               "`auto` (`tpa` with `im`/`eim`, `csa` without); docs/research/bias.md",
+    })  # fmt: skip
+
+
+class CMAES(EvolutionStrategy):
+    """CMA-ES: N(mean, sigma^2 C) with full C, pycma's update (see the module docstring).
+
+    ``CMAES(dim, params=None, *, mean=None, **fields)``: see
+    :class:`~imix_cli.core.algorithms.base.EvolutionStrategy` and :class:`CMAESParams`; ``mean``
+    is x0 and ``dim`` must be <= :data:`MAX_DIM`.
+
+    Populations whose size n differs from ``popsize`` (the base class allows it): for
+    n >= mu, pycma's handling -- the same mu, mueff, learning rates and positive weights,
+    the most negative weights kept for the worst members, zeros padded in the middle if
+    n > lambda. For 3 <= n < mu (pycma refuses), that one update uses the strategy
+    parameters of lambda = n (weights, mueff, c1, cmu, cc; cs and damps stay). n >= 3.
+    """
+
+    name = "cmaes"
+    Params = CMAESParams
+
+    def _setup(self) -> None:
+        cma_options = self.params.cma_options
+        if self.popsize < MIN_POPSIZE:
+            raise ValueError(f"CMAES needs popsize >= {MIN_POPSIZE}, got {self.popsize}")
+        check_dimension(self.dim)
+        unknown = sorted(set(cma_options or {}) - set(SUPPORTED_OPTIONS))
+        if unknown:
+            raise ValueError(f"cma_options: unsupported {unknown}; CMAES implements {sorted(SUPPORTED_OPTIONS)}")
+        opts = {**SUPPORTED_OPTIONS, **(cma_options or {})}
+        self.active = bool(opts["CMA_active"])
+        alleviate = opts["conditioncov_alleviate"]
+        self.alleviate_limits = (float(alleviate[0]), float(alleviate[-1])) if alleviate else (0.0, 0.0)
+
+        d = self.dim
+        self._params = {self.popsize: _Parameters(d, self.popsize, self.active)}
+        p = self._params[self.popsize]
+        # CSA constants (CMAAdaptSigmaCSA.compute_cs / compute_damps; [T] (55)) with no
+        # mirrors: cs = min(1/2, (mueff + 2) / (d + mueff + 3)),
+        # damps = 1 + 2 max(0, a sqrt((mueff - 1) / (d + 1)) - 1) + cs, a = max(1, 3 (1 - 2^(-d/9)))
+        self.cs = min((0.5, _pow(p.mueff + 2, 1.0) / (_pow(d, 1.0) + _pow(p.mueff + 3, 1.0))))
+        damp_in = max((1, 3 * (1 - _pow(0.5, d / 9))))
+        self.damps = (
+            0.5 + _pow(min((1, _pow(0 / (0.159 * self.popsize) - 1, 2))), 1) / 2 + 2 * max((0, damp_in * _pow((p.mueff - 1) / (d + 1), 0.5) - 1)) + self.cs
+        )
+        self.chi_d = expected_norm(d)
+
+        # state (everything in state_dict): pycma's genotype coordinates, x = T g; T = I
+        # until the 1e12 condition alleviation sets it
+        self.step_size = self.sigma  # pycma's sigma; self.sigma stays sigma0
+        self.mean_geno = self.initial_mean.copy()
+        self.C = np.diag(xp.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
+        self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()  # D, ascending; C = B D^2 B^T
+        self.eigenvectors = np.eye(d)  # B, columns
+        self.scaling = np.ones(d)  # pycma's sigma_vec (coordinate condition alleviation)
+        self.p_sigma = np.zeros(d)
+        self.p_c = np.zeros(d)
+        self.transform = None  # T and T^-1 once pycma's alleviate_conditioning has fired
+        self.transform_inverse = None
+        self.countiter = 0  # pycma's countiter: number of updates
+        if self.params.step_size_control not in ("csa", "tpa"):
+            raise ValueError(f"step_size_control={self.params.step_size_control!r}: must be 'csa' or 'tpa' ('auto' is resolved by imix run)")
+        # TPA (pycma's CMAAdaptSigmaTPA constants): the damping, the smoothing c, the state s and
+        # the last move of the mean (genotype), from which the next two test points are made
+        self.tpa_damp = 0.7 + 2 * _log(d) + 2 * _log(max(1, self.popsize - d))
+        self.tpa_s = 0.0
+        self.tpa_move = np.zeros(d)
+        self._probe_fitness = None
+        self._set_distribution()
+
+    # ------------------------------------------------------------ distribution
+    @property
+    def distribution(self) -> FullGaussian:
+        return self._dist
+
+    def _set_distribution(self) -> None:
+        """x = T (mean + sigma * scaling * B D z): N(T mean, sigma^2 T S C S T^T), S = diag(scaling)."""
+        cov = self.C * (_pow(self.step_size, 2) * np.outer(self.scaling, self.scaling))
+        mean = self.mean_geno
+        if self.transform is not None:
+            mean = xp.mat_vec(self.transform, mean)
+            cov = xp.mat_mat(xp.mat_mat(self.transform, cov), self.transform.T)
+        self._dist = FullGaussian(mean, cov)
+
+    # ------------------------------------------------------------------ TPA
+    @property
+    def probe_count(self) -> int:
+        """TPA's two points per generation (once the mean has moved); none with CSA."""
+        return 2 if self.params.step_size_control == "tpa" else 0
+
+    def probes(self, rng: np.random.Generator) -> np.ndarray | None:
+        """With ``step_size_control="tpa"``: the two test points m +- sigma r u (u the last move of
+        the mean, of unit length in sigma^2 C's metric; r the length of a fresh N(0, I) draw) to
+        evaluate afresh with this generation and pass to :meth:`tell` as ``probe_fitness``. None
+        with CSA, and before the mean has moved."""
+        if self.params.step_size_control != "tpa" or not np.any(self.tpa_move):
+            return None
+        whitened = xp.vec_mat(self.tpa_move / self.scaling, self.eigenvectors) / self.eigenvalues_sqrt / self.step_size
+        draw = rng.standard_normal(self.dim)
+        # lengths by the fixed-order kernel, not numpy's BLAS dot: the same bits under every CPU kernel
+        y = self.tpa_move * math.sqrt(xp.dot(draw, draw) / xp.dot(whitened, whitened))
+        points = np.vstack([self.mean_geno + y, self.mean_geno - y])
+        return points if self.transform is None else xp.mat_mat(points, self.transform.T)
+
+    def tell(self, samples, fitness, probe_fitness=None) -> None:
+        """:meth:`EvolutionStrategy.tell`; with TPA, ``probe_fitness`` holds the returns of the two
+        points :meth:`probes` gave for this generation (ahead, behind); without it sigma stays."""
+        if probe_fitness is not None:
+            probe_fitness = np.asarray(probe_fitness, dtype=np.float64).reshape(-1)
+            if not self.probe_count or probe_fitness.size != self.probe_count:
+                raise ValueError("probe_fitness: the 2 returns of the points probes() gave (step_size_control='tpa' only)")
+            self._probe_fitness = (probe_fitness, np.asarray(fitness, dtype=np.float64).reshape(-1))
+        try:
+            super().tell(samples, fitness)
+        finally:
+            self._probe_fitness = None
+
+    def _tpa_step(self) -> float:
+        """log sigma's change from the two points' fitness (pycma's CMAAdaptSigmaTPA.update2, maximising):
+        z = (#{f > f_behind} - #{f > f_ahead}) / (n - 1) over the points and the generation."""
+        if self._probe_fitness is None:
+            return 0.0
+        f = np.concatenate(self._probe_fitness)  # the two points first, then the members
+        f = np.where(np.isfinite(f), f, -np.inf)
+        z = (np.count_nonzero(f > f[1]) - np.count_nonzero(f > f[0])) / (f.size - 1)
+        self.tpa_s = (1 - 0.3) * self.tpa_s + 0.3 * math.copysign(_pow(abs(z), 0.5), z)
+        return self.tpa_s / self.tpa_damp
+
+    # ------------------------------------------------------------------ update
+    def _parameters(self, n: int) -> tuple[_Parameters, list]:
+        """Strategy parameters and the n position weights for a population of n."""
+        base = self._params[self.popsize]
+        if n >= base.mu:
+            return base, base.resized(n)
+        if n not in self._params:
+            self._params[n] = _Parameters(self.dim, n, self.active)
+        return self._params[n], self._params[n].weights
+
+    def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
+        n = samples.shape[0]
+        if n < 3:
+            raise ValueError(f"CMAES.tell needs at least 3 samples, got {n}")
+        p, weights = self._parameters(n)
+        d, sigma, cs, cc = self.dim, self.step_size, self.cs, p.cc
+        B, D, scaling = self.eigenvectors, self.eigenvalues_sqrt, self.scaling
+        x = samples if self.transform is None else xp.mat_mat(samples, self.transform_inverse.T)  # genotypes
+        self.countiter += 1
+
+        # Selection: best first. Tied utilities share their positions' weights, separately
+        # for the positive and the negative parts (module docstring).
+        order = np.argsort(-utilities, kind="stable")
+        x = x[order]
+        w_pos, w_neg = _shared_among_ties(np.asarray(weights, dtype=np.float64), utilities[order])
+        self._told_mean_weights = np.empty(n)
+        self._told_mean_weights[order] = w_pos  # m' - m = sum_i w_i (x_i - m): the mean weights, by member
+
+        # [T] (9): m' = sum_i w_i x_{i:lambda} over the positive weights (pycma: cmean = 1)
+        mean_old = self.mean_geno
+        k = int(np.flatnonzero(w_pos)[-1]) + 1  # without ties: mu
+        self.mean_geno = xp.vec_mat(w_pos[:k], x[:k])
+        dm = self.mean_geno - mean_old
+
+        # [T] (43): p_sigma <- (1 - cs) p_sigma + sqrt(cs (2 - cs) mueff) C^-1/2 (m' - m) / sigma,
+        # C^-1/2 = B D^-1 B^T from the decomposition before this update
+        z = xp.mat_vec(B, xp.vec_mat(dm / scaling, B) / D)
+        z *= _pow(p.mueff, 0.5) / sigma / 1.0
+        self.p_sigma *= 1 - cs
+        self.p_sigma += math.sqrt(cs * (2 - cs)) * z
+        # hsig ([T] p. 29; pycma's bias-corrected form): stall p_c when ||p_sigma|| is large
+        squared_sum = np.sum(self.p_sigma**2) / (1 - _pow(1 - cs, 2 * self.countiter))
+        hsig = bool(squared_sum / d - 1 < 1 + 4.0 / (d + 1))
+        # [T] (45): p_c <- (1 - cc) p_c + hsig sqrt(cc (2 - cc) mueff) (m' - m) / sigma
+        self.p_c = (1 - cc) * self.p_c + hsig * (_pow(cc * (2 - cc) * p.mueff, 0.5) / sigma / 1.0) * dm / scaling
+
+        # [T] (47), (46): C <- (1 + c1 delta(hsig) - c1 - cmu sum w) C + c1 p_c p_c^T
+        #                       + cmu sum_i w_i° y_i y_i^T,   y_i = (x_i - m) / sigma,
+        # w_i° = w_i for w_i >= 0 and w_i d / ||C^-1/2 y_i||^2 otherwise (active CMA).
+        # pycma folds delta(hsig) into c1a and gives p_c the weight c1a with length rescaled
+        # so that c1a ||v||^2 = c1 ||p_c||^2; we do the same, for equal round-off.
+        c1, cmu = p.c1, p.cmu
+        c1a = c1 * (1 - (1 - hsig**2) * cc * (2 - cc))
+        y = (x - mean_old) / (sigma * scaling)
+        decay = 1 + 0 - sum([c1a] + [cmu * w for w in weights])  # sampler.update, in Python order
+        coef = cmu * w_pos
+        negative = np.flatnonzero(w_neg)
+        if negative.size:
+            whitened = xp.mat_mat(y[negative], B) / D  # B^T y / D, row by row
+            norms = np.sqrt(xp.row_sq_norms(whitened))
+            coef[negative] += (cmu * w_neg[negative]) * (d / (norms + 1e-9) ** 2)
+        vectors = np.vstack((_pow(c1 / (c1a + 1e-23), 0.5) * self.p_c, y))
+        self.C *= decay
+        self.C += xp.weighted_gram(np.concatenate(([c1a], coef)), vectors)
+
+        # [T] (44): sigma <- sigma exp(cs / damps (||p_sigma|| / E||N(0, I)|| - 1)), change of
+        # log sigma clipped to +-1 (pycma's max_delta_log_sigma)
+        if self.params.step_size_control == "tpa":  # from the two points, not the path (module docstring)
+            s = self._tpa_step()
+            self.tpa_move = self.mean_geno - mean_old
+        else:
+            s = np.sqrt(np.sum(np.square(self.p_sigma))) / self.chi_d - 1
+            s *= cs / self.damps
+        self.step_size *= xp.exp(min(max(float(s), -1), 1))
+        # pycma moves a huge sigma into C (_redistribute_sigma_above = 1e9), same distribution
+        if self.step_size > 1e9 * self.sigma:
+            alpha = float(self.step_size / _pow(np.max(np.diag(self.C)), 0.5))
+            if alpha > 1:
+                self.C *= alpha
+                self.eigenvalues_sqrt = self.eigenvalues_sqrt * _pow(alpha, 0.5)
+                self.step_size /= _pow(alpha, 0.5)
+
+        # what pycma's ask does before it samples: alleviate conditioning, then decompose C
+        if not self._alleviate_conditioning():
+            self._decompose()
+        self._set_distribution()
+
+    def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:
+        """Each member's positive recombination weight (ties sharing theirs): m' - m = sum_i w_i (x_i - m)."""
+        return self._told_mean_weights
+
+    def _decompose(self) -> None:
+        """C = B D^2 B^T on the symmetrised C, eigenvalues ascending (GaussFullSampler._decompose_C)."""
+        previous = self.eigenvalues_sqrt
+        for _ in range(_MAX_EIGEN_REPAIRS):
+            self.C = (self.C + self.C.T) / 2
+            try:
+                eigenvalues, eigenvectors = xp.eigh(self.C)
+                if np.all(eigenvalues > 0):
+                    break
+            except np.linalg.LinAlgError:
+                pass
+            # pycma: "covariance matrix eigen decomposition failed"; add the smallest
+            # previous eigenvalue to the diagonal (and to the previous ones) and try again
+            shift = _pow(np.min(previous), 2)
+            self.C[np.diag_indices(self.dim)] += shift
+            previous = (previous**2 + shift) ** 0.5
+        else:
+            raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
+        if np.any(np.diff(eigenvalues) < 0):  # xp.eigh returns them ascending; pycma sorts anyway
+            idx = np.argsort(eigenvalues)
+            eigenvalues, eigenvectors = eigenvalues[idx], eigenvectors[:, idx]
+        self.eigenvectors = eigenvectors
+        self.eigenvalues_sqrt = eigenvalues**0.5
+
+    def _alleviate_conditioning(self) -> bool:
+        """pycma's ``conditioncov_alleviate``; True if C was decomposed (or reset) here.
+
+        * Coordinate condition max(diag C) / min(diag C) >= limit[0]
+          (``alleviate_conditioning_in_coordinates``): C becomes its correlation matrix,
+          the standard deviations move into ``scaling`` (pycma's ``sigma_vec``).
+        * Condition of C >= limit[1], judged from the previous decomposition as pycma
+          does (``alleviate_conditioning``, once per run): the coordinates become
+          g = T^-1 x with T = S C^1/2 (from that decomposition) and C is reset, p_c mapped
+          along. The sampling distribution stays the same up to the C update of this
+          generation, which pycma discards here.
+        """
+        coordinate_limit, limit = self.alleviate_limits
+        decomposed = False
+        diag = np.diag(self.C)
+        if coordinate_limit and np.max(diag) / np.min(diag) >= coordinate_limit:
+            self._decompose()  # pycma's to_correlation_matrix decomposes first (and symmetrises)
+            factors = np.diag(self.C) ** 0.5
+            corr = self.C / factors[None, :] / factors[:, None]
+            self.C = (corr + corr.T) / 2.0
+            self._decompose()
+            self.scaling = self.scaling * factors
+            self.p_c = self.p_c / factors
+            decomposed = True
+        D = self.eigenvalues_sqrt
+        if self.transform is None and limit and _pow(D[-1] / D[0], 2) >= limit:
+            B = self.eigenvectors
+            tf_inv = xp.mat_mat(B / D, B.T)
+            tf = xp.mat_mat(B * D, B.T)
+            d = self.dim
+            self.C = np.diag(xp.exp((1e-4 / d) * np.arange(d)))  # sampler reset, not decomposed again
+            self.eigenvectors = np.eye(d)
+            self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()
+            self.p_c = xp.mat_vec(tf_inv, self.p_c)
+            self.transform = self.scaling[:, None] * tf
+            self.transform_inverse = tf_inv / self.scaling[None, :]
+            self.scaling = np.ones(d)
+            self.mean_geno = xp.mat_vec(self.transform_inverse, self.mean_geno)
+            decomposed = True
+        return decomposed
+
+    # ------------------------------------------------------------ checkpoints
+    _ARRAYS = ("mean_geno", "C", "eigenvalues_sqrt", "eigenvectors", "scaling", "p_sigma", "p_c")
+
+    def state_dict(self) -> dict:
+        """Everything that changes during a run: numpy arrays and int/float scalars.
+
+        Arrays: ``mean_geno``, ``C``, ``eigenvalues_sqrt`` and ``eigenvectors`` (the last
+        decomposition, which the next update uses), ``scaling``, ``p_sigma``, ``p_c``, and
+        ``transform``/``transform_inverse`` once the condition alleviation has set them, and with
+        TPA ``tpa_move`` (the last move of the mean) and the scalar ``tpa_s``. Scalars: ``step_size``, ``countiter`` and the base class's ``generation`` and
+        ``nonfinite_fitness_count``. Constructor arguments (the config) are not included.
+        """
+        state = {name: getattr(self, name).copy() for name in self._ARRAYS}
+        if self.transform is not None:
+            state["transform"] = self.transform.copy()
+            state["transform_inverse"] = self.transform_inverse.copy()
+        if self.params.step_size_control == "tpa":
+            state.update(tpa_move=self.tpa_move.copy(), tpa_s=float(self.tpa_s))
+        state.update(
+            step_size=float(self.step_size),
+            countiter=int(self.countiter),
+            generation=int(self.generation),
+            nonfinite_fitness_count=int(self.nonfinite_fitness_count),
+        )
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore :meth:`state_dict`'s output; continuing is then bit-identical."""
+        d = self.dim
+        shapes = {"C": (d, d), "eigenvectors": (d, d), "transform": (d, d), "transform_inverse": (d, d)}
+        for name in self._ARRAYS + ("transform", "transform_inverse"):
+            if name not in state:
+                if name.startswith("transform"):
+                    setattr(self, name, None)
+                    continue
+                raise ValueError(f"CMAES state: missing {name!r}")
+            value = np.array(state[name], dtype=np.float64)
+            if value.shape != shapes.get(name, (d,)):
+                raise ValueError(f"CMAES state: {name} has shape {value.shape}, expected {shapes.get(name, (d,))}")
+            setattr(self, name, value)
+        missing = [k for k in ("step_size", "countiter", "generation", "nonfinite_fitness_count") if k not in state]
+        if missing:
+            raise ValueError(f"CMAES state: missing {missing}")
+        if self.params.step_size_control == "tpa":
+            if "tpa_move" not in state or "tpa_s" not in state:
+                raise ValueError("CMAES state: missing 'tpa_move'/'tpa_s' (a state saved with step_size_control='csa'?)")
+            move = np.array(state["tpa_move"], dtype=np.float64)
+            if move.shape != (d,):
+                raise ValueError(f"CMAES state: tpa_move has shape {move.shape}, expected {(d,)}")
+            self.tpa_move, self.tpa_s = move, float(state["tpa_s"])
+        self.step_size = float(state["step_size"])
+        self.countiter = int(state["countiter"])
+        self.generation = int(state["generation"])
+        self.nonfinite_fitness_count = int(state["nonfinite_fitness_count"])
+        self._set_distribution()
+
+
+def _shared_among_ties(weights: np.ndarray, sorted_utilities: np.ndarray):
+    """Per position of a best-first ranking: the mean positive and mean negative weight of
+    the group of tied utilities the position belongs to (fractional ranking).
+
+    Without ties these are max(w, 0) and min(w, 0) themselves.
+    """
+    w_pos = np.maximum(weights, 0.0)
+    w_neg = np.minimum(weights, 0.0)
+    new_group = np.empty(sorted_utilities.shape[0], dtype=bool)
+    new_group[0] = True
+    np.not_equal(sorted_utilities[1:], sorted_utilities[:-1], out=new_group[1:])
+    if new_group.all():
+        return w_pos, w_neg
+    group = np.cumsum(new_group) - 1
+    sizes = np.bincount(group)
+    return (np.bincount(group, weights=w_pos) / sizes)[group], (np.bincount(group, weights=w_neg) / sizes)[group]

@@ -1,0 +1,798 @@
+"""Importance mixing: build a new ES generation that reuses already-evaluated samples.
+
+Why it works (after section 2 of Pourchot, Perrin & Sigaud 2018)
+------------------------------------------------------------------
+Drawing x from a density p is the same as drawing a point (x, y) uniformly
+from the region under the graph of p and keeping its abscissa; and a uniform
+point of that region is obtained by drawing x ~ p and then y = u * p(x) with
+u ~ U[0, 1]. Rejection sampling adds one more fact: uniform points of a region
+that happen to land in a sub-region are uniform in the sub-region.
+
+Let an ES move from p_old to p_new. The region under p_new splits into
+
+* the *overlap*, under min(p_old, p_new), of volume lambda, and
+* the *leftover*, between min(p_old, p_new) and p_new, of volume 1 - lambda.
+
+An old sample z (drawn from p_old) with height u * p_old(z) lies in the
+overlap when u < p_new(z) / p_old(z): **rule 1** keeps an old sample with
+probability min(1, p_new/p_old), and what it keeps is uniform in the overlap.
+A fresh draw z' ~ p_new with height u * p_new(z') lies in the leftover when
+u >= p_old(z') / p_new(z'): **rule 2** keeps a fresh draw with probability
+max(0, 1 - p_old/p_new), and what it keeps is uniform in the leftover. An old
+sample lands in the overlap with probability lambda, a fresh one in the
+leftover with probability 1 - lambda: trying one of each in turn therefore
+feeds both parts in proportion to their volumes, and the union is uniform under
+p_new -- one generation built this way from an independent sample of p_old is
+distributed as p_new, yet only the rule-2 samples (about (1 - lambda) N of them)
+must be evaluated. The fitness of a reused sample is already known. Whether a
+*chain* of such generations stays distributed as its distributions is another
+question, answered per variant below.
+
+Variants (``mix(..., variant=...)``)
+------------------------------------
+Each is one :class:`Variant` of :data:`VARIANT_SPECS`, which also says which config key selects it
+and by what value (``im_variant=`` with ``im=true``, ``eim_variant=`` with ``eim=true``): the value is
+the variant's name, except ``eim_variant=paper``, which is ``"eim_paper"`` (Algorithm 3) because
+``"paper"`` is already Algorithm 2 (``im_variant=paper``).
+
+``"paper"``     Algorithm 2: alternate rule 1 on the previous generation (in a
+                random order) and rule 2 on a fresh draw; stop as soon as the
+                generation is full; if the last step overfilled it, drop one
+                member at random; fill what is still missing with plain draws.
+                Reuses 1.4-2.4 members fewer than lambda N at N = 50 (it fills with
+                fresh draws after N steps), and over-represents the overlap at very
+                small N (N = 2); unbiased over chains at N = 50 (tests).
+``"sun2009"``   Sun et al. (2009): rule 1 on every sample of the previous
+                generation with acceptance min(1, (1 - alpha) p_new/p_old), then
+                rule 2 with acceptance max(alpha, 1 - p_old/p_new) until full;
+                alpha is the minimal refresh rate. With alpha = 0 it takes a
+                Binomial(N, lambda) number of members from the overlap and the rest
+                from the leftover: exactly the law of N independent draws.
+``"exact"``     imix's multi-generation rule (``eim=true``, ``eim_variant=exact``, the
+                default): ``"sun2009"``'s step
+                from the previous generation, then rule-2 draws that land in an older
+                generation's exclusive region are swapped for unused old members of
+                that region (below). Exact over chains; reuses more than
+                ``"sun2009"``.
+``"conditional"`` Sun et al.'s rule, slot by slot, with each member of the previous
+                generation taken for what it is *given the update it took part in*
+                (below, "Reuse inside the loop"): exact over the chains an ES makes
+                itself under neutral fitness, where the other variants are exact only
+                along a path that does not depend on the members. A named option
+                (``eim_variant=conditional``), not the default: see below why.
+``"eim_paper"`` the paper's Algorithm 3 (``eim_variant=paper``): Algorithm 2's alternation over the K most
+                recent generations in turn, newest first, each tested against the
+                density of its own generation, until full; a point present in several
+                archive entries is taken at most once (a departure from the paper and
+                the authors' code, which could take it twice). Kept for reproduction:
+                its generations are NOT distributed as their distribution over chains
+                of generations -- in a random walk of the search distribution
+                (lambda ~ 0.95, K = 3) their variance is 1.14 times the target, and in a
+                drift their mean runs ahead (tests/test_mixing.py).
+
+Multi-generation mixing: why Algorithm 3 drifts and what ``"exact"`` does instead
+--------------------------------------------------------------------------------
+Testing each archived generation against its own density treats it as a fresh,
+independent sample. It is not: generations share members, and a member of generation
+t-2 that is *not* in generation t-1 carries the information that rule 1 rejected it --
+it lies where p_{t-2} exceeds p_{t-1}. Re-testing it with a fresh uniform ignores that.
+
+Keep instead, for every archived member, the height y = u p(x) that decided its fate
+(``Generation.log_u``, drawn when the generation is first mixed from). Generation t-1 is
+N independent uniform points (x, y) under the graph of p_{t-1}. Its points under the new
+graph are kept (rule 1 with that height: Sun et al.'s step), a Binomial(N, lambda) count of
+uniform points of the overlap. The rest of generation t must be uniform points of the
+leftover L = {p_{t-1}(x) <= y < p_t(x)}: rule-2 draws, fresh (x, y) under p_t kept when
+above p_{t-1}. Such a draw may land in the region E_k of an older generation k: under
+p_k's graph and under no newer archived graph. The members of generation k in E_k were
+never taken by a newer generation (a newer generation takes every point of its
+predecessor under its own graph, and swaps only inside its own region), so they are
+independent uniform points of E_k; those also under p_t are uniform points of E_k and of
+the new graph -- the very cell the rule-2 draw landed in. Replacing a uniform point of a
+cell by another, independent uniform point of the same cell changes no law: the draw is
+swapped for an unused such member (chosen at random), and only draws that find no member
+left in their cell are evaluated. Each generation is then exactly N independent draws
+from p_t, over any chain of (exogenous) distributions, and a point is never taken twice.
+Heights are drawn when a generation is first mixed from (not carried from the mix that
+built it), so members do not stick longer than under ``"sun2009"``: carried heights kept
+CEM's population frozen under neutral selection (98 % reuse, sigma growing) in a trial.
+Like ``"sun2009"``, it needs rule-2 draws in proportion to 1/(1 - lambda): after
+200 draws per missing member the rest is filled with plain draws (never hit in practice).
+
+Reuse inside the loop: why ``"conditional"``
+----------------------------------------------
+Every argument above holds along a *fixed* path of distributions. Inside an ES the path is
+made from the members themselves: the generation told at step t moved the mean toward its
+best members, and those members are then reused. Given the new distribution, a member of
+generation t is no longer a draw from p_t: the move it took part in is evidence about where
+it lies. Rule 1, which treats it as a draw from p_t, then keeps the members that pulled the
+mean -- they sit ahead along the move -- and the next generation is not distributed as p_t+1.
+Measured under constant fitness (every return equal, so every move is neutral and every
+deviation is the loop's own; d = 130, N = 50, ``benchmarks/reuse_bias.py constant``): with
+``"exact"`` CMA-ES's members sit ahead along the last mean step and are too concentrated
+(E[z^2] ~ 0.98), which shortens CSA's path and halves its step size.
+
+The law of a member given the move. Write the generation in the coordinates whitened by
+p_t, z_j ~ N(0, I) independent, and the move of the mean it causes as proportional to
+s = sum_j c_j z_j, with weights c_j fixed by the ranks (the ES's :attr:`mean_weights`: the
+positive recombination weights of CMA-ES, CEM's elite weights, the utilities of the
+gradient ES). When the ranks carry no information about where the members lie (constant or
+neutral fitness: the case the loop's own bias is measured in), Gaussian conditioning gives
+
+    z_i | s  ~  N(a_i s, (1 - b_i) I),    a_i = c_i / sum_j c_j^2,    b_i = c_i^2 / sum_j c_j^2
+
+-- a member that carried a large share of the move is pulled along it and known more
+precisely. Call that law q_i. The rule is Sun et al.'s, one slot per old member, with q_i in
+place of p_t: keep member i with probability min(1, p_t+1/q_i); otherwise draw from p_t+1
+until a draw x lands where p_t+1(x) > q_i(x), accepting it with probability 1 - q_i/p_t+1.
+Slot i then holds min(q_i, p_t+1) + (p_t+1 - min(q_i, p_t+1)) = p_t+1: each slot is a draw
+from the new distribution *given everything the ES has seen*, and so is the next generation,
+whose own move is then conditioned on in turn -- the construction needs nothing older than
+the previous generation (hence no multi-generation swaps: an older member's law given
+several moves and rejections has no closed form here).
+
+What it does not cover, and what it costs -- why ``"exact"`` stays the default. (1) It
+conditions on the mean's move only; CMA-ES's covariance and CEM's variance also depend on
+the members (their outer products), which this rule ignores (CEM's variance is the elites'
+own, hence CEM's residual). (2) Reuse drops: little for CMA-ES and CEM, whose weights are
+spread over ~N/2 elites, but by half for the gradient ES, whose d-dimensional gradient
+reveals every member -- where the offset is harmless anyway (utilities sum to zero, so a
+common offset of the population cancels from the gradient). (3) Under real fitness the ranks
+*do* depend on where the members lie: the elites sit ahead along the move because they are
+good, not only because they pulled it, and the rule, which takes all of that for the loop's
+own pull, pushes the next generation back along a good move (CMA-ES on CartPole: 181 with
+four seeds stuck below 120, against 199.6 with ``"exact"``). Measured in the README
+("Reused returns and the search").
+
+A minimal refresh: why every generation evaluates at least ``min_fresh`` members
+---------------------------------------------------------------------------------
+When the distribution stops moving, p_new = p_old and every rule above keeps every old
+member (rule 1 accepts with probability 1, rule 2 with 0): the generation is the previous
+one, its returns are the stored ones, and an ES whose update is a function of its members
+and their returns (CEM, CMA-ES's mean and covariance) makes the same update again -- a fixed
+point in which nothing is searched. (ARS's mirrored pairs need no refresh: every mirror is
+fresh, so :mod:`imix_cli.core.mirrored` does not apply it.) Measured: CEM + ``exact`` on a noise-free 10-d
+sphere (N = 20, 300 generations) reused every member in 98-145 generations, runs of up to
+78; on Rastrigin one seed froze for 263 generations at f = -140 (issue 35's notes).
+
+The cure keeps every law above: after a rule has built the generation, ``min_fresh`` slots
+are chosen uniformly at random, independently of the members, and the member in each --
+reused or fresh -- is replaced by a fresh draw from p_new. A generation of N independent
+draws from p_new whose members in slots chosen independently of them are replaced by
+independent draws from p_new is again N independent draws from p_new: the chain tests
+hold unchanged. The choice must not look at the members: replacing only the *reused*
+members of the chosen slots (keeping a fresh one where it was) thins the overlap, where
+the reused members lie -- tried, and the chain test saw it (E[z^2] 1.020-1.026, z 2.5-5.5,
+with 3-10 slots). A fresh member replaced costs nothing: it was not evaluated yet. The archive's
+bookkeeping is untouched: a replaced old member lies under the new graph, so ``"exact"``
+counts it as covered by the new generation and never offers it again. Every generation
+then holds at least ``min_fresh`` fresh members, whose returns are new information: with
+CEM, a slot held an elite with probability K_e / N, and a fresh member enters the elites
+with about the same probability, so the elites turn over and the mean moves. The cost is
+about ``min_fresh`` x (reuse rate) episodes per generation.
+
+Everything is computed in log space: a Gaussian density underflows at d = 10^4
+while log p is an ordinary number. Rule 1 accepts when log u < log p_new -
+log p_old; rule 2 when u < -expm1(log p_old - log p_new).
+
+Only log-ratios log(p_new/p_old) are needed. Between two DiagonalGaussians they
+are computed directly, as sums of per-coordinate terms that are small when the
+distributions are close -- accurate even in float32 at d = 10^6 and cheap
+enough that a mixing step costs little more than drawing the generation (see
+``benchmarks/mixing_speed.py``). Any other distribution objects only need
+``sample(n, rng)`` and ``log_prob(x)``.
+
+Archive entries are ``(dist, samples)`` pairs or :class:`Generation` objects
+returned by an earlier ``mix``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from imix_cli.core import numerics as xp
+from imix_cli.core.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
+
+__all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "Variant", "VARIANT_SPECS", "VARIANTS", "config_variants", "mix", "variant_spec"]
+
+# Sun et al.'s rule-2 loop accepts a fresh draw with probability ~(1 - lambda); when the two
+# distributions nearly coincide that can take very many draws. After this many candidate
+# draws per missing member, the rest is filled with plain draws (documented bias, never hit
+# in practice: it needs lambda > 1 - 1/200).
+_SUN2009_MAX_TRIALS_PER_MEMBER = 200
+# At large d, rule-2 candidates are drawn in blocks of at most this many numbers (one row at d = 10^6).
+_SCRATCH_ELEMENTS = 1 << 20
+# Up to this many numbers in an old generation (rows x d), rule 1 is decided for all its rows at once.
+_UPFRONT_ELEMENTS = 1 << 16
+# Up to this many archived numbers, float64 diagonal steps are compiled (mixing_kernels; it copies
+# the archive into one array, 8 MB at most); above, numpy's vectorised step costs little more.
+COMPILED_MAX_ELEMENTS = 1 << 20
+
+
+@dataclass
+class Generation:
+    """A new generation built by :func:`mix`.
+
+    Attributes
+    ----------
+    samples : (popsize, d) array
+        The members.
+    source : (popsize,) int array
+        0 for a fresh member (must be evaluated), k >= 1 for a member reused from ``archive[k-1]``.
+    index : (popsize,) int array
+        Row of that archive entry's samples, -1 for fresh members.
+    dist :
+        The distribution the generation is distributed as (the ``new_dist`` given to ``mix``).
+    trials : int
+        Number of rule-1/rule-2 steps taken (old samples tried).
+    log_u : (popsize,) float array or None
+        Each member's *height* under the graph of ``dist``, as log(y / p_dist(x)), a number in
+        (-inf, 0] (``"exact"`` only; see "Multi-generation mixing"). None until the generation
+        is first mixed from; drawn then and kept, because the older-generation steps of later
+        mixes must see the heights that decided which members went on.
+    mean_weights : (popsize,) float array or None
+        The weight of each member in the move of the mean the ES made from this generation
+        (:attr:`EvolutionStrategy.mean_weights <imix_cli.core.algorithms.base.EvolutionStrategy.mean_weights>`),
+        set once the generation is told (:func:`imix_cli.core.generation.finish_generation`); what
+        ``"conditional"`` conditions on. None: the members are independent of the path.
+    """
+
+    samples: np.ndarray
+    source: np.ndarray
+    index: np.ndarray
+    dist: object
+    trials: int = 0
+    log_u: np.ndarray | None = None
+    mean_weights: np.ndarray | None = None
+
+    @property
+    def fresh(self) -> np.ndarray:
+        """Boolean mask of members that must be evaluated."""
+        return self.source == 0
+
+    @property
+    def reused(self) -> int:
+        return int(np.count_nonzero(self.source > 0))
+
+    @property
+    def reused_from_previous(self) -> int:
+        """Members reused from the previous generation (the paper's "from IM")."""
+        return int(np.count_nonzero(self.source == 1))
+
+    @property
+    def reused_from_older(self) -> int:
+        """Members reused from generations before the previous one (the paper's "from EIM")."""
+        return int(np.count_nonzero(self.source > 1))
+
+    def __iter__(self):  # a Generation is an archive entry: (dist, samples)
+        return iter((self.dist, self.samples))
+
+
+def _unpack_entry(entry):
+    dist, samples = entry
+    return dist, np.asarray(samples)
+
+
+def _row_keys(samples: np.ndarray) -> np.ndarray:
+    """One hashable key per row: the bytes of its first few coordinates (a continuous random
+    sample is identified by them; equality is then confirmed on the whole row)."""
+    head = np.ascontiguousarray(samples[:, :8])
+    return head.view(np.dtype((np.void, head.dtype.itemsize * head.shape[1]))).ravel()
+
+
+class _GenericLogRatio:
+    """log(p_new / p_old) for any distributions with ``sample`` and ``log_prob``."""
+
+    def __init__(self, new, old):
+        self.new, self.old = new, old
+
+    def of_rows(self, x, rows):
+        block = x[rows]
+        return self.new.log_prob(block) - self.old.log_prob(block)
+
+    def sample(self, n, rng, out=None):
+        x = self.new.sample(n, rng)
+        return x, self.new.log_prob(x) - self.old.log_prob(x)
+
+
+def _log_ratio(new_dist, old_dist):
+    """The ratio object of rules 1 and 2: fast and float32-safe between two DiagonalGaussians."""
+    if type(new_dist) is type(old_dist) is DiagonalGaussian:
+        return new_dist.log_ratio_to(old_dist)
+    return _GenericLogRatio(new_dist, old_dist)
+
+
+class _Builder:
+    """Accumulates the members of the new generation in a preallocated array.
+
+    Rows are copied once, when accepted, straight into their final place: at d = 10^6 a
+    second copy of the generation would cost a sizeable fraction of drawing it.
+    """
+
+    def __init__(self, popsize: int, dim: int, dtype):
+        self.popsize = popsize
+        self.samples = np.empty((popsize + 1, dim), dtype=dtype)  # one spare row: a last step may accept two
+        self.source = np.zeros(popsize + 1, dtype=np.int64)
+        self.index = np.full(popsize + 1, -1, dtype=np.int64)
+        self.size = 0
+
+    @property
+    def missing(self) -> int:
+        return self.popsize - self.size
+
+    def not_yet_taken(self, samples: np.ndarray) -> np.ndarray:
+        """Mask of the rows of ``samples`` not already reused into the new generation.
+
+        An archive holds the same point in several entries when it was itself reused; EIM
+        must take such a point at most once.
+        """
+        reused = np.flatnonzero(self.source[: self.size] > 0)
+        free = np.ones(samples.shape[0], dtype=bool)
+        if reused.size == 0:
+            return free
+        # Rows whose key is a taken row's key are candidates. Each is paired with the (first)
+        # taken row of its key and the whole rows are compared at once; only a candidate whose
+        # pair differs (a key collision: in practice never) is compared with every taken row.
+        first_with_key = {}
+        for m, key in zip(reused.tolist(), _row_keys(self.samples[reused]).tolist()):
+            first_with_key.setdefault(key, m)
+        keys = _row_keys(samples).tolist()
+        pairs = [(i, first_with_key[key]) for i, key in enumerate(keys) if key in first_with_key]
+        if not pairs:
+            return free
+        candidates, partners = np.array(pairs, dtype=np.int64).T
+        same = self._rows_equal(samples, candidates, partners)
+        free[candidates[same]] = False
+        for i in candidates[~same]:
+            free[i] = not any(np.array_equal(samples[i], self.samples[m]) for m in reused)
+        return free
+
+    def _rows_equal(self, samples: np.ndarray, rows: np.ndarray, members: np.ndarray) -> np.ndarray:
+        """``np.array_equal(samples[rows[k]], self.samples[members[k]])`` for each k."""
+        dim = samples.shape[1]
+        if rows.size * dim <= _SCRATCH_ELEMENTS:
+            return np.all(samples[rows] == self.samples[members], axis=1)
+        return np.array([np.array_equal(samples[r], self.samples[m]) for r, m in zip(rows, members)], dtype=bool)
+
+    def add(self, rows: np.ndarray, source=0, index=-1) -> None:
+        """Append the rows (2-D); ``source``/``index``: their archive entry and row (scalars or arrays)."""
+        n = rows.shape[0]
+        members = slice(self.size, self.size + n)
+        self.samples[members] = rows
+        self.source[members] = source
+        self.index[members] = index
+        self.size += n
+
+    def drop_random(self, rng: np.random.Generator) -> None:
+        """Remove one member chosen uniformly at random (Algorithm 2, overfull last step)."""
+        victim = int(rng.integers(self.size))
+        last = self.size - 1
+        for arr in (self.samples, self.source, self.index):
+            arr[victim:last] = arr[victim + 1 : last + 1]
+        self.size -= 1
+
+    def finish(self, new_dist, rng, trials) -> Generation:
+        if self.missing > 0:  # fill with plain draws from the new distribution, all accepted
+            self.samples[self.size : self.popsize] = new_dist.sample(self.missing, rng)
+            self.size = self.popsize
+        n = self.popsize
+        return Generation(self.samples[:n], self.source[:n].copy(), self.index[:n].copy(), new_dist, trials)
+
+
+def _log_uniform(rng: np.random.Generator, n: int) -> np.ndarray:
+    return xp.log(rng.random(n))  # log(0) = -inf is a valid, always-accepting draw; libm's log, as on every CPU
+
+
+def _alternate_rules(builder: _Builder, new_dist, old_dist, old_samples, entry_number, rng) -> int:
+    """Algorithm 2's loop over one old generation: at step i, rule 1 on old sample i, then rule 2
+    on a fresh draw; stop as soon as the generation is full (it may then hold one member too many).
+
+    The steps are evaluated in vectorised blocks: a block's acceptances are computed at once and
+    the block is cut at the step where the generation fills, exactly as the step-by-step loop
+    would. Returns the number of steps taken.
+    """
+    n_old, dim = old_samples.shape
+    order = rng.permutation(n_old)  # "taken uniformly from g_old"
+    log_u1 = _log_uniform(rng, n_old)
+    u2 = rng.random(n_old)
+    eligible = builder.not_yet_taken(old_samples)
+    log_ratio = _log_ratio(new_dist, old_dist)
+    missing = builder.missing
+    # About one member is accepted per step, so a block spans the missing count; at large d it
+    # is also capped to a few rows, whose fresh draws go to one reused scratch buffer.
+    max_block = max(1, min(n_old, missing, _SCRATCH_ELEMENTS // max(dim, 1)))
+    scratch = np.empty((max_block, dim), dtype=builder.samples.dtype)
+    # Rule 1 at step i only involves old sample order[i] and its own uniform. Between diagonal
+    # Gaussians a row's log-ratio is a per-row sum, the same number whichever rows it is computed
+    # with; so at small d, rule 1 is decided for every step at once (one kernel call instead of
+    # one per block; at large d only the rows actually visited are worth computing).
+    upfront = isinstance(log_ratio, DiagonalLogRatio) and n_old * dim <= _UPFRONT_ELEMENTS
+    if upfront:
+        accept_old_all = eligible[order] & (log_u1 < log_ratio.of_rows(old_samples, order))  # rule 1
+    step = 0
+    while step < n_old and missing > 0:
+        stop = min(n_old, step + min(missing, max_block))
+        size = stop - step
+        rows = order[step:stop]
+        if upfront:
+            accept_old = accept_old_all[step:stop]
+        else:
+            accept_old = eligible[rows] & (log_u1[step:stop] < log_ratio.of_rows(old_samples, rows))  # rule 1
+        candidates, cand_log_ratio = log_ratio.sample(size, rng, out=scratch[:size])
+        accept_new = u2[step:stop] < -xp.expm1(-np.maximum(cand_log_ratio, 0.0))  # rule 2: 1 - p_old/p_new
+        filled = np.cumsum(accept_old.astype(np.int64) + accept_new)
+        taken = min(size, int(np.searchsorted(filled, missing)) + 1)  # steps until full
+        kept_old = rows[:taken][accept_old[:taken]]
+        builder.add(old_samples[kept_old], entry_number, kept_old)
+        builder.add(candidates[:taken][accept_new[:taken]])
+        step += taken
+        missing = builder.missing
+    return step
+
+
+def _sun2009(builder: _Builder, new_dist, old_dist, old_samples, alpha, rng) -> int:
+    """Sun et al. (2009): rule 1 over the whole previous generation, then rule 2 until full."""
+    n_old = old_samples.shape[0]
+    log_ratio = _log_ratio(new_dist, old_dist)
+    with np.errstate(divide="ignore"):
+        log_keep = xp.log1p(-alpha)
+    accepted = np.flatnonzero(_log_uniform(rng, n_old) < log_keep + log_ratio.of_rows(old_samples, np.arange(n_old)))
+    if accepted.size > builder.popsize:  # only possible if the old generation was larger
+        accepted = np.sort(rng.choice(accepted, builder.popsize, replace=False))
+    builder.add(old_samples[accepted], 1, accepted)
+    max_trials = _SUN2009_MAX_TRIALS_PER_MEMBER * max(builder.missing, 1)
+    trials = 0
+    while builder.missing > 0 and trials < max_trials:
+        n = builder.missing
+        candidates, cand_log_ratio = log_ratio.sample(n, rng)
+        accept_prob = np.maximum(alpha, -xp.expm1(-np.maximum(cand_log_ratio, 0.0)))
+        accept_new = np.flatnonzero(rng.random(n) < accept_prob)[: builder.missing]
+        builder.add(candidates[accept_new])
+        trials += n
+    return n_old
+
+
+def _heights(entry, rng) -> np.ndarray:
+    """An archive entry's persistent log-heights, drawn once (and kept on a Generation) if it has none.
+
+    A plain ``(dist, samples)`` pair cannot keep them: each call then treats it as a fresh,
+    independent sample of its ``dist`` (which is what such a pair usually is).
+    """
+    log_u = getattr(entry, "log_u", None)
+    if log_u is None:
+        log_u = _log_uniform(rng, _unpack_entry(entry)[1].shape[0])
+        if isinstance(entry, Generation):
+            entry.log_u = log_u
+    return log_u
+
+
+def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> int:
+    """The ``"exact"`` rule: Sun et al.'s step from the previous generation, then the leftover filled by
+    rule 2, with rule-2 draws that land in an older generation's exclusive region swapped for an
+    unused old member of the same region (module docstring, "Multi-generation mixing").
+    Returns the number of rule-2 candidates drawn.
+    """
+    entries = list(archive[:depth])
+    dists = [_unpack_entry(e)[0] for e in entries]
+    xs = [_unpack_entry(e)[1] for e in entries]
+    heights = [_heights(e, rng) for e in entries]
+
+    # The previous generation: every member below the new graph is kept (count ~ Binomial(N, lambda)).
+    ratio_1 = _log_ratio(new_dist, dists[0])
+    r_1 = ratio_1.of_rows(xs[0], np.arange(xs[0].shape[0]))
+    kept = np.flatnonzero(heights[0] < r_1)
+    if kept.size > builder.popsize:  # only possible if the old generation was larger
+        kept = np.sort(rng.choice(kept, builder.popsize, replace=False))
+    builder.add(xs[0][kept], 1, kept)
+    if builder.missing == 0:
+        return 0
+
+    # Older generations: the members that no newer archived generation's region covers, and that
+    # lie below the new graph, are the substitutes (in a random order) for rule-2 draws of their region.
+    pools = []
+    for k in range(1, len(entries)):
+        rows = np.arange(xs[k].shape[0])
+        for j in range(k):  # drop rows covered by newer generation j
+            rows = rows[heights[k][rows] >= _log_ratio(dists[j], dists[k]).of_rows(xs[k], rows)]
+        r_new = _log_ratio(new_dist, dists[k]).of_rows(xs[k], rows)
+        below = heights[k][rows] < r_new
+        order = rng.permutation(int(np.count_nonzero(below)))
+        pools.append(list(rows[below][order]))
+
+    max_draws = _SUN2009_MAX_TRIALS_PER_MEMBER * builder.missing
+    draws = 0
+    while builder.missing > 0 and draws < max_draws:
+        n = builder.missing
+        candidates, cand_r_1 = ratio_1.sample(n, rng)
+        log_u = _log_uniform(rng, n)
+        leftover = np.flatnonzero(log_u >= -cand_r_1)[: builder.missing]  # rule 2: above the previous graph
+        draws += n
+        if leftover.size == 0:
+            continue
+        # Newest older generation whose region holds each candidate (-1: none).
+        region = np.full(leftover.size, -1)
+        for k in range(1, len(entries)):
+            open_rows = np.flatnonzero(region < 0)
+            if open_rows.size == 0:
+                break
+            rows = leftover[open_rows]
+            inside = log_u[rows] < -_log_ratio(new_dist, dists[k]).of_rows(candidates, rows)
+            region[open_rows[inside]] = k
+        for pos, k in zip(leftover.tolist(), region.tolist()):
+            if k > 0 and pools[k - 1]:
+                row = pools[k - 1].pop()
+                builder.add(xs[k][row : row + 1], k + 1, row)
+            else:
+                builder.add(candidates[pos : pos + 1])
+    return draws
+
+
+def _whitened(dist, x: np.ndarray) -> np.ndarray:
+    """``x`` in the coordinates in which ``dist`` is N(0, I)."""
+    if type(dist) is DiagonalGaussian:
+        return (x - dist.mean) / dist.std
+    if type(dist) is FullGaussian:
+        return xp.lower_solve_rows(dist.chol, x - dist.mean)
+    raise ValueError(f'variant "conditional" needs Gaussian search distributions, got {type(dist).__name__}')
+
+
+def _conditional(builder: _Builder, new_dist, entry, rng: np.random.Generator) -> int:
+    """The ``"conditional"`` rule (module docstring, "Reuse inside the loop"): Sun et al.'s step slot by
+    slot, each old member taken as a draw from its law q_i given the move of the mean it took part in.
+    Returns the number of rule-2 candidates drawn."""
+    old_dist, x = _unpack_entry(entry)
+    n, dim = x.shape
+    ratio = _log_ratio(new_dist, old_dist)
+    weights = getattr(entry, "mean_weights", None)
+    informed = weights is not None and np.any(weights != 0)
+    if informed:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != (n,):
+            raise ValueError(f"mean_weights has shape {weights.shape}, expected ({n},)")
+        z = _whitened(old_dist, x)
+        total = xp.dot(weights, weights)
+        pull = weights / total  # a_i
+        known = np.minimum(weights * weights / total, 1.0 - 1e-12)  # b_i < 1: q_i stays a density
+        move = xp.vec_mat(weights, z)  # s
+
+    def log_q_over_old(slots, z_rows):
+        """log q_i(x) - log p_old(x) for slot i = slots[k] at the whitened row z_rows[k]."""
+        if not informed:
+            return np.zeros(len(slots))
+        dev = z_rows - pull[slots, None] * move
+        return -0.5 * xp.row_sq_norms(dev) / (1.0 - known[slots]) + 0.5 * xp.row_sq_norms(z_rows) - 0.5 * dim * xp.log(1.0 - known[slots])
+
+    slots = np.sort(rng.permutation(n)[: builder.popsize]) if n > builder.popsize else np.arange(n)
+    r_old = ratio.of_rows(x, slots)
+    keep = _log_uniform(rng, slots.size) < r_old - log_q_over_old(slots, z[slots] if informed else None)  # rule 1 with q_i
+    builder.add(x[slots[keep]], 1, slots[keep])
+    pending = slots[~keep]
+    draws = 0
+    for _ in range(_SUN2009_MAX_TRIALS_PER_MEMBER):  # rule 2 against each slot's own q_i
+        if pending.size == 0:
+            break
+        candidates, cand_r = ratio.sample(pending.size, rng)
+        lq = log_q_over_old(pending, _whitened(old_dist, candidates) if informed else None)
+        accept = _log_uniform(rng, pending.size) >= lq - cand_r  # u >= q_i / p_new
+        builder.add(candidates[accept])
+        draws += pending.size
+        pending = pending[~accept]
+    return draws  # slots still pending: filled with plain draws by builder.finish
+
+
+# ------------------------------------------------------------------------------ the variants
+# Each variant's numpy step: fills ``builder`` from the non-empty archive (``entries``: its (dist, samples)
+# pairs; ``depth``: how many it may look back at) and returns the number of trials.
+def _step_alternate(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+    """``"paper"`` (depth 1) and ``"eim_paper"``: Algorithm 2's alternation over the entries in turn, newest first."""
+    trials = 0
+    for number, (old_dist, old_samples) in enumerate(entries[:depth], start=1):
+        trials += _alternate_rules(builder, new_dist, old_dist, old_samples, number, rng)
+        if builder.missing <= 0:
+            break
+    if builder.missing < 0:  # both rules accepted on the last step
+        builder.drop_random(rng)
+    return trials
+
+
+def _step_sun2009(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+    old_dist, old_samples = entries[0]
+    return _sun2009(builder, new_dist, old_dist, old_samples, alpha, rng)
+
+
+def _step_conditional(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+    return _conditional(builder, new_dist, archive[0], rng)
+
+
+def _step_exact(builder: _Builder, new_dist, archive, entries, depth: int, alpha: float, rng) -> int:
+    return _multi_generation(builder, new_dist, list(archive), depth, rng)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A mixing variant, ``mix(..., variant=name)`` (module docstring, "Variants").
+
+    Attributes
+    ----------
+    name : str
+        What :func:`mix`, :class:`~imix_cli.core.generation.MixingSettings` and a RunSpec's ``variant`` call it.
+    looks_back : bool
+        Draws from up to ``eim_generations`` archived generations; else from the previous one only
+        (:meth:`depth`, the archive a search keeps).
+    kernel : int
+        Its step's number in the compiled code: :data:`imix_cli.core.mixing_kernels.KERNELS` (one step, taken
+        between float64 DiagonalGaussians) and the compiled generation loop
+        (:mod:`imix_cli.running.loop.compiled_loop`, which branches on it); 0: no compiled step, numpy only.
+    heights : bool
+        Keeps each archived member's height (``Generation.log_u``) from one call to the next.
+    uses_alpha : bool
+        Takes ``alpha``, the minimal refresh rate (``im_alpha``).
+    step : callable
+        Its numpy step.
+    selected_by : tuple of str
+        The mixing schemes (``"im"``, ``"eim"``: :data:`imix_cli.core.registry.MIXING_SPECS`) whose config key
+        ``<scheme>_variant`` offers it (:func:`config_variants`).
+    config_name : str
+        Its value there; its ``name`` unless given (only ``"eim_paper"`` differs: ``eim_variant=paper``).
+    """
+
+    name: str
+    looks_back: bool
+    kernel: int
+    heights: bool
+    uses_alpha: bool
+    step: Callable[..., int]
+    selected_by: tuple[str, ...] = ()
+    config_name: str = ""
+
+    def __post_init__(self):
+        if not self.config_name:
+            object.__setattr__(self, "config_name", self.name)
+
+    def depth(self, eim_generations: int) -> int:
+        """The archived generations it reads, and so a search with it keeps."""
+        return eim_generations if self.looks_back else 1
+
+
+#: Every variant, by name, in the order of the module docstring; the first a mixing scheme offers is
+#: its default (``im_variant=paper``, ``eim_variant=exact``: conf/config.yaml).
+VARIANT_SPECS: dict[str, Variant] = {
+    v.name: v
+    for v in (
+        Variant("paper", looks_back=False, kernel=1, heights=False, uses_alpha=False, step=_step_alternate, selected_by=("im",)),
+        Variant("sun2009", looks_back=False, kernel=2, heights=False, uses_alpha=True, step=_step_sun2009, selected_by=("im",)),
+        Variant("exact", looks_back=True, kernel=3, heights=True, uses_alpha=False, step=_step_exact, selected_by=("eim",)),
+        Variant("conditional", looks_back=False, kernel=0, heights=False, uses_alpha=False, step=_step_conditional,
+                selected_by=("im", "eim")),
+        # Algorithm 3; "paper" is Algorithm 2's name, so eim_variant=paper selects it under another name
+        Variant("eim_paper", looks_back=True, kernel=0, heights=False, uses_alpha=False, step=_step_alternate,
+                selected_by=("eim",), config_name="paper"),
+    )
+}  # fmt: skip
+#: The variants' names.
+VARIANTS = tuple(VARIANT_SPECS)
+
+
+def config_variants(scheme: str) -> dict[str, Variant]:
+    """The values of ``<scheme>_variant`` (``scheme``: ``"im"`` or ``"eim"``) -> the :class:`Variant` each selects,
+    the default first."""
+    return {v.config_name: v for v in VARIANT_SPECS.values() if scheme in v.selected_by}
+
+
+def variant_spec(name: str) -> Variant:
+    """The :class:`Variant` called ``name``; ValueError naming the valid ones otherwise."""
+    try:
+        return VARIANT_SPECS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown mixing variant {name!r}; valid: {', '.join(VARIANTS)}") from None
+
+
+def _refresh(samples: np.ndarray, source: np.ndarray, index: np.ndarray, new_dist, min_fresh: int, rng) -> None:
+    """The minimal refresh (module docstring): ``min_fresh`` slots drawn uniformly at random, independently
+    of the members; the member in each, reused or fresh, is replaced in place by a fresh draw from ``new_dist``."""
+    if min_fresh <= 0:
+        return
+    slots = rng.permutation(samples.shape[0])[:min_fresh]
+    samples[slots] = new_dist.sample(slots.size, rng)
+    source[slots] = 0
+    index[slots] = -1
+
+
+def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool:
+    """Whether :mod:`imix_cli.core.mixing_kernels` computes this step (see ``mix``'s ``compiled``)."""
+    if not variant.kernel or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
+        return False
+    archived = 0
+    for dist, samples in entries:
+        if type(dist) is not DiagonalGaussian or samples.dtype != np.float64 or samples.shape[0] > popsize:
+            return False
+        archived += samples.size
+    return archived <= COMPILED_MAX_ELEMENTS
+
+
+def mix(
+    new_dist,
+    archive,
+    popsize: int,
+    rng: np.random.Generator,
+    variant: str = "paper",
+    alpha: float = 0.0,
+    eim_generations: int = 3,
+    compiled: bool | None = None,
+    min_fresh: int = 0,
+) -> Generation:
+    """Build a generation of ``popsize`` members distributed as ``new_dist``, reusing archived samples.
+
+    Parameters
+    ----------
+    new_dist : DiagonalGaussian or FullGaussian, or any :class:`~imix_cli.core.distributions.SearchDistribution`
+        (``sample(n, rng)``, ``log_prob(x)``, ``dim``, optionally ``dtype``).
+        The search distribution of the new generation.
+    archive : list of ``(dist, samples[n, d])`` pairs or :class:`Generation` objects
+        Earlier generations, newest first; ``dist`` is the distribution that generation is distributed as.
+        An empty archive gives a generation of fresh draws.
+    popsize : int
+        Size N of the new generation.
+    rng : numpy.random.Generator
+        Source of all randomness (acceptance tests, fresh draws, orderings).
+    variant : {"paper", "sun2009", "exact", "conditional", "eim_paper"}
+        See the module docstring. ``"paper"``, ``"sun2009"`` and ``"conditional"`` use ``archive[0]`` only
+        (``"conditional"`` reads its ``mean_weights`` if it is a Generation),
+        ``"exact"`` and ``"eim_paper"`` up to ``eim_generations`` entries. ``"exact"`` keeps each
+        Generation's heights in it (``log_u``): pass the same Generation objects again; a
+        plain ``(dist, samples)`` pair is taken as a fresh independent sample at every call.
+    alpha : float in [0, 1)
+        Minimal refresh rate of ``"sun2009"`` (ignored by the other variants).
+    eim_generations : int >= 1
+        K, the number of archived generations ``"exact"`` and ``"eim_paper"`` may draw from.
+    min_fresh : int >= 0
+        The minimal refresh (module docstring): this many slots, drawn at random, hold fresh members
+        whenever the archive is not empty (0: none, the rules alone). The generation keeps its law.
+    compiled : bool or None
+        None (default): take the compiled step (:mod:`imix_cli.core.mixing_kernels`) where it
+        applies -- ``"paper"``, ``"sun2009"``, ``"exact"`` between float64 DiagonalGaussians,
+        archived generations of at most ``popsize`` members, up to 2^20 archived numbers --
+        and the numpy step otherwise. Both give the same generation from the same ``rng``
+        (to round-off in the log-ratios). False: always numpy; True: compiled or ValueError.
+
+    Returns
+    -------
+    Generation
+        ``.samples``, ``.source`` (0 fresh, k >= 1 from ``archive[k-1]``), ``.index``.
+    """
+    spec = variant_spec(variant)
+    if popsize < 1:
+        raise ValueError(f"popsize must be >= 1, got {popsize}")
+    if not 0.0 <= alpha < 1.0:
+        raise ValueError(f"alpha must be in [0, 1), got {alpha}")
+    if eim_generations < 1:
+        raise ValueError(f"eim_generations must be >= 1, got {eim_generations}")
+    if min_fresh < 0:
+        raise ValueError(f"min_fresh must be >= 0, got {min_fresh}")
+    dim = new_dist.dim
+    entries = [_unpack_entry(e) for e in archive]
+    for number, (_, samples) in enumerate(entries, start=1):
+        if samples.ndim != 2 or samples.shape[1] != dim:
+            raise ValueError(f"archive[{number - 1}] samples have shape {samples.shape}, expected (n, {dim})")
+
+    depth = spec.depth(eim_generations)
+    if compiled is not False and _compiled_applies(new_dist, entries[:depth], popsize, spec):
+        from imix_cli.core.mixing_kernels import mix_diagonal  # numba: imported on first use only
+
+        used = list(archive[:depth])
+        heights = [_heights(e, rng) for e in used] if spec.heights else None
+        dists, samples = zip(*entries[:depth])
+        x, source, index, trials = mix_diagonal(new_dist, dists, samples, heights, popsize, rng, spec.kernel, alpha, min_fresh)
+        return Generation(x, source, index, new_dist, trials)
+    if compiled:
+        raise ValueError(f"the compiled mixing step does not apply to variant {variant!r} with {type(new_dist).__name__} and this archive")
+
+    builder = _Builder(popsize, dim, getattr(new_dist, "dtype", np.float64))
+    trials = spec.step(builder, new_dist, archive, entries, depth, alpha, rng) if entries else 0
+    generation = builder.finish(new_dist, rng, trials)
+    if entries:
+        _refresh(generation.samples, generation.source, generation.index, new_dist, min_fresh, rng)
+    return generation

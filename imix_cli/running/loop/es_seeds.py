@@ -1,0 +1,136 @@
+"""The evolution strategies' trainer: seeds of one run, in lockstep, with checkpoints and resume.
+
+The run is read once (:func:`imix_cli.running.loop.lockstep.loop_settings`); each seed starts fresh or from its
+checkpoint (:mod:`imix_cli.running.loop.resume`); the loop steps the seeds (:mod:`imix_cli.running.loop.lockstep`,
+:mod:`imix_cli.running.loop.compiled_loop`) and hands each step's record to the run's one writer
+(:mod:`imix_cli.running.files.run_writer`): ``seed_<k>.csv`` written atomically when seed ``k`` finishes, its
+state checkpointed every ``checkpoint_every`` generations with ``seed_<k>.partial.csv`` as a live view,
+and at its current generation when the run is stopped (:mod:`imix_cli.running.loop.stopping`). Re-running the
+same command resumes each seed from its checkpoint; the runner says so in one line.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import time
+from pathlib import Path
+
+from imix_cli.messages import RunError, warn
+from imix_cli.running.config.run_spec import resume_identity
+from imix_cli.running.files.checkpoints import checkpoint_path
+from imix_cli.running.files.results import es_seed_finished
+from imix_cli.running.files.run_writer import RunWriter
+from imix_cli.running.loop import stopping
+from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state, seed_record
+from imix_cli.running.loop.resume import can_checkpoint, load_checkpoint
+
+
+def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> dict:
+    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep, on the run's ``evaluator``
+    (:func:`imix_cli.core.parallel_evaluation.build_evaluator`, built and closed by the caller); ``progress(n)`` gets
+    the number of seed-generations just completed, ``resumed({seed: generation})`` once, the generation each seed
+    starts from (0: from scratch), for the runner's one line about them. Returns seed ->
+    :func:`imix_cli.running.files.results.seed_summary`.
+
+    Stopped by a signal (:mod:`imix_cli.running.loop.stopping`, which the caller sets up), the loop checkpoints every
+    unfinished seed at its current generation and raises :class:`~imix_cli.running.loop.stopping.StopRequested`."""
+    identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
+    settings = loop_settings(spec, evaluator)
+    states = []
+    for seed in seeds:
+        fresh = new_seed_state(settings, seed)
+        path = checkpoint_path(spec.run_dir, seed)
+        # A refused checkpoint may have been half loaded into the state it was given: a copy of the fresh one.
+        st = load_checkpoint(
+            spec.run_dir, seed, identity, copy.deepcopy(fresh), spec=spec, max_steps=int(evaluator.max_steps), policy_dim=evaluator.num_params
+        )  # fmt: skip
+        if st is not None and st.generation > settings.generations:  # a longer continuation's, killed before it finished
+            warn(f"{path}: checkpoint at generation {st.generation} is past generations={settings.generations}; seed {seed} restarts from generation 0")
+            st = None
+        if st is not None:
+            progress(st.generation)
+        states.append(fresh if st is None else st)
+    if resumed is not None:
+        resumed({st.seed: st.generation for st in states})
+    if states and not can_checkpoint(states[0].es):
+        settings = dataclasses.replace(settings, checkpoint_every=0)
+    writer = RunWriter(spec, evaluator, identity)
+    writer.saved_generation.update({st.seed: st.generation for st in states if st.generation})  # on disk already
+    try:
+        _run_loop(settings, states, evaluator, writer, progress)
+    finally:
+        writer.close()
+    return writer.summaries
+
+
+#: Most generations a seed runs in one compiled call (:mod:`imix_cli.running.loop.compiled_loop`): the progress bar
+#: and the rows' wall times move by this step (about a tenth of a second on the main job).
+CHUNK = 25
+
+
+def _run_loop(settings, states, evaluator, writer: RunWriter, progress) -> None:
+    """The lockstep loop of :func:`run_es_seeds`: generations of the seeds until each is done, each step
+    handed to ``writer`` with its :class:`imix_cli.running.loop.lockstep.SeedRecord` (a seed resumed after its
+    last generation only has its files written).
+
+    Seeds the compiled loop applies to (:mod:`imix_cli.running.loop.compiled_loop`: the same rows, bit for bit)
+    advance by chunks of up to :data:`CHUNK` generations, a chunk ending where a checkpoint falls due
+    or the seed finishes; the other seeds advance one generation at a time, together. A chunk the
+    compiled loop hands back (a non-finite return, a diverging update) is stepped instead, up to its end."""
+    from imix_cli.running.loop import compiled_loop  # numba's kernels: loaded by the processes that run seeds only
+
+    compiles = compiled_loop.applies_to_run(settings, evaluator)  # the run's part of the check, once
+    every = settings.checkpoint_every
+    stepped_until: dict[int, int] = {}  # seed -> the end of a chunk the compiled loop handed back
+    active = states
+    while active:
+        if stopping.requested():  # here every seed is between two generations: keep them all
+            if every:  # checkpoint_every=0: the user asked for no checkpoints
+                for st in active:
+                    writer.checkpoint_now(st)
+            raise stopping.StopRequested(stopping.requested())
+        firsts = [st.generation for st in active]
+        began, stepped = {}, []  # seed -> when its compiled chunk began
+        for st in (st for st in active if st.generation < settings.generations):
+            if stopping.requested():  # the seeds not advanced yet stay where they are
+                stepped = []
+                break
+            if st.generation < stepped_until.get(st.seed, 0) or not (compiles and compiled_loop.applies(settings, evaluator, st)):
+                stepped.append(st)
+                continue
+            stop = min(settings.generations, st.generation + CHUNK, (st.generation // every + 1) * every if every else settings.generations)
+            began[st.seed] = time.perf_counter()
+            if not compiled_loop.advance(st, settings, evaluator, stop - st.generation):
+                del began[st.seed]
+                stepped_until[st.seed] = stop
+                stepped.append(st)
+        if stepped:
+            advance_lockstep(stepped, settings, evaluator)
+        records = [seed_record(st, first, settings, evaluator) for st, first in zip(active, firsts)]
+        for st, record in zip(active, records):
+            writer.write(st, record, began.get(st.seed))
+        progress(sum(st.generation - first for st, first in zip(active, firsts)))
+        active = [st for st in active if st.generation < settings.generations and not st.es.diverged]
+
+
+def needs_running(spec, seed: int, path: Path, frame) -> bool:
+    """Whether seed ``seed``, whose CSV ``frame`` exists at ``path``, is to be continued to more generations.
+
+    RunError if the CSV holds more generations than asked (a run is never shortened below what a seed
+    finished), or fewer with no final state to continue from."""
+    run_dir = spec.run_dir
+    if len(frame) > spec.generations:
+        raise RunError(
+            f"{path}: has {len(frame)} generations, config asks for {spec.generations}: a run can be continued to more generations, "
+            "not shortened below what a seed finished; choose another experiment= or move that folder away"
+        )
+    if not es_seed_finished(frame, spec.generations):  # continue it from its final state
+        if not checkpoint_path(run_dir, seed).exists():
+            raise RunError(
+                f"{path}: has {len(frame)} of {spec.generations} generations and no final state to continue from "
+                f"({checkpoint_path(run_dir, seed).name} missing: made with checkpoint_every=0); "
+                "move it away or choose another experiment="
+            )
+        return True
+    return False
