@@ -1,134 +1,212 @@
-"""Import layering: ``import imix_cli`` stays light, and no module imports a layer above its own.
+"""Import layering: no module imports a layer above its own, no modules import each other in a circle, and
+``import imix_cli`` stays light.
 
-Made to fail by putting ``from imix_cli import envs`` back into ``imix_cli/__init__.py`` (gymnasium
-loads) and by importing :mod:`imix_cli.running.config.compose` from :mod:`imix_cli.core.parallel_evaluation`."""
+The graph is the code's own: every ``import`` and ``from ... import`` of every module of the package, those
+inside functions included (a deferred import still ties two modules), resolved to the module it names
+(``from imix_cli.core import mixing`` -> ``imix_cli.core.mixing``; ``from imix_cli.core.mixing import mix``
+-> ``imix_cli.core.mixing``; relative imports too). The package's face, ``imix_cli/__init__.py``, is no
+node: Python runs it before any module of the package, so importing a constant of it loads nothing; a
+module that took one of its public names (each loaded on first read from a module of some layer) would be
+reported.
+
+Made to fail: by a package written to a temporary folder with a planted upward import and a planted circle
+(:func:`test_the_checker_finds_a_planted_upward_import_and_a_planted_circle`), and in the real tree by
+``from imix_cli.running.files.results import COLUMNS`` appended to ``core/mixing.py`` (an import that climbs,
+and out of the numerical library) and ``from imix_cli.core import evaluation`` inside a function appended to
+``core/policies.py`` (a circle: evaluation imports policies): three tests failed, naming both.
+"""
+
+from __future__ import annotations
 
 import ast
 import subprocess
 import sys
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / "imix_cli"
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "imix_cli"
 
-#: Lowest first; a module may import its own layer and those before it. An entry names a module or a
-#: subpackage by its dotted path below ``imix_cli``; a module's layer is that of the longest entry its
-#: dotted path starts with. The library is the top-level modules (``imix_cli.core.mixing``, ...);
-#: ``running`` (what ``imix run`` does) and ``ddpg`` (the DDPG baseline) span several layers module by
-#: module, and their own entries (their ``__init__``, and any module not listed yet) are the lowest.
+#: Lowest first; a module may import its own layer and those below it. An entry names a module or a folder
+#: by its dotted path below ``imix_cli``; a module's layer is that of the longest entry its path starts with.
 LAYERS = [
-    [
-        "registry",
-        "bounds",
-        "messages",
-        "processes",
-        "stats",
-        "numba_cache",
-        "elementary",
-        "elementary_tables",
-        "linalg_kernels",
-        "numerics",
-        "distributions",
-        "mixing",
-        "mixing_kernels",
-        "running",
-        "running.safe_npz",
-        "running.results",
-        "writing",
-        "ddpg",
-        "ddpg.settings",
-        "adapters",  # other libraries' ES seen as imix's (pycma, evosax): they read distributions only
-        "adapters.pycma",
-        "adapters.evosax",
-    ],
-    [
-        "generation",
-        "mirrored",
-        "ask_tell",
-        "algorithms",
-        "divergence",
-        "envs",
-        "env_ids",
-        "policies",
-        "evaluation",
-        "parallel_evaluation",
-        "running.tracking",
-        "running.checkpoints",
-        "running.policy_files",
-        "ddpg.agent",
-        "adapters.checkpoint",
-    ],
-    ["running.config_checks", "running.config_keys", "running.run_spec", "running.es_config", "ddpg.config", "running.config"],
-    [
-        "running.lockstep",
-        "running.compiled_loop",
-        "running.warmup",
-        "running.trainers",
-        "running.seed_checks",
-        "running.resume",
-        "running.run_folder",
-        "running.run_writer",
-        "running.es_seeds",
-        "ddpg.seeds",
-        "running.pool",
-        "running.summary",
-        "running.runner",
-    ],
-    ["commands", "plotting", "bench", "experiment"],
+    ["messages", "keyvalue"],  # one-line messages, the run's one-line error, a command line's key=value settings
+    ["core"],  # the numerical library: no files, no Hydra, nothing of running, commands or plotting
+    ["running.files"],  # what a run reads and writes (CSV contract, checkpoints, policies, locks, trackers)
+    ["running.config"],  # the command line and conf/ into a checked RunSpec
+    ["running.loop"],  # the generations (episodes) of a run's seeds
+    ["running"],  # the run itself: seed grid, processes, run folder, trainers, warm-up, summary
+    ["plotting", "bench", "commands", "experiment"],  # what a user calls: figures, benchmarks, the command line, imix_cli.run
 ]
 
+#: The public names of the package's face (``imix_cli.MixingES``, ...), each imported from its module on first read.
+FACE_NAMES = set(ast.literal_eval(next(
+    node.value for node in ast.parse((PACKAGE / "__init__.py").read_text()).body
+    if isinstance(node, ast.AnnAssign | ast.Assign) and getattr(getattr(node, "target", None) or node.targets[0], "id", "") == "_API"
+)))  # fmt: skip
 
-#: Upward imports a module may make inside a function only (when called, never when the module loads), and why:
-#: the registry names each ES class and each built-in's evaluator by a loader function that imports it.
-DEFERRED_ONLY = {"imix_cli.core.registry": ("imix_cli.core.algorithms.", "imix_cli.core.evaluation")}
+
+def modules_of(package: Path) -> dict[str, Path]:
+    """Dotted name -> path of every module of ``package`` (a folder); a subpackage's ``__init__`` is the subpackage."""
+    found = {}
+    for path in sorted(package.rglob("*.py")):
+        if "__pycache__" in path.parts:
+            continue
+        parts = (package.name, *path.relative_to(package).with_suffix("").parts)
+        found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
 
 
-def _layer(module: str) -> int | None:
-    """The layer of ``imix_cli.<dotted path>`` (a module, or a name imported from one), None outside LAYERS."""
+def imports_of(name: str, path: Path, modules: dict[str, Path], root: str) -> set[str]:
+    """The modules of ``modules`` that module ``name`` imports (anywhere in its code), ``root`` (the package's
+    face) standing for a constant of the face, ``root.<public name>`` for one of its lazily loaded names."""
+    is_package = path.name == "__init__.py"
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: from the module's own package (or above)
+                base = name.split(".") if is_package else name.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                module = ".".join([*base, node.module] if node.module else base)
+            else:
+                module = node.module or ""
+            targets = [f"{module}.{alias.name}" if f"{module}.{alias.name}" in modules else module for alias in node.names]
+            if module == root:
+                targets = [f"{root}.{alias.name}" if alias.name in FACE_NAMES else t for alias, t in zip(node.names, targets)]
+        elif isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", None)) == "import_module":
+            targets = [a.value for a in node.args[:1] if isinstance(a, ast.Constant) and isinstance(a.value, str)]
+        else:
+            continue
+        for target in targets:
+            if target.split(".")[0] != root:
+                continue
+            if target.count(".") != 1 or target.split(".")[1] not in FACE_NAMES:
+                while target not in modules and "." in target:  # a name inside a module: the module
+                    target = target.rsplit(".", 1)[0]
+            found.add(target)
+    found.discard(name)
+    return found
+
+
+def import_graph(package: Path = PACKAGE) -> dict[str, set[str]]:
+    """Module -> the modules it imports, for every module of ``package`` but its face (the root ``__init__``)."""
+    modules = modules_of(package)
+    root = package.name
+    return {name: imports_of(name, path, modules, root) - {root} for name, path in modules.items() if name != root}
+
+
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (modules importing each other in a loop), sorted."""
+    index, low, stack, on_stack, found, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v: str) -> None:  # Tarjan's algorithm
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in graph:
+                continue
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+def layer_of(module: str, layers: list[list[str]] = LAYERS) -> int | None:
+    """The layer of ``<root>.<dotted path>``: that of the longest entry of ``layers`` its path starts with."""
     parts = module.split(".")[1:]
     for n in range(len(parts), 0, -1):
-        layer = next((k for k, names in enumerate(LAYERS) if ".".join(parts[:n]) in names), None)
+        layer = next((k for k, names in enumerate(layers) if ".".join(parts[:n]) in names), None)
         if layer is not None:
             return layer
     return None
 
 
-def _imports(path: Path, top_level: bool = False) -> set[str]:
-    """What ``path`` imports of imix_cli, as ``imix_cli.<module>.<name>`` (``top_level``: what its body
-    imports when it loads). ``from imix_cli.running import config`` is ``imix_cli.running.config.compose``: the
-    name imported may be a module, so it is part of the path whose layer counts."""
-    tree = ast.parse(path.read_text())
-    found = set()
-    for node in tree.body if top_level else ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "imix_cli":
-            found.update(f"{node.module}.{a.name}" for a in node.names)
-        elif isinstance(node, ast.Import):
-            found.update(a.name for a in node.names if a.name.startswith("imix_cli."))
-    return found
+def climbing(graph: dict[str, set[str]], layers: list[list[str]] = LAYERS) -> list[str]:
+    """``a -> b`` for every import of a module of a higher layer (and of a public name of the face, which loads one)."""
+    root_names = {f"{m.split('.')[0]}.{n}" for m in graph for n in FACE_NAMES}
+    out = []
+    for module, deps in sorted(graph.items()):
+        mine = layer_of(module, layers)
+        for dep in sorted(deps):
+            if dep in root_names or (mine is not None and (layer_of(dep, layers) or 0) > mine):
+                out.append(f"{module} -> {dep}")
+    return out
 
 
-def _modules():
-    """(dotted name, path) of every module of the package; a subpackage's ``__init__`` is the subpackage."""
-    for path in sorted(PACKAGE.rglob("*.py")):
-        parts = path.relative_to(PACKAGE).with_suffix("").parts
-        yield ".".join(("imix_cli", *(parts[:-1] if parts[-1] == "__init__" else parts))), path
+GRAPH = import_graph()
 
 
 def test_every_module_has_a_layer():
-    assert [module for module, _ in _modules() if module != "imix_cli" and _layer(module) is None] == []
+    assert [module for module in GRAPH if layer_of(module) is None] == []
 
 
 def test_no_module_imports_a_layer_above_its_own():
-    upward = []
-    for module, path in _modules():
-        mine = _layer(module)
-        if mine is None:
-            continue
-        deferred, loaded = DEFERRED_ONLY.get(module, ()), _imports(path, top_level=True)
-        upward += [
-            f"{module} -> {dep}" for dep in sorted(_imports(path))
-            if (_layer(dep) or 0) > mine and (dep in loaded or not dep.startswith(deferred))
-        ]  # fmt: skip
-    assert upward == []
+    assert climbing(GRAPH) == []
+
+
+def test_no_modules_import_each_other_in_a_circle():
+    assert circles(GRAPH) == []
+
+
+def test_the_numerical_library_imports_nothing_of_running_commands_or_plotting():
+    outside = [f"{m} -> {d}" for m, deps in GRAPH.items() if m.startswith("imix_cli.core") for d in deps if not d.startswith("imix_cli.core")]
+    assert outside == []
+
+
+def test_at_most_twelve_modules_at_the_top_of_the_package():
+    assert len(list(PACKAGE.glob("*.py"))) <= 12
+
+
+def test_the_checker_finds_a_planted_upward_import_and_a_planted_circle(tmp_path):
+    """A package written to a temporary folder, with one import that climbs (inside a function, relative) and one
+    circle (through a deferred import): both found; the same package without them: nothing found."""
+    pkg = tmp_path / "toy"
+    for rel, text in {
+        "__init__.py": "",
+        "base/__init__.py": "",
+        "base/a.py": "from toy.base import b\n",
+        "base/b.py": "def f():\n    from ..top import cli  # climbs\n",
+        "base/c.py": "import toy.base.d\n",
+        "base/d.py": "def g():\n    from toy.base.c import h  # closes the circle c -> d -> c\n",
+        "top/__init__.py": "",
+        "top/cli.py": "from toy.base import c\n",
+    }.items():
+        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
+        (pkg / rel).write_text(text)
+    layers = [["base"], ["top"]]
+    graph = import_graph(pkg)
+    assert graph["toy.base.b"] == {"toy.top.cli"} and graph["toy.top.cli"] == {"toy.base.c"}
+    assert climbing(graph, layers) == ["toy.base.b -> toy.top.cli"]
+    assert circles(graph) == [["toy.base.c", "toy.base.d"]]
+    (pkg / "base/b.py").write_text("def f():\n    pass\n")
+    (pkg / "base/d.py").write_text("def g():\n    pass\n")
+    graph = import_graph(pkg)
+    assert climbing(graph, layers) == [] and circles(graph) == []
+
+
+def test_the_checker_on_a_synthetic_graph():
+    graph = {"p.low": {"p.high"}, "p.high": {"p.low2"}, "p.low2": {"p.low"}, "p.alone": set()}
+    assert circles(graph) == [["p.high", "p.low", "p.low2"]]
+    assert climbing(graph, [["low", "low2", "alone"], ["high"]]) == ["p.low -> p.high"]
 
 
 def test_import_imix_cli_loads_neither_numpy_nor_gymnasium():
