@@ -4,7 +4,7 @@ The sections, their settings and what each measures: ``imix bench --help`` (:dat
 """
 
 # One module per
-# section (rollouts, mixing, memory and its child process memory_child, breakdown, grid, peers), shared
+# section (rollouts, mixing, memory (its child process: imix_cli.commands.bench_memory_child), breakdown, grid, peers), shared
 # helpers in common, the command line in cli; the scripts of benchmarks/ build on these modules.
 from imix_cli.bench.cli import SECTIONS, main
 from imix_cli.bench.common import median_time

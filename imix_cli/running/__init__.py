@@ -1,6 +1,7 @@
-"""What ``imix run`` does between a config and its files: the config's checks and the run's spec,
-the generation loop (Python and compiled), the process pool, checkpoints and resuming, the run
-folder, the CSVs and policy files, and the summary. Built on the library modules of
-:mod:`imix_cli` (the ES classes, mixing, evaluators, policies, registry); the DDPG baseline's
-counterparts are in :mod:`imix_cli.core.ddpg`, the other subcommands in :mod:`imix_cli.commands`.
+"""What ``imix run`` does between a config and its files, one folder per job: ``config/`` (the command line and
+``conf/`` into a checked RunSpec), ``loop/`` (the generations of the seeds: lockstep and compiled loops, resume,
+stop requests), ``files/`` (the CSV contract, checkpoints, policy files, locks, trackers, the one safe writer);
+here the run itself: the seed grid (:mod:`~imix_cli.running.runner`), the process pool, the run folder, the
+trainers, the numba warm-up and the summary. Built on :mod:`imix_cli.core`; the other subcommands are in
+:mod:`imix_cli.commands`.
 """
