@@ -108,7 +108,7 @@ docs-numbers:  ## regenerate every printed output and figure the README and docs
 bench:  ## speed benchmarks (rollouts, mixing, grid) with baselines measured in the same run
 	$(IMIX) bench
 
-# Beyond the paper (docs/readme-mujoco.md): SNES and OpenES, without and with EIM, on Swimmer,
+# Beyond the paper (docs/research/mujoco.md): SNES and OpenES, without and with EIM, on Swimmer,
 # Hopper and HalfCheetah (MuJoCo v5; needs the mujoco extra), MUJOCO_SEEDS seeds each. Linear
 # policies on observations normalised with statistics frozen after a 3-generation warm-up
 # (honest reuse). Each generation's fresh episodes, over all seeds in lockstep, run on every
@@ -182,6 +182,6 @@ reproduce-ars:  ## ARS study (imix ARS, ARS + EIM, sb3-contrib ARS on Swimmer/Ho
 # mujoco extra), population 20, 150 generations, 5 seeds; then the 100-episode evaluation and the table.
 # Hours on a quiet 2-core machine; finished runs are skipped, so an interrupted benchmark resumes.
 .PHONY: untuned
-untuned:  ## the untuned-tasks benchmark (issue 35) into results/untuned/ and its table
+untuned:  ## the untuned-tasks benchmark (held-out tasks at default settings) into results/untuned/ and its table
 	$(PY) benchmarks/untuned_tasks.py run
 	$(PY) benchmarks/untuned_tasks.py table

@@ -55,7 +55,7 @@ ALGOS = ("openes", "snes", "cem", "cmaes")
 RULES = {
     "none": MixingSettings(None),
     "exact": MixingSettings("exact"),  # min_fresh=1, the default: one slot drawn at random holds a fresh draw
-    "exact, min_fresh 0": MixingSettings("exact", min_fresh=0),  # the rules alone (before issue 35)
+    "exact, min_fresh 0": MixingSettings("exact", min_fresh=0),  # the rules alone (no minimal refresh)
     "conditional": MixingSettings("conditional"),
     "exact + reeval 2": MixingSettings("exact", reeval_count=2),
     "exact + CSA": MixingSettings("exact"),  # CMA-ES only: mixing with pycma's step-size control

@@ -1,7 +1,7 @@
 """Reuse on tasks nobody tuned: every built-in ES without mixing and with the default EIM, on gymnasium tasks no preset covers.
 
 Why: imix's defaults were tuned on CartPole and Acrobot, whose tied returns hide what a continuous
-return shows (issue 35: CEM + EIM froze, SNES + EIM shrank sigma on held-out tasks). This benchmark
+return shows (once, CEM + EIM froze and SNES + EIM shrank sigma on held-out tasks). This benchmark
 runs the registry's tasks as they are (``env=gym env.id=...``), at imix's defaults except the
 population size and the generations, stated once below, and reports per task and ES:
 

@@ -6,7 +6,7 @@
   as evosax's distribution of each generation (the chain statistic of tests/test_mixing.py);
 * evosax's update ignores the order of its population (without ties), through the adapter too;
 * Open_ES's antithetic pairs are mixed as mirrored pairs (anchors mixed, mirrors fresh);
-* a fully reused generation does not repeat the update (issue 35; xfail until its refresh rule);
+* a fully reused generation does not repeat the update (xfail until its refresh rule);
 * ``reeval_count`` is there; the state, archive included, is data: saved and loaded, a run goes on
   exactly as without the interruption.
 """

@@ -5,7 +5,7 @@
 * along pycma's own path of distributions, hundreds of generations mixed through MixingES are
   distributed as pycma's distribution of each generation (the chain statistic of tests/test_mixing.py);
 * pycma's update ignores the order of its population (without ties), through the adapter too;
-* a fully reused generation does not repeat the update (issue 35; xfail until its refresh rule);
+* a fully reused generation does not repeat the update (xfail until its refresh rule);
 * the stored-return remedies (``reeval_count``) are there; options that make pycma's samples
   non-Gaussian are refused with one line; ``es.stop()``, ``optimize`` and ``countevals`` work.
 """
@@ -138,7 +138,7 @@ def test_pycmas_update_through_the_adapter_ignores_the_order_of_the_population()
 
 
 def test_a_fully_reused_generation_would_not_repeat_the_update_and_is_refreshed():
-    """Issue 35's no-fixed-point guarantee on pycma: a nearly still distribution (no covariance or
+    """The no-fixed-point guarantee (min_fresh) on pycma: a nearly still distribution (no covariance or
     step-size adaptation, a mean that barely moves) reuses whole generations; MixingES's default
     must not let more than 3 consecutive generations go without a fresh evaluation."""
     es = cma.CMAEvolutionStrategy(5 * [1.0], 0.5, {"seed": 1, "verbose": -9, "CMA_on": 0, "AdaptSigma": False, "CMA_cmean": 1e-4})

@@ -1,4 +1,4 @@
-"""Issue 36 item 5: one error boundary for every command (imix_cli.commands.boundary).
+"""One error boundary for every command (imix_cli.commands.boundary).
 
 Each command (run, plot, eval, render, status, bench) is run in a process of its own and stopped the ways a
 user's session stops one -- Ctrl-C (SIGINT), SIGTERM, MemoryError, its output's reader going away (EPIPE) --

@@ -1,5 +1,5 @@
 """``imix_cli.run`` as a user calls it: at a script's top level, from a notebook-like main, after the command
-line's main job, and with keyword values that look like override syntax (issues 38 item 2 and 36 item 8)."""
+line's main job, and with keyword values that look like override syntax."""
 
 import os
 import subprocess

@@ -1,4 +1,4 @@
-"""algo=ddpg without its extra (issue 38 item 6): one line naming what to install, a non-zero exit, and no run
+"""algo=ddpg without its extra: one line naming what to install, a non-zero exit, and no run
 folder left behind for `imix status` to list. torch is hidden here, installed or not."""
 
 import importlib.util

@@ -3,7 +3,7 @@
 With importance mixing a generation lists its reused members first; on CartPole ~40 of 50
 members tie at the maximum return. When ties were broken by position, the fresh rule-2 draws
 (which sit where the new density exceeds the old) became the elites and pushed the search
-distribution outward (issue 11: CMA-ES + EIM ended at 181.8 instead of 196, sigma 3x too
+distribution outward (measured: CMA-ES + EIM ended at 181.8 instead of 196, sigma 3x too
 large). Tied members now share ranks and recombination weights, so telling a permutation of
 a generation gives the same update, to round-off -- for every ES, with and without ties.
 """

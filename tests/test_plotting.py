@@ -272,7 +272,7 @@ def test_didactic_rules_match_the_paper():
     assert accepted.mean() == pytest.approx(2 * norm.cdf(-0.25), abs=0.02)
 
 
-# --------------------------------------------------------------------------- issue 16: every run, live runs, robust statistics
+# --------------------------------------------------------------------------- every run, live runs, robust statistics
 
 
 def _legend_texts(fig):

@@ -167,7 +167,7 @@ def test_runner_tracks_the_best_ever_member_not_the_last_generations():
 
 
 def test_render_without_out_writes_into_the_run_folder_and_never_overwrites_it(trained, tmp_path, monkeypatch, capsys):
-    """Issue 38: a GIF goes into the run folder it shows, not the current directory."""
+    """A GIF goes into the run folder it shows, not the current directory."""
     root, run_dir = trained
     monkeypatch.chdir(tmp_path)
     args = ["render", f"results_dir={root}", "experiment=pol", f"run={RUN}", "seed=1", "frames=3"]

@@ -288,7 +288,7 @@ def _fully_reused_runs(algo, min_fresh, seed, generations=300):
 
 
 def test_cem_with_mixing_has_no_fixed_point():
-    """Issue 35: once CEM's distribution stops moving, p_new = p_old, every member is reused, CEM is told the same
+    """Once CEM's distribution stops moving, p_new = p_old, every member is reused, CEM is told the same
     members and returns and makes the same update -- a fixed point in which nothing is searched. Without the minimal
     refresh (min_fresh=0) each of three seeds has a run of over 20 generations that evaluate nothing (24-78 measured)
     and the mean stands still in over 100 of 300 generations. With the default (one slot drawn at random holds a fresh

@@ -99,7 +99,7 @@ def test_a_live_run_holding_the_lock_makes_every_unfinished_seed_running(tmp_pat
 
 
 def test_a_csv_short_of_the_configs_generations_is_not_done_as_imix_run_refuses_it(tmp_path, capsys):
-    """Issue 36 item 7: a 1-of-30-row CSV without a final state to continue from: imix run refuses the folder,
+    """A 1-of-30-row CSV without a final state to continue from: imix run refuses the folder,
     and status says so instead of counting it done."""
     from imix_cli.running.files.results import read_run_csv
 
@@ -198,7 +198,7 @@ def test_status_agrees_with_the_files_at_every_stop_of_a_run(tmp_path):
 
 
 def test_status_does_not_count_a_csv_of_another_run_as_done(tmp_path, capsys):
-    """Issue 36, item 7: a finished-looking seed CSV whose env contradicts its run's config.yaml is what ``imix run``
+    """A finished-looking seed CSV whose env contradicts its run's config.yaml is what ``imix run``
     refuses (the readers' one check, imix_cli.running.seed_checks); status lists it as corrupt, not done."""
     from imix_cli.commands.cli import main
 

@@ -1,4 +1,4 @@
-"""Ctrl-C and SIGTERM keep every seed's current generation (issue 38 item 4): the run stops between two
+"""Ctrl-C and SIGTERM keep every seed's current generation: the run stops between two
 generations, checkpoints each seed there, and the re-run resumes there -- not at the last periodic
 checkpoint -- saying so in one line, with CSVs equal to an uninterrupted run's."""
 

@@ -1,4 +1,4 @@
-"""Sweep run names hide the defaults they ran with (issue 38 item 9): a folder is named by the values that differ
+"""Sweep run names hide the defaults they ran with: a folder is named by the values that differ
 from the paper's, so the sweep's table shows, next to each name, the swept values the name leaves out."""
 
 from imix_cli.commands.cli import main

@@ -1,4 +1,4 @@
-"""Validation (issue 36 items 6-8; issue 38 item 9's "did you mean").
+"""Validation: bad keys and values refused with one line naming them, with a "did you mean" for a mistyped key.
 
 Item 6: the whole composed config -- ``+algo.<key>``, ``+env.<key>``, a ``--config-name`` YAML, ``--config-dir`` in both
 forms -- is checked against the keys table before any point runs; a mistyped key is named as typed, with the closest

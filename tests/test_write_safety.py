@@ -1,4 +1,4 @@
-"""Issue 36, items 1-3 and 9: every file a command writes goes through the one writer (imix_cli.running.files.writing).
+"""Every file a command writes goes through the one writer (imix_cli.running.files.writing).
 
 Each test plants what a received results folder could hold -- a symbolic link at a file a command writes,
 or at a folder above it, a CSV cell with a newline or a formula -- or cuts a write short (a full disk, a
@@ -93,7 +93,7 @@ def _plot_targets(results: Path, only: str | None) -> list:
 
 @pytest.mark.parametrize("only", ["iqm", pytest.param(None, marks=pytest.mark.slow)])
 def test_plot_refuses_a_link_at_every_file_it_writes_and_at_every_folder_above(results, tmp_path, capsys, only):
-    """Issue 36 item 1: plot wrote through ``figures/<file>`` links and a ``figures`` link (every table went elsewhere)."""
+    """Once, plot wrote through ``figures/<file>`` links and a ``figures`` link (every table went elsewhere)."""
     argv = ["plot", f"results_dir={results}", "experiment=e", *([f"only={only}"] if only else [])]
     for rel in _plot_targets(results, only):
         link = results / rel
@@ -127,7 +127,7 @@ def _poison_csv(results: Path, text: str) -> None:
 
 
 def test_the_issues_attack_a_newline_cell_and_a_linked_iqm_md_writes_nothing_outside(results, tmp_path, capsys):
-    """The exact attack of issue 36: ``algo="cem\\n<text>"`` in a CSV and ``figures/iqm.md`` linked to a user's file
+    """The exact attack once reproduced: ``algo="cem\\n<text>"`` in a CSV and ``figures/iqm.md`` linked to a user's file
     (a shell profile, authorized_keys): the file is untouched; and without the link no cell starts a line of a table."""
     _poison_csv(results, "cem\nssh-rsa AAAA attacker")
     victim = tmp_path / "victim"
@@ -144,7 +144,7 @@ def test_the_issues_attack_a_newline_cell_and_a_linked_iqm_md_writes_nothing_out
 # ------------------------------------------------------------------ item 2: imix eval, imix render, imix run, imix run -m
 @pytest.mark.parametrize("rel", ["e", f"e/{RUN}", f"e/{RUN}/eval.csv"])
 def test_eval_refuses_a_linked_experiment_run_folder_or_eval_csv(results, tmp_path, capsys, rel):
-    """Issue 36 item 2: eval wrote eval.csv through a linked experiment or run folder."""
+    """Once, eval wrote eval.csv through a linked experiment or run folder."""
     link = results / rel
     target = copy_elsewhere(link, tmp_path) if link.is_dir() else tmp_path / "victim"
     refused(capsys, tmp_path, results, ["eval", f"results_dir={results}", "experiment=e", "episodes=2"], "eval", link, target)
@@ -152,7 +152,7 @@ def test_eval_refuses_a_linked_experiment_run_folder_or_eval_csv(results, tmp_pa
 
 @pytest.mark.parametrize("rel", [f"e/{RUN}", "out.gif"])
 def test_render_refuses_a_linked_run_folder_or_output(results, tmp_path, capsys, rel):
-    """render's default output goes into the run folder (issue 38) through the writer; out= is refused if it is a link."""
+    """render's default output goes into the run folder through the writer; out= is refused if it is a link."""
     pytest.importorskip("pygame")
     link = results / rel if rel != "out.gif" else tmp_path / "out.gif"
     target = copy_elsewhere(link, tmp_path) if link.is_dir() else tmp_path / "victim"
@@ -174,7 +174,7 @@ def test_run_refuses_a_link_at_each_path_it_writes(results, tmp_path, capsys, re
 
 
 def test_a_sweep_refuses_a_linked_multirun_folder(results, tmp_path, capsys):
-    """Issue 36 item 2: ``imix run -m`` wrote multirun.yaml and its job folders through a linked ``.multirun``."""
+    """Once, ``imix run -m`` wrote multirun.yaml and its job folders through a linked ``.multirun``."""
     target = tmp_path / "elsewhere"
     target.mkdir()
     argv = ["run", "-m", "algo=cem", "env=cartpole", "seeds=1", "generations=1", "popsize=4,6", "progress=false", "workers=1"]
@@ -195,7 +195,7 @@ def _no_temporaries(folder: Path) -> bool:
 
 
 def test_a_full_disk_during_plot_leaves_every_good_file_as_it_was(results):
-    """Issue 36 item 3: a full disk left a 0-byte iqm.csv in place of a good one. Here each file may hold at most
+    """Once, a full disk left a 0-byte iqm.csv in place of a good one. Here each file may hold at most
     2 kB (RLIMIT_FSIZE: a write beyond it fails with EFBIG, as ENOSPC does on a full disk)."""
     import resource
     import signal
@@ -215,7 +215,7 @@ def test_a_full_disk_during_plot_leaves_every_good_file_as_it_was(results):
 
 
 def test_a_kill_9_in_the_middle_of_a_pdf_leaves_the_old_pdf(results):
-    """Issue 36 item 3: kill -9 of imix plot replaced a good PDF with a truncated one. The kill lands when half of
+    """Once, kill -9 of imix plot replaced a good PDF with a truncated one. The kill lands when half of
     the first PDF's bytes are written, wherever matplotlib writes them."""
     figures = results / "e" / "figures"
     before = snapshot(figures)
@@ -245,7 +245,7 @@ def test_a_kill_9_in_the_middle_of_a_pdf_leaves_the_old_pdf(results):
 
 # ------------------------------------------------------------------ item 9: table cells are data, not formulas or lines
 def test_formula_cells_are_quoted_in_every_written_table_and_numbers_stay_numbers(results, capsys):
-    """Issue 36 item 9: ``=HYPERLINK(...)`` in a CSV was copied into figures/*.csv. A text cell starting with =, +, -, @
+    """Once, ``=HYPERLINK(...)`` in a CSV was copied into figures/*.csv. A text cell starting with =, +, -, @
     gets a leading ' (OWASP); a negative number stays a number."""
     import pandas as pd
 
@@ -307,7 +307,7 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)
 
 @pytest.mark.slow  # encodes 4,400 frames (~1-2 min)
 def test_render_writes_a_gif_with_memory_independent_of_the_episode_length():
-    """Issue 36 item 4: render held every frame (1.84 GB for 859 frames at env.max_steps=5000). 3,600 more frames of
+    """Once, render held every frame (1.84 GB for 859 frames at env.max_steps=5000). 3,600 more frames of
     120 kB each would be 430 MB more if held; streamed, the peak RSS stays within 40 MiB."""
     peaks = {}
     for n in (400, 4000):

@@ -12,8 +12,8 @@ process in one batch, which only pays off if planning and finishing do no evalua
 
 Which members are evaluated. Fresh members always. A reused member keeps the return it was
 evaluated with -- that is the point of importance mixing -- unless a remedy for the
-selection bias of stored returns asks to measure it again (README, "Reused returns and
-selection bias"): its return is older than ``reeval_age`` generations, a coin of
+selection bias of stored returns asks to measure it again (docs/research/correctness.md, "Reused
+returns and selection bias"): its return is older than ``reeval_age`` generations, a coin of
 probability ``reeval_prob`` says so, or it is one of the ``reeval_count`` reused members
 drawn every generation to calibrate the others (below). A re-evaluated member keeps its
 place and its parameters; only its return is new, so the generation is distributed exactly
@@ -31,8 +31,8 @@ is told alpha + beta * stored: its best prediction of what a fresh episode would
 Under pure noise beta -> 0 and the reused members stop outranking the fresh ones; on a
 deterministic task beta -> 1 and alpha -> 0, the stored returns are told as they are. Before
 :data:`PAIR_MIN` pairs have been seen the stored returns are told unchanged. The archive
-keeps the measured returns; only what the ES is told changes. Measured: README, "Reused
-returns and the search".
+keeps the measured returns; only what the ES is told changes. Measured: docs/research/bias.md,
+"Reused returns and the search".
 """
 
 from __future__ import annotations

@@ -141,7 +141,7 @@ common offset of the population cancels from the gradient). (3) Under real fitne
 *do* depend on where the members lie: the elites sit ahead along the move because they are
 good, not only because they pulled it, and the rule, which takes all of that for the loop's
 own pull, pushes the next generation back along a good move (CMA-ES on CartPole: 181 with
-four seeds stuck below 120, against 199.6 with ``"exact"``). Measured in the README
+four seeds stuck below 120, against 199.6 with ``"exact"``). Measured in docs/research/bias.md
 ("Reused returns and the search").
 
 A minimal refresh: why every generation evaluates at least ``min_fresh`` members
@@ -153,7 +153,7 @@ and their returns (CEM, CMA-ES's mean and covariance) makes the same update agai
 point in which nothing is searched. (ARS's mirrored pairs need no refresh: every mirror is
 fresh, so :mod:`imix_cli.core.mirrored` does not apply it.) Measured: CEM + ``exact`` on a noise-free 10-d
 sphere (N = 20, 300 generations) reused every member in 98-145 generations, runs of up to
-78; on Rastrigin one seed froze for 263 generations at f = -140 (issue 35's notes).
+78; on Rastrigin one seed froze for 263 generations at f = -140.
 
 The cure keeps every law above: after a rule has built the generation, ``min_fresh`` slots
 are chosen uniformly at random, independently of the members, and the member in each --

@@ -39,21 +39,6 @@ from imix_cli.core.algorithms.base import EvolutionStrategy, Params, _array_like
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.mirrored import MIRRORED_PAIRS, mirror
 
-#: The ARS paper's hyper-parameters for its MuJoCo tasks (-v1 envs) as rl-zoo3 2.9.2's hyperparams/ars.yml
-#: gives them ("Params closest to original paper", for -v4; the paper's own table could not be read
-#: offline): directions N, top directions b, step size alpha, noise nu, state normalisation (V2), and
-#: the offset added to every step's reward during training (``alive_bonus_offset``, ARS's shift:
-#: :attr:`ARSParams.alive_bonus_offset`). conf/ars/<env>.yaml holds the same values for ``+ars=<env>``.
-PAPER_HYPERPARAMETERS = {
-    "swimmer": {"directions": 1, "top": 1, "step_size": 0.02, "noise": 0.01, "obs_norm": False, "alive_bonus_offset": 0.0},
-    "hopper": {"directions": 8, "top": 4, "step_size": 0.01, "noise": 0.025, "obs_norm": True, "alive_bonus_offset": -1.0},
-    "halfcheetah": {"directions": 32, "top": 4, "step_size": 0.02, "noise": 0.03, "obs_norm": True, "alive_bonus_offset": 0.0},
-    "walker2d": {"directions": 40, "top": 30, "step_size": 0.03, "noise": 0.025, "obs_norm": True, "alive_bonus_offset": -1.0},
-}
-
-#: The ARS paper's thresholds (-v1 envs).
-PAPER_THRESHOLDS = {"swimmer": 325.0, "hopper": 3120.0, "halfcheetah": 3430.0, "walker2d": 4390.0}
-
 
 @dataclass(frozen=True)
 class ARSParams(Params):

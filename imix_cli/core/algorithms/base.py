@@ -12,7 +12,7 @@ weight decay and centred-rank fitness shaping, as in the paper's section 4.1:
 ``weight_decay_form="estool"`` (default)
     The authors' estool-derived code: centred ranks of the raw fitness, then
     -w * mean(theta^2) is added to the ranks. The paper's published curves come from
-    this form (README, "Which weight decay").
+    this form (docs/reproducing.md, "Which weight decay").
 ``weight_decay_form="paper"``
     The paper's text: the penalty -w * ||theta||^2 is added to each raw fitness,
     then the penalised fitness is turned into centred ranks.
@@ -74,7 +74,7 @@ def centered_ranks(values: np.ndarray, tie_break: np.ndarray | None = None) -> n
     on CartPole ~40 of 50 members tie at the maximum return; breaking ties by position put
     the reused members at the bottom of the tie, i.e. made the fresh rule-2 draws (which sit
     where the new density exceeds the old) the elites, and pushed the distribution outward
-    (issue 11: CMA-ES + EIM ended at 181.8 instead of 196, sigma 3x too large). And why the
+    (measured: CMA-ES + EIM ended at 181.8 instead of 196, sigma 3x too large). And why the
     ES breaks ties at random rather than sharing ranks: the estool weight decay is then added
     to the ranks, and between exactly equal ranks that tiny penalty decides the order --
     CEM and CMA-ES then select the smallest members of every tie, which pulled CMA-ES on
@@ -122,7 +122,7 @@ def member_keys(samples: np.ndarray, salt: int = 0) -> np.ndarray:
     few reused members stayed the elites and kept pulling the mean the same way. Measured
     (defaults, 25 seeds, CartPole): CMA-ES + EIM's step size collapsed in 25/25 seeds (median
     final sigma 8.7e-7, three seeds stuck near 100); with the salt it stays near the no-mixing
-    value (README, "Reused returns and the search").
+    value (docs/research/bias.md, "Reused returns and the search").
     """
     bits = np.ascontiguousarray(samples, dtype=np.float64).view(np.uint64)
     h = (bits * hash_multipliers(bits.shape[1])).sum(axis=1, dtype=np.uint64)

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 
 #: Column names and order of every run CSV (plots and outside tools rely on them).
 COLUMNS = (
-    "algo",  # ES name: openes | snes | cem | cmaes | ddpg
+    "algo",  # algorithm name: openes | snes | cem | cmaes | ars | ddpg
     "env",  # environment config name (cartpole, acrobot, ...) or gymnasium id
     "mixing",  # none | im | eim
     "seed",  # seed index k of seed_<k>.csv

@@ -1,7 +1,6 @@
-"""Reliability round 2 (issue 14): values the README calls valid, sweeps, sizes, signals, locks.
+"""Values the README calls valid, sweeps, sizes, signals, locks: each case a reproduction of a failure once seen.
 
-Each case is one of the issue's reproductions. Values that can never work are refused up front
-(one line naming the key, exit 2, nothing written); a legal value whose search diverges ends
+Values that can never work are refused up front (one line naming the key, exit 2, nothing written); a legal value whose search diverges ends
 its seed cleanly, recorded in the CSV (``diverged``) and in the summary.
 """
 
