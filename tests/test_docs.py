@@ -147,3 +147,18 @@ def test_the_docs_show_what_the_code_prints():
     from imix_cli.commands.docs_numbers import check
 
     assert check() == []
+
+
+def test_the_results_page_lists_every_provenance_mark_and_the_prose_names_no_commit():
+    """docs/results.md is what ``make docs-numbers`` makes of the pages' provenance marks (a mark added, changed or
+    removed without it fails here), and no page names a commit in its prose: a commit belongs in a mark."""
+    import re
+
+    from imix_cli.commands import docs_numbers
+
+    assert docs_numbers.results_current(), "docs/results.md is out of date: make docs-numbers (or docs_numbers.write_results_page())"
+    rows = docs_numbers.provenance_rows()
+    assert rows and all(re.fullmatch(r"[0-9a-f]{7,40}", row["commit"]) for row in rows)
+    stamp = re.compile(r"\b(?:commit|at) [0-9a-f]{7,40}\b")
+    found = [f"{p.relative_to(ROOT)}: {m.group(0)!r}" for p in PAGES for m in stamp.finditer(docs_numbers._MARK.sub("", p.read_text()))]
+    assert found == []

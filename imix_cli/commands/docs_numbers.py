@@ -147,7 +147,10 @@ def _machine() -> str:
     return f"{os.cpu_count()}-core {model}"
 
 
-def _provenance(name: str) -> str:
+def _provenance(name: str, file: str) -> str:
+    """The line above a block's output: the command, a link to the results page, and (in a comment the page
+    collects) the commit, date, stack and machine that printed it."""
+    import datetime
     import os
 
     load = os.getloadavg()[0]  # the 1-minute load average: how busy the machine was when the times were taken
@@ -161,10 +164,71 @@ def _provenance(name: str) -> str:
     import numpy
 
     command = "imix run " + " ".join(BLOCKS[name].command)
-    return (
-        f"*Printed by `{command}` (imix {__version__}, commit {commit}, Python {platform.python_version()}, numpy {numpy.__version__}, "
-        f"numba {numba.__version__}, {platform.machine()}; times on a {_machine()}, load {load:.1f}); regenerate with `make docs-numbers`.*"
-    )
+    stack = f"imix {__version__}, Python {platform.python_version()}, numpy {numpy.__version__}, numba {numba.__version__}, {platform.machine()}"
+    mark = provenance_mark(commit, command, datetime.datetime.now(datetime.timezone.utc).date().isoformat(), f"{_machine()}, load {load:.1f}", stack)
+    return f"*Printed by `{command}` ({_link(file)}); regenerate with `make docs-numbers`.*{mark}"
+
+
+# ------------------------------------------------------------------------------------ the results page
+#: The page that lists where each measured number of README.md and docs/ comes from: ``write`` makes it from the
+#: provenance marks of the pages (``<!-- provenance: commit=...; what=...; ... -->``, written beside the numbers
+#: instead of commit stamps in the prose), ``check`` fails when it is out of date.
+RESULTS_PAGE = "docs/results.md"
+_MARK = re.compile(r"<!-- provenance: (.*?) -->", re.S)
+_FIELDS = ("commit", "date", "what", "machine", "stack")
+
+
+def provenance_mark(commit: str, what: str, date: str = "", machine: str = "", stack: str = "") -> str:
+    """The comment a page carries beside a measured number (invisible on the page, collected by :func:`results_page`)."""
+    values = {"commit": commit, "date": date, "what": what, "machine": machine, "stack": stack}
+    return "<!-- provenance: " + "; ".join(f"{k}={v}" for k, v in values.items() if v) + " -->"
+
+
+def _link(file: str) -> str:
+    """A link to the results page from ``file`` (a path below the repository)."""
+    target = Path(RESULTS_PAGE).relative_to(Path(file).parent) if file.startswith("docs/") else Path(RESULTS_PAGE)
+    return f"provenance: [results]({target.as_posix()})"
+
+
+def _pages() -> list[Path]:
+    return [ROOT / "README.md", *sorted(p for p in (ROOT / "docs").rglob("*.md") if p != ROOT / RESULTS_PAGE)]
+
+
+def provenance_rows() -> list[dict]:
+    """Every provenance mark of README.md and docs/, in page order: its fields, its page and the heading above it."""
+    rows = []
+    for page in _pages():
+        text = page.read_text()
+        for match in _MARK.finditer(text):
+            fields = dict(part.strip().split("=", 1) for part in match.group(1).split("; ") if "=" in part)
+            unknown = set(fields) - set(_FIELDS)
+            if unknown or "commit" not in fields or "what" not in fields:
+                raise ValueError(f"{page.relative_to(ROOT)}: provenance mark {match.group(0)[:80]!r}: needs commit= and what=, knows {', '.join(_FIELDS)}")
+            headings = [line.lstrip("#").strip() for line in text[: match.start()].splitlines() if line.startswith("#")]
+            rows.append({**fields, "page": page.relative_to(ROOT).as_posix(), "section": headings[-1] if headings else ""})
+    return rows
+
+
+def results_page() -> str:
+    """docs/results.md: one row per measured result of the docs, where it is shown and what produced it."""
+    lines = [
+        "# Results and their provenance",
+        "",
+        "Where each measured number of the README and of these pages comes from: the commit it was measured at,",
+        "when, what ran and on which machine. The pages carry these as comments beside the numbers, not as",
+        "commit stamps in their prose; `make docs-numbers` writes this page from them",
+        "(`python -m imix_cli.commands.docs_numbers write`), and `tests/test_docs.py` fails when it is out of date.",
+        "",
+        "| page | section | what ran | commit | date | machine |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in provenance_rows():
+        page = row["page"]
+        shown = f"[{page.removeprefix('docs/')}]({page.removeprefix('docs/')})" if page.startswith("docs/") else f"`{page}`"
+        machine = "; ".join(v for v in (row.get("machine", ""), row.get("stack", "")) if v)
+        cells = [shown, row["section"], row["what"], f"`{row['commit']}`", row.get("date", ""), machine]
+        lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def _blocks_in(text: str):
@@ -181,9 +245,9 @@ def _comparable(output: str) -> str:
 
 
 def check(names=None) -> list[str]:
-    """Problems (one line each; empty when the docs show what the code prints)."""
+    """Problems (one line each; empty when the docs show what the code prints and the results page lists their provenance)."""
     names = names or [*BLOCKS, *FIGURES]
-    problems = []
+    problems = [] if results_current() else [f"{RESULTS_PAGE}: out of date with the pages' provenance marks (make docs-numbers)"]
     for name in names:
         if name in FIGURES:
             sidecar = _sidecar(name)
@@ -200,6 +264,18 @@ def check(names=None) -> list[str]:
     return problems
 
 
+def results_current() -> bool:
+    page = ROOT / RESULTS_PAGE
+    return page.exists() and page.read_text() == results_page()
+
+
+def write_results_page() -> list[Path]:
+    if results_current():
+        return []
+    (ROOT / RESULTS_PAGE).write_text(results_page())
+    return [ROOT / RESULTS_PAGE]
+
+
 def write(names=None) -> list[Path]:
     names = names or [*BLOCKS, *FIGURES]
     changed = []
@@ -214,11 +290,11 @@ def write(names=None) -> list[Path]:
             text = path.read_text()
             for n, start, end, _ in reversed(list(_blocks_in(text))):
                 if n == name:
-                    text = text[:start] + f"{_provenance(name)}\n\n```\n{now.rstrip()}\n```\n" + text[end:]
+                    text = text[:start] + f"{_provenance(name, file)}\n\n```\n{now.rstrip()}\n```\n" + text[end:]
             if text != path.read_text():
                 path.write_text(text)
                 changed.append(path)
-    return changed
+    return changed + write_results_page()
 
 
 def main(argv: list[str]) -> int:
