@@ -36,7 +36,7 @@ from imix_cli.core.elementary import fma  # noqa: E402
 
 getcontext().prec = 70
 N = 128
-OUT = Path(__file__).resolve().parents[1] / "imix_cli" / "elementary_tables.py"
+OUT = Path(__file__).resolve().parents[1] / "imix_cli" / "core" / "elementary_tables.py"
 
 
 def asdouble(u):
