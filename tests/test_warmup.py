@@ -40,7 +40,7 @@ print(cold, warmed, sum(not all(_cached(e) for e in entries) for _, entries in g
 
 def _python(code, args, cache_dir):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
-    out = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True, text=True, timeout=900)
+    out = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True, text=True, timeout=1800)
     assert out.returncode == 0, out.stderr[-3000:]
     return out.stdout.strip().splitlines()[-1]
 
@@ -73,7 +73,7 @@ def test_after_the_warm_up_a_run_compiles_nothing(tmp_path, args):
 def test_the_install_warm_up_covers_every_built_in_kernel(tmp_path):
     cache = tmp_path / "numba_cache"
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
-    out = subprocess.run([sys.executable, "-m", "imix_cli.running.warmup"], env=env, capture_output=True, text=True, timeout=900)
+    out = subprocess.run([sys.executable, "-m", "imix_cli.running.warmup"], env=env, capture_output=True, text=True, timeout=1800)
     assert out.returncode == 0, out.stderr[-3000:]
     for args in (
         ["algo=cem", "env=acrobot", "eim=true"],
