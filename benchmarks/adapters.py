@@ -156,7 +156,7 @@ def noisy_run(seed, arm, budget, checkpoints):
 
     d = 33
     options = {"seed": seed, "verbose": -9}
-    if arm == "pycma + TPA + NoiseHandler":
+    if "NoiseHandler" in arm:
         options["AdaptSigma"] = cma.sigma_adaptation.CMAAdaptSigmaTPA
     es = cma.CMAEvolutionStrategy(d * [1.0], 1.0, options)
     out, todo = [], list(checkpoints)
@@ -164,7 +164,9 @@ def noisy_run(seed, arm, budget, checkpoints):
     if arm.startswith("mixing"):
         remedy = {"reeval_count": 2} if "reeval_count" in arm else {}
         m = imix_cli.MixingES(es, "exact", rng=seed, **remedy)
-    nh = cma.NoiseHandler(d, maxevals=[1, 1, 30]) if "NoiseHandler" in arm else None
+    nh = None
+    if "NoiseHandler" in arm:  # the issue's: fmin2(..., noise_handler=cma.NoiseHandler) makes NoiseHandler(N), no re-evaluations
+        nh = cma.NoiseHandler(d, maxevals=[1, 1, 30]) if "maxevals" in arm else cma.NoiseHandler(d)
     last = truth(es.mean)
     while todo and count[0] < budget:
         if m is not None:
@@ -190,7 +192,7 @@ def noisy_run(seed, arm, budget, checkpoints):
 
 def noisy(seeds=15, budget=30_000):
     checkpoints = [budget // 6, budget // 3, budget]
-    arms = ("pycma", "pycma + TPA + NoiseHandler", "mixing", "mixing + reeval_count=2")
+    arms = ("pycma", "pycma + TPA + NoiseHandler", "pycma + TPA + NoiseHandler(maxevals=[1, 1, 30])", "mixing", "mixing + reeval_count=2")
     print("| arm | " + " | ".join(f"f(mean) at {c:,} evaluations, median [IQR]" for c in checkpoints) + " |")
     print("|---|" + "---:|" * len(checkpoints))
     for arm in arms:
@@ -199,59 +201,68 @@ def noisy(seeds=15, budget=30_000):
         print(f"| {arm} | " + " | ".join(cells) + " |", flush=True)
 
 
-def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
-    """Episodes and wall seconds until the population mean return reaches ``target`` (None if never)."""
-    import gymnax
-    import jax
+def _evosax_algorithm(algo, dim):
+    """evosax ``algo`` (a key of :data:`EVOSAX_NAMES`) for ``dim`` parameters: (algorithm, params)."""
     import jax.numpy as jnp
     import optax
     from evosax.algorithms import SNES, Open_ES
 
+    from imix_cli.bench.peers import PEER_LR, PEER_POPSIZE, PEER_SIGMA
+
+    solution = jnp.zeros(dim)
+    if algo == "snes":  # imix bench peers' setting: evosax's defaults but the initial std
+        algorithm = SNES(population_size=PEER_POPSIZE, solution=solution)
+        return algorithm, algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
+    if algo == "snes-mixing":  # the adapter's SNES for mixing (imix_cli.adapters.evosax.snes_for_mixing)
+        from imix_cli.adapters.evosax import snes_for_mixing
+
+        return snes_for_mixing(PEER_POPSIZE, solution, std_init=PEER_SIGMA)
+    if algo == "snes-small":  # imix's SNES step sizes: Adam (lr 0.01, beta1 0.99) on the mean, ~0.01 per generation on log sigma
+        algorithm = SNES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR, b1=0.99))
+        return algorithm, algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA), lr_std_init=jnp.asarray(0.01))
+    algorithm = Open_ES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR),
+                        std_schedule=optax.constant_schedule(PEER_SIGMA))  # fmt: skip
+    return algorithm, algorithm.default_params
+
+
+_CACHE = {}
+
+
+def _cartpole_rollouts():
+    """One jitted batched rollout of imix bench peers' CartPole (imix's policy, 200 steps) per process, and the
+    parameter count: compiled once per batch size for all runs."""
+    if "rollouts" not in _CACHE:
+        import jax
+
+        from imix_cli.bench.peers import gymnax_episode
+
+        episode, dim = gymnax_episode("cartpole")
+        _CACHE["rollouts"] = jax.jit(jax.vmap(lambda flat, key: episode(flat, key)[0])), dim
+    return _CACHE["rollouts"]
+
+
+def evosax_cartpole(algo, mixing, seed, max_generations=1000, target=195.0, algorithm=None, **mixing_options):
+    """Episodes and wall seconds until the population mean return reaches ``target`` (None if never),
+    generations and reuse. ``algorithm``: an (algorithm, params) pair in place of ``algo``'s."""
+    import jax
+    import jax.numpy as jnp
+
     import imix_cli
     from imix_cli.adapters.evosax import from_evosax
-    from imix_cli.bench.peers import PEER_LR, PEER_POPSIZE, PEER_SIGMA
-    from imix_cli.policies import num_params
 
-    environment, env_params = gymnax.make("CartPole-v1")
-    env_params = env_params.replace(max_steps_in_episode=200)
-    sizes = [4, 8, 8, 2]
-    dim = num_params(4, 2)
-
-    def policy(flat, obs):  # imix_cli.policies' layout, as imix bench peers
-        k, x = 0, obs
-        for layer, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
-            W, bias = flat[k : k + a * b].reshape(a, b), flat[k + a * b : k + a * b + b]
-            k += a * b + b
-            x = x @ W + bias
-            x = jnp.tanh(x) if layer < 2 else x
-        return jnp.argmax(x)
-
-    def episode(flat, key):
-        k_reset, k_step = jax.random.split(key)
-        obs, state = environment.reset(k_reset, env_params)
-
-        def step(carry, _):
-            obs, state, ret, alive = carry
-            obs, state, reward, done, _ = environment.step(k_step, state, policy(flat, obs), env_params)
-            return (obs, state, ret + reward * alive, alive * (1.0 - done)), None
-
-        (_, _, ret, _), _ = jax.lax.scan(step, (obs, state, jnp.float32(0.0), jnp.float32(1.0)), None, length=200)
-        return ret
-
-    rollouts = jax.jit(jax.vmap(episode))
+    rollouts, dim = _cartpole_rollouts()
+    if algorithm is None:
+        if algo not in _CACHE:  # one object per algorithm: evosax's jitted ask and tell compile once
+            _CACHE[algo] = _evosax_algorithm(algo, dim)
+        algorithm = _CACHE[algo]
+    algorithm, params = algorithm
     solution = jnp.zeros(dim)
-    if algo == "snes":
-        algorithm = SNES(population_size=PEER_POPSIZE, solution=solution)
-        params = algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
-    elif algo == "snes-small":  # imix's SNES step sizes: Adam (lr 0.01, beta1 0.99) on the mean, ~0.01 per generation on log sigma
-        algorithm = SNES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR, b1=0.99))
-        params = algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA), lr_std_init=jnp.asarray(0.01))
-    else:
-        algorithm = Open_ES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR),
-                            std_schedule=optax.constant_schedule(PEER_SIGMA))  # fmt: skip
-        params = algorithm.default_params
     key = jax.random.key(seed)
     eval_key = jax.random.key(1_000_000 + seed)
+    # evosax jits ask and tell per algorithm object: compile them before the clock starts (both arms)
+    warm = algorithm.init(jax.random.key(0), solution, params)
+    population, warm = algorithm.ask(jax.random.key(0), warm, params)
+    jax.block_until_ready(algorithm.tell(jax.random.key(0), population, jnp.zeros(population.shape[0]), warm, params))
 
     def evaluate(points):
         nonlocal eval_key
@@ -268,7 +279,7 @@ def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
         evaluate(np.zeros((n, dim)))
     started, episodes = time.perf_counter(), 0
     if mixing:
-        m = imix_cli.MixingES(from_evosax(algorithm, params, key), "exact", rng=seed)
+        m = imix_cli.MixingES(from_evosax(algorithm, params, key), "exact", rng=seed, **mixing_options)
         for generation in range(max_generations):
             x = m.ask()
             returns = evaluate(x)
@@ -290,23 +301,32 @@ def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
     return None, time.perf_counter() - started, max_generations, 0.0
 
 
-EVOSAX_NAMES = {"snes": "SNES (evosax's defaults)", "snes-small": "SNES (imix's step sizes)", "openes": "Open_ES (antithetic)"}
+EVOSAX_NAMES = {"snes": "SNES (evosax's defaults)", "snes-mixing": "SNES (snes_for_mixing)", "openes": "Open_ES (antithetic)",
+                "snes-small": "SNES (imix's step sizes)"}  # fmt: skip
 
 
-def evosax_table(seeds=5, algos=("snes", "openes", "snes-small")):
-    print("| algorithm | mixing | seeds reaching 195 | episodes to 195, median [min, max] | wall s to 195, median | generations, median | reuse |")
-    print("|---|---|---:|---:|---:|---:|---:|")
-    for algo in algos:
-        for mixing in (False, True):
-            runs = [evosax_cartpole(algo, mixing, s) for s in range(seeds)]
-            ok = [r for r in runs if r[0] is not None]
-            e = np.array([r[0] for r in ok]) if ok else np.array([np.nan])
-            w = np.median([r[1] for r in ok]) if ok else np.nan
-            g = np.median([r[2] for r in ok]) if ok else np.nan
-            reuse = np.mean([r[3] for r in runs])
-            name = EVOSAX_NAMES[algo]
-            print(f"| {name} | {'exact' if mixing else 'none'} | {len(ok)}/{seeds} | {np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}] | "
-                  f"{w:.1f} | {g:.0f} | {100 * reuse:.0f} % |", flush=True)  # fmt: skip
+def evosax_table(seeds=5, algos=("snes", "snes-mixing", "openes")):
+    """Every arm of a seed back to back (the machine's speed drifts): wall-time ratios are per seed, paired
+    with evosax SNES at its defaults without mixing (the first arm), as are the episode ratios."""
+    arms = [(algo, mixing) for algo in algos for mixing in (False, True)]
+    runs = {arm: [] for arm in arms}
+    for seed in range(seeds):
+        for algo, mixing in arms:
+            runs[algo, mixing].append(evosax_cartpole(algo, mixing, seed))
+    base = runs[arms[0]]
+    print(f"| algorithm | mixing | seeds reaching 195 | episodes to 195, median [min, max] | generations, median | reuse "
+          f"| episodes: {EVOSAX_NAMES[arms[0][0]]} alone / this, median | wall time: this / {EVOSAX_NAMES[arms[0][0]]} alone, median [min, max] |")  # fmt: skip
+    print("|---|---|---:|---:|---:|---:|---:|---:|")
+    for (algo, mixing), rs in runs.items():
+        ok = [r for r in rs if r[0] is not None]
+        e = np.array([r[0] for r in ok]) if ok else np.array([np.nan])
+        g = np.median([r[2] for r in ok]) if ok else np.nan
+        reuse = np.mean([r[3] for r in rs])
+        pairs = [(b, r) for b, r in zip(base, rs) if b[0] is not None and r[0] is not None]
+        fewer = np.median([b[0] / r[0] for b, r in pairs]) if pairs else np.nan
+        wall = np.array([r[1] / b[1] for b, r in pairs]) if pairs else np.array([np.nan])
+        print(f"| {EVOSAX_NAMES[algo]} | {'exact' if mixing else 'none'} | {len(ok)}/{seeds} | {np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}] | "
+              f"{g:.0f} | {100 * reuse:.0f} % | {fewer:.2f} | {np.median(wall):.2f} [{wall.min():.2f}, {wall.max():.2f}] |", flush=True)  # fmt: skip
 
 
 def main(argv=None) -> int:
@@ -315,7 +335,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: stepsize 5, cma 15, noisy 15, evosax 5)")
     parser.add_argument("--dims", default="10,40", help="cma: dimensions")
     parser.add_argument("--budget", type=int, default=30_000, help="noisy: evaluations")
-    parser.add_argument("--algos", default="snes,openes,snes-small", help="evosax: " + ", ".join(EVOSAX_NAMES))
+    parser.add_argument("--algos", default="snes,snes-mixing,openes", help="evosax: " + ", ".join(EVOSAX_NAMES))
     args = parser.parse_args(argv)
     dims = tuple(int(d) for d in args.dims.split(","))
     if args.section in ("all", "stepsize"):
