@@ -31,6 +31,7 @@ Sections (each prints a markdown table):
 from __future__ import annotations
 
 import argparse
+import json
 import time
 import warnings
 
@@ -190,15 +191,27 @@ def noisy_run(seed, arm, budget, checkpoints):
     return out
 
 
-def noisy(seeds=15, budget=30_000):
-    checkpoints = [budget // 6, budget // 3, budget]
-    arms = ("pycma", "pycma + TPA + NoiseHandler", "pycma + TPA + NoiseHandler(maxevals=[1, 1, 30])", "mixing", "mixing + reeval_count=2")
-    print("| arm | " + " | ".join(f"f(mean) at {c:,} evaluations, median [IQR]" for c in checkpoints) + " |")
-    print("|---|" + "---:|" * len(checkpoints))
-    for arm in arms:
-        values = np.array([noisy_run(s, arm, budget, checkpoints) for s in range(1, seeds + 1)])
+NOISY_ARMS = ("pycma", "pycma + TPA + NoiseHandler", "pycma + TPA + NoiseHandler(maxevals=[1, 1, 30])", "mixing", "mixing + reeval_count=2")
+
+
+def _checkpoints(budget):
+    return [budget // 6, budget // 3, budget]
+
+
+def noisy_runs(seeds, budget=30_000, arms=NOISY_ARMS):
+    """One record per arm and seed (of the list ``seeds``): f(mean) at the checkpoints."""
+    return [{"section": "noisy", "arm": arm, "seed": s, "budget": budget, "values": [float(v) for v in noisy_run(s, arm, budget, _checkpoints(budget))]}
+            for arm in arms for s in seeds]  # fmt: skip
+
+
+def noisy_table(records):
+    budget = records[0]["budget"]
+    print("| arm | seeds | " + " | ".join(f"f(mean) at {c:,} evaluations, median [IQR]" for c in _checkpoints(budget)) + " |")
+    print("|---|---:|" + "---:|" * len(_checkpoints(budget)))
+    for arm in dict.fromkeys(r["arm"] for r in records):
+        values = np.array([r["values"] for r in records if r["arm"] == arm])
         cells = [f"{np.median(v):.3g} [{np.percentile(v, 25):.3g}, {np.percentile(v, 75):.3g}]" for v in values.T]
-        print(f"| {arm} | " + " | ".join(cells) + " |", flush=True)
+        print(f"| {arm} | {values.shape[0]} | " + " | ".join(cells) + " |", flush=True)
 
 
 def _evosax_algorithm(algo, dim):
@@ -305,47 +318,72 @@ EVOSAX_NAMES = {"snes": "SNES (evosax's defaults)", "snes-mixing": "SNES (snes_f
                 "snes-small": "SNES (imix's step sizes)"}  # fmt: skip
 
 
-def evosax_table(seeds=5, algos=("snes", "snes-mixing", "openes")):
-    """Every arm of a seed back to back (the machine's speed drifts): wall-time ratios are per seed, paired
-    with evosax SNES at its defaults without mixing (the first arm), as are the episode ratios."""
-    arms = [(algo, mixing) for algo in algos for mixing in (False, True)]
-    runs = {arm: [] for arm in arms}
-    for seed in range(seeds):
-        for algo, mixing in arms:
-            runs[algo, mixing].append(evosax_cartpole(algo, mixing, seed))
-    base = runs[arms[0]]
+def evosax_runs(seeds, algos=("snes", "snes-mixing", "openes")):
+    """One record per arm and seed (of the list ``seeds``). Every arm of a seed runs back to back (the
+    machine's speed drifts), so that wall-time ratios can be paired seed by seed."""
+    records = []
+    for seed in seeds:
+        for algo in algos:
+            for mixing in (False, True):
+                episodes, wall, generations, reuse = evosax_cartpole(algo, mixing, seed)
+                records.append({"section": "evosax", "algo": algo, "mixing": mixing, "seed": seed, "episodes": episodes, "wall": wall,
+                                "generations": generations, "reuse": reuse})  # fmt: skip
+    return records
+
+
+def evosax_table(records):
+    """Episodes and wall-time ratios are per seed, paired with the first arm (evosax SNES at its defaults, no mixing)."""
+    arms = list(dict.fromkeys((r["algo"], r["mixing"]) for r in records))
+    seeds = sorted({r["seed"] for r in records})
+    run = {(r["algo"], r["mixing"], r["seed"]): r for r in records}
+    first = EVOSAX_NAMES[arms[0][0]]
     print(f"| algorithm | mixing | seeds reaching 195 | episodes to 195, median [min, max] | generations, median | reuse "
-          f"| episodes: {EVOSAX_NAMES[arms[0][0]]} alone / this, median | wall time: this / {EVOSAX_NAMES[arms[0][0]]} alone, median [min, max] |")  # fmt: skip
+          f"| episodes: {first} alone / this, median | wall time to 195: this / {first} alone, median [min, max] |")  # fmt: skip
     print("|---|---|---:|---:|---:|---:|---:|---:|")
-    for (algo, mixing), rs in runs.items():
-        ok = [r for r in rs if r[0] is not None]
-        e = np.array([r[0] for r in ok]) if ok else np.array([np.nan])
-        g = np.median([r[2] for r in ok]) if ok else np.nan
-        reuse = np.mean([r[3] for r in rs])
-        pairs = [(b, r) for b, r in zip(base, rs) if b[0] is not None and r[0] is not None]
-        fewer = np.median([b[0] / r[0] for b, r in pairs]) if pairs else np.nan
-        wall = np.array([r[1] / b[1] for b, r in pairs]) if pairs else np.array([np.nan])
-        print(f"| {EVOSAX_NAMES[algo]} | {'exact' if mixing else 'none'} | {len(ok)}/{seeds} | {np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}] | "
+    for algo, mixing in arms:
+        rs = [run[algo, mixing, s] for s in seeds]
+        ok = [r for r in rs if r["episodes"] is not None]
+        e = np.array([r["episodes"] for r in ok]) if ok else np.array([np.nan])
+        g = np.median([r["generations"] for r in ok]) if ok else np.nan
+        reuse = np.mean([r["reuse"] for r in rs])
+        pairs = [(run[(*arms[0], s)], run[algo, mixing, s]) for s in seeds]
+        pairs = [(b, r) for b, r in pairs if b["episodes"] is not None and r["episodes"] is not None]
+        fewer = np.median([b["episodes"] / r["episodes"] for b, r in pairs]) if pairs else np.nan
+        wall = np.array([r["wall"] / b["wall"] for b, r in pairs]) if pairs else np.array([np.nan])
+        print(f"| {EVOSAX_NAMES[algo]} | {'exact' if mixing else 'none'} | {len(ok)}/{len(rs)} | {np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}] | "
               f"{g:.0f} | {100 * reuse:.0f} % | {fewer:.2f} | {np.median(wall):.2f} [{wall.min():.2f}, {wall.max():.2f}] |", flush=True)  # fmt: skip
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=["all", "stepsize", "cma", "noisy", "evosax"])
+    parser.add_argument("section", choices=["all", "stepsize", "cma", "noisy", "evosax", "table"])
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: stepsize 5, cma 15, noisy 15, evosax 5)")
+    parser.add_argument("--seed", type=int, action="append", help="noisy, evosax: run only this seed (repeatable) and print its runs as JSON lines")
     parser.add_argument("--dims", default="10,40", help="cma: dimensions")
     parser.add_argument("--budget", type=int, default=30_000, help="noisy: evaluations")
     parser.add_argument("--algos", default="snes,snes-mixing,openes", help="evosax: " + ", ".join(EVOSAX_NAMES))
+    parser.add_argument("files", nargs="*", help="table: files of JSON lines (--seed's output, e.g. of several processes) to tabulate")
     args = parser.parse_args(argv)
     dims = tuple(int(d) for d in args.dims.split(","))
+    if args.section == "table":  # --seed's runs, from several processes, as one table per section
+        records = [json.loads(line) for name in args.files for line in open(name) if line.startswith("{")]
+        for section, table in (("noisy", noisy_table), ("evosax", evosax_table)):
+            if any(r["section"] == section for r in records):
+                table([r for r in records if r["section"] == section])
+        return 0
+    if args.seed and args.section in ("noisy", "evosax"):
+        runs = noisy_runs(args.seed, args.budget) if args.section == "noisy" else evosax_runs(args.seed, tuple(args.algos.split(",")))
+        for record in runs:
+            print(json.dumps(record), flush=True)
+        return 0
     if args.section in ("all", "stepsize"):
         stepsize(args.seeds or 5)
     if args.section in ("all", "cma"):
         cma_table(args.seeds or 15, dims)
     if args.section in ("all", "noisy"):
-        noisy(args.seeds or 15, args.budget)
+        noisy_table(noisy_runs(range(1, (args.seeds or 15) + 1), args.budget))
     if args.section in ("all", "evosax"):
-        evosax_table(args.seeds or 5, tuple(args.algos.split(",")))
+        evosax_table(evosax_runs(range(args.seeds or 5), tuple(args.algos.split(","))))
     return 0
 
 
