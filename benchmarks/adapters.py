@@ -3,6 +3,10 @@
     python benchmarks/adapters.py all                    # every section, the docs' tables (full seeds)
     python benchmarks/adapters.py cma --seeds 15 --dims 10,40
     python benchmarks/adapters.py stepsize | noisy | evosax [--seeds N]
+    python benchmarks/adapters.py evosax --seed 0 > s0.jsonl   # one seed's runs (JSON lines), e.g. one process per seed,
+    python benchmarks/adapters.py table s0.jsonl s1.jsonl      # then their table (noisy likewise)
+
+``make adapters`` runs every section in turn into results/adapters/.
 
 Sections (each prints a markdown table):
 
@@ -16,16 +20,18 @@ Sections (each prints a markdown table):
 ``noisy``     the noisy sphere of pycma issue 262 (``cma.ff.noisysphere(x, cond=1e4, noise=1,
               noise_offset=0)``, d = 33, x0 = 1, sigma0 = 1): noise-free f(mean) (``cma.ff.elli(mean,
               cond=1e4)``) at equal evaluations for pycma alone, pycma + TPA + ``cma.NoiseHandler``
-              (the issue's setting, in pycma's documented ask/tell loop), and mixing with and without
-              the stored-return remedy ``reeval_count``.
+              (the issue's setting, ``NoiseHandler(33)`` as ``cma.fmin2(..., noise_handler=cma.NoiseHandler)``
+              makes it, in pycma's documented ask/tell loop; and with up to 30 re-evaluations,
+              ``maxevals=[1, 1, 30]``), and mixing with and without the stored-return remedy ``reeval_count``.
 ``evosax``    evosax SNES and Open_ES on gymnax CartPole-v1 (``imix bench peers``' task and settings:
-              popsize 50, sigma 0.25, Adam lr 0.01 for Open_ES, the 2 x 8 tanh policy, 200 steps; and
-              SNES with imix's step sizes, Adam lr 0.01 on the mean and lr_std 0.01, where
-              evosax's defaults move the mean by a full natural-gradient step per generation):
+              popsize 50, sigma 0.25, Adam lr 0.01 for Open_ES, the 2 x 8 tanh policy, 200 steps; SNES at
+              evosax's defaults, which move the mean by a full natural-gradient step per generation, and
+              SNES from ``imix_cli.adapters.evosax.snes_for_mixing``, Adam 0.03 on the mean and lr_std 0.01):
               episodes and wall time until the generation's mean return (stored returns for reused
-              members) reaches 195, with and without mixing. Both arms run the same host loop (evosax's
-              jitted ask/tell, one jitted batched rollout of the points asked; batch sizes padded to
-              a power of two so each compiles once).
+              members) reaches 195, with and without mixing. Every arm runs the same host loop (evosax's
+              jitted ask/tell, compiled before the clock starts, and one jitted batched rollout of the
+              points asked; batch sizes padded to a power of two so each compiles once), the arms of a
+              seed back to back: the wall-time ratios against SNES at evosax's defaults are paired by seed.
 """
 
 from __future__ import annotations
