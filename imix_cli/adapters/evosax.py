@@ -9,6 +9,10 @@ One call turns an evosax algorithm, its params and a PRNG key into an object Mix
         x = m.ask()                      # numpy rows: only the members to evaluate
         m.tell(x, fitness(x))            # evosax's convention: minimised
 
+Mixing saves episodes only where consecutive distributions overlap: evosax's SNES at its defaults
+moves too far per generation for that (docs/adapters.md, CartPole: more episodes with mixing than
+without), and :func:`snes_for_mixing` builds it with step sizes under which mixing pays.
+
 Mixing runs on the host in numpy; the update stays evosax's own jitted ``tell``. Why evosax's
 ``ask`` is still called: some algorithms prepare their state for ``tell`` in ``ask`` (CMA_ES and
 Sep_CMA_ES eigendecompose C there, and ``tell`` uses that B and D), so the adapter calls ``ask``
