@@ -185,3 +185,16 @@ reproduce-ars:  ## ARS study (imix ARS, ARS + EIM, sb3-contrib ARS on Swimmer/Ho
 untuned:  ## the untuned-tasks benchmark (held-out tasks at default settings) into results/untuned/ and its table
 	$(PY) benchmarks/untuned_tasks.py run
 	$(PY) benchmarks/untuned_tasks.py table
+
+# Mixing for pycma and evosax (docs/adapters.md; benchmarks/adapters.py): every table of that page, each
+# section's markdown into results/adapters/. Needs the pycma and peers extras (pip install ".[pycma,peers]").
+# Hours on a shared 2-core machine: pycma d = 40 (rosen, elli) and the noisy sphere's mixing arms dominate; the
+# noisy budget is the one docs/adapters.md shows (3,000 evaluations).
+ADAPTER_NOISY_BUDGET ?= 3000
+.PHONY: adapters
+adapters:  ## the tables of docs/adapters.md (pycma's test functions, the noisy sphere, evosax on gymnax CartPole) into results/adapters/
+	mkdir -p results/adapters
+	$(PY) benchmarks/adapters.py stepsize > results/adapters/stepsize.md
+	$(PY) benchmarks/adapters.py cma --seeds 15 --dims 10,40 > results/adapters/cma.md
+	$(PY) benchmarks/adapters.py noisy --seeds 15 --budget $(ADAPTER_NOISY_BUDGET) > results/adapters/noisy.md
+	$(PY) benchmarks/adapters.py evosax --seeds 5 > results/adapters/evosax.md

@@ -1,8 +1,12 @@
-"""Importance mixing for pycma and evosax (imix_cli.core.adapters): the measurements of docs/adapters.md.
+"""Importance mixing for pycma and evosax (imix_cli.adapters): the measurements of docs/adapters.md.
 
     python benchmarks/adapters.py all                    # every section, the docs' tables (full seeds)
     python benchmarks/adapters.py cma --seeds 15 --dims 10,40
     python benchmarks/adapters.py stepsize | noisy | evosax [--seeds N]
+    python benchmarks/adapters.py evosax --seed 0 > s0.jsonl   # one seed's runs (JSON lines), e.g. one process per seed,
+    python benchmarks/adapters.py table s0.jsonl s1.jsonl      # then their table (noisy likewise)
+
+``make adapters`` runs every section in turn into results/adapters/.
 
 Sections (each prints a markdown table):
 
@@ -16,21 +20,24 @@ Sections (each prints a markdown table):
 ``noisy``     the noisy sphere of pycma issue 262 (``cma.ff.noisysphere(x, cond=1e4, noise=1,
               noise_offset=0)``, d = 33, x0 = 1, sigma0 = 1): noise-free f(mean) (``cma.ff.elli(mean,
               cond=1e4)``) at equal evaluations for pycma alone, pycma + TPA + ``cma.NoiseHandler``
-              (the issue's setting, in pycma's documented ask/tell loop), and mixing with and without
-              the stored-return remedy ``reeval_count``.
+              (the issue's setting, ``NoiseHandler(33)`` as ``cma.fmin2(..., noise_handler=cma.NoiseHandler)``
+              makes it, in pycma's documented ask/tell loop; and with up to 30 re-evaluations,
+              ``maxevals=[1, 1, 30]``), and mixing with and without the stored-return remedy ``reeval_count``.
 ``evosax``    evosax SNES and Open_ES on gymnax CartPole-v1 (``imix bench peers``' task and settings:
-              popsize 50, sigma 0.25, Adam lr 0.01 for Open_ES, the 2 x 8 tanh policy, 200 steps; and
-              SNES with imix's step sizes, Adam lr 0.01 on the mean and lr_std 0.01, where
-              evosax's defaults move the mean by a full natural-gradient step per generation):
+              popsize 50, sigma 0.25, Adam lr 0.01 for Open_ES, the 2 x 8 tanh policy, 200 steps; SNES at
+              evosax's defaults, which move the mean by a full natural-gradient step per generation, and
+              SNES from ``imix_cli.adapters.evosax.snes_for_mixing``, Adam 0.03 on the mean and lr_std 0.01):
               episodes and wall time until the generation's mean return (stored returns for reused
-              members) reaches 195, with and without mixing. Both arms run the same host loop (evosax's
-              jitted ask/tell, one jitted batched rollout of the points asked; batch sizes padded to
-              a power of two so each compiles once).
+              members) reaches 195, with and without mixing. Every arm runs the same host loop (evosax's
+              jitted ask/tell, compiled before the clock starts, and one jitted batched rollout of the
+              points asked; batch sizes padded to a power of two so each compiles once), the arms of a
+              seed back to back: the wall-time ratios against SNES at evosax's defaults are paired by seed.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 import warnings
 
@@ -56,7 +63,7 @@ def pycma_run(fname, d, seed, arm, max_generations=100_000):
     import cma
 
     import imix_cli
-    from imix_cli.core.adapters.pycma import PycmaES
+    from imix_cli.adapters.pycma import PycmaES
 
     _quiet()
     f = getattr(cma.ff, fname)
@@ -156,7 +163,7 @@ def noisy_run(seed, arm, budget, checkpoints):
 
     d = 33
     options = {"seed": seed, "verbose": -9}
-    if arm == "pycma + TPA + NoiseHandler":
+    if "NoiseHandler" in arm:
         options["AdaptSigma"] = cma.sigma_adaptation.CMAAdaptSigmaTPA
     es = cma.CMAEvolutionStrategy(d * [1.0], 1.0, options)
     out, todo = [], list(checkpoints)
@@ -164,7 +171,9 @@ def noisy_run(seed, arm, budget, checkpoints):
     if arm.startswith("mixing"):
         remedy = {"reeval_count": 2} if "reeval_count" in arm else {}
         m = imix_cli.MixingES(es, "exact", rng=seed, **remedy)
-    nh = cma.NoiseHandler(d, maxevals=[1, 1, 30]) if "NoiseHandler" in arm else None
+    nh = None
+    if "NoiseHandler" in arm:  # the issue's: fmin2(..., noise_handler=cma.NoiseHandler) makes NoiseHandler(N), no re-evaluations
+        nh = cma.NoiseHandler(d, maxevals=[1, 1, 30]) if "maxevals" in arm else cma.NoiseHandler(d)
     last = truth(es.mean)
     while todo and count[0] < budget:
         if m is not None:
@@ -188,70 +197,91 @@ def noisy_run(seed, arm, budget, checkpoints):
     return out
 
 
-def noisy(seeds=15, budget=30_000):
-    checkpoints = [budget // 6, budget // 3, budget]
-    arms = ("pycma", "pycma + TPA + NoiseHandler", "mixing", "mixing + reeval_count=2")
-    print("| arm | " + " | ".join(f"f(mean) at {c:,} evaluations, median [IQR]" for c in checkpoints) + " |")
-    print("|---|" + "---:|" * len(checkpoints))
-    for arm in arms:
-        values = np.array([noisy_run(s, arm, budget, checkpoints) for s in range(1, seeds + 1)])
+NOISY_ARMS = ("pycma", "pycma + TPA + NoiseHandler", "pycma + TPA + NoiseHandler(maxevals=[1, 1, 30])", "mixing", "mixing + reeval_count=2")
+
+
+def _checkpoints(budget):
+    return [budget // 6, budget // 3, budget]
+
+
+def noisy_runs(seeds, budget=30_000, arms=NOISY_ARMS):
+    """One record per arm and seed (of the list ``seeds``): f(mean) at the checkpoints."""
+    return [{"section": "noisy", "arm": arm, "seed": s, "budget": budget, "values": [float(v) for v in noisy_run(s, arm, budget, _checkpoints(budget))]}
+            for arm in arms for s in seeds]  # fmt: skip
+
+
+def noisy_table(records):
+    budget = records[0]["budget"]
+    print("| arm | seeds | " + " | ".join(f"f(mean) at {c:,} evaluations, median [IQR]" for c in _checkpoints(budget)) + " |")
+    print("|---|---:|" + "---:|" * len(_checkpoints(budget)))
+    for arm in dict.fromkeys(r["arm"] for r in records):
+        values = np.array([r["values"] for r in records if r["arm"] == arm])
         cells = [f"{np.median(v):.3g} [{np.percentile(v, 25):.3g}, {np.percentile(v, 75):.3g}]" for v in values.T]
-        print(f"| {arm} | " + " | ".join(cells) + " |", flush=True)
+        print(f"| {arm} | {values.shape[0]} | " + " | ".join(cells) + " |", flush=True)
 
 
-def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
-    """Episodes and wall seconds until the population mean return reaches ``target`` (None if never)."""
-    import gymnax
-    import jax
+def _evosax_algorithm(algo, dim):
+    """evosax ``algo`` (a key of :data:`EVOSAX_NAMES`) for ``dim`` parameters: (algorithm, params)."""
     import jax.numpy as jnp
     import optax
     from evosax.algorithms import SNES, Open_ES
 
-    import imix_cli
     from imix_cli.bench.peers import PEER_LR, PEER_POPSIZE, PEER_SIGMA
-    from imix_cli.core.adapters.evosax import from_evosax
-    from imix_cli.core.policies import num_params
 
-    environment, env_params = gymnax.make("CartPole-v1")
-    env_params = env_params.replace(max_steps_in_episode=200)
-    sizes = [4, 8, 8, 2]
-    dim = num_params(4, 2)
-
-    def policy(flat, obs):  # imix_cli.core.policies' layout, as imix bench peers
-        k, x = 0, obs
-        for layer, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
-            W, bias = flat[k : k + a * b].reshape(a, b), flat[k + a * b : k + a * b + b]
-            k += a * b + b
-            x = x @ W + bias
-            x = jnp.tanh(x) if layer < 2 else x
-        return jnp.argmax(x)
-
-    def episode(flat, key):
-        k_reset, k_step = jax.random.split(key)
-        obs, state = environment.reset(k_reset, env_params)
-
-        def step(carry, _):
-            obs, state, ret, alive = carry
-            obs, state, reward, done, _ = environment.step(k_step, state, policy(flat, obs), env_params)
-            return (obs, state, ret + reward * alive, alive * (1.0 - done)), None
-
-        (_, _, ret, _), _ = jax.lax.scan(step, (obs, state, jnp.float32(0.0), jnp.float32(1.0)), None, length=200)
-        return ret
-
-    rollouts = jax.jit(jax.vmap(episode))
     solution = jnp.zeros(dim)
-    if algo == "snes":
+    if algo == "snes":  # imix bench peers' setting: evosax's defaults but the initial std
         algorithm = SNES(population_size=PEER_POPSIZE, solution=solution)
-        params = algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
-    elif algo == "snes-small":  # imix's SNES step sizes: Adam (lr 0.01, beta1 0.99) on the mean, ~0.01 per generation on log sigma
+        return algorithm, algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
+    if algo == "snes-mixing":  # the adapter's SNES for mixing (imix_cli.adapters.evosax.snes_for_mixing)
+        from imix_cli.adapters.evosax import snes_for_mixing
+
+        return snes_for_mixing(PEER_POPSIZE, solution, std_init=PEER_SIGMA)
+    if algo == "snes-small":  # imix's SNES step sizes: Adam (lr 0.01, beta1 0.99) on the mean, ~0.01 per generation on log sigma
         algorithm = SNES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR, b1=0.99))
-        params = algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA), lr_std_init=jnp.asarray(0.01))
-    else:
-        algorithm = Open_ES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR),
-                            std_schedule=optax.constant_schedule(PEER_SIGMA))  # fmt: skip
-        params = algorithm.default_params
+        return algorithm, algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA), lr_std_init=jnp.asarray(0.01))
+    algorithm = Open_ES(population_size=PEER_POPSIZE, solution=solution, optimizer=optax.adam(PEER_LR),
+                        std_schedule=optax.constant_schedule(PEER_SIGMA))  # fmt: skip
+    return algorithm, algorithm.default_params
+
+
+_CACHE = {}
+
+
+def _cartpole_rollouts():
+    """One jitted batched rollout of imix bench peers' CartPole (imix's policy, 200 steps) per process, and the
+    parameter count: compiled once per batch size for all runs."""
+    if "rollouts" not in _CACHE:
+        import jax
+
+        from imix_cli.bench.peers import gymnax_episode
+
+        episode, dim = gymnax_episode("cartpole")
+        _CACHE["rollouts"] = jax.jit(jax.vmap(lambda flat, key: episode(flat, key)[0])), dim
+    return _CACHE["rollouts"]
+
+
+def evosax_cartpole(algo, mixing, seed, max_generations=1000, target=195.0, algorithm=None, **mixing_options):
+    """Episodes and wall seconds until the population mean return reaches ``target`` (None if never),
+    generations and reuse. ``algorithm``: an (algorithm, params) pair in place of ``algo``'s."""
+    import jax
+    import jax.numpy as jnp
+
+    import imix_cli
+    from imix_cli.adapters.evosax import from_evosax
+
+    rollouts, dim = _cartpole_rollouts()
+    if algorithm is None:
+        if algo not in _CACHE:  # one object per algorithm: evosax's jitted ask and tell compile once
+            _CACHE[algo] = _evosax_algorithm(algo, dim)
+        algorithm = _CACHE[algo]
+    algorithm, params = algorithm
+    solution = jnp.zeros(dim)
     key = jax.random.key(seed)
     eval_key = jax.random.key(1_000_000 + seed)
+    # evosax jits ask and tell per algorithm object: compile them before the clock starts (both arms)
+    warm = algorithm.init(jax.random.key(0), solution, params)
+    population, warm = algorithm.ask(jax.random.key(0), warm, params)
+    jax.block_until_ready(algorithm.tell(jax.random.key(0), population, jnp.zeros(population.shape[0]), warm, params))
 
     def evaluate(points):
         nonlocal eval_key
@@ -268,7 +298,7 @@ def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
         evaluate(np.zeros((n, dim)))
     started, episodes = time.perf_counter(), 0
     if mixing:
-        m = imix_cli.MixingES(from_evosax(algorithm, params, key), "exact", rng=seed)
+        m = imix_cli.MixingES(from_evosax(algorithm, params, key), "exact", rng=seed, **mixing_options)
         for generation in range(max_generations):
             x = m.ask()
             returns = evaluate(x)
@@ -290,42 +320,76 @@ def evosax_cartpole(algo, mixing, seed, max_generations=500, target=195.0):
     return None, time.perf_counter() - started, max_generations, 0.0
 
 
-EVOSAX_NAMES = {"snes": "SNES (evosax's defaults)", "snes-small": "SNES (imix's step sizes)", "openes": "Open_ES (antithetic)"}
+EVOSAX_NAMES = {"snes": "SNES (evosax's defaults)", "snes-mixing": "SNES (snes_for_mixing)", "openes": "Open_ES (antithetic)",
+                "snes-small": "SNES (imix's step sizes)"}  # fmt: skip
 
 
-def evosax_table(seeds=5, algos=("snes", "openes", "snes-small")):
-    print("| algorithm | mixing | seeds reaching 195 | episodes to 195, median [min, max] | wall s to 195, median | generations, median | reuse |")
-    print("|---|---|---:|---:|---:|---:|---:|")
-    for algo in algos:
-        for mixing in (False, True):
-            runs = [evosax_cartpole(algo, mixing, s) for s in range(seeds)]
-            ok = [r for r in runs if r[0] is not None]
-            e = np.array([r[0] for r in ok]) if ok else np.array([np.nan])
-            w = np.median([r[1] for r in ok]) if ok else np.nan
-            g = np.median([r[2] for r in ok]) if ok else np.nan
-            reuse = np.mean([r[3] for r in runs])
-            name = EVOSAX_NAMES[algo]
-            print(f"| {name} | {'exact' if mixing else 'none'} | {len(ok)}/{seeds} | {np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}] | "
-                  f"{w:.1f} | {g:.0f} | {100 * reuse:.0f} % |", flush=True)  # fmt: skip
+def evosax_runs(seeds, algos=("snes", "snes-mixing", "openes")):
+    """One record per arm and seed (of the list ``seeds``). Every arm of a seed runs back to back (the
+    machine's speed drifts), so that wall-time ratios can be paired seed by seed."""
+    records = []
+    for seed in seeds:
+        for algo in algos:
+            for mixing in (False, True):
+                episodes, wall, generations, reuse = evosax_cartpole(algo, mixing, seed)
+                records.append({"section": "evosax", "algo": algo, "mixing": mixing, "seed": seed, "episodes": episodes, "wall": wall,
+                                "generations": generations, "reuse": reuse})  # fmt: skip
+    return records
+
+
+def evosax_table(records):
+    """Episodes and wall-time ratios are per seed, paired with the first arm (evosax SNES at its defaults, no mixing)."""
+    arms = list(dict.fromkeys((r["algo"], r["mixing"]) for r in records))
+    seeds = sorted({r["seed"] for r in records})
+    run = {(r["algo"], r["mixing"], r["seed"]): r for r in records}
+    first = EVOSAX_NAMES[arms[0][0]]
+    print(f"| algorithm | mixing | seeds reaching 195 | episodes to 195, median [min, max] | generations, median | reuse "
+          f"| episodes: {first} alone / this, median | wall time to 195: this / {first} alone, median [min, max] |")  # fmt: skip
+    print("|---|---|---:|---:|---:|---:|---:|---:|")
+    for algo, mixing in arms:
+        rs = [run[algo, mixing, s] for s in seeds]
+        ok = [r for r in rs if r["episodes"] is not None]
+        e = np.array([r["episodes"] for r in ok]) if ok else np.array([np.nan])
+        g = np.median([r["generations"] for r in ok]) if ok else np.nan
+        reuse = np.mean([r["reuse"] for r in rs])
+        pairs = [(run[(*arms[0], s)], run[algo, mixing, s]) for s in seeds]
+        pairs = [(b, r) for b, r in pairs if b["episodes"] is not None and r["episodes"] is not None]
+        fewer = np.median([b["episodes"] / r["episodes"] for b, r in pairs]) if pairs else np.nan
+        wall = np.array([r["wall"] / b["wall"] for b, r in pairs]) if pairs else np.array([np.nan])
+        print(f"| {EVOSAX_NAMES[algo]} | {'exact' if mixing else 'none'} | {len(ok)}/{len(rs)} | {np.median(e):,.0f} [{e.min():,.0f}, {e.max():,.0f}] | "
+              f"{g:.0f} | {100 * reuse:.0f} % | {fewer:.2f} | {np.median(wall):.2f} [{wall.min():.2f}, {wall.max():.2f}] |", flush=True)  # fmt: skip
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=["all", "stepsize", "cma", "noisy", "evosax"])
+    parser.add_argument("section", choices=["all", "stepsize", "cma", "noisy", "evosax", "table"])
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: stepsize 5, cma 15, noisy 15, evosax 5)")
+    parser.add_argument("--seed", type=int, action="append", help="noisy, evosax: run only this seed (repeatable) and print its runs as JSON lines")
     parser.add_argument("--dims", default="10,40", help="cma: dimensions")
     parser.add_argument("--budget", type=int, default=30_000, help="noisy: evaluations")
-    parser.add_argument("--algos", default="snes,openes,snes-small", help="evosax: " + ", ".join(EVOSAX_NAMES))
+    parser.add_argument("--algos", default="snes,snes-mixing,openes", help="evosax: " + ", ".join(EVOSAX_NAMES))
+    parser.add_argument("files", nargs="*", help="table: files of JSON lines (--seed's output, e.g. of several processes) to tabulate")
     args = parser.parse_args(argv)
     dims = tuple(int(d) for d in args.dims.split(","))
+    if args.section == "table":  # --seed's runs, from several processes, as one table per section
+        records = [json.loads(line) for name in args.files for line in open(name) if line.startswith("{")]
+        for section, table in (("noisy", noisy_table), ("evosax", evosax_table)):
+            if any(r["section"] == section for r in records):
+                table([r for r in records if r["section"] == section])
+        return 0
+    if args.seed and args.section in ("noisy", "evosax"):
+        runs = noisy_runs(args.seed, args.budget) if args.section == "noisy" else evosax_runs(args.seed, tuple(args.algos.split(",")))
+        for record in runs:
+            print(json.dumps(record), flush=True)
+        return 0
     if args.section in ("all", "stepsize"):
         stepsize(args.seeds or 5)
     if args.section in ("all", "cma"):
         cma_table(args.seeds or 15, dims)
     if args.section in ("all", "noisy"):
-        noisy(args.seeds or 15, args.budget)
+        noisy_table(noisy_runs(range(1, (args.seeds or 15) + 1), args.budget))
     if args.section in ("all", "evosax"):
-        evosax_table(args.seeds or 5, tuple(args.algos.split(",")))
+        evosax_table(evosax_runs(range(args.seeds or 5), tuple(args.algos.split(","))))
     return 0
 
 

@@ -33,16 +33,14 @@ def peers_available(echo) -> bool:
     return True
 
 
-def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
-    """evosax ``algo`` (SNES / Open_ES) on gymnax ``env``: every generation of every seed in one
-    jitted function (lax.scan over generations, vmap over seeds and members, lax.scan over the
-    200 steps of an episode, as gymnax is meant to be used). Returns wall/compile seconds,
-    env steps (steps before each episode's end) and the final population mean return."""
+def gymnax_episode(env: str):
+    """``(episode, dim)`` for gymnax ``env`` (a key of :data:`PEER_IDS`): ``episode(flat, key)`` plays one
+    episode of at most EPISODE_CAP steps with imix's policy (:mod:`imix_cli.policies`: two tanh layers of 8,
+    argmax over actions) of parameters ``flat`` and returns ``(return, steps)``; ``dim`` is the parameter count.
+    Pure JAX, to be vmapped and jitted by the caller (``imix bench peers``, ``benchmarks/adapters.py``)."""
     import gymnax
     import jax
     import jax.numpy as jnp
-    import optax
-    from evosax.algorithms import SNES, Open_ES
 
     from imix_cli.core.policies import num_params
 
@@ -51,7 +49,6 @@ def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
     obs_dim = environment.observation_space(env_params).shape[0]
     n_act = environment.action_space(env_params).n
     sizes = [obs_dim, 8, 8, n_act]
-    dim = num_params(obs_dim, n_act)
 
     def policy(flat, obs):  # imix_cli.core.policies' layout: W1 (in x 8), b1, W2, b2, W3, b3
         k, x = 0, obs
@@ -75,6 +72,20 @@ def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
         (_, _, ret, _, n), _ = jax.lax.scan(step, init, None, length=EPISODE_CAP)
         return ret, n
 
+    return episode, num_params(obs_dim, n_act)
+
+
+def _peer_run(algo: str, env: str, seeds: int, generations: int) -> dict:
+    """evosax ``algo`` (SNES / Open_ES) on gymnax ``env``: every generation of every seed in one
+    jitted function (lax.scan over generations, vmap over seeds and members, lax.scan over the
+    200 steps of an episode, as gymnax is meant to be used). Returns wall/compile seconds,
+    env steps (steps before each episode's end) and the final population mean return."""
+    import jax
+    import jax.numpy as jnp
+    import optax
+    from evosax.algorithms import SNES, Open_ES
+
+    episode, dim = gymnax_episode(env)
     solution = jnp.zeros(dim)
     if algo == "snes":
         es = SNES(population_size=PEER_POPSIZE, solution=solution)

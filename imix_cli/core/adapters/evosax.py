@@ -9,6 +9,10 @@ One call turns an evosax algorithm, its params and a PRNG key into an object Mix
         x = m.ask()                      # numpy rows: only the members to evaluate
         m.tell(x, fitness(x))            # evosax's convention: minimised
 
+Mixing saves episodes only where consecutive distributions overlap: evosax's SNES at its defaults
+moves too far per generation for that (docs/adapters.md, CartPole: more episodes with mixing than
+without), and :func:`snes_for_mixing` builds it with step sizes under which mixing pays.
+
 Mixing runs on the host in numpy; the update stays evosax's own jitted ``tell``. Why evosax's
 ``ask`` is still called: some algorithms prepare their state for ``tell`` in ``ask`` (CMA_ES and
 Sep_CMA_ES eigendecompose C there, and ``tell`` uses that B and D), so the adapter calls ``ask``
@@ -31,12 +35,14 @@ pickle), read back onto a MixingES built with the same arguments.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.core.mirrored import MIRRORED_PAIRS
 
-__all__ = ["DISTRIBUTIONS", "EvosaxES", "from_evosax"]
+__all__ = ["DISTRIBUTIONS", "SNES_FOR_MIXING", "EvosaxES", "from_evosax", "snes_for_mixing"]
 
 
 def _diag(mean, std):
@@ -66,6 +72,32 @@ def from_evosax(algorithm, params, key, mean=None) -> EvosaxES:
     return EvosaxES(algorithm, params, key, mean)
 
 
+#: evosax SNES's step sizes for mixing (:func:`snes_for_mixing`): Adam on the mean (learning rate, beta1) and
+#: the learning rate of log std, as imix's SNES takes them (Adam, beta1 0.99, ~0.01 per generation on log std)
+#: but the mean's rate 3x imix's 0.01. Measured on CartPole (docs/adapters.md, ``benchmarks/adapters.py evosax``).
+SNES_FOR_MIXING = {"lr": 0.03, "b1": 0.99, "lr_std": 0.01}
+
+
+def snes_for_mixing(population_size, solution, std_init=0.25, lr=SNES_FOR_MIXING["lr"], b1=SNES_FOR_MIXING["b1"], lr_std=SNES_FOR_MIXING["lr_std"]):
+    """An evosax SNES and its params with step sizes that suit mixing: ``(algorithm, params)``.
+
+    Why not evosax's defaults: its SNES moves the mean by a whole natural-gradient step per generation
+    (SGD, learning rate 1) and log std by (3 + ln d) / (5 sqrt d) of its gradient. Consecutive
+    distributions then overlap little, and mixing reuses a third of the members at best while its
+    stored returns slow the search (docs/adapters.md: more episodes than evosax alone on CartPole).
+    Adam with a small learning rate moves each coordinate of the mean by about ``lr`` standard units
+    of its gradient per generation and log std by about ``lr_std``: most members of a generation lie
+    where the next distribution still samples, and reuse is high.
+    """
+    import jax.numpy as jnp
+    import optax
+    from evosax.algorithms import SNES
+
+    algorithm = SNES(population_size=population_size, solution=solution, optimizer=optax.adam(lr, b1=b1))
+    params = algorithm.default_params.replace(std_init=jnp.asarray(std_init), lr_std_init=jnp.asarray(lr_std))
+    return algorithm, params
+
+
 class EvosaxES:
     """An evosax distribution-based algorithm with imix's ES protocol; fitness is evosax's (minimised).
 
@@ -89,6 +121,7 @@ class EvosaxES:
         self.generation = 0
         self.mean_weights = None
         self._asked = None  # the state evosax's ask returned for this generation, and its distribution
+        self._ask_step, self._tell_step = _jitted_steps(algorithm)
 
     @property
     def popsize(self) -> int:
@@ -98,9 +131,9 @@ class EvosaxES:
         if self._asked is None:
             import jax
 
-            self.key, k_ask = jax.random.split(self.key)
-            _, state = self.algorithm.ask(k_ask, self.state, self.params)
-            values = {k: np.asarray(v, dtype=np.float64) for k, v in vars(state).items() if k in ("mean", "std", "B", "D")}
+            self.key, state = self._ask_step(self.key, self.state, self.params)
+            fields = jax.device_get({k: v for k, v in vars(state).items() if k in ("mean", "std", "B", "D")})  # one transfer
+            values = {k: np.asarray(v, dtype=np.float64) for k, v in fields.items()}
             self._asked = (state, self._reader(values, self.dim))
         return self._asked
 
@@ -117,15 +150,12 @@ class EvosaxES:
 
     def tell(self, samples, fitness) -> None:
         """evosax's ``tell`` of the whole generation (rows unravelled into the solution's pytree)."""
-        import jax
         import jax.numpy as jnp
 
         state, _ = self._prepared()
         dtype = state.mean.dtype
         flat = jnp.asarray(np.asarray(samples), dtype=dtype)
-        population = jax.vmap(self.algorithm._unravel_solution)(flat)
-        self.key, k_tell = jax.random.split(self.key)
-        self.state, _ = self.algorithm.tell(k_tell, population, jnp.asarray(np.asarray(fitness, dtype=np.float64), dtype=dtype), state, self.params)
+        self.key, self.state = self._tell_step(self.key, flat, jnp.asarray(np.asarray(fitness, dtype=np.float64), dtype=dtype), state, self.params)
         self._asked = None
         self.generation += 1
 
@@ -165,6 +195,27 @@ class EvosaxES:
         self.key = jax.random.wrap_key_data(key_data) if _typed(self.key) else key_data
         self.generation = int(state["generation"])
         self._asked = None
+
+
+@functools.lru_cache(maxsize=32)
+def _jitted_steps(algorithm):
+    """evosax's ask (for its state) and tell with the key split and the rows unravelled into the solution's
+    pytree, each one jitted call: called eagerly, the split and the unravelling dispatch a dozen small JAX
+    operations per generation, several times the cost of the host's mixing. One pair per algorithm object
+    (cached), so that adapters of the same algorithm compile once, as evosax's own jitted methods do."""
+    import jax
+
+    @jax.jit
+    def ask_step(key, state, params):
+        key, k_ask = jax.random.split(key)
+        return key, algorithm.ask(k_ask, state, params)[1]
+
+    @jax.jit
+    def tell_step(key, flat, fitness, state, params):
+        key, k_tell = jax.random.split(key)
+        return key, algorithm.tell(k_tell, jax.vmap(algorithm._unravel_solution)(flat), fitness, state, params)[0]
+
+    return ask_step, tell_step
 
 
 def _typed(key) -> bool:
