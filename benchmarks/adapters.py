@@ -1,4 +1,4 @@
-"""Importance mixing for pycma and evosax (imix_cli.adapters): the measurements of docs/adapters.md.
+"""Importance mixing for pycma and evosax (imix_cli.core.adapters): the measurements of docs/adapters.md.
 
     python benchmarks/adapters.py all                    # every section, the docs' tables (full seeds)
     python benchmarks/adapters.py cma --seeds 15 --dims 10,40
@@ -26,7 +26,7 @@ Sections (each prints a markdown table):
 ``evosax``    evosax SNES and Open_ES on gymnax CartPole-v1 (``imix bench peers``' task and settings:
               popsize 50, sigma 0.25, Adam lr 0.01 for Open_ES, the 2 x 8 tanh policy, 200 steps; SNES at
               evosax's defaults, which move the mean by a full natural-gradient step per generation, and
-              SNES from ``imix_cli.adapters.evosax.snes_for_mixing``, Adam 0.03 on the mean and lr_std 0.01):
+              SNES from ``imix_cli.core.adapters.evosax.snes_for_mixing``, Adam 0.03 on the mean and lr_std 0.01):
               episodes and wall time until the generation's mean return (stored returns for reused
               members) reaches 195, with and without mixing. Every arm runs the same host loop (evosax's
               jitted ask/tell, compiled before the clock starts, and one jitted batched rollout of the
@@ -63,7 +63,7 @@ def pycma_run(fname, d, seed, arm, max_generations=100_000):
     import cma
 
     import imix_cli
-    from imix_cli.adapters.pycma import PycmaES
+    from imix_cli.core.adapters.pycma import PycmaES
 
     _quiet()
     f = getattr(cma.ff, fname)
@@ -232,8 +232,8 @@ def _evosax_algorithm(algo, dim):
     if algo == "snes":  # imix bench peers' setting: evosax's defaults but the initial std
         algorithm = SNES(population_size=PEER_POPSIZE, solution=solution)
         return algorithm, algorithm.default_params.replace(std_init=jnp.asarray(PEER_SIGMA))
-    if algo == "snes-mixing":  # the adapter's SNES for mixing (imix_cli.adapters.evosax.snes_for_mixing)
-        from imix_cli.adapters.evosax import snes_for_mixing
+    if algo == "snes-mixing":  # the adapter's SNES for mixing (imix_cli.core.adapters.evosax.snes_for_mixing)
+        from imix_cli.core.adapters.evosax import snes_for_mixing
 
         return snes_for_mixing(PEER_POPSIZE, solution, std_init=PEER_SIGMA)
     if algo == "snes-small":  # imix's SNES step sizes: Adam (lr 0.01, beta1 0.99) on the mean, ~0.01 per generation on log sigma
@@ -267,7 +267,7 @@ def evosax_cartpole(algo, mixing, seed, max_generations=1000, target=195.0, algo
     import jax.numpy as jnp
 
     import imix_cli
-    from imix_cli.adapters.evosax import from_evosax
+    from imix_cli.core.adapters.evosax import from_evosax
 
     rollouts, dim = _cartpole_rollouts()
     if algorithm is None:

@@ -9,7 +9,7 @@ as tests/test_mixing.py's chains.
 
 import numpy as np
 
-from imix_cli.distributions import DiagonalGaussian
+from imix_cli.core.distributions import DiagonalGaussian
 
 
 def whiten(dist, x) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Importance mixing for evosax (imix_cli.adapters.evosax): the guarantees of imix's own ES, on evosax's.
+"""Importance mixing for evosax (imix_cli.core.adapters.evosax): the guarantees of imix's own ES, on evosax's.
 
 * the distribution the adapter reads is the one evosax's own ``ask`` samples from (SNES, Open_ES,
   CMA_ES, Sep_CMA_ES), and evosax's update is what is applied (the adapter's tell is evosax's tell);
@@ -24,8 +24,8 @@ if extra_installed("peers"):  # collected, and skipped by the marker, without th
     import jax.numpy as jnp
 
 import imix_cli  # noqa: E402
-from imix_cli.adapters.checkpoint import load_mixing, save_mixing  # noqa: E402
-from imix_cli.adapters.evosax import from_evosax, snes_for_mixing  # noqa: E402
+from imix_cli.core.adapters.evosax import from_evosax, snes_for_mixing  # noqa: E402
+from imix_cli.running.files.mixing_checkpoint import load_mixing, save_mixing  # noqa: E402
 
 ALGORITHMS = {
     "SNES": lambda n, d: evosax_algorithms.SNES(population_size=n, solution=jnp.zeros(d)),

@@ -1,4 +1,4 @@
-"""Importance mixing for pycma (imix_cli.adapters.pycma): the guarantees of imix's own ES, on pycma's.
+"""Importance mixing for pycma (imix_cli.core.adapters.pycma): the guarantees of imix's own ES, on pycma's.
 
 * the distribution the adapter reads is the one pycma's own ``ask`` samples from (full, diagonal,
   scaled variables, after the conditioning is moved into the phenotype map);
@@ -21,8 +21,8 @@ from scipy import stats
 cma = pytest.importorskip("cma")
 
 import imix_cli  # noqa: E402
-from imix_cli.adapters.pycma import PycmaES  # noqa: E402
-from imix_cli.distributions import DiagonalGaussian  # noqa: E402
+from imix_cli.core.adapters.pycma import PycmaES  # noqa: E402
+from imix_cli.core.distributions import DiagonalGaussian  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")
 

@@ -35,7 +35,7 @@ def peers_available(echo) -> bool:
 
 def gymnax_episode(env: str):
     """``(episode, dim)`` for gymnax ``env`` (a key of :data:`PEER_IDS`): ``episode(flat, key)`` plays one
-    episode of at most EPISODE_CAP steps with imix's policy (:mod:`imix_cli.policies`: two tanh layers of 8,
+    episode of at most EPISODE_CAP steps with imix's policy (:mod:`imix_cli.core.policies`: two tanh layers of 8,
     argmax over actions) of parameters ``flat`` and returns ``(return, steps)``; ``dim`` is the parameter count.
     Pure JAX, to be vmapped and jitted by the caller (``imix bench peers``, ``benchmarks/adapters.py``)."""
     import gymnax
