@@ -87,7 +87,7 @@ def test_kill_minus_9_at_random_points_then_resume_gives_identical_csvs(tmp_path
     rng = random.Random(20261122)
     kills = {"group": 0, "worker": 0}
     stderr_logs = []
-    for attempt in range(4):  # kills after a checkpoint (group, worker), anywhere (group), after a checkpoint (worker): each kind; 12 attempts took 466 s at load ~20
+    for attempt in range(4):  # each kill kind: after a checkpoint (group, worker), anywhere (group) (12 attempts took 466 s at load ~20)
         stderr_logs.append(tmp_path / f"stderr_{attempt}.txt")
         attempt_started = time.time()
         with open(stderr_logs[-1], "w") as log:
