@@ -214,7 +214,8 @@ KEYS = (
            "with `im=true` or `eim=true`: at least this many members of every generation are fresh, in slots drawn at random "
            "independently of the members, so the generation keeps its law (`0`: the rules alone). Without it a distribution "
            "that stops moving reuses every member and an ES whose update depends only on its members and their returns (CEM, "
-           "CMA-ES) repeats its update: a fixed point (the research notes, \"Reused returns and the search\")", "mixing",
+           "CMA-ES) repeats its update: a fixed point (the research notes, \"Reused returns and the search\"). `algo=ars` leaves it "
+           "unused: every mirror of its pairs is evaluated, so no generation is reused whole", "mixing",
            bounded(MIXING_BOUNDS["min_fresh"]), spec=True, names_folder="mixing"),
     RunKey("reeval_age", MixingSettings.reeval_age, "re-evaluate reused members whose return is older (generations)",
            "re-evaluate a reused member whose stored return is more than this many generations old (`null`: never; a remedy "
