@@ -115,7 +115,8 @@ def test_kill_minus_9_at_random_points_then_resume_gives_identical_csvs(tmp_path
     # The re-runs really continued from checkpoints (a restart from scratch writes the same CSVs).
     errors = "".join(p.read_text() for p in stderr_logs) + final.stderr
     resumed = [int(g) for pair in re.findall(r"resuming \d+ seeds? of \S+ at generations? (\d+)(?:-(\d+))?", errors) for g in pair if g]
-    assert resumed and all(g > 0 and g % 5 == 0 for g in resumed), errors
+    # a periodic checkpoint (every 5) or the one a seed writes when the run stops it (a worker's death stops the others)
+    assert resumed and all(g > 0 for g in resumed), errors
     assert "warning" not in errors, errors
     expected, got = csvs(reference), csvs(target)
     assert sorted(got) == sorted(expected) and len(got) == 4
