@@ -80,3 +80,26 @@ def test_scalar_and_vector_forms_are_the_same_functions():
     assert [xp.log(float(x)) for x in pos] == xp.log(pos).tolist()
     assert type(xp.exp(np.float64(1.5))) is float and type(xp.log(2)) is float
     assert xp.log1p(-1.0) == -np.inf and xp.power(2.0, 10.0) == 1024.0
+
+
+def test_the_written_out_constants_are_the_facades_and_importing_imix_runs_no_kernel():
+    """log(2 pi) is written out in the two modules that need it at import: a kernel called at import starts numba
+    (~1.5 s) in every process, one that only refuses a bad key included. Importing the config, the ES registry and
+    mixing must leave every imix kernel unloaded."""
+    import subprocess
+    import sys
+
+    from imix_cli.core import distributions, mixing_kernels
+
+    assert distributions._LOG_2PI == xp.log(2.0 * np.pi) == mixing_kernels._LOG_2PI
+    probe = (
+        "import sys\n"
+        "import imix_cli.running.config.compose, imix_cli.core.algorithms, imix_cli.core.mixing, imix_cli.commands.cli\n"
+        "from numba.core.registry import CPUDispatcher\n"
+        "loaded = sorted(f'{m}.{k}' for m, mod in list(sys.modules.items()) if m.startswith('imix_cli')\n"
+        "                for k, v in vars(mod).items() if isinstance(v, CPUDispatcher) and v.overloads)\n"
+        "print(' '.join(loaded))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "", f"kernels loaded at import: {proc.stdout.strip()}"

@@ -390,7 +390,8 @@ KERNELS = {1: _mix_paper, 2: _mix_sun2009, 3: _mix_exact}
 #: For other compiled code (the compiled generation loop): the kernels themselves.
 put_row = _put
 fill_plain = _fill_plain
-_LOG_2PI = el.math_log(2.0 * np.pi)
+#: el.math_log(2 pi), written out (a call here would start numba at import; tests/test_numerics.py checks it)
+_LOG_2PI = 1.8378770664093453
 
 
 @njit(cache=True)
