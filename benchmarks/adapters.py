@@ -32,6 +32,9 @@ Sections (each prints a markdown table):
               jitted ask/tell, compiled before the clock starts, and one jitted batched rollout of the
               points asked; batch sizes padded to a power of two so each compiles once), the arms of a
               seed back to back: the wall-time ratios against SNES at evosax's defaults are paired by seed.
+``evosax-lr`` ``snes_for_mixing``'s two learning rates searched (``--lrs``, ``--lr-stds``: every pair) with mixing on the
+              same task: episodes to 195 per seed, their median, and evosax's SNES alone on the same seeds. Choose
+              on some seeds (``--seed 0 ... --seed 4``), check the choice on others (``--seed 5 ... --seed 14``).
 """
 
 from __future__ import annotations
@@ -360,14 +363,38 @@ def evosax_table(records):
               f"{g:.0f} | {100 * reuse:.0f} % | {fewer:.2f} | {np.median(wall):.2f} [{wall.min():.2f}, {wall.max():.2f}] |", flush=True)  # fmt: skip
 
 
+def evosax_lr_table(seeds, lrs, lr_stds):
+    """Episodes to 195 of evosax SNES + mixing for each (lr, lr_std) of ``snes_for_mixing``, and of evosax's SNES alone."""
+    import jax.numpy as jnp
+
+    from imix_cli.bench.peers import PEER_POPSIZE, PEER_SIGMA
+    from imix_cli.core.adapters.evosax import snes_for_mixing
+
+    _, dim = _cartpole_rollouts()
+    alone = {s: evosax_cartpole("snes", False, s)[0] for s in seeds}
+    print(f"seeds {', '.join(map(str, seeds))}; evosax's SNES alone: {np.median([e or np.inf for e in alone.values()]):,.0f} episodes (median)\n")
+    print("| lr (mean, Adam) | lr_std | episodes to 195, median | per seed | alone / this, paired median | generations, median | reuse |")
+    print("|---:|---:|---:|---|---:|---:|---:|")
+    for lr in lrs:
+        for lr_std in lr_stds:
+            algorithm = snes_for_mixing(PEER_POPSIZE, jnp.zeros(dim), std_init=PEER_SIGMA, lr=lr, lr_std=lr_std)
+            runs = {s: evosax_cartpole("snes-mixing", True, s, algorithm=algorithm) for s in seeds}
+            episodes = [r[0] or np.inf for r in runs.values()]
+            paired = np.median([(alone[s] or np.inf) / (runs[s][0] or np.inf) for s in seeds])
+            print(f"| {lr:g} | {lr_std:g} | {np.median(episodes):,.0f} | {', '.join(f'{e:,.0f}' for e in episodes)} | {paired:.2f} "
+                  f"| {np.median([r[2] for r in runs.values()]):.0f} | {100 * np.mean([r[3] for r in runs.values()]):.0f} % |", flush=True)  # fmt: skip
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=["all", "stepsize", "cma", "noisy", "evosax", "table"])
+    parser.add_argument("section", choices=["all", "stepsize", "cma", "noisy", "evosax", "evosax-lr", "table"])
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: stepsize 5, cma 15, noisy 15, evosax 5)")
     parser.add_argument("--seed", type=int, action="append", help="noisy, evosax: run only this seed (repeatable) and print its runs as JSON lines")
     parser.add_argument("--dims", default="10,40", help="cma: dimensions")
     parser.add_argument("--budget", type=int, default=30_000, help="noisy: evaluations")
     parser.add_argument("--algos", default="snes,snes-mixing,openes", help="evosax: " + ", ".join(EVOSAX_NAMES))
+    parser.add_argument("--lrs", default="0.03,0.05,0.1", help="evosax-lr: learning rates of the mean (Adam)")
+    parser.add_argument("--lr-stds", default="0.01,0.03", help="evosax-lr: learning rates of log std")
     parser.add_argument("files", nargs="*", help="table: files of JSON lines (--seed's output, e.g. of several processes) to tabulate")
     args = parser.parse_args(argv)
     dims = tuple(int(d) for d in args.dims.split(","))
@@ -376,6 +403,10 @@ def main(argv=None) -> int:
         for section, table in (("noisy", noisy_table), ("evosax", evosax_table)):
             if any(r["section"] == section for r in records):
                 table([r for r in records if r["section"] == section])
+        return 0
+    if args.section == "evosax-lr":
+        floats = lambda text: [float(v) for v in text.split(",")]  # noqa: E731
+        evosax_lr_table(args.seed or list(range(args.seeds or 5)), floats(args.lrs), floats(args.lr_stds))
         return 0
     if args.seed and args.section in ("noisy", "evosax"):
         runs = noisy_runs(args.seed, args.budget) if args.section == "noisy" else evosax_runs(args.seed, tuple(args.algos.split(",")))
