@@ -7,7 +7,8 @@ population size and the generations, stated once below, and reports per task and
 
 * theta, final: the search distribution's mean on 100 fresh episodes per seed (``imix eval``),
   mean and 95 % CI over seeds (t interval);
-* inside: whether EIM's final theta lies inside no mixing's 95 % CI ("above" if above it);
+* inside: whether EIM's final theta lies inside no mixing's 95 % CI ("above" if above it), and Welch's p for
+  equal means (5 seeds: a "no" with a large p is a narrow CI, not a clear difference);
 * theta at EIM's episodes: no mixing's theta (the CSV's ``mean_policy_score``, 5 fresh episodes
   every 10 generations) at the first generation at which it had run as many episodes as EIM did in
   its whole run -- what the episodes EIM saved would have bought without mixing;
@@ -79,6 +80,15 @@ def _ci95(values: np.ndarray) -> tuple[float, float]:
     return mean, float(stats.t.ppf(0.975, values.size - 1) * np.std(values, ddof=1) / np.sqrt(values.size))
 
 
+def _welch_p(a: np.ndarray, b: np.ndarray) -> str:
+    """Welch's two-sided t-test of equal means ("–" where both samples are constant: nothing to test)."""
+    from scipy import stats
+
+    if np.ptp(a) == 0 and np.ptp(b) == 0:
+        return "–"
+    return f"{stats.ttest_ind(a, b, equal_var=False).pvalue:.2f}"
+
+
 def _runs(results_dir: str, algo: str, task: str) -> dict:
     """mixing ("none" | "eim") -> the run folder of ``algo`` on ``task`` (any overrides suffix)."""
     found = {}
@@ -129,9 +139,9 @@ def _theta_at(frames, episodes: float) -> float:
 
 def table(tasks, algos, results_dir: str) -> int:
     print(f"Population {POPSIZE}, {GENERATIONS} generations, imix's defaults otherwise; theta on 100 fresh episodes per seed (mean ± 95 % CI).\n")
-    print("| task | ES | theta, no mixing | theta, EIM | EIM inside? | no mixing at EIM's episodes | episodes/seed none → EIM | reuse "
-          "| solved none / EIM | σ ratio | stalls (longest, total) |")  # fmt: skip
-    print("|---|---|---:|---:|:-:|---:|---:|---:|:-:|---:|---:|")
+    print("| task | ES | theta, no mixing | theta, EIM | EIM inside? | Welch p | no mixing at EIM's episodes | episodes/seed none → EIM "
+          "| reuse | solved none / EIM | σ ratio | stalls (longest, total) |")  # fmt: skip
+    print("|---|---|---:|---:|:-:|---:|---:|---:|---:|:-:|---:|---:|")
     for task in tasks:
         threshold = TASKS[task][2]
         for algo in algos:
@@ -141,8 +151,12 @@ def table(tasks, algos, results_dir: str) -> int:
                 continue
             none, eim = _seed_frames(runs["none"]), _seed_frames(runs["eim"])
             theta_none, theta_eim = _final_theta(runs["none"]), _final_theta(runs["eim"])
+            if theta_none.size == 0 or theta_eim.size == 0:
+                print(f"| {task} | {algo} | (no eval.csv: imix eval experiment={EXPERIMENT} episodes=100) |||||||||||")
+                continue
             (m_none, h_none), (m_eim, h_eim) = _ci95(theta_none), _ci95(theta_eim)
             inside = "yes" if abs(m_eim - m_none) <= h_none else ("above" if m_eim > m_none else "**no**")
+            welch = _welch_p(theta_none, theta_eim)
             episodes_none = np.mean([f["evaluations"].iloc[-1] for f in none])
             episodes_eim = np.mean([f["evaluations"].iloc[-1] for f in eim])
             reuse = np.mean([f["reused"].sum() / f["popsize"].sum() for f in eim])
@@ -150,7 +164,7 @@ def table(tasks, algos, results_dir: str) -> int:
             longest, total = _stalls(eim)
             solved = f"{int(np.sum(theta_none >= threshold))}/{theta_none.size} / {int(np.sum(theta_eim >= threshold))}/{theta_eim.size}"
             print(
-                f"| {task} | {algo} | {m_none:.1f} ± {h_none:.1f} | {m_eim:.1f} ± {h_eim:.1f} | {inside} | {_theta_at(none, episodes_eim):.1f} "
+                f"| {task} | {algo} | {m_none:.1f} ± {h_none:.1f} | {m_eim:.1f} ± {h_eim:.1f} | {inside} | {welch} | {_theta_at(none, episodes_eim):.1f} "
                 f"| {episodes_none:,.0f} → {episodes_eim:,.0f} | {100 * reuse:.1f} % | {solved} | {sigma:.2f} | {longest}, {total} |"
             )
     return 0
