@@ -152,7 +152,9 @@ def test_status_agrees_with_the_files_at_every_stop_of_a_run(tmp_path):
         done, unfinished, gens = _truth(run_dir, seeds, generations)
         assert s["done"] == done and s["generations"] == gens, (s, done, gens)
         if live_pid is None:
-            assert (s["running"], s["pid"]) == ([], None) and s["stopped"] + s["not_started"] == unfinished, s
+            # each list is sorted, their union is not: seeds 0-1 in one worker's lockstep, 2 in the other's, one may be
+            # stopped before the other has saved anything (seen under load: stopped [2], not started [0, 1])
+            assert (s["running"], s["pid"]) == ([], None) and sorted(s["stopped"] + s["not_started"]) == unfinished, s
             assert s["stopped"] == sorted(gens.keys() - set(done)), s
         else:
             assert (s["running"], s["stopped"], s["not_started"], s["pid"]) == (unfinished, [], [], live_pid), s
