@@ -124,11 +124,11 @@ def stepsize(seeds=5, dims=(10,)):
                 print(f"| {fname} | {d} | {names[arm]} | {spread} | {np.median(g):,.0f} | {len(ok)}/{seeds} |", flush=True)
 
 
-def cma_table(seeds=15, dims=(10, 40)):
+def cma_table(seeds=15, dims=(10, 40), functions=FUNCTIONS):
     print("| function | d | evaluations to 1e-8, pycma alone | with mixing | ratio | generations ratio "
           "| f(mean) at equal evaluations (budget): pycma alone | with mixing | reuse |")  # fmt: skip
     print("|---|---:|---:|---:|---:|---:|---|---:|---:|")
-    for fname in FUNCTIONS:
+    for fname in functions:
         for d in dims:
             plain = [_safe_run(fname, d, s, "pycma") for s in range(1, seeds + 1)]
             mixed = [_safe_run(fname, d, s, "mix") for s in range(1, seeds + 1)]
@@ -391,6 +391,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: stepsize 5, cma 15, noisy 15, evosax 5)")
     parser.add_argument("--seed", type=int, action="append", help="noisy, evosax: run only this seed (repeatable) and print its runs as JSON lines")
     parser.add_argument("--dims", default="10,40", help="cma: dimensions")
+    parser.add_argument("--functions", default=",".join(FUNCTIONS), help="cma: which of " + ", ".join(FUNCTIONS))
     parser.add_argument("--budget", type=int, default=30_000, help="noisy: evaluations")
     parser.add_argument("--algos", default="snes,snes-mixing,openes", help="evosax: " + ", ".join(EVOSAX_NAMES))
     parser.add_argument("--lrs", default="0.03,0.05,0.1", help="evosax-lr: learning rates of the mean (Adam)")
@@ -416,7 +417,7 @@ def main(argv=None) -> int:
     if args.section in ("all", "stepsize"):
         stepsize(args.seeds or 5)
     if args.section in ("all", "cma"):
-        cma_table(args.seeds or 15, dims)
+        cma_table(args.seeds or 15, dims, tuple(args.functions.split(",")))
     if args.section in ("all", "noisy"):
         noisy_table(noisy_runs(range(1, (args.seeds or 15) + 1), args.budget))
     if args.section in ("all", "evosax"):
