@@ -25,9 +25,6 @@ import numpy as np
 
 from imix_cli.core import numerics as xp
 
-#: log(2 pi) as xp.log gives it, written out: computing it here would start numba when imix is imported, ~1.5 s
-#: before a bad key can be refused (tests/test_numerics.py checks the literal)
-_LOG_2PI = 1.8378770664093453
 # Elements per block in the row-blocked kernels: ~4 MB of float64, small enough
 # to stay in cache, large enough that numpy's per-call overhead is negligible.
 _BLOCK_ELEMENTS = 1 << 19
@@ -178,7 +175,7 @@ class DiagonalGaussian:
         self._cast = None  # mean and std in the sample dtype, made on first use
         self._inv_std = 1.0 / self.std
         # log of the normalising constant: -d/2 log(2 pi) - sum(log std)
-        self.log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(xp.log(self.std)))
+        self.log_norm = -0.5 * self.dim * xp.LOG_2PI - float(np.sum(xp.log(self.std)))
 
     @property
     def dim(self) -> int:
@@ -310,7 +307,7 @@ class FullGaussian:
         except np.linalg.LinAlgError as err:
             raise ValueError("FullGaussian: cov is not positive definite") from err
         self.dtype = np.dtype(dtype)
-        self.log_norm = -0.5 * self.dim * _LOG_2PI - float(np.sum(xp.log(np.diag(self.chol))))
+        self.log_norm = -0.5 * self.dim * xp.LOG_2PI - float(np.sum(xp.log(np.diag(self.chol))))
 
     @property
     def dim(self) -> int:

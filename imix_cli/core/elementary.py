@@ -131,6 +131,11 @@ def _double(hex_literal: str) -> float:
     return float.fromhex(hex_literal)
 
 
+#: log(2 pi) as :func:`math_log` gives it, written out: computing it at import would start numba (~1.5 s) in every
+#: process, one that only refuses a bad key included (tests/test_numerics.py checks the literal and the import)
+LOG_2PI = 1.8378770664093453
+
+
 # ----------------------------------------------------------------------------- exp
 _EXP_BITS = 7
 _N = 1 << _EXP_BITS

@@ -390,8 +390,6 @@ KERNELS = {1: _mix_paper, 2: _mix_sun2009, 3: _mix_exact}
 #: For other compiled code (the compiled generation loop): the kernels themselves.
 put_row = _put
 fill_plain = _fill_plain
-#: el.math_log(2 pi), written out (a call here would start numba at import; tests/test_numerics.py checks it)
-_LOG_2PI = 1.8378770664093453
 
 
 @njit(cache=True)
@@ -402,7 +400,7 @@ def diagonal_log_norm(std):
     logs = np.empty(d)
     for j in range(d):
         logs[j] = el.log(std[j])
-    return -0.5 * d * _LOG_2PI - lk.numpy_sum(logs)
+    return -0.5 * d * el.LOG_2PI - lk.numpy_sum(logs)
 
 
 @njit(cache=True)
