@@ -4,9 +4,12 @@ What must hold: editing a function recompiles its callers in other files (numba 
 machine code); every cached kernel of the package carries the computed stamp; no stamp is written by hand.
 """
 
+import os
+import shutil
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 from imix_cli.core import numba_cache
@@ -77,3 +80,60 @@ def test_every_cached_kernel_of_the_package_carries_the_computed_stamp():
 def test_no_stamp_is_written_by_hand():
     hand_written = [p.name for p in numba_cache.PACKAGE.rglob("*.py") if "numba cache stamp:" in p.read_text()]
     assert not hand_written, hand_written
+
+
+_SHARED_CHECK = """
+import sys
+sys.prefix = sys.argv[1]  # the environment whose cache folder the package uses (read when the first kernel is made)
+from pkg import caller
+print(caller.g(1.0), sum(caller.g.stats.cache_hits.values()), sum(caller.g.stats.cache_misses.values()))
+"""
+
+
+def test_two_copies_of_the_same_sources_share_their_compiled_kernels(tmp_path):
+    """The installed package and a source tree with the same files (``make install`` then ``make test``):
+    what the first compiled, the second loads; a copy that differs compiles its own, beside it."""
+    copies = []
+    for name, term in (("installed", "1.0"), ("source_tree", "1.0"), ("edited", "2.0")):
+        pkg = tmp_path / name / "pkg"
+        pkg.mkdir(parents=True)
+        (pkg / "__init__.py").write_text("")
+        (pkg / "numba_cache.py").write_text(Path(numba_cache.__file__).read_text())
+        (pkg / "caller.py").write_text(_CALLER.format("from pkg import numba_cache  # noqa: F401"))
+        (pkg / "callee.py").write_text(_CALLEE.format(term))
+        copies.append(pkg.parent)
+    prefix = tmp_path / "env"
+    runs = []
+    for folder in copies:
+        done = subprocess.run([sys.executable, "-c", _SHARED_CHECK, str(prefix)], cwd=folder, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs.append(done.stdout.split())
+    assert runs == [["4.0", "0", "1"], ["4.0", "1", "0"], ["6.0", "0", "1"]]  # compiled, loaded, compiled
+    contents = sorted(p.name for p in (prefix / "var" / "cache" / "pkg-numba").iterdir())
+    assert len(contents) == 2, contents  # one folder per content of the sources
+    assert not list(tmp_path.rglob("__pycache__/*.nbi")), "a copy wrote beside its sources"
+
+
+def test_old_contents_are_removed_beyond_the_newest_kept(tmp_path):
+    def make(count: int, hours_ago) -> list[Path]:
+        folders = []
+        for i in range(count):
+            folder = tmp_path / f"digest{i}"
+            (folder / "core").mkdir(parents=True)
+            (folder / ".used").touch()
+            then = time.time() - 3600 * hours_ago(i)
+            os.utime(folder / ".used", (then, then))
+            folders.append(folder)
+        return folders
+
+    current = tmp_path / "current"
+    current.mkdir()
+    folders = make(numba_cache.KEEP + 3, lambda i: 10 - i)  # digest0 the least recently used
+    numba_cache._prune(current)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["current", *(f.name for f in folders[-(numba_cache.KEEP - 1):])])
+    for folder in tmp_path.iterdir():
+        if folder != current:
+            shutil.rmtree(folder)
+    folders = make(numba_cache.KEEP + 3, lambda i: 0)  # all in use a moment ago (other processes may still save there)
+    numba_cache._prune(current)
+    assert len(list(tmp_path.iterdir())) == numba_cache.KEEP + 4

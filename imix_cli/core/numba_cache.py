@@ -15,6 +15,18 @@ on its next use (a few minutes, ``python -m imix_cli.running.warmup`` does it at
 stale, and there is no stamp line to rewrite by hand. Functions outside the package keep numba's own
 locators (an ES added outside the package is keyed by its own file in the compiled loop's entry).
 
+Where. Not in ``__pycache__`` beside each copy of the package but in one folder per content of the
+package, inside the Python environment: ``<sys.prefix>/var/cache/imix_cli-numba/<digest>/`` (the
+folder tree of the package below it, :func:`shared_cache_root`). Why: ``make install`` compiles every
+kernel into the *installed* copy (its warm-up), and ``make test`` then imports the *source tree* (the
+current folder is on ``sys.path``), whose ``__pycache__`` is empty: on a fresh clone the suite spent
+~100 s of its ~7 min compiling again what the install had just compiled. numba's stamp is the hash of
+the file's bytes (numba 0.57+) and its index key the function's bytecode, so two copies with the same
+sources can share machine code; keyed by :data:`SOURCE_DIGEST`, copies that differ never overwrite
+each other's. An edit makes a new folder; the oldest are removed beyond the newest :data:`KEEP`
+(:func:`_prune`). When ``sys.prefix`` is not writable (a system Python) or the user set
+``NUMBA_CACHE_DIR``, numba's own folder is used, as before.
+
 This module is imported by :mod:`imix_cli.core.elementary`, which every imix kernel module imports before
 it defines a kernel: the locator is in place before the first ``@njit(cache=True)`` of the package
 runs (``tests/test_numba_cache.py`` checks every cached kernel uses it). A ``NUMBA_CACHE_LOCATOR_CLASSES``
@@ -24,12 +36,17 @@ set by the user replaces numba's locator list, this one included.
 from __future__ import annotations
 
 import hashlib
+import os
 import re
+import shutil
+import sys
+import tempfile
+import time
 from pathlib import Path
 
 from numba.core import caching
 
-__all__ = ["PACKAGE", "SOURCE_DIGEST", "compiled_sources", "source_digest"]
+__all__ = ["KEEP", "PACKAGE", "SOURCE_DIGEST", "compiled_sources", "shared_cache_root", "source_digest"]
 
 
 def _top_package(folder: Path) -> Path:
@@ -78,17 +95,69 @@ def source_digest(root: Path = PACKAGE) -> str:
 SOURCE_DIGEST = source_digest()
 
 
-class _PackageLocator(caching._CacheLocator):
-    """numba's own locator for the function (its cache directory), with :data:`SOURCE_DIGEST` in its stamp."""
+#: How many contents of the package keep their compiled kernels in the environment (the newest by use).
+KEEP = 4
 
-    def __init__(self, inner):
+#: A content folder younger than this is never removed: a process that started on it may still save to it.
+_GRACE_SECONDS = 600.0
+
+
+def shared_cache_root(prefix: str | os.PathLike | None = None, package: Path = PACKAGE, digest: str = "") -> Path:
+    """The folder holding the package's compiled kernels for one content of its sources (``digest``,
+    :data:`SOURCE_DIGEST` by default): shared by every copy of the package that runs in the environment
+    ``prefix`` (``sys.prefix`` when the call is made; the installed copy and a source tree alike)."""
+    return Path(sys.prefix if prefix is None else prefix) / "var" / "cache" / f"{package.name}-numba" / (digest or SOURCE_DIGEST)[:20]
+
+
+def _prune(root: Path) -> None:
+    """Remove the content folders beside ``root`` beyond the :data:`KEEP` most recently used (older
+    than :data:`_GRACE_SECONDS`); called once per process, when it first saves to ``root``."""
+    stamp = root / ".used"
+    stamp.touch()
+    others = []
+    for folder in root.parent.iterdir():
+        mark = folder / ".used"
+        if folder != root and mark.is_file():
+            others.append((mark.stat().st_mtime, folder))
+    now = time.time()
+    for used, folder in sorted(others, reverse=True)[KEEP - 1:]:
+        if now - used > _GRACE_SECONDS:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _shared_root() -> Path | None:
+    """:func:`shared_cache_root` when it can be written and the user did not choose a cache folder, else None."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return None
+    root = shared_cache_root()
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=root).close()
+        _prune(root)
+    except OSError:
+        return None
+    return root
+
+
+_SHARED: list[Path | None] = []  # computed once per process, on the first kernel that asks
+
+
+class _PackageLocator(caching._CacheLocator):
+    """numba's own locator for the function, with :data:`SOURCE_DIGEST` in its stamp and the cache in
+    :func:`shared_cache_root` (the function's folder in the package below it) when that can be written."""
+
+    def __init__(self, inner, shared: Path | None = None):
         self._inner = inner
+        self._shared = shared
 
     def ensure_cache_path(self):
-        self._inner.ensure_cache_path()
+        if self._shared is None:
+            self._inner.ensure_cache_path()
+        else:
+            self._shared.mkdir(parents=True, exist_ok=True)
 
     def get_cache_path(self):
-        return self._inner.get_cache_path()
+        return self._inner.get_cache_path() if self._shared is None else str(self._shared)
 
     def get_source_stamp(self):
         return (self._inner.get_source_stamp(), SOURCE_DIGEST)
@@ -99,14 +168,17 @@ class _PackageLocator(caching._CacheLocator):
     @classmethod
     def from_function(cls, py_func, py_file):
         try:
-            Path(py_file).resolve().relative_to(PACKAGE)
+            folder = Path(py_file).resolve().parent.relative_to(PACKAGE)
         except (ValueError, OSError):
             return None  # not imix's: numba's own locators
+        if not _SHARED:
+            _SHARED.append(_shared_root())
+        shared = None if _SHARED[0] is None else _SHARED[0].joinpath(*folder.parts)
         for other in caching.CacheImpl._locator_classes:
             if other is not cls:
                 inner = other.from_function(py_func, py_file)
                 if inner is not None:
-                    return cls(inner)
+                    return cls(inner, shared)
         return None
 
 

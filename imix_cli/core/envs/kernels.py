@@ -37,8 +37,8 @@ as a loop of its own over the layer's units, which compiles to vector instructio
 multiply-adds written out in :mod:`imix_cli.core.elementary`.
 
 Compilation: ``@njit(cache=True)``: the machine code is written to numba's on-disk cache on
-first use (``__pycache__`` next to this file, or the user's cache directory when that is not
-writable, e.g. a root-owned site-packages) and loaded from there by every later process,
+first use (in the Python environment, :func:`imix_cli.core.numba_cache.shared_cache_root`; numba's
+``__pycache__`` or the user's cache directory when that is not writable) and loaded from there by every later process,
 spawned workers included. numba invalidates a cached function when *its* file changes, not when
 a callee in another file does (:mod:`imix_cli.core.elementary`'s functions are compiled in): imix's
 cache locator (:mod:`imix_cli.core.numba_cache`) stamps these kernels with every compiled source of the package.
