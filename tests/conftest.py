@@ -76,6 +76,16 @@ def extra_installed(extra: str) -> bool:
     return not missing_modules(extra)
 
 
+def covering_grid(first: list, second: list) -> list:
+    """Every pair of ``first`` × ``second`` as a parameter (id ``a-b``, as two stacked parametrizes give);
+    ``make test-fast`` keeps a subset where each value of either list appears at least once (the i-th of
+    the longer list with the (i mod n)-th of the shorter), the other pairs are marked slow (``make test``
+    runs them all). For grids of subprocess tests, whose every pair costs a process start (1-4 s)."""
+    longer = max(len(first), len(second))
+    kept = {(first[i % len(first)], second[i % len(second)]) for i in range(longer)}
+    return [pytest.param(a, b, id=f"{a}-{b}", marks=() if (a, b) in kept else pytest.mark.slow) for a in first for b in second]
+
+
 def pytest_configure(config):
     for extra, (modules, install) in EXTRAS.items():
         config.addinivalue_line("markers", f"{extra}: needs {', '.join(modules)} ({install}); skipped without them")

@@ -154,6 +154,7 @@ def test_the_python_callable_functions_are_the_compiled_ones():
         assert el.math_pow(abs(x), x) == _pow_pairs(el.pow, np.array([abs(x)]), np.array([x]))[0]
 
 
+@pytest.mark.slow
 def test_the_tables_are_computed_from_their_definitions():
     """tools/elementary_tables.py recomputes every table (the log table by its search) and finds the shipped file."""
     import subprocess

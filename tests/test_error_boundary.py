@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import covering_grid
 
 from imix_cli.commands.cli import main
 
@@ -85,8 +86,7 @@ def snapshot(folder: Path) -> dict:
 EXPECTED = {"SIGINT": (130, "interrupted"), "SIGTERM": (143, "terminated"), "MemoryError": (1, "out of memory")}
 
 
-@pytest.mark.parametrize("action", list(EXPECTED))
-@pytest.mark.parametrize("command", ["run", "plot", "eval", "render", "status", "bench"])
+@pytest.mark.parametrize(("command", "action"), covering_grid(["run", "plot", "eval", "render", "status", "bench"], list(EXPECTED)))
 def test_each_command_ends_in_one_line_on_sigint_sigterm_and_memoryerror(trained, tmp_path, command, action):
     root = tmp_path / "r"
     shutil.copytree(trained, root)
@@ -187,8 +187,7 @@ def _imix(argv, folder, mode, debug=False):
     return subprocess.run([sys.executable, "-m", "imix_cli.commands.cli", *argv], capture_output=True, text=True, env=env, cwd=folder, timeout=600)
 
 
-@pytest.mark.parametrize("mode", list(BAD_MODES))
-@pytest.mark.parametrize("command", ["run", "eval", "render"])
+@pytest.mark.parametrize(("command", "mode"), covering_grid(["run", "eval", "render"], list(BAD_MODES)))
 def test_a_user_env_that_breaks_ends_in_one_line_naming_it(bad_env, tmp_path, command, mode):
     folder, root = bad_env
     if command == "render" and mode == "reward":

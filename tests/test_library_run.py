@@ -31,7 +31,7 @@ def _python(args, tmp_path, stdin=None):
     return subprocess.run([sys.executable, *args], input=stdin, capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env)
 
 
-@pytest.mark.parametrize("how", ["python script.py", "python - (no __file__, as a notebook)"])
+@pytest.mark.parametrize("how", ["python script.py", pytest.param("python - (no __file__, as a notebook)", marks=pytest.mark.slow)])
 def test_run_at_a_scripts_top_level_with_two_workers_runs_the_script_once(tmp_path, how):
     code = SCRIPT.format(ran=str(tmp_path / "ran.txt"), results=str(tmp_path / "results"))
     if how.startswith("python script.py"):

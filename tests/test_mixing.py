@@ -368,7 +368,7 @@ def _kernels_without_random_interval(tmp_path):
     return module
 
 
-@pytest.mark.parametrize("fallback", [False, True])
+@pytest.mark.parametrize("fallback", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_the_compiled_permutation_is_numpys(fallback, tmp_path):
     """mixing_kernels._permutation (its own 1-d loop, for compile time; numba's permutation if numba
     moved the draw it uses) gives ``Generator.permutation(n)``'s array and leaves the Generator in

@@ -12,6 +12,8 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 from imix_cli.core import numba_cache
 
 _CALLEE = "from numba import njit\n\n\n@njit(cache=True)\ndef f(x):\n    return x + {}\n"
@@ -45,6 +47,7 @@ def _run_twice(tmp_path: Path, stamped: bool) -> tuple[str, str]:
     return tuple(out)
 
 
+@pytest.mark.slow
 def test_an_edit_of_a_callee_in_another_file_recompiles_its_callers(tmp_path):
     assert _run_twice(tmp_path, stamped=False) == ("4.0", "4.0")  # numba alone: the caller's stale machine code
     assert _run_twice(tmp_path, stamped=True) == ("4.0", "6.0")
@@ -90,6 +93,7 @@ print(caller.g(1.0), sum(caller.g.stats.cache_hits.values()), sum(caller.g.stats
 """
 
 
+@pytest.mark.slow
 def test_two_copies_of_the_same_sources_share_their_compiled_kernels(tmp_path):
     """The installed package and a source tree with the same files (``make install`` then ``make test``):
     what the first compiled, the second loads; a copy that differs compiles its own, beside it."""
@@ -130,7 +134,7 @@ def test_old_contents_are_removed_beyond_the_newest_kept(tmp_path):
     current.mkdir()
     folders = make(numba_cache.KEEP + 3, lambda i: 10 - i)  # digest0 the least recently used
     numba_cache._prune(current)
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["current", *(f.name for f in folders[-(numba_cache.KEEP - 1):])])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["current", *(f.name for f in folders[-(numba_cache.KEEP - 1) :])])
     for folder in tmp_path.iterdir():
         if folder != current:
             shutil.rmtree(folder)

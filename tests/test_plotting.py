@@ -379,6 +379,7 @@ def test_profile_axis_fits_the_final_returns_and_its_threshold_is_in_the_legend(
     assert "threshold 195" in [t.get_text() for t in ax.get_legend().get_texts()]
 
 
+@pytest.mark.slow
 def test_didactic_figures_only_when_asked(tmp_path, capsys):
     write_group(tmp_path, "snes", "cartpole", "none", range(2))
     assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=convergence,efficiency,reuse"]) == 0

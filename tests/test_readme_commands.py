@@ -147,6 +147,7 @@ def test_the_readme_lists_what_the_test_runs():
             assert re.search(rf"^{re.escape(command.split()[1])}:", makefile, re.M), f"{command}: no such target in the Makefile"
 
 
+@pytest.mark.slow
 def test_the_help_overrides_are_still_examples():
     shown = {command for command, _ in help_commands()}
     assert set(HELP_OVERRIDES) <= shown, set(HELP_OVERRIDES) - shown

@@ -71,6 +71,7 @@ def test_under_constant_fitness_openes_with_mixing_walks_as_far_as_without():
 
 
 # ------------------------------------------------------------------- CMA-ES's step size
+@pytest.mark.slow
 def test_cma_es_step_size_under_neutral_selection_with_mixing_drifts_as_without():
     """Every episode an independent N(0, 1) draw (CMA-ES + EIM, d = 20, N = 12, 200 generations, 8
     seeds): nothing to find, so log(sigma / sigma0) must drift as without mixing. With pycma's CSA

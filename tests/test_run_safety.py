@@ -265,7 +265,7 @@ def _stop_when_checkpointed(args, tmp_path, checkpoints: int, send, min_workers:
     return code, proc.stderr.read().strip(), left
 
 
-@pytest.mark.parametrize("to", ["main", "group"])
+@pytest.mark.parametrize("to", ["main", pytest.param("group", marks=pytest.mark.slow)])
 def test_sigterm_stops_the_run_with_one_line_and_no_warning(tmp_path, to):
     args = [IMIX, "run", "algo=snes", "env=acrobot", "seeds=2", "generations=2000", "popsize=20", "checkpoint_every=5", "checkpoint_seconds=0",
             "workers=2", "progress=false",
@@ -278,7 +278,7 @@ def test_sigterm_stops_the_run_with_one_line_and_no_warning(tmp_path, to):
     assert len(list(tmp_path.rglob(".checkpoints/seed_*.npz"))) == 2
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["Ctrl-C", "SIGTERM"])
+@pytest.mark.parametrize("signum", [signal.SIGINT, pytest.param(signal.SIGTERM, marks=pytest.mark.slow)], ids=["Ctrl-C", "SIGTERM"])
 def test_the_evaluation_pool_stops_with_the_run_and_says_nothing(tmp_path, signum):
     """evaluator=pool, the signal sent to the whole process group (a terminal's Ctrl-C, a scheduler):
     the pool's workers printed a line each; now only the main process speaks."""

@@ -135,6 +135,7 @@ print(seen.hexdigest())
 """
 
 
+@pytest.mark.slow
 def test_cmaes_tpa_points_are_bit_identical_under_every_blas_kernel():
     """CMA-ES's two TPA points scale the last move by two vector lengths; through numpy's BLAS dot
     (``np.linalg.norm``) those differ in the last bits from one kernel to the next. A run's CSVs

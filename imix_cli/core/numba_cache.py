@@ -120,7 +120,7 @@ def _prune(root: Path) -> None:
         if folder != root and mark.is_file():
             others.append((mark.stat().st_mtime, folder))
     now = time.time()
-    for used, folder in sorted(others, reverse=True)[KEEP - 1:]:
+    for used, folder in sorted(others, reverse=True)[KEEP - 1 :]:
         if now - used > _GRACE_SECONDS:
             shutil.rmtree(folder, ignore_errors=True)
 
