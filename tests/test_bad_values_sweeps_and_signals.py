@@ -123,7 +123,7 @@ def test_sigint_to_the_main_process_alone_stops_the_workers_and_keeps_checkpoint
     assert len(list(tmp_path.rglob(".checkpoints/seed_*.npz"))) == 2 and not [p for p in tmp_path.rglob("seed_*.csv") if not p.name.endswith(".partial.csv")]
 
 
-@pytest.mark.parametrize("delay", [0.8, 1.5, 2.2])
+@pytest.mark.parametrize("delay", [0.8, pytest.param(1.5, marks=pytest.mark.slow), pytest.param(2.2, marks=pytest.mark.slow)])
 def test_ctrl_c_during_validation_prints_one_line(tmp_path, delay):
     """SIGINT a second or two after start: validation or Hydra's start-up is still running (a Ctrl-C in Hydra's
     config loading, after validation, left omegaconf half-updated and printed a traceback: at 1.5 s here)."""

@@ -101,7 +101,7 @@ def test_each_command_ends_in_one_line_on_sigint_sigterm_and_memoryerror(trained
     assert not (tmp_path / "out.gif").exists()  # render stopped mid-GIF: no file at all, not half of one
 
 
-@pytest.mark.parametrize("command", ["run", "plot", "eval", "render", "status", "bench"])
+@pytest.mark.parametrize("command", ["run", "plot", "status", *(pytest.param(c, marks=pytest.mark.slow) for c in ("eval", "render", "bench"))])
 def test_a_closed_output_pipe_ends_each_command_silently_with_141(trained, tmp_path, command):
     """``imix status | head -1``: BrokenPipeError tracebacks; ``imix run ... | true``: "cannot write: Broken pipe", exit 1
     after every result was written. Now: nothing said, exit 141 (128 + SIGPIPE, as a shell reports a program SIGPIPE

@@ -20,6 +20,7 @@ def _batch(ev, n=23, seed=0):
     return rng.normal(0.0, 1.0, (n, ev.num_params)), rng.integers(0, 2**62, n)
 
 
+@pytest.mark.slow  # (make test-fast: test_runs_with_local_and_pool_evaluators_write_identical_csvs)
 def test_pool_with_1_and_2_workers_equals_local_bit_for_bit():
     local = make_evaluator(ENV, hidden=(4,))
     params, seeds = _batch(local)
