@@ -12,6 +12,10 @@ in fresh processes under each kernel and requires every CSV to be identical (but
 of its math functions instead of the FMA one (``GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA``), as on a
 CPU without FMA: before imix computed exp, log, pow, tanh, sin and cos itself (:mod:`imix_cli.core.elementary`),
 every SNES seed of the main job ran a different search from generation 6-15 on under it.
+
+The whole-run tests (the main job, CMA-ES: five fresh processes each, ~40 s of CPU together) check a
+property of what was installed (numpy's OpenBLAS, glibc), so they run in ``make test-install`` (CI runs it
+on every fresh clone); ``make test`` keeps the TPA points test, which goes through the same kernels.
 """
 
 import os
@@ -99,6 +103,7 @@ def _assert_same_everywhere(args, tmp_path, stop_at=None, c_library=True):
 
 
 @pytest.mark.slow
+@pytest.mark.install  # a property of the installed numpy/glibc: make test-install
 def test_main_job_is_bit_identical_under_every_blas_kernel(tmp_path):
     outputs = _assert_same_everywhere(["algo=snes", "env=cartpole", "eim=true", "seeds=2", "generations=40", "workers=1"], tmp_path, stop_at=12)
     frames = [f for f in outputs.values() if isinstance(f, pd.DataFrame)]
@@ -106,6 +111,7 @@ def test_main_job_is_bit_identical_under_every_blas_kernel(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.install  # a property of the installed numpy/glibc: make test-install
 def test_cmaes_is_bit_identical_under_every_blas_kernel(tmp_path):
     # Acrobot: returns rarely tie, so every rank (and so every bit of the update) matters.
     _assert_same_everywhere(["algo=cmaes", "env=acrobot", "eim=true", "seeds=2", "generations=15", "popsize=20", "workers=1"], tmp_path, stop_at=7)
