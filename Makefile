@@ -70,7 +70,7 @@ test:  ## the whole test suite, slow end-to-end tests included (tests of extras 
 test-fast:  ## day-to-day: every test not marked slow
 	$(PY) -m pytest -q $(XDIST) -m "not slow and not install"
 
-test-install:  ## what a fresh install gives: the warm-up's cold compiles, every README and --help command as shown (minutes of CPU; CI runs it once)
+test-install:  ## what a fresh install gives: the warm-up's cold compiles, every README and --help command as shown, whole runs under every BLAS kernel (minutes of CPU; CI runs it once)
 	$(PY) -m pytest -q -m install
 
 test-extras:  ## only the tests of the extras (after make install-all; CI runs it after make test)
