@@ -86,30 +86,37 @@ def test_no_stamp_is_written_by_hand():
 
 
 _SHARED_CHECK = """
-import sys
+import os, sys
 sys.prefix = sys.argv[1]  # the environment whose cache folder the package uses (read when the first kernel is made)
+if sys.argv[2] == "mtime":  # a numba whose source stamp is the file's mtime and size (as numba's was before it hashed the bytes)
+    from numba.core import caching
+    caching._SourceFileBackedLocatorMixin.get_source_stamp = lambda self: (os.stat(self._py_file).st_mtime, os.stat(self._py_file).st_size)
 from pkg import caller
 print(caller.g(1.0), sum(caller.g.stats.cache_hits.values()), sum(caller.g.stats.cache_misses.values()))
 """
 
 
 @pytest.mark.slow
-def test_two_copies_of_the_same_sources_share_their_compiled_kernels(tmp_path):
-    """The installed package and a source tree with the same files (``make install`` then ``make test``):
-    what the first compiled, the second loads; a copy that differs compiles its own, beside it."""
+@pytest.mark.parametrize("numba_stamp", ["content", "mtime"])
+def test_two_copies_of_the_same_sources_share_their_compiled_kernels(tmp_path, numba_stamp):
+    """The installed package and a source tree with the same files (``make install`` then ``make test``;
+    the copies' files have different mtimes): what the first compiled, the second loads, whether numba
+    stamps a file by its bytes or by its mtime; a copy that differs compiles its own, beside it."""
     copies = []
-    for name, term in (("installed", "1.0"), ("source_tree", "1.0"), ("edited", "2.0")):
+    for age, (name, term) in enumerate((("installed", "1.0"), ("source_tree", "1.0"), ("edited", "2.0"))):
         pkg = tmp_path / name / "pkg"
         pkg.mkdir(parents=True)
         (pkg / "__init__.py").write_text("")
         (pkg / "numba_cache.py").write_text(Path(numba_cache.__file__).read_text())
         (pkg / "caller.py").write_text(_CALLER.format("from pkg import numba_cache  # noqa: F401"))
         (pkg / "callee.py").write_text(_CALLEE.format(term))
+        for path in pkg.iterdir():
+            os.utime(path, (time.time() - 1000 * (age + 1),) * 2)
         copies.append(pkg.parent)
     prefix = tmp_path / "env"
     runs = []
     for folder in copies:
-        done = subprocess.run([sys.executable, "-c", _SHARED_CHECK, str(prefix)], cwd=folder, capture_output=True, text=True)
+        done = subprocess.run([sys.executable, "-c", _SHARED_CHECK, str(prefix), numba_stamp], cwd=folder, capture_output=True, text=True)
         assert done.returncode == 0, done.stderr[-2000:]
         runs.append(done.stdout.split())
     assert runs == [["4.0", "0", "1"], ["4.0", "1", "0"], ["6.0", "0", "1"]]  # compiled, loaded, compiled

@@ -20,10 +20,11 @@ package, inside the Python environment: ``<sys.prefix>/var/cache/imix_cli-numba/
 folder tree of the package below it, :func:`shared_cache_root`). Why: ``make install`` compiles every
 kernel into the *installed* copy (its warm-up), and ``make test`` then imports the *source tree* (the
 current folder is on ``sys.path``), whose ``__pycache__`` is empty: on a fresh clone the suite spent
-~100 s of its ~7 min compiling again what the install had just compiled. numba's stamp is the hash of
-the file's bytes (numba 0.57+) and its index key the function's bytecode, so two copies with the same
-sources can share machine code; keyed by :data:`SOURCE_DIGEST`, copies that differ never overwrite
-each other's. An edit makes a new folder; the oldest are removed beyond the newest :data:`KEEP`
+~100 s of its ~7 min compiling again what the install had just compiled. In the shared folder a
+kernel's stamp is the hash of its file's bytes (not numba's, which is the file's mtime in some numba
+versions and would differ between the copies) with :data:`SOURCE_DIGEST`, and numba's index key is the
+function's bytecode, so two copies with the same sources share machine code; keyed by
+:data:`SOURCE_DIGEST`, copies that differ never overwrite each other's. An edit makes a new folder; the oldest are removed beyond the newest :data:`KEEP`
 (:func:`_prune`). When ``sys.prefix`` is not writable (a system Python) or the user set
 ``NUMBA_CACHE_DIR``, numba's own folder is used, as before.
 
@@ -35,6 +36,7 @@ set by the user replaces numba's locator list, this one included.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import re
@@ -110,8 +112,9 @@ def shared_cache_root(prefix: str | os.PathLike | None = None, package: Path = P
 
 
 def _prune(root: Path) -> None:
-    """Remove the content folders beside ``root`` beyond the :data:`KEEP` most recently used (older
-    than :data:`_GRACE_SECONDS`); called once per process, when it first saves to ``root``."""
+    """Mark ``root`` used now and remove the content folders beside it beyond the :data:`KEEP` most
+    recently used (unless used in the last :data:`_GRACE_SECONDS`); called once per process, when its
+    first kernel of the package is defined."""
     stamp = root / ".used"
     stamp.touch()
     others = []
@@ -142,13 +145,19 @@ def _shared_root() -> Path | None:
 _SHARED: list[Path | None] = []  # computed once per process, on the first kernel that asks
 
 
+@functools.cache
+def _file_hash(path: str) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 class _PackageLocator(caching._CacheLocator):
     """numba's own locator for the function, with :data:`SOURCE_DIGEST` in its stamp and the cache in
     :func:`shared_cache_root` (the function's folder in the package below it) when that can be written."""
 
-    def __init__(self, inner, shared: Path | None = None):
+    def __init__(self, inner, shared: Path | None = None, py_file: str = ""):
         self._inner = inner
         self._shared = shared
+        self._py_file = py_file
 
     def ensure_cache_path(self):
         if self._shared is None:
@@ -160,7 +169,9 @@ class _PackageLocator(caching._CacheLocator):
         return self._inner.get_cache_path() if self._shared is None else str(self._shared)
 
     def get_source_stamp(self):
-        return (self._inner.get_source_stamp(), SOURCE_DIGEST)
+        if self._shared is None:
+            return (self._inner.get_source_stamp(), SOURCE_DIGEST)
+        return (_file_hash(self._py_file), SOURCE_DIGEST)  # the same for every copy of the same file
 
     def get_disambiguator(self):
         return self._inner.get_disambiguator()
@@ -178,7 +189,7 @@ class _PackageLocator(caching._CacheLocator):
             if other is not cls:
                 inner = other.from_function(py_func, py_file)
                 if inner is not None:
-                    return cls(inner, shared)
+                    return cls(inner, shared, py_file)
         return None
 
 
