@@ -124,7 +124,7 @@ class MixingES:
         plan, self.plan = self.plan, None
         fitness = finish_generation(self.es, self.archive, self.settings, plan, returns)
         if hasattr(self.es, "count_evaluations"):  # an adapter whose library counts evaluations (pycma's countevals)
-            self.es.count_evaluations(asked.shape[0])
+            self.es.count_evaluations(asked.shape[0], values=returns)
         self.evaluations += asked.shape[0]
         self.reused += plan.generation.reused
         self.members += plan.generation.samples.shape[0]

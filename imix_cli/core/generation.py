@@ -149,6 +149,7 @@ class Plan:
     evaluate: np.ndarray  # indices of the members that need an episode
     age: np.ndarray  # age of every member's return once the generation is evaluated
     probes: np.ndarray | None = None  # points the ES asks to have evaluated besides its members (CMA-ES's TPA)
+    reusable: bool = True  # False: drawn from a distribution without a density (never archived)
 
     @property
     def points(self) -> np.ndarray:
@@ -177,6 +178,9 @@ class GenerationScheme:
     def plan(self, es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> Plan:
         """Draw (or mix) the next generation of ``es`` and decide which members to evaluate."""
         dist, popsize = es.distribution, es.popsize
+        reusable = getattr(es, "mixable", True)  # False: no density now (pycma's degenerate factor): no reuse, no archive
+        if not reusable:
+            archive.generations, archive.returns, archive.ages = [], [], []
         if settings.variant is None or not archive.generations:
             g = Generation(es.ask(rng), np.zeros(popsize, np.int64), np.full(popsize, -1, np.int64), dist)
         else:
@@ -205,7 +209,7 @@ class GenerationScheme:
             evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
         age[evaluate] = 0
         probes = es.probes(rng)  # never mixed, never archived: not members
-        return Plan(g, np.flatnonzero(evaluate), age, probes=probes)
+        return Plan(g, np.flatnonzero(evaluate), age, probes=probes, reusable=reusable)
 
     def finish(self, es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:
         """Assemble the generation's fitness (stored returns + ``returns`` of ``plan.evaluate``), tell
@@ -240,7 +244,7 @@ class GenerationScheme:
         es.tell(g.samples, told_fitness, **probe)
         if told is not None and es.generation > told:  # the weights of this generation's members in the move ("conditional" mixing)
             g.mean_weights = getattr(es, "mean_weights", None)
-        depth = settings.depth
+        depth = settings.depth if plan.reusable else 0
         if depth:
             archive.generations = [g, *archive.generations][:depth]
             archive.returns = [fitness, *archive.returns][:depth]

@@ -57,7 +57,7 @@ import numpy as np
 
 from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
 
-__all__ = ["PycmaES", "REFUSED_OPTIONS", "STEP_SIZES", "is_pycma"]
+__all__ = ["FreshRecord", "PycmaES", "REFUSED_OPTIONS", "STEP_SIZES", "is_pycma"]
 
 #: ``step_size`` values (module docstring); the first is the default.
 STEP_SIZES = ("pycma", "tpa")
@@ -125,8 +125,11 @@ class PycmaES:
         self.tpa_s = 0.0
         self.tpa_move = np.zeros(self.dim)
         self._dist = None
+        self._degenerate = False  # pycma's current factor is singular: no density, this generation draws without reuse
         self._probes = None
         self._countevals = None
+        self._tie_rng = None  # the order members are told in (ties: _tell_order)
+        self._fresh = FreshRecord(es)  # what pycma's termination criteria read (stop(): "Termination under reuse")
 
     # ------------------------------------------------------------------ the ES protocol
     @property
@@ -146,17 +149,27 @@ class PycmaES:
             self._dist = self._read_distribution()
         return self._dist
 
+    @property
+    def mixable(self) -> bool:
+        """Whether the current distribution has a density to mix with: False where pycma's own factor is
+        singular (its state degenerate), and the generation is then drawn without reuse, as pycma would go on
+        drawing (:func:`imix_cli.core.generation.plan_generation` reads it)."""
+        self.distribution  # noqa: B018 (reads the factor)
+        return not self._degenerate
+
     def ask(self, rng: np.random.Generator) -> np.ndarray:
         return self.distribution.sample(self.popsize, rng)
 
     def probes(self, rng: np.random.Generator) -> np.ndarray | None:
         """The two TPA points of this generation (imix's or pycma's, ``step_size``), or None."""
         self._probes = None
+        if self._tie_rng is None:  # a child stream: the mixing stream itself draws exactly what it drew before
+            self._tie_rng = _child_stream(rng)
         if self.pycma_tpa:  # pycma's own: its ask of 2 gives them (2 plain draws before the mean has moved)
             self._probes = np.vstack(self.es.ask(2))
             if not np.all(np.isfinite(self._probes)):  # the mean did not move (a fully reused generation): no direction
                 self._probes[:] = self.distribution.mean  # two equal points tie: sigma stays
-        elif self.step_size == "tpa" and np.any(self.tpa_move):
+        elif self.step_size == "tpa" and np.any(self.tpa_move) and self.mixable:
             dist = self.distribution
             length = _mahalanobis(dist, self.tpa_move)
             draw = rng.standard_normal(self.dim)
@@ -169,7 +182,8 @@ class PycmaES:
         es = self.es
         samples = np.asarray(samples, dtype=np.float64)
         fitness = np.asarray(fitness, dtype=np.float64).reshape(-1)
-        solutions, values = list(samples), list(fitness)
+        order = self._tell_order(samples.shape[0])
+        solutions, values = list(samples[order]), list(fitness[order])
         if self.pycma_tpa and probe_fitness is not None:
             solutions, values = [*self._probes, *solutions], [*np.asarray(probe_fitness, dtype=np.float64), *values]
         mean_before, sigma_before = self.distribution.mean.copy(), float(es.sigma)
@@ -187,7 +201,7 @@ class PycmaES:
         es.number_of_solutions_asked += samples.shape[0]
         es.evaluations_per_f_value = 1
         es._is_independent_sample = [False] * (len(solutions) - samples.shape[0]) + [True] * samples.shape[0]
-        es.tell(solutions, values)
+        es.tell(solutions, values, check_points=False)  # exact draws, as pycma's own: pycma repairs none of its own samples
         if self.step_size == "tpa" and not self.pycma_tpa:
             step = self._tpa_step(probe_fitness, fitness)
             es.sigma = sigma_before * math.exp(min(max(step, -1.0), 1.0))
@@ -197,21 +211,40 @@ class PycmaES:
             self.tpa_move = self.distribution.mean - mean_before
         self.generation += 1
 
-    def count_evaluations(self, evaluated: int) -> None:
-        """Set pycma's ``countevals`` to the evaluations made for the generation just told (MixingES calls it)."""
+    def count_evaluations(self, evaluated: int, values=None) -> None:
+        """Set pycma's ``countevals`` to the evaluations made for the generation just told, and record their
+        ``values`` (fresh information: :class:`FreshRecord`); MixingES calls it after each tell."""
         if self._countevals is not None:
             self.es.countevals = self._countevals + int(evaluated)
             self._countevals = None
+        if values is not None:
+            self._fresh.add(np.asarray(values, dtype=np.float64).reshape(-1))
 
     def stop(self):
-        """pycma's termination criteria (a dict, empty while none holds)."""
-        return self.es.stop()
+        """pycma's termination criteria (a dict, empty while none holds), those that read f-values judged on
+        the fresh evaluations only (:class:`FreshRecord`)."""
+        return self._fresh.stop()
 
     @property
     def mean(self) -> np.ndarray:
         return self.distribution.mean
 
     # ------------------------------------------------------------------ internals
+    def _tell_order(self, n: int) -> np.ndarray:
+        """The order the members are told to pycma in: a random permutation.
+
+        Why: pycma ranks with ``np.argsort``, which keeps ties in the order told (insertion sort below 16
+        members), and a mixed generation lists its reused members first. On a plateau (bbob's step ellipsoid
+        f7) a reused member and a fresh one often have the same value, and the reused one -- a point of an
+        earlier, worse-centred generation -- then always wins the tie: the mean is pulled back and the run
+        stalls (pycma 3/3 hits on f7, d = 5, wrapped 0/3). pycma's own members are independent draws, so its
+        ties fall in a random order; a random order of the told members gives the same. Without ties the
+        order changes nothing (ranks, and so pycma's update, are the same bit for bit).
+        """
+        if self._tie_rng is None:
+            return np.arange(n)
+        return self._tie_rng.permutation(n)
+
     def _tpa_step(self, probe_fitness, fitness) -> float:
         """log sigma's change (before clipping) from the two points' values (pycma 4.5's
         CMAAdaptSigmaTPA.update2, minimising): z = (#{f < f_behind} - #{f < f_ahead}) / (n - 1)."""
@@ -236,11 +269,129 @@ class PycmaES:
         mean = np.asarray(es.gp.pheno(mean_geno), dtype=np.float64)
         if not es.gp.isidentity:  # an affine phenotype map: the images of the columns
             rows = np.array([np.asarray(es.gp.pheno(mean_geno + r), dtype=np.float64) - mean for r in rows])
-        cov = rows.T @ rows
-        off = cov - np.diag(np.diag(cov))
-        if not np.any(off):
-            return DiagonalGaussian(mean, np.sqrt(np.diag(cov)))
-        return FullGaussian(mean, cov)
+        off = rows - np.diag(np.diag(rows))
+        if not np.any(off):  # a diagonal map (CMA_diagonal, or C still the identity): the std is the map itself
+            return DiagonalGaussian(mean, np.abs(np.diag(rows)))
+        # pycma's factor itself, never C = rows^T rows factored again (FullGaussian.from_factor: that squares the condition)
+        try:
+            self._degenerate = False
+            return FullGaussian.from_factor(mean, rows.T)
+        except ValueError:  # a singular (or non-finite) factor: pycma goes on drawing from it, so does the adapter, without reuse
+            self._degenerate = True
+            return _Degenerate(mean, rows)
+
+
+class _Degenerate:
+    """pycma's distribution where its factor is singular: drawn from as pycma draws (mean + z A), without a
+    density (no reuse: :attr:`PycmaES.mixable`)."""
+
+    def __init__(self, mean: np.ndarray, rows: np.ndarray):
+        self.mean, self.rows, self.dtype = mean, rows, np.dtype(np.float64)
+
+    @property
+    def dim(self) -> int:
+        return self.mean.shape[0]
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.sum(self.rows * self.rows, axis=0))
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        return self.mean + rng.standard_normal((n, self.dim)) @ self.rows
+
+    def log_prob(self, x, rows=None):
+        raise ValueError("pycma's covariance factor is singular: the distribution has no density")
+
+
+class FreshRecord:
+    """pycma's termination criteria under reuse: the f-values they read are the fresh evaluations only.
+
+    Why. pycma's criteria that read f-values -- ``tolfun``, ``tolfunhist``, ``tolfunrel``, ``tolflatfitness``,
+    ``tolstagnation`` -- read the sorted values of the last generation (``es.fit.fit``) and histories of its
+    best and median (``fit.hist``, ``fit.histbest``, ``fit.histmedian``), and count flat generations in a row;
+    each entry is meant as new information, lambda independent evaluations. A mixed generation repeats
+    members of the generations before it with their stored values: the best member is often the same for
+    several generations (``fit.hist`` constant: ``tolfunhist`` fires while the run still progresses), and two
+    consecutive generations that share most members are flat together (on bbob, with mixing, 1,192 restarts
+    against pycma's 436 and ``tolflatfitness`` 372 times against 93, issue 45).
+
+    How. Every value evaluated afresh (fresh members, re-evaluated ones, TPA points) goes into a queue; each
+    time lambda of them are queued they make one *fresh generation*, recorded exactly as pycma's ``tell``
+    records a generation (the same fields, the same histories and lengths, ``histbest`` every fifth). While
+    ``stop()`` runs, pycma reads this record instead of its own, and its flat-generation count advances once
+    per fresh generation. So every criterion keeps its meaning -- "lambda new evaluations per entry" --
+    and its threshold. The criteria that read the distribution (``tolx``, ``tolupsigma``, ``noeffect*``,
+    ``tolconditioncov``, ``maxiter``, ``maxfevals``) are pycma's, untouched; pycma's update (``tell``) still
+    ranks the whole mixed generation. Without reuse every generation is fresh and the record is pycma's own.
+    Checked: tests/test_adapters_pycma.py (``test_reused_values_do_not_trip_pycma_stopping_rules``).
+    """
+
+    _FIELDS = ("fit", "hist", "histbest", "histmedian", "median", "median0", "median_min", "flatfit_iterations")
+
+    def __init__(self, es):
+        self.es = es
+        self.queue: list[float] = []
+        self.record = {"fit": [], "hist": [], "histbest": [], "histmedian": [], "median": None, "median0": None,
+                       "median_min": np.inf, "flatfit_iterations": 0}  # fmt: skip
+        self.generations = 0
+        self.new = False  # a fresh generation recorded since stop() last ran
+        self.flat = False  # the newest fresh generation is flat (pycma's test)
+
+    def add(self, values: np.ndarray) -> None:
+        self.queue.extend(float(v) for v in values)
+        lam = int(self.es.popsize)
+        while len(self.queue) >= lam:
+            block, self.queue = self.queue[:lam], self.queue[lam:]
+            self._record(sorted(block))
+
+    def _record(self, fit: list) -> None:
+        """pycma 4.5's ``tell``, "fitness histories", on one fresh generation."""
+        r, n = self.record, int(self.es.N)
+        r["fit"] = fit
+        r["hist"].insert(0, fit[0])
+        i = len(fit) // 2
+        r["median"] = float(fit[i] if len(fit) % 2 else (fit[i - 1] + fit[i]) / 2)
+        self.generations += 1
+        if self.generations % 5 == 0:
+            r["histbest"].insert(0, fit[0])
+            r["histmedian"].insert(0, r["median"])
+        if len(r["histbest"]) > 2e4:
+            r["histbest"].pop()
+            r["histmedian"].pop()
+        if len(r["hist"]) > 10 + 30 * n / len(fit):
+            r["hist"].pop()
+        if r["median0"] is None:
+            r["median0"] = r["median"]
+        r["median_min"] = min(r["median_min"], r["median"])
+        self.flat = not fit[0] < fit[int(0.75 * len(fit))]
+        self.new = True
+
+    def stop(self):
+        """pycma's ``stop()`` with this record in place of its own (class docstring)."""
+        es = self.es
+        if not self.generations or es.countiter == getattr(es._stopdict, "lastiter", None):
+            return es.stop()  # before any fresh generation (the first is all fresh); or pycma's answer of this iteration
+        r = self.record
+        if not self.new and self.flat:  # no new fresh generation: pycma's count must not advance on the same one again
+            r["flatfit_iterations"] -= 1
+        own = {name: getattr(es.fit, name) for name in self._FIELDS}
+        for name in self._FIELDS:
+            setattr(es.fit, name, r[name])
+        try:
+            return es.stop()
+        finally:
+            r["flatfit_iterations"] = es.fit.flatfit_iterations
+            for name, value in own.items():
+                setattr(es.fit, name, value)
+            self.new = False
+
+
+def _child_stream(rng: np.random.Generator) -> np.random.Generator:
+    """An independent stream spawned from ``rng``'s seed sequence: nothing is drawn from ``rng`` itself."""
+    try:
+        return rng.spawn(1)[0]
+    except (AttributeError, TypeError, ValueError):  # a bit generator without a seed sequence
+        return np.random.default_rng(0x1A2B)
 
 
 def _sampler_map(sm, dim: int) -> np.ndarray:

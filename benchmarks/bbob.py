@@ -1,0 +1,296 @@
+"""pycma alone and wrapped in importance mixing on COCO's bbob suite: the benchmark of docs/adapters.md.
+
+    make bbob                                              # run + table + cocopp figure (the docs' numbers)
+    python benchmarks/bbob.py run --out results/bbob       # both arms, every problem, COCO's observer output
+    python benchmarks/bbob.py table --out results/bbob     # the markdown table of docs/adapters.md
+    python benchmarks/bbob.py cocopp --out results/bbob    # cocopp's runtime ECDFs per function group
+    python benchmarks/bbob.py run --functions 7,13 --dims 5 --instances 1 --arms pycma,mixing  # a few problems
+
+The protocol is a pycma user's (issue 45): bbob functions 1-24, dimensions 2, 5, 10, instances 1-3 (216
+problems); per problem, x0 uniform in [-4, 4]^d, sigma0 = 2, a budget of 2000 d evaluations, a restart from a
+new x0 (and a new seed) whenever ``stop()`` fires; the x0s and seeds of a problem are the same for every arm.
+A problem is hit when f - f_opt <= 1e-8 (COCO's final target); its runtime is the evaluations until then.
+
+Arms (``--arms``): ``pycma`` (``cma.CMAEvolutionStrategy(x0, 2, {"seed": s, "verbose": -9})``, pycma's
+ask/tell loop) and ``mixing`` (the same ES wrapped in ``imix_cli.MixingES(es, "exact", rng=s)``, the adapter's
+defaults). ``mixing-K1``: ``eim_generations=1``; ``mixing-fresh3``: ``min_fresh=3`` -- settings the docs
+measure. Every arm of a problem runs in the same process one after the other, so its overhead per generation
+(time in ask and tell, the objective excluded) is measured next to pycma's under the same load.
+
+``run`` writes one JSON line per (problem, arm) to ``OUT/runs.jsonl`` (finished pairs are skipped, so an
+interrupted run resumes) and COCO's observer data to ``OUT/exdata/<arm>/``; it needs the ``bbob`` extra
+(coco-experiment, cocopp).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import math
+import os
+import shutil
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+#: arm -> None (pycma alone) or (MixingES keywords, PycmaES keywords)
+ARMS = {
+    "pycma": None,
+    "mixing": ({}, {}),
+    "mixing-K1": ({"eim_generations": 1}, {}),
+    "mixing-fresh3": ({"min_fresh": 3}, {}),
+    "mixing-tpa": ({}, {"step_size": "tpa"}),
+    "mixing-pop2": ({}, {}),  # pycma's default popsize doubled (POPSIZE_FACTOR)
+    "pycma-pop2": None,
+}
+#: arms whose pycma popsize is POPSIZE_FACTOR x pycma's default (4 + 3 ln d)
+POPSIZE_FACTOR = {"mixing-pop2": 2, "pycma-pop2": 2}
+GROUPS = (
+    ("separable f1-5", range(1, 6)),
+    ("low/moderate conditioning f6-9", range(6, 10)),
+    ("high conditioning f10-14", range(10, 15)),
+    ("multimodal f15-19", range(15, 20)),
+    ("weak structure f20-24", range(20, 25)),
+)
+SIGMA0 = 2.0
+BUDGET_PER_DIM = 2000
+
+
+def _problem_seed(fid: int, dim: int, instance: int) -> int:
+    return 1_000_003 * fid + 1009 * dim + instance
+
+
+def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM) -> dict:
+    """One arm on one (observed) COCO problem under the protocol; returns its record."""
+    import cma
+
+    import imix_cli
+    from imix_cli.core.adapters.pycma import PycmaES
+
+    dim = problem.dimension
+    budget = budget_per_dim * dim
+    starts = np.random.default_rng(_problem_seed(problem.id_function, dim, problem.id_instance))
+    record = {"problem": problem.id, "function": problem.id_function, "dim": dim, "instance": problem.id_instance, "arm": arm,
+              "hit": False, "runtime": None, "evaluations": 0, "restarts": -1, "generations": 0, "stops": {}, "exception": None,
+              "overhead_s": 0.0, "evaluation_s": 0.0}  # fmt: skip
+    stops = collections.Counter()
+    try:
+        while problem.evaluations < budget and not problem.final_target_hit:
+            record["restarts"] += 1
+            x0 = starts.uniform(-4, 4, dim)
+            seed = int(starts.integers(1, 2**31 - 1))
+            options = {"seed": seed, "verbose": -9, "maxfevals": budget - problem.evaluations}
+            if arm in POPSIZE_FACTOR:
+                options["popsize"] = POPSIZE_FACTOR[arm] * (4 + int(3 * math.log(dim)))
+            es = cma.CMAEvolutionStrategy(x0, SIGMA0, options)
+            if ARMS[arm] is not None:
+                mixing_options, adapter_options = ARMS[arm]
+                es = imix_cli.MixingES(PycmaES(es, **adapter_options), "exact", rng=seed, **mixing_options)
+            while True:
+                t0 = time.perf_counter()
+                stop = es.stop()
+                if stop:
+                    break
+                x = es.ask()
+                t1 = time.perf_counter()
+                f = []
+                for xi in x:
+                    f.append(problem(xi))
+                    if problem.final_target_hit and record["runtime"] is None:
+                        record["runtime"] = int(problem.evaluations)
+                t2 = time.perf_counter()
+                es.tell(x, f)
+                t3 = time.perf_counter()
+                record["overhead_s"] += (t1 - t0) + (t3 - t2)
+                record["evaluation_s"] += t2 - t1
+                record["generations"] += 1
+                if problem.final_target_hit or problem.evaluations >= budget:
+                    break
+            for key in stop:
+                stops[key] += 1
+    except Exception as err:  # noqa: BLE001 (the benchmark counts exceptions; it must go on to the next problem)
+        record["exception"] = f"{type(err).__name__}: {err}"
+    record["hit"] = bool(problem.final_target_hit)
+    record["evaluations"] = int(problem.evaluations)
+    record["stops"] = dict(stops)
+    return record
+
+
+def _todo(functions, dims, instances):
+    return [(f, d, i) for d in dims for f in functions for i in instances]
+
+
+def _worker(args):
+    """Run every arm on the problems of one worker, observed into OUT/exdata/<arm>/w<k>; yield records."""
+    worker, problems, arms, out, budget_per_dim = args
+    import cocoex
+
+    warnings.simplefilter("ignore")
+    cocoex.log_level("warning")
+    out = Path(out)
+    records = []
+    for arm in arms:
+        os.chdir(out / "exdata" / arm)
+        observer = cocoex.Observer("bbob", f"result_folder: w{worker} algorithm_name: {arm}")
+        suite = cocoex.Suite("bbob", "", "")
+        for fid, dim, inst in problems:
+            problem = suite.get_problem_by_function_dimension_instance(fid, dim, inst)
+            problem.observe_with(observer)
+            records.append(run_problem(problem, arm, budget_per_dim=budget_per_dim))
+            problem.free()
+        del observer
+    return records
+
+
+def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_dim: int) -> None:
+    import multiprocessing
+
+    out.mkdir(parents=True, exist_ok=True)
+    runs = out / "runs.jsonl"
+    done = set()
+    if runs.exists():
+        for line in runs.read_text().splitlines():
+            r = json.loads(line)
+            done.add((r["function"], r["dim"], r["instance"], r["arm"]))
+    todo = [p for p in _todo(functions, dims, instances) if any((*p, a) not in done for a in arms)]
+    if not todo:
+        print(f"bbob: every problem of {runs} is done", file=sys.stderr)
+        return
+    for arm in arms:  # observer folders: a resumed run starts them anew (COCO appends -001 to an existing folder)
+        folder = out / "exdata" / arm
+        folder.mkdir(parents=True, exist_ok=True)
+    # problems dealt round-robin by cost (d), one chunk per task, so both workers stay busy to the end
+    chunks = [todo[k :: workers * 8] for k in range(workers * 8)]
+    tasks = [(f"{k:02d}_{int(time.time())}", chunk, arms, str(out), budget_per_dim) for k, chunk in enumerate(chunks) if chunk]
+    t0 = time.time()
+    with multiprocessing.get_context("spawn").Pool(workers) as pool, runs.open("a") as sink:
+        for n, records in enumerate(pool.imap_unordered(_worker, tasks), start=1):
+            for r in records:
+                if (r["function"], r["dim"], r["instance"], r["arm"]) not in done:
+                    sink.write(json.dumps(r) + "\n")
+            sink.flush()
+            print(f"bbob: {n}/{len(tasks)} chunks, {time.time() - t0:.0f} s", file=sys.stderr)
+
+
+def load(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines() if line.strip()]
+
+
+def table(records: list[dict], arms=("pycma", "mixing")) -> str:
+    """The markdown table: hits, the median runtime ratio where both hit, restarts, stops, exceptions."""
+    base, other = arms
+    by = {(r["function"], r["dim"], r["instance"], r["arm"]): r for r in records}
+    keys = sorted({k[:3] for k in by if k[3] == base and (*k[:3], other) in by})
+    lines = [
+        f"| group | {base} hits | {other} hits | median runtime {other}/{base} where both hit (pairs) | restarts {other}/{base} | tolflatfitness stops | exceptions |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    total = collections.Counter()
+    all_ratios = []
+    for name, fids in (*GROUPS, ("all", range(1, 25))):
+        ks = [k for k in keys if k[0] in fids]
+        if not ks:
+            continue
+        a = [by[(*k, base)] for k in ks]
+        b = [by[(*k, other)] for k in ks]
+        ratios = [y["runtime"] / x["runtime"] for x, y in zip(a, b) if x["runtime"] and y["runtime"]]
+        if name != "all":
+            all_ratios += ratios
+        else:
+            ratios = all_ratios
+        ra, rb = sum(max(0, x["restarts"]) for x in a), sum(max(0, y["restarts"]) for y in b)
+        fa = sum(x["stops"].get("tolflatfitness", 0) for x in a)
+        fb = sum(y["stops"].get("tolflatfitness", 0) for y in b)
+        exc = sum(bool(y["exception"]) for y in b)
+        med = f"{np.median(ratios):.2f} ({len(ratios)})" if ratios else "-"
+        rr = f"{rb / ra:.2f} ({rb}/{ra})" if ra else f"- ({rb}/{ra})"
+        lines.append(f"| {name} | {sum(x['hit'] for x in a)}/{len(ks)} | {sum(y['hit'] for y in b)}/{len(ks)} | {med} | {rr} | {fb} vs {fa} | {exc} |")
+        total[name] = len(ks)
+    return "\n".join(lines)
+
+
+def overhead(records: list[dict], arms=("pycma", "mixing"), dim: int = 10) -> str:
+    """Time per generation in ask + tell (the objective excluded), arm against arm, on the problems of ``dim``."""
+    per = {a: [r["overhead_s"] / r["generations"] for r in records if r["arm"] == a and r["dim"] == dim and r["generations"]] for a in arms}
+    if not all(per.values()):
+        return ""
+    a, b = (float(np.median(per[x])) * 1e3 for x in arms)
+    return f"d = {dim}: median time per generation in ask + tell, {arms[1]} {b:.2f} ms, {arms[0]} {a:.2f} ms: {b / a:.2f}x"
+
+
+def exceptions(records: list[dict]) -> str:
+    bad = [r for r in records if r["exception"]]
+    return "\n".join(f"- {r['arm']} {r['problem']}: {r['exception']}" for r in bad) or "no exception"
+
+
+def stop_counts(records: list[dict], arms) -> str:
+    lines = ["| stop criterion | " + " | ".join(arms) + " |", "|---|" + "---:|" * len(arms)]
+    counts = {a: collections.Counter() for a in arms}
+    for r in records:
+        if r["arm"] in counts:
+            counts[r["arm"]].update(r["stops"])
+    for key in sorted(set().union(*counts.values())):
+        lines.append(f"| {key} | " + " | ".join(str(counts[a][key]) for a in arms) + " |")
+    return "\n".join(lines)
+
+
+def cocopp_figures(out: Path, arms) -> Path:
+    """cocopp's comparison of the arms' observer data into OUT/ppdata (runtime ECDFs per function group)."""
+    import cocopp
+
+    os.chdir(out)
+    shutil.rmtree("ppdata", ignore_errors=True)
+    cocopp.genericsettings.isConv = False
+    cocopp.main(" ".join(f"exdata/{a}" for a in arms) + " -o ppdata --no-svg")
+    return out / "ppdata"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("section", choices=["run", "table", "cocopp"])
+    parser.add_argument("--out", type=Path, default=Path("results/bbob"))
+    parser.add_argument("--functions", default="1-24")
+    parser.add_argument("--dims", default="2,5,10")
+    parser.add_argument("--instances", default="1-3")
+    parser.add_argument("--arms", default="pycma,mixing", help="of " + ", ".join(ARMS) + "; table: the first two are compared")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--budget-per-dim", type=int, default=BUDGET_PER_DIM)
+    args = parser.parse_args(argv)
+
+    def ints(text):
+        out = []
+        for part in text.split(","):
+            lo, _, hi = part.partition("-")
+            out += list(range(int(lo), int(hi or lo) + 1))
+        return out
+
+    arms = args.arms.split(",")
+    unknown = [a for a in arms if a not in ARMS]
+    if unknown:
+        parser.error(f"unknown arm {unknown[0]!r}; valid: {', '.join(ARMS)}")
+    out = args.out.resolve()
+    if args.section == "run":
+        run(out, ints(args.functions), ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim)
+    elif args.section == "table":
+        records = load(out)
+        print(table(records, arms[:2]))
+        print()
+        for dim in (2, 5, 10):
+            line = overhead(records, arms[:2], dim)
+            if line:
+                print(f"- {line}")
+        print()
+        print(stop_counts(records, arms))
+        print()
+        print(exceptions(records))
+    else:
+        print(cocopp_figures(out, arms))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
