@@ -48,6 +48,7 @@ __version__ = "0.1.0"
 #: name -> module of the public API; ``imix_cli.<name>`` imports the module when first read.
 _API = {
     "MixingES": "imix_cli.core.ask_tell",
+    "fmin2": "imix_cli.core.adapters.pycma_fmin",
     "run": "imix_cli.experiment",
     "Experiment": "imix_cli.experiment",
     "make_es": "imix_cli.core.algorithms",

@@ -231,3 +231,174 @@ def test_a_bad_step_size_and_a_used_es_are_refused():
         _run(es, 1)
     with pytest.raises(ValueError, match="already been told 1 generations"):
         PycmaES(es)
+
+
+# --------------------------------------------------------- bbob's findings (issue 45)
+def _sharp_ridge(dim=5, seed=7):
+    """bbob's f13 in numpy: z = Q Lambda^10 Q (x - 1), f = z_1^2 + 100 |z_2..d| (a ridge pycma solves while C's
+    condition number grows without bound)."""
+    q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((dim, dim)))
+    scale = 10 ** (np.arange(dim) / (dim - 1))
+
+    def f(x):
+        z = q @ (scale * (q @ (np.asarray(x) - 1.0)))
+        return z[0] ** 2 + 100 * np.sqrt(np.sum(z[1:] ** 2))
+
+    return f
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_the_sharp_ridge_runs_to_the_end_where_pycma_runs_bbob_f13(seed):
+    """bbob f13, d = 5: the adapter formed C = A^T A from pycma's factor and factored it again (the condition number
+    squared) and raised "FullGaussian: cov is not positive definite" after ~800 generations while pycma went on.
+    This numpy ridge, with pycma's stopping rules off but noeffectaxis, crashed the old adapter at generation 940
+    (seed 0) and 892 (seed 2). The squared condition was not the cause: pycma's tell *repaired* the members it had
+    not sampled itself (``check_points=None`` shortens long steps), the update was no longer pycma's, and the mean
+    ran away (4e9 at generation 900) until C broke. Told without repair, as pycma's own draws are, the run ends at
+    the optimum, with the old factorisation too (measured); with repair it runs away with the new one too."""
+    ridge = _sharp_ridge()
+    es = cma.CMAEvolutionStrategy(np.zeros(5), 2.0, {"seed": seed + 1, "verbose": -9, "tolfun": 0, "tolfunhist": 0, "tolx": 0,
+                                                     "tolflatfitness": 1e9, "tolstagnation": 0, "tolconditioncov": 1e30})  # fmt: skip
+    m = imix_cli.MixingES(es, "exact", rng=seed)
+    generations = 0
+    while not m.stop() and generations < 2000:
+        x = m.ask()
+        m.tell(x, [ridge(xi) for xi in x])
+        generations += 1
+    assert generations > 1000 or m.stop(), (generations, m.stop())
+    assert es.best.f < 1e-5, es.best.f
+    assert np.max(np.abs(es.mean - 1.0)) < 1e-3, es.mean  # at the optimum, not run away (pycma's repair: see above)
+
+
+def test_from_factor_is_the_gaussian_of_its_factor_at_condition_numbers_where_cholesky_of_c_fails():
+    """A factor of condition 1e9 (C: 1e18, at the edge of float64): the log-density from the factor matches the one
+    computed in the factor's own terms (|A^-1 (x - m)|^2), and the square of the factor is C; a singular factor is
+    refused in one line (the adapter then draws without reuse)."""
+    from imix_cli.core.distributions import FullGaussian
+
+    rng = np.random.default_rng(0)
+    q, _ = np.linalg.qr(rng.standard_normal((6, 6)))
+    a = q * np.logspace(0, -9, 6)  # columns scaled: A = Q diag(1 .. 1e-9)
+    dist = FullGaussian.from_factor(np.zeros(6), a)
+    x = a @ rng.standard_normal((6, 50))
+    z = np.linalg.solve(a, x)
+    expected = -0.5 * 6 * np.log(2 * np.pi) - np.sum(np.log(np.logspace(0, -9, 6))) - 0.5 * np.sum(z * z, axis=0)
+    np.testing.assert_allclose(dist.log_prob(x.T), expected, rtol=1e-6)  # both at cond(A) * eps
+    np.testing.assert_allclose(dist.chol @ dist.chol.T, a @ a.T, rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="singular"):
+        FullGaussian.from_factor(np.zeros(6), np.diag([1.0, 1, 1, 1, 1, 0]))
+
+
+def _stop_after(mixing: bool, seed: int):
+    """A flat function (every value 1.0) with pycma's tolfun and tolfunhist off: evaluations until tolflatfitness."""
+    es = cma.CMAEvolutionStrategy(np.ones(5), 1.0, {"seed": seed + 1, "verbose": -9, "tolfun": 0, "tolfunhist": 0})
+    m = imix_cli.MixingES(es, "exact", rng=seed) if mixing else es
+    evaluations = 0
+    while not m.stop():
+        x = m.ask()
+        m.tell(x, [1.0] * len(x))
+        evaluations += len(x)
+    return evaluations, set(m.stop())
+
+
+def test_reused_values_do_not_trip_pycma_stopping_rules():
+    """pycma counts flat generations in a row (tolflatfitness) as new information: lambda evaluations each. A mixed
+    generation repeats most members of the last one with their stored values, and the old adapter stopped after
+    9-14 evaluations where pycma alone stops after 16 (d = 5, lambda = 8): stored values counted as new flat
+    generations. With the fresh record, the rule fires after at least pycma's own evaluations."""
+    for seed in range(5):
+        alone, why_alone = _stop_after(False, seed)
+        mixed, why_mixed = _stop_after(True, seed)
+        assert why_alone == why_mixed == {"tolflatfitness"}, (why_alone, why_mixed)
+        assert mixed >= alone, (seed, mixed, alone)
+
+
+def test_the_fresh_record_is_pycmas_record_of_the_fresh_values():
+    """What pycma's stop() reads through the adapter: one entry of fit.hist per lambda fresh values (not per
+    generation), each the best of its block, and pycma's own record restored after stop()."""
+    from imix_cli.core.adapters.pycma import FreshRecord
+
+    m = imix_cli.MixingES(cma.CMAEvolutionStrategy(6 * [1.0], 0.5, {"seed": 4, "verbose": -9}), "exact", rng=4)
+    fresh = []
+    for _ in range(40):
+        x = m.ask()
+        f = [cma.ff.elli(xi) for xi in x]
+        fresh += f
+        m.tell(x, f)
+    es, lam = m.es.es, m.es.es.popsize
+    blocks = [sorted(fresh[i : i + lam]) for i in range(0, len(fresh) - lam + 1, lam)]
+    record = m.es._fresh.record
+    assert isinstance(m.es._fresh, FreshRecord)
+    assert m.reuse > 0.3 and len(blocks) < 40
+    assert record["fit"] == blocks[-1]
+    assert record["hist"] == [b[0] for b in blocks[::-1]][: len(record["hist"])]
+    own = list(es.fit.hist)
+    m.stop()
+    assert es.fit.hist == own
+
+
+def test_ties_between_reused_and_fresh_members_fall_in_a_random_order():
+    """A plateau (bbob f7): every member of a mixed generation has the same value. pycma keeps ties in the order told
+    and a mixed generation lists its reused members first, so the old adapter always ranked them first: the mean
+    went back to earlier points. Told in a random order, the generation's first member is among pycma's mu
+    selected ones mu/lambda of the time (binomial test over 300 generations), as for pycma's own draws."""
+    m = imix_cli.MixingES(cma.CMAEvolutionStrategy(6 * [1.0], 0.5, {"seed": 6, "verbose": -9, "tolfun": 0, "tolfunhist": 0,
+                                                                       "tolflatfitness": 1e9, "tolx": 0}), "exact", rng=6)  # fmt: skip
+    es = m.es.es
+    mu, lam = es.sp.weights.mu, es.popsize
+    selected, reused_first, trials = 0, 0, 300
+    for _ in range(trials):
+        x = m.ask()
+        m.tell(x, np.ones(len(x)))
+        first = m.generation.samples[0]
+        reused_first += m.generation.source[0] > 0
+        selected += bool(np.any(np.all(np.asarray(es.pop_sorted)[:mu] == first, axis=1)))
+    assert reused_first > trials / 3, "the generations must start with reused members"
+    p = stats.binomtest(selected, trials, mu / lam).pvalue
+    assert p > 1e-3, (selected, trials, mu / lam)
+
+
+def test_fmin2_runs_pycmas_ipop_and_bipop_with_mixing():
+    """imix_cli.fmin2: pycma's own restart loop (IPOP, BIPOP) with mixing in every run: the evaluations pycma counts
+    are the objective's calls, fewer than pycma's alone on the sphere; each restart's population is pycma's
+    (doubled); noise_handler is refused in one line."""
+    calls = {"n": 0}
+
+    def sphere(x):
+        calls["n"] += 1
+        return cma.ff.sphere(x)
+
+    x0 = lambda: np.random.default_rng(0).uniform(-4, 4, 5)  # noqa: E731
+    options = {"verbose": -9, "seed": 1, "ftarget": 1e-8}
+    _, alone = cma.fmin2(sphere, x0, 2.0, options)
+    alone_calls, calls["n"] = calls["n"], 0
+    _, mixed = imix_cli.fmin2(sphere, x0, 2.0, options)
+    assert mixed.result.evaluations == calls["n"] < 0.8 * alone_calls
+    assert mixed.result.fbest < 1e-8 and "ftarget" in mixed.stop()
+    for bipop in (False, True):  # a flat function stops every run: pycma's restarts go on, populations doubled
+        _, es = imix_cli.fmin2(lambda x: 1.0, x0, 2.0, {"verbose": -9, "seed": 2, "tolfun": 0, "tolfunhist": 0}, restarts=2, bipop=bipop)
+        assert len(es.all_stoppings) - 1 >= 3 and "tolflatfitness" in es.all_stoppings[-1]
+    assert es.popsize > 8
+    with pytest.raises(ValueError, match="noise_handler"):
+        imix_cli.fmin2(sphere, x0, 2.0, options, noise_handler=cma.NoiseHandler(5))
+
+
+def test_a_singular_pycma_factor_draws_without_reuse_instead_of_raising(monkeypatch):
+    """Where pycma's own factor is singular (a degenerate state pycma goes on sampling from), the adapter has no
+    density to mix with: that generation is drawn without reuse (and not archived), not an exception."""
+    from imix_cli.core.adapters import pycma as adapter
+
+    m = imix_cli.MixingES(cma.CMAEvolutionStrategy(4 * [1.0], 0.5, {"seed": 8, "verbose": -9}), "exact", rng=8)
+    m.optimize(cma.ff.sphere, iterations=5)
+    own = adapter._sampler_map
+    monkeypatch.setattr(adapter, "_sampler_map", lambda sm, dim: own(sm, dim) * np.array([1.0, 1, 1, 0])[:, None])
+    m.es._dist = None
+    assert not m.es.mixable
+    x = m.ask()
+    assert m.generation.reused == 0 and len(x) == m.popsize
+    m.tell(x, [cma.ff.sphere(xi) for xi in x])
+    assert m.archive.generations == []
+    monkeypatch.setattr(adapter, "_sampler_map", own)
+    m.es._dist = None
+    m.optimize(cma.ff.sphere, iterations=5)
+    assert m.reused > 0

@@ -21,6 +21,19 @@ full sampler, the square root of the diagonal for ``CMA_diagonal``), scaled by `
 pycma's samples are not an independent Gaussian sample, reuse cannot be exact, and the adapter
 refuses with one line (:data:`REFUSED_OPTIONS`).
 
+Told as pycma's own draws. Every member is told with ``check_points=False``: pycma's ``tell`` otherwise
+*repairs* the solutions it did not sample itself (``repair_genotype`` shortens steps whose Mahalanobis length
+it finds too long), which pycma never does to its own samples. Reused and fresh members are exact draws of
+pycma's distribution, so a repair only bends the update: on bbob's sharp ridge f13 (d = 5) the repaired
+updates let the mean run away (4e9 after 900 generations) until the covariance broke and the adapter raised
+(issue 45; tests/test_adapters_pycma.py, ``test_the_sharp_ridge_runs_to_the_end_where_pycma_runs_bbob_f13``).
+The distribution is read from pycma's own factor (:meth:`FullGaussian.from_factor`), never C = A^T A factored
+again, and where that factor is singular the generation is drawn without reuse (:attr:`PycmaES.mixable`).
+
+Ties. Members are told in a random order (:meth:`PycmaES._tell_order`): pycma keeps ties in the order told.
+
+Termination. pycma's criteria that read f-values read the fresh evaluations only (:class:`FreshRecord`).
+
 pycma counts every member told in ``countevals``; the adapter sets it back to the evaluations
 made (fresh and re-evaluated members, and the two TPA points), so ``maxfevals`` and
 ``es.result.evaluations`` count real evaluations.
@@ -80,9 +93,16 @@ REFUSED_OPTIONS = {
 }
 
 
+def _pycma_class(es):
+    """pycma's own ``CMAEvolutionStrategy`` among the classes of ``es`` (None if it is not one), found without
+    importing cma. The adapter calls its methods, not the instance's: a subclass (:func:`imix_cli.fmin2`'s) may
+    route its own ``tell``/``stop`` through the adapter."""
+    return next((c for c in type(es).__mro__ if c.__module__.startswith("cma.") and c.__name__ == "CMAEvolutionStrategy"), None)
+
+
 def is_pycma(es) -> bool:
     """Whether ``es`` is a pycma ``CMAEvolutionStrategy`` (checked without importing cma)."""
-    return any(c.__module__.startswith("cma.") and c.__name__ == "CMAEvolutionStrategy" for c in type(es).__mro__)
+    return _pycma_class(es) is not None
 
 
 class PycmaES:
@@ -113,6 +133,7 @@ class PycmaES:
         from cma.sigma_adaptation import CMAAdaptSigmaTPA
 
         self.es = es
+        self._pycma = _pycma_class(es)
         self.step_size = step_size
         self.dim = int(es.N)
         self.pycma_tpa = isinstance(es.adapt_sigma, CMAAdaptSigmaTPA)
@@ -129,7 +150,7 @@ class PycmaES:
         self._probes = None
         self._countevals = None
         self._tie_rng = None  # the order members are told in (ties: _tell_order)
-        self._fresh = FreshRecord(es)  # what pycma's termination criteria read (stop(): "Termination under reuse")
+        self._fresh = FreshRecord(es, self._pycma.stop)  # what pycma's termination criteria read (stop(): "Termination under reuse")
 
     # ------------------------------------------------------------------ the ES protocol
     @property
@@ -201,7 +222,7 @@ class PycmaES:
         es.number_of_solutions_asked += samples.shape[0]
         es.evaluations_per_f_value = 1
         es._is_independent_sample = [False] * (len(solutions) - samples.shape[0]) + [True] * samples.shape[0]
-        es.tell(solutions, values, check_points=False)  # exact draws, as pycma's own: pycma repairs none of its own samples
+        self._pycma.tell(es, solutions, values, check_points=False)  # no repair (module docstring, "Told as pycma's own draws")
         if self.step_size == "tpa" and not self.pycma_tpa:
             step = self._tpa_step(probe_fitness, fitness)
             es.sigma = sigma_before * math.exp(min(max(step, -1.0), 1.0))
@@ -328,8 +349,8 @@ class FreshRecord:
 
     _FIELDS = ("fit", "hist", "histbest", "histmedian", "median", "median0", "median_min", "flatfit_iterations")
 
-    def __init__(self, es):
-        self.es = es
+    def __init__(self, es, pycma_stop):
+        self.es, self._pycma_stop = es, pycma_stop  # pycma's own stop(), unbound
         self.queue: list[float] = []
         self.record = {"fit": [], "hist": [], "histbest": [], "histmedian": [], "median": None, "median0": None,
                        "median_min": np.inf, "flatfit_iterations": 0}  # fmt: skip
@@ -370,7 +391,7 @@ class FreshRecord:
         """pycma's ``stop()`` with this record in place of its own (class docstring)."""
         es = self.es
         if not self.generations or es.countiter == getattr(es._stopdict, "lastiter", None):
-            return es.stop()  # before any fresh generation (the first is all fresh); or pycma's answer of this iteration
+            return self._pycma_stop(es)  # before any fresh generation (the first is all fresh); or pycma's answer of this iteration
         r = self.record
         if not self.new and self.flat:  # no new fresh generation: pycma's count must not advance on the same one again
             r["flatfit_iterations"] -= 1
@@ -378,7 +399,7 @@ class FreshRecord:
         for name in self._FIELDS:
             setattr(es.fit, name, r[name])
         try:
-            return es.stop()
+            return self._pycma_stop(es)
         finally:
             r["flatfit_iterations"] = es.fit.flatfit_iterations
             for name, value in own.items():
