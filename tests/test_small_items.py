@@ -29,3 +29,14 @@ def test_run_help_examples_avoid_the_mountaincar_run_that_learns_nothing():
     text = (ROOT / "conf" / "config.yaml").read_text()
     examples = text[text.index("Examples:") : text.index("Groups")]
     assert "imix run env=gym env.id=" in examples and "MountainCar" not in examples
+
+
+def test_plot_mujoco_help_is_a_real_help_text(capsys):
+    """`imix plot --help` points to `imix plot mujoco --help`: it prints the usage and every key, not just "Usage::"."""
+    from imix_cli.commands.cli import main
+
+    assert main(["plot", "mujoco", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: imix plot mujoco"), out
+    for key in ("results_dir=", "experiment=", "threshold.<env id>=", "resamples=", "Hopper-v5=500"):
+        assert key in out, (key, out)
