@@ -48,8 +48,8 @@ install:  ## create .venv and install imix (non-editable): runner, plots, render
 	# compile the numba kernels now, once: the first run then compiles nothing, nor does `make test` (the
 	# source tree shares the installed copy's kernels: imix_cli/core/numba_cache.py). How long it takes depends on
 	# the CPU's speed, its core count (the kernel groups compile in parallel processes, one per core: fewer cores,
-	# longer) and how loaded the machine is (other jobs take those cores): measured 47 s on a fresh install on a
-	# quiet 2-core Intel Xeon VM @ 2.50GHz, 202 s on the same VM at load 10. From inside the venv
+	# longer) and how loaded the machine is (other jobs take those cores): measured 47 s on a fresh install on
+	# a 2-core VM, 202 s on a 2-core VM at load 10. From inside the venv
 	# folder: run from here, `python -m` would import the source tree, not the installed package
 	cd "$(VENV)" && bin/python -m imix_cli.running.warmup
 	@echo "imix is installed in $(VENV). Run it as $(IMIX), or put it on PATH for this shell with:  source $(VENV)/bin/activate"
