@@ -50,3 +50,19 @@ def test_make_installs_warm_up_says_what_its_time_depends_on():
     assert "20-40 s" not in comment
     for said in ("core count", "loaded", "47 s", "202 s", "load 10"):
         assert said in comment, (said, comment)
+
+
+def test_make_dev_is_an_editable_install_with_the_same_constraints_and_the_es_recipe_says_why():
+    """The "Extending imix" ES recipe left out that a non-editable install must be reinstalled before `algo=<new>`
+    works (issue 48, friction 4): `make dev` installs editable, with make install's constraints and warm-up, and the
+    recipe says to use it. Made to fail: there was no dev target (make -n dev exited 2)."""
+    dev = subprocess.run(["make", "-n", "dev"], cwd=ROOT, capture_output=True, text=True)
+    assert dev.returncode == 0, dev.stderr
+    install = subprocess.run(["make", "-n", "install"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    pip = [line for line in dev.stdout.splitlines() if "pip install" in line and "--upgrade" not in line]
+    assert pip == ['.venv/bin/python -m pip install -c constraints.txt -e ".[test,render]"'], pip
+    assert [line.replace(" -e ", "  ") for line in pip] == [line for line in install.splitlines() if "pip install" in line and "--upgrade" not in line]
+    assert "imix_cli.running.warmup" in dev.stdout
+    docs = (ROOT / "docs" / "development.md").read_text()
+    recipes = docs[docs.index("## Extending imix") :]
+    assert "make dev" in recipes[: recipes.index("**An evolution strategy**")] and "make install` again" in recipes
