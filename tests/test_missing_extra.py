@@ -95,3 +95,15 @@ def test_make_install_all_installs_the_extras_the_messages_say_it_does_and_every
 
     assert MUJOCO_EXTRA_HINT == install_extra("mujoco")  # written out in the numerical library, which imports no messages
     assert set(INSTALL_ALL_EXTRAS) == set(re.fullmatch(r"imix-cli\[(.*)\]", requirement).group(1).split(","))
+
+
+def test_render_without_pygame_is_the_same_status_as_every_missing_extra(tmp_path, capsys, monkeypatch):
+    """imix render of a classic-control policy without pygame (the render extra): one line naming what to install,
+    exit 2 like every missing extra (it was 1). Made to fail: with the render's old status 1."""
+    assert main(["run", "algo=cem", "env=cartpole", "seeds=1", "generations=2", "popsize=4", "progress=false", "workers=1", f"results_dir={tmp_path}"]) == 0
+    capsys.readouterr()
+    monkeypatch.setitem(sys.modules, "pygame", None)  # `import pygame` raises ImportError: gymnasium's DependencyNotInstalled
+    assert main(["render", f"results_dir={tmp_path}", "frames=2", "out=p.gif"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pygame" in err and "Traceback" not in err, err
+    assert not list(tmp_path.rglob("*.gif"))

@@ -38,6 +38,7 @@ import numpy as np
 
 from imix_cli.commands.eval_command import POLICY_KEY_CHECKS, POLICY_KEYS, eval_episode_seeds, run_folders
 from imix_cli.keyvalue import UsageError, at_least, help_requested, parse_key_values
+from imix_cli.messages import EXIT_MISSING_EXTRA
 from imix_cli.running.files.writing import atomic_writer
 
 HELP = """\
@@ -88,7 +89,7 @@ def _is_mujoco(env_id: str) -> bool:
 def make_render_env(header: dict, env_id: str):
     """``gym.make`` of the policy's env ``env_id`` (a registered id, resolved from the header by
     :func:`imix_cli.commands.eval_command.policy_env`: never a ``module:`` one) with ``render_mode="rgb_array"``;
-    UsageError (1) naming what to install."""
+    UsageError naming what to install: status 2 for a missing dependency (every missing extra's), 1 for another failure."""
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # pygame draws to a surface, no display
     import gymnasium as gym
 
@@ -100,8 +101,8 @@ def make_render_env(header: dict, env_id: str):
         with warnings.catch_warnings():  # CartPole-v0 "out of date": imix reproduces v0 on purpose
             warnings.simplefilter("ignore", DeprecationWarning)
             env = gym.make(env_id, render_mode="rgb_array", max_episode_steps=int(header["max_steps"]))
-    except gym.error.DependencyNotInstalled as err:
-        raise UsageError(f"cannot render {env_id}: {_one_line(err)}", 1) from None
+    except gym.error.DependencyNotInstalled as err:  # pygame, mujoco: a missing extra's one status
+        raise UsageError(f"cannot render {env_id}: {_one_line(err)}", EXIT_MISSING_EXTRA) from None
     except Exception as err:  # noqa: BLE001 - GL and driver errors come in many types
         hint = _MUJOCO_HINT if _is_mujoco(env_id) else _one_line(err)
         raise UsageError(f"cannot render {env_id}: {hint}", 1) from None
@@ -138,8 +139,8 @@ def policy_frames(policy, frames: int | None = None, env_id: str | None = None):
             obs, _ = env.reset(seed=seed)
             first = np.asarray(env.render())
         except Exception as err:  # noqa: BLE001
-            if isinstance(err, ImportError) or "DependencyNotInstalled" in type(err).__name__:
-                raise UsageError(f"cannot render {env_id}: {_one_line(err)}", 1) from None
+            if isinstance(err, ImportError) or "DependencyNotInstalled" in type(err).__name__:  # pygame, mujoco: a missing extra
+                raise UsageError(f"cannot render {env_id}: {_one_line(err)}", EXIT_MISSING_EXTRA) from None
             hint = _MUJOCO_HINT if _is_mujoco(env_id) else _one_line(err)
             raise UsageError(f"cannot render {env_id}: {hint}", 1) from None
         yield first
