@@ -107,3 +107,18 @@ def test_render_without_pygame_is_the_same_status_as_every_missing_extra(tmp_pat
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "pygame" in err and "Traceback" not in err, err
     assert not list(tmp_path.rglob("*.gif"))
+
+
+def test_eval_of_a_run_whose_env_needs_a_missing_extra_is_exit_2(tmp_path, capsys, monkeypatch):
+    """imix eval of a MuJoCo run's policies where mujoco is not installed: one line naming the extra, exit 2 (it was
+    1, "cannot evaluate"). The env's check is made to say its extra is missing (mujoco is not installed here)."""
+    import imix_cli.core.evaluation as evaluation
+
+    assert main(["run", "algo=cem", "env=cartpole", "seeds=1", "generations=2", "popsize=4", "progress=false", "workers=1", f"results_dir={tmp_path}"]) == 0
+    capsys.readouterr()
+    hint = evaluation.MUJOCO_EXTRA_HINT
+    said = "is a MuJoCo environment and the mujoco package is not installed"
+    monkeypatch.setattr(evaluation, "missing_extra_message", lambda env_id: f"env.id={env_id!r} {said}: {hint}")
+    assert main(["eval", f"results_dir={tmp_path}", "episodes=2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and hint in err and "Traceback" not in err, err
