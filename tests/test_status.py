@@ -118,9 +118,10 @@ def test_a_csv_short_of_the_configs_generations_is_not_done_as_imix_run_refuses_
     assert "corrupt: seed_1.csv (1 of 30 generations and no final state to continue from); imix run refuses it" in out, out
 
 
-def _truth(run_dir, seeds: int, generations: int) -> tuple[list, list, dict]:
+def _truth(run_dir, seeds: int, generations: int, live: bool = True) -> tuple[list, list, dict]:
     """What the files say, read apart from status: finished seeds, unfinished ones, and each seed's generations on
-    disk (its CSV's rows, or its partial CSV's, or its checkpoint's header)."""
+    disk (its CSV's rows, or its partial CSV's, or its checkpoint's header; with no live run, a checkpoint behind the
+    partial CSV's rows -- a kill -9 after a live view -- is where a re-run resumes, and what is shown)."""
     from imix_cli.commands.status import _checkpoint_generation
     from imix_cli.running.files.results import read_run_csv
 
@@ -135,7 +136,7 @@ def _truth(run_dir, seeds: int, generations: int) -> tuple[list, list, dict]:
         ckpt = _checkpoint_generation(run_dir, seed)
         rows = len(read_run_csv(partial)) if partial.exists() else None
         if ckpt is not None or rows is not None:
-            gens[seed] = max(g for g in (ckpt, rows) if g is not None)
+            gens[seed] = max(g for g in (ckpt, rows) if g is not None) if live or ckpt is None else ckpt
     return done, unfinished, gens
 
 
@@ -149,7 +150,7 @@ def test_status_agrees_with_the_files_at_every_stop_of_a_run(tmp_path):
 
     def check(run_dir, live_pid):
         s = run_status(run_dir)
-        done, unfinished, gens = _truth(run_dir, seeds, generations)
+        done, unfinished, gens = _truth(run_dir, seeds, generations, live=live_pid is not None)
         assert s["done"] == done and s["generations"] == gens, (s, done, gens)
         if live_pid is None:
             # each list is sorted, their union is not: seeds 0-1 in one worker's lockstep, 2 in the other's, one may be
