@@ -33,7 +33,7 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true progress=false
 
-.PHONY: install install-all docs docs-numbers test test-fast test-install test-extras reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install dev install-all docs docs-numbers test test-fast test-install test-extras reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
 # (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
@@ -41,19 +41,30 @@ SEC43 = eim=true progress=false
 # (joblib, submitit, Ray), MuJoCo, TensorBoard (logger=tensorboard) and the docs tools (make docs):
 # for `make reproduce-ddpg`, hydra/launcher=..., evaluator=ray, `make reproduce-mujoco`; the tests of
 # these extras are skipped without them. CI uses it.
-install:  ## create .venv and install imix (non-editable): runner, plots, render, tests
+install:  ## create .venv and install imix (non-editable; make dev: editable): runner, plots, render, tests
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
-	$(PY) -m pip install $(PIN) ".[test,render]"
-	# compile the numba kernels now (~20-40 s): the first run then compiles nothing, nor does `make test` (the
-	# source tree shares the installed copy's kernels: imix_cli/core/numba_cache.py). From inside the venv
+	$(PY) -m pip install $(PIN) $(EDITABLE) ".[test,render]"
+	# compile the numba kernels now, once: the first run then compiles nothing, nor does `make test` (the
+	# source tree shares the installed copy's kernels: imix_cli/core/numba_cache.py). How long it takes depends on
+	# the CPU's speed, its core count (the kernel groups compile in parallel processes, one per core: fewer cores,
+	# longer) and how loaded the machine is (other jobs take those cores): measured 47 s on a fresh install on
+	# a 2-core VM, 202 s on a 2-core VM at load 10. From inside the venv
 	# folder: run from here, `python -m` would import the source tree, not the installed package
 	cd "$(VENV)" && bin/python -m imix_cli.running.warmup
 	@echo "imix is installed in $(VENV). Run it as $(IMIX), or put it on PATH for this shell with:  source $(VENV)/bin/activate"
 
+# `make dev` is `make install` with an editable install (pip install -e, the same constraints): the venv runs the source
+# tree, so an edit (a new ES, env, key or config) takes effect with no reinstall. A non-editable install runs its own
+# copy: after an edit, `make install` again before `imix run algo=<new>` finds it (docs/development.md, Extending imix).
+# With the extras: `make install-all EDITABLE=-e`.
+EDITABLE ?=
+dev:  ## create .venv and install imix editable (pip install -e ".[test,render]", the same constraints): edits take effect with no reinstall
+	$(MAKE) install EDITABLE=-e
+
 install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools
 	$(PY) -m pip install $(PIN) "$(TORCH)"
-	$(PY) -m pip install $(PIN) ".[all]"
+	$(PY) -m pip install $(PIN) $(EDITABLE) ".[all]"
 
 # The tests of the extras `make install-all` adds: one marker per extra (tests/conftest.py, EXTRAS). Without
 # its extra a marked test is skipped, so `make test` passes after a plain `make install`.

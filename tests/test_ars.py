@@ -429,7 +429,7 @@ def test_a_bias_free_shifted_ars_run_resumes_from_its_checkpoint(tmp_path, capsy
     capsys.readouterr()
     assert main([*args, "generations=6"]) == 0
     err = capsys.readouterr().err
-    assert "resuming 1 seed of" in err and "at generation 4" in err and "ignored" not in err, err
+    assert "resuming seed 0 of" in err and "at generation 4" in err and "ignored" not in err, err
     frame = pd.read_csv(next(tmp_path.glob("default/ars-*/seed_0.csv")))
     assert len(frame) == 6 and (frame["mean_score"] < 0).all()  # every step's reward 1 - 2: the training returns are negative
 

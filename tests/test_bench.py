@@ -134,7 +134,7 @@ def test_peers_without_the_extra_say_how_to_install_and_exit_0(capsys, monkeypat
     monkeypatch.setitem(sys.modules, "evosax", None)  # import evosax -> ImportError
     assert cli_main(["bench", "peers", "quick=true"]) == 0
     out = capsys.readouterr().out
-    assert "pip install 'imix-cli[peers]'" in out and "evosax" in out and "|" not in out  # no table
+    assert 'pip install ".[peers]" from the imix clone' in out and "evosax" in out and "|" not in out  # no table
 
 
 @pytest.mark.slow

@@ -239,7 +239,11 @@ def test_a_damaged_checkpoint_gives_the_uninterrupted_csv_not_a_wrong_one(tmp_pa
     assert main(["run", *COMMON, f"results_dir={tmp_path / 'run'}"]) == 0
     err = capfd.readouterr().err
     assert (
-        "seed 0 restarts from scratch" in err and "resuming 1 seed of" in err and "at generation 8 from their checkpoints; 1 starts from generation 0" in err
+        "seed 0 restarts from scratch" in err
+        and "resuming seed 1 of" in err
+        and "at generation 8 from its checkpoint" in err
+        and "imix: seed 0 of" in err
+        and "starts from generation 0" in err
     ), err
     for seed in (0, 1):
         ref = pd.read_csv(next((tmp_path / "ref").rglob(f"seed_{seed}.csv"))).drop(columns="wall_time")

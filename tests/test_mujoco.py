@@ -85,7 +85,7 @@ def test_missing_mujoco_names_the_extra_in_one_line(tmp_path, capsys, monkeypatc
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and MUJOCO_EXTRA_HINT in err and "Hopper-v5" in err
     assert not tmp_path.exists() or not any(tmp_path.rglob("*"))
-    with pytest.raises(ValueError, match=r"imix-cli\[mujoco\]"):
+    with pytest.raises(ValueError, match=r'pip install "\.\[mujoco\]" from the imix clone'):
         make_evaluator("Walker2d-v5")
 
 

@@ -230,4 +230,4 @@ def test_bench_mujoco_without_the_extra_says_how_to_install_and_exits_0(capsys, 
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *args: None if name == "mujoco" else find_spec(name, *args))
     assert main(["mujoco"]) == 0
     out = capsys.readouterr().out
-    assert 'mujoco: skipped, the mujoco package is not installed: pip install "imix-cli[mujoco]"' in out and "|---" not in out
+    assert 'mujoco: skipped, the mujoco package is not installed: pip install ".[mujoco]" from the imix clone' in out and "|---" not in out

@@ -35,6 +35,7 @@ NEEDS_EXTRA = [
 #: tests that name such a word on purpose without the extra (the missing-extra message, a config check)
 NAMED_NOT_RUN = {
     ("test_mujoco.py", "test_missing_mujoco_names_the_extra_in_one_line"),
+    ("test_missing_extra.py", "test_every_missing_extra_is_one_line_from_the_clone_and_exit_2"),  # hides each extra: nothing of it runs
     ("test_bad_input.py", "test_malformed_invocation"),  # its joblib case is a pytest.param with the cluster mark
     ("test_bad_values_sweeps_and_signals.py", "test_fast_validation_composes_what_hydra_composes"),  # adds its joblib point if extra_installed("cluster")
     ("test_optional_markers.py", "test_the_check_finds_an_unmarked_import_a_helpers_import_an_importorskip_and_a_mujoco_env"),

@@ -423,3 +423,23 @@ def test_an_env_no_seed_reaches_is_left_out_of_the_threshold_table_with_one_warn
     (figures_dir(tmp_path) / "evaluations_to_threshold.md").unlink()
     assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=threshold", "threshold.acrobot=1000", "threshold.cartpole=1000"]) == 0
     assert not (figures_dir(tmp_path) / "evaluations_to_threshold.md").exists()  # no table at all rather than one of 0/3
+
+
+def test_one_runs_figure_titles_lie_inside_the_figure(tmp_path):
+    """The main job's figures of a single run (one panel): every line of the three-line title is drawn inside the
+    figure (the title was wider than the 5-inch figure and lost both ends). Made to fail: with fig.suptitle in place
+    of fitted_suptitle, the convergence title's box ran from x=-148 to 648 px on a 500 px wide figure."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from imix_cli.plotting.data import PlotOptions
+    from imix_cli.plotting.figures import convergence_figures, efficiency_figures
+
+    write_group(tmp_path, "snes", "cartpole", "none", range(1))
+    exp = load_experiment(tmp_path, EXPERIMENT, warn=lambda m: None)
+    for draw in (convergence_figures, efficiency_figures):
+        ((name, fig),) = list(draw(exp, PlotOptions()))
+        renderer = FigureCanvasAgg(fig).get_renderer()
+        fig.draw(renderer)
+        title, box = fig.get_suptitle(), fig._suptitle.get_window_extent(renderer)
+        assert title.count("\n") >= 2, (name, title)  # still the whole title: what, how, the dots
+        assert 0 <= box.x0 and box.x1 <= fig.bbox.width and 0 <= box.y0 and box.y1 <= fig.bbox.height, (name, box, fig.bbox)

@@ -183,3 +183,24 @@ def test_render_without_out_writes_into_the_run_folder_and_never_overwrites_it(t
     assert made.read_bytes() == b"mine"
     assert main([*args, f"out={made}"]) == 0 and made.read_bytes() == before  # out= given: overwritten as asked
     made.unlink()
+
+
+def test_a_relative_out_goes_into_the_run_folder_and_an_absolute_one_where_it_says(trained, tmp_path, monkeypatch, capsys):
+    """`imix render ... out=reach.gif` wrote into the current folder, away from the run it shows: a relative out= is a
+    file of the run folder (as the default), an absolute one is written where it says, and --help says so.
+    Made to fail (issue 48, friction 9): on the code before, reach.gif appeared in the current folder."""
+    root, run_dir = trained
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    args = ["render", f"results_dir={root}", "experiment=pol", f"run={RUN}", "seed=1", "frames=3"]
+    assert main([*args, "out=reach.gif"]) == 0
+    assert (run_dir / "reach.gif").is_file() and not list(work.iterdir()), list(work.iterdir())
+    assert f"wrote {run_dir / 'reach.gif'}" in capsys.readouterr().out
+    assert main([*args, f"out={work / 'here.gif'}"]) == 0  # the current folder, named absolutely
+    assert (work / "here.gif").is_file() and not (run_dir / "here.gif").exists()
+    assert main([*args, "out=no_such_folder/x.gif"]) == 2
+    assert str(run_dir / "no_such_folder") in capsys.readouterr().err
+    (run_dir / "reach.gif").unlink()
+    assert main(["render", "--help"]) == 0
+    assert "a relative\n                     name is in the run folder" in capsys.readouterr().out

@@ -117,7 +117,7 @@ def test_kill_minus_9_at_random_points_then_resume_gives_identical_csvs(tmp_path
     assert kills["group"] >= 2 and kills["worker"] >= 1, kills
     # The re-runs really continued from checkpoints (a restart from scratch writes the same CSVs).
     errors = "".join(p.read_text() for p in stderr_logs) + final.stderr
-    resumed = [int(g) for pair in re.findall(r"resuming \d+ seeds? of \S+ at generations? (\d+)(?:-(\d+))?", errors) for g in pair if g]
+    resumed = [int(g) for g in re.findall(r"resuming seeds? \S+ of \S+ at generation (\d+)", errors)]
     # a periodic checkpoint (every 25) or the one a seed writes when the run stops it (a worker's death stops the others)
     assert resumed and all(g > 0 for g in resumed), errors
     assert "warning" not in errors, errors
@@ -154,7 +154,7 @@ def test_resume_from_checkpoint_equals_not_stopping(tmp_path, algo, capfd):
     assert main(["run", *common, f"results_dir={tmp_path / 'stop'}"]) == 0
     err = capfd.readouterr().err
     # Both seeds really restart from their checkpoint (a run from scratch writes the same CSVs).
-    assert re.search(r"^imix: resuming 2 seeds of \S+ at generation 6 from their checkpoints$", err, re.M), err  # one line for both
+    assert re.search(r"^imix: resuming seeds 0-1 of \S+ at generation 6 from their checkpoints$", err, re.M), err  # one line for both
     assert "warning" not in err
     assert checkpoint_path(spec.run_dir, 0).exists()  # the final state, kept so the run can be continued
     expected, got = csvs(tmp_path / "ref"), csvs(tmp_path / "stop")
@@ -224,7 +224,7 @@ def test_a_finished_run_continues_to_more_generations_as_if_run_at_once(tmp_path
     capfd.readouterr()
     assert main(["run", *common, "generations=11", f"results_dir={tmp_path / 'twice'}"]) == 0
     err = capfd.readouterr().err
-    assert re.search(r"^imix: resuming 2 seeds of \S+ at generation 6 from their checkpoints$", err, re.M), err  # one line for both
+    assert re.search(r"^imix: resuming seeds 0-1 of \S+ at generation 6 from their checkpoints$", err, re.M), err  # one line for both
     once, twice = csvs(tmp_path / "once"), csvs(tmp_path / "twice")
     assert len(twice) == 2 and all(len(frame) == 11 for frame in twice.values())
     for name in once:
@@ -250,7 +250,7 @@ def test_a_kill_between_a_seeds_final_state_and_its_csv_writes_only_its_files(tm
         (run_dir / name).unlink()
     capfd.readouterr()
     assert main(["run", *common, f"results_dir={tmp_path}"]) == 0
-    assert re.search(r"^imix: resuming 1 seed of \S+ at generation 6 from their checkpoints$", capfd.readouterr().err, re.M)
+    assert re.search(r"^imix: resuming seed 0 of \S+ at generation 6 from its checkpoint$", capfd.readouterr().err, re.M)
     assert {name: (run_dir / name).read_bytes() for name in files[1:]} == {name: before[name] for name in files[1:]}
     csv_now, csv_before = (pd.read_csv(source).drop(columns=["wall_time"]) for source in (run_dir / files[0], io.BytesIO(before[files[0]])))
     pd.testing.assert_frame_equal(csv_now, csv_before)

@@ -17,7 +17,7 @@ import yaml
 
 from imix_cli.commands.cli import main
 from imix_cli.commands.status import run_status
-from imix_cli.running.files.results import partial_csv_path, rows_to_frame, seed_csv_path, write_run_csv
+from imix_cli.running.files.results import partial_csv_path, read_run_csv, rows_to_frame, seed_csv_path, write_run_csv
 
 IMIX = str(Path(sys.executable).parent / "imix")
 
@@ -118,9 +118,10 @@ def test_a_csv_short_of_the_configs_generations_is_not_done_as_imix_run_refuses_
     assert "corrupt: seed_1.csv (1 of 30 generations and no final state to continue from); imix run refuses it" in out, out
 
 
-def _truth(run_dir, seeds: int, generations: int) -> tuple[list, list, dict]:
+def _truth(run_dir, seeds: int, generations: int, live: bool = True) -> tuple[list, list, dict]:
     """What the files say, read apart from status: finished seeds, unfinished ones, and each seed's generations on
-    disk (its CSV's rows, or its partial CSV's, or its checkpoint's header)."""
+    disk (its CSV's rows, or its partial CSV's, or its checkpoint's header; with no live run, a checkpoint behind the
+    partial CSV's rows -- a kill -9 after a live view -- is where a re-run resumes, and what is shown)."""
     from imix_cli.commands.status import _checkpoint_generation
     from imix_cli.running.files.results import read_run_csv
 
@@ -135,7 +136,7 @@ def _truth(run_dir, seeds: int, generations: int) -> tuple[list, list, dict]:
         ckpt = _checkpoint_generation(run_dir, seed)
         rows = len(read_run_csv(partial)) if partial.exists() else None
         if ckpt is not None or rows is not None:
-            gens[seed] = max(g for g in (ckpt, rows) if g is not None)
+            gens[seed] = max(g for g in (ckpt, rows) if g is not None) if live or ckpt is None else ckpt
     return done, unfinished, gens
 
 
@@ -149,7 +150,7 @@ def test_status_agrees_with_the_files_at_every_stop_of_a_run(tmp_path):
 
     def check(run_dir, live_pid):
         s = run_status(run_dir)
-        done, unfinished, gens = _truth(run_dir, seeds, generations)
+        done, unfinished, gens = _truth(run_dir, seeds, generations, live=live_pid is not None)
         assert s["done"] == done and s["generations"] == gens, (s, done, gens)
         if live_pid is None:
             # each list is sorted, their union is not: seeds 0-1 in one worker's lockstep, 2 in the other's, one may be
@@ -212,3 +213,59 @@ def test_status_does_not_count_a_csv_of_another_run_as_done(tmp_path, capsys):
     out = capsys.readouterr().out
     line = next(ln for ln in out.splitlines() if ln.strip().startswith(csv.parent.name))
     assert line.split()[1] == "0" and "corrupt" in out and "env=acrobot" in out, out
+
+
+def _small_run(tmp_path, *keys):
+    from imix_cli.running.config.compose import validate_overrides
+
+    (spec,) = validate_overrides(["algo=cem", "env=cartpole", "popsize=8", "progress=false", "workers=1", "seeds=1", "generations=60", *keys,
+                                  f"results_dir={tmp_path}"])  # fmt: skip
+    spec.run_dir.mkdir(parents=True, exist_ok=True)
+    return spec
+
+
+class _Killed(Exception):
+    """Stands for a kill -9 of the run: nothing more is written."""
+
+
+def test_a_running_seeds_last_generation_shows_before_its_first_checkpoint(tmp_path, monkeypatch):
+    """`imix status` showed "last gen -" for the first 30 s of the main job (checkpoint_seconds=30: its first
+    checkpoint, with which the live view was written) while the bar moved. The live view is now written every
+    LIVE_VIEW_SECONDS between checkpoints too (0 here, for a run of milliseconds): status sees every step.
+    Made to fail (issue 48, friction 6): on the code before, status gave None at every step but the last."""
+    import imix_cli.running.files.run_writer as run_writer
+    from imix_cli.running.runner import run_seeds
+
+    monkeypatch.setattr(run_writer, "LIVE_VIEW_SECONDS", 0.0, raising=False)
+    spec = _small_run(tmp_path)  # checkpoint_every=50, checkpoint_seconds=30: no checkpoint falls due before the end
+    seen = []
+    run_seeds(spec, [0], progress=lambda n: seen.append((run_status(spec.run_dir)["last_generation"], list(spec.run_dir.glob(".checkpoints/*")))))
+    before_the_end = seen[:-1]
+    assert before_the_end and all(not checkpoints for _, checkpoints in before_the_end), seen  # no checkpoint yet
+    assert [generation for generation, _ in before_the_end] == list(range(1, 60)), seen
+
+
+def test_a_stopped_seed_shows_where_a_rerun_resumes_when_its_live_view_is_ahead_of_its_checkpoint(tmp_path, monkeypatch):
+    """A kill -9 can leave a seed's live view a few seconds ahead of its last checkpoint: a stopped seed's last gen
+    is its checkpoint's (where a re-run resumes), and its rows are cut there."""
+    import imix_cli.running.files.run_writer as run_writer
+    from imix_cli.running.runner import run_seeds
+
+    def killed_after(generation, spec):
+        def progress(_n):  # after each step's files are written
+            path = partial_csv_path(spec.run_dir, 0)
+            if path.exists() and len(read_run_csv(path)) >= generation:
+                raise _Killed()
+
+        return progress
+
+    spec = _small_run(tmp_path, "checkpoint_every=10", "checkpoint_seconds=0")
+    with pytest.raises(_Killed):
+        run_seeds(spec, [0], progress=killed_after(20, spec))  # checkpoint and live view at 10, then 20
+    monkeypatch.setattr(run_writer, "LIVE_VIEW_SECONDS", 0.0)
+    spec = _small_run(tmp_path, "checkpoint_every=10", "checkpoint_seconds=3600")  # no checkpoint for an hour: only live views
+    with pytest.raises(_Killed):
+        run_seeds(spec, [0], progress=killed_after(40, spec))
+    assert len(read_run_csv(partial_csv_path(spec.run_dir, 0))) == 40
+    s = run_status(spec.run_dir)
+    assert (s["stopped"], s["generations"]) == ([0], {0: 20}), s

@@ -18,7 +18,7 @@ from imix_cli.commands.cli import main
 from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.files.results import read_run_csv
 from imix_cli.running.run_folder import prepare_run_dir
-from imix_cli.running.runner import resume_line, run_seeds
+from imix_cli.running.runner import resume_lines, run_seeds
 
 IMIX = str(Path(sys.executable).parent / "imix")
 # No periodic checkpoint falls due during these runs (checkpoint_every far beyond generations): any checkpoint
@@ -67,18 +67,30 @@ def test_a_signal_mid_run_keeps_the_generation_it_landed_in_and_the_resumed_csvs
     capfd.readouterr()
     assert main(["run", *COMMON, f"results_dir={tmp_path / 'run'}"]) == 0
     err = capfd.readouterr().err
-    assert re.search(rf"^imix: resuming 2 seeds of \S+ at generation {kept} from their checkpoints$", err, re.M), err
-    assert err.count("resum") == 1, err  # one line, not one per seed
+    assert re.search(rf"^imix: resuming seeds 0-1 of \S+ at generation {kept} from their checkpoints$", err, re.M), err
+    assert err.count("resum") == 1, err  # one line for the group, not one per seed
     expected, got = csvs(tmp_path / "ref"), csvs(tmp_path / "run")
     assert sorted(got) == sorted(expected) == ["seed_0.csv", "seed_1.csv"]
     for name in expected:
         pd.testing.assert_frame_equal(got[name], expected[name])
 
 
-def test_the_resume_line_says_how_many_seeds_keep_how_many_generations():
-    assert resume_line("r", {0: 370, 1: 375, 2: 372}) == "imix: resuming 3 seeds of r at generations 370-375 from their checkpoints"
-    assert resume_line("r", {0: 8, 1: 0}) == "imix: resuming 1 seed of r at generation 8 from their checkpoints; 1 starts from generation 0"
-    assert resume_line("r", {0: 0, 1: 0}) is None  # nothing resumed: nothing to say
+def test_the_resume_lines_say_which_seeds_resume_where():
+    """One line per group of seeds resuming at one generation, naming the seeds (issue 48, friction 8: the one line
+    gave a range of generations over all seeds, e.g. "resuming 25 seeds of r at generations 370-375", not which
+    seed resumed where). Made to fail: on the code before, resume_lines did not exist (resume_line gave one line)."""
+    assert resume_lines("r", {0: 370, 1: 375, 2: 370}) == [
+        "imix: resuming seeds 0,2 of r at generation 370 from their checkpoints",
+        "imix: resuming seed 1 of r at generation 375 from its checkpoint",
+    ]
+    assert resume_lines("r", {3: 120}) == ["imix: resuming seed 3 of r at generation 120 from its checkpoint"]
+    assert resume_lines("r", {0: 8, 1: 0, 2: 0}) == [
+        "imix: resuming seed 0 of r at generation 8 from its checkpoint",
+        "imix: seeds 1-2 of r start from generation 0",
+    ]
+    assert resume_lines("r", {0: 0, 1: 0}) == []  # nothing resumed, nothing started: nothing to say
+    # killed before its first checkpoint: its live view is on disk, and its generations are run again
+    assert resume_lines("r", {0: 0, 1: 0}, started={1}) == ["imix: seeds 0-1 of r start from generation 0 (no checkpoint: seed 1 stopped before its first one)"]
 
 
 class _Stderr:
@@ -127,9 +139,10 @@ def test_ctrl_c_to_the_whole_group_with_two_workers_keeps_each_seeds_current_gen
     assert sum(kept) >= shown, (kept, shown)  # at least what the bar showed when the signal came (it lags the workers)
     done = subprocess.run([*args[:-1], "progress=false", f"results_dir={tmp_path / 'run'}"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    low, high = min(kept), max(kept)
-    at = f"generation {low}" if low == high else f"generations {low}-{high}"
-    assert f"imix: resuming 2 seeds of {run_dir.name} at {at} from their checkpoints" in done.stderr, done.stderr
+    for seed in (0, 1):  # two workers: a line per generation the seeds resume at, naming them
+        group = [s for s in (0, 1) if kept[s] == kept[seed]]
+        said = "seeds 0-1" if len(group) == 2 else f"seed {seed}"
+        assert f"imix: resuming {said} of {run_dir.name} at generation {kept[seed]} from" in done.stderr, done.stderr
     expected, got = csvs(tmp_path / "ref"), csvs(tmp_path / "run")
     assert sorted(got) == sorted(expected) and len(got) == 2
     for name in expected:

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from imix_cli.core.registry import ENV_SPECS
+from imix_cli.messages import install_extra
 
 #: rl-zoo3 2.9.2, hyperparams/ars.yml, "Params closest to original paper" (the -v4 entries).
 ZOO_ARS = {
@@ -37,7 +38,7 @@ ZOO_ARS = {
     "walker2d": {"n_delta": 40, "n_top": 30, "learning_rate": 0.03, "delta_std": 0.025, "alive_bonus_offset": -1.0, "normalize": True},
 }
 PEER_NAME = "sb3_ars"
-INSTALL = "pip install 'imix-cli[ars]'  (sb3-contrib)"
+INSTALL = install_extra("ars") + "  (sb3-contrib)"
 
 
 def run_seed(env_name: str, seed: int, episodes: int, eval_every: int, eval_episodes: int) -> list[dict]:

@@ -56,8 +56,8 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
                as a user's first run (a new process with an empty numba cache: every kernel is
                compiled). Wall times (compile included: JAX's shown, and imix's first run's
                extra over the warm run), env steps, final scores and ratios. Default 25 seeds x
-               1000 generations (minutes); quick=true: 3 x 100. Needs the `peers` extra (pip
-               install 'imix-cli[peers]'); without it the section says so and exits 0.
+               1000 generations (minutes); quick=true: 3 x 100. Needs the `peers` extra
+               (pip install ".[peers]" from the imix clone); without it the section says so and exits 0.
     mujoco     imix's cost per env step on HalfCheetah-v5 and Hopper-v5 (linear policy, no mixing,
                pool evaluator with one worker: the evaluator on fixed policies, and a short
                `imix run`) against a plain gymnasium loop over the same policies and seeds, and

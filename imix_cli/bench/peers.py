@@ -13,12 +13,13 @@ import numpy as np
 
 from imix_cli.bench.common import EPISODE_CAP, table
 from imix_cli.core.algorithms.base import Params
+from imix_cli.messages import install_extra
 
 QUICK_PEERS = (3, 100)  # --quick: seeds, generations
 # imix's defaults (the paper's): population size, initial std, Adam's learning rate
 PEER_POPSIZE, PEER_SIGMA, PEER_LR = Params.popsize, Params.sigma, Params.lr
 PEER_IDS = {"cartpole": "CartPole-v1", "acrobot": "Acrobot-v1"}  # gymnax ids, capped at EPISODE_CAP
-PEERS_INSTALL = "pip install 'imix-cli[peers]'  (jax, evosax, gymnax)"
+PEERS_INSTALL = install_extra("peers") + "  (jax, evosax, gymnax)"
 
 
 def peers_available(echo) -> bool:

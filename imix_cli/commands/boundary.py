@@ -11,7 +11,8 @@ Exit statuses (docs/reliability.md):
 0     done
 1     failed: a run folder refused, a file that cannot be written, an env of the user's that raised
       (:class:`imix_cli.core.evaluation.UserEnvError`), out of memory (MemoryError), an internal error
-2     bad command line (the key or value named)
+2     bad command line (the key or value named), or an optional extra the command needs is not installed
+      (whichever extra: mujoco, ddpg, tensorboard, ray...; the line says how to install it from the clone)
 130   interrupted (Ctrl-C, SIGINT): 128 + 2, as a shell reports it
 141   the reader of the output went away (``imix status | head -1``: EPIPE): 128 + SIGPIPE, what a
       shell reports for any program that SIGPIPE stops, silently; files already written are whole
@@ -31,6 +32,8 @@ import os
 import signal
 import sys
 import traceback
+
+from imix_cli.messages import EXIT_MISSING_EXTRA, MissingExtraError
 
 EXIT_FAILED = 1
 EXIT_INTERRUPTED = 130
@@ -91,6 +94,8 @@ def report(command: str, err: BaseException) -> int:
         return _say(f"imix {command}: terminated (SIGTERM)", EXIT_TERMINATED)
     if isinstance(err, KeyboardInterrupt):
         return _say(f"imix {command}: interrupted", EXIT_INTERRUPTED)
+    if isinstance(err, MissingExtraError):
+        return _say(f"imix {command}: error: {err}", EXIT_MISSING_EXTRA)
     if isinstance(err, user_env_error):
         return _say(f"imix {command}: error: {err}{hint}", EXIT_FAILED)
     if isinstance(err, MemoryError):

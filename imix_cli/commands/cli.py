@@ -142,6 +142,7 @@ def _error(message: str, code: int) -> int:
 
 def run_command(args: list[str]) -> int:
     """``imix run [hydra flags] [overrides]``."""
+    from imix_cli.messages import EXIT_MISSING_EXTRA, MissingExtraError
     from imix_cli.running.config.compose import ConfigError
     from imix_cli.running.run_folder import RunError
 
@@ -164,8 +165,8 @@ def run_command(args: list[str]) -> int:
             specs = validate_run_args(args, _VALIDATED)
         except ConfigError as err:
             return _error(str(err), 2)
-        except RunError as err:
-            return _error(str(err), 1)
+        except RunError as err:  # a missing extra: the same status whichever extra (MuJoCo's is a ConfigError: 2 too)
+            return _error(str(err), EXIT_MISSING_EXTRA if isinstance(err, MissingExtraError) else 1)
         finally:
             if not own_launcher:
                 _run_handles_signals()
@@ -197,7 +198,7 @@ def validate_run_args(args: list[str], validated: dict | None = None) -> list:
     """Everything ``imix run ARGS`` checks before anything runs or is written, and nothing else: the flags, every point's
     composed config (:func:`imix_cli.running.config.compose.validate_overrides`) and run folder (read only); returns the RunSpecs.
 
-    ConfigError (exit status 2) or RunError (1), each a one-line message. ``imix run`` calls it first; the command-line
+    ConfigError (exit status 2) or RunError (1; a missing extra's MissingExtraError 2), each a one-line message. ``imix run`` calls it first; the command-line
     fuzzer (tests/test_fuzz_readers.py) calls it alone, in-process: validation without an episode."""
     from imix_cli.running.config.compose import ConfigError, validate_overrides
 

@@ -178,6 +178,12 @@ def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), r
     key = (env, header["max_steps"], hidden, header["output"])
     cache = {} if cache is None else cache
     if key not in cache:
+        from imix_cli.core.evaluation import missing_extra_message
+        from imix_cli.messages import MissingExtraError
+
+        missing = missing_extra_message(env)  # a MuJoCo run evaluated where mujoco is not installed: the one status of a missing extra
+        if missing:
+            raise MissingExtraError(f"{where}: {missing}")
         try:
             cache[key] = make_evaluator(env, header["max_steps"], hidden=hidden, output=header["output"])
         except ValueError as err:

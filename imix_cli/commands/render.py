@@ -19,7 +19,8 @@ Backends (what to install):
 
 The output file is written by the one writer (:mod:`imix_cli.running.files.writing`: a temporary file, then a rename;
 no link followed inside the results folder), frame by frame: memory does not grow with the episode.
-Without ``out=`` it goes into the run folder, next to the policy it shows.
+Without ``out=``, or with a relative ``out=``, it goes into the run folder, next to the policy it shows;
+an absolute ``out=`` is written where it says.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import numpy as np
 
 from imix_cli.commands.eval_command import POLICY_KEY_CHECKS, POLICY_KEYS, eval_episode_seeds, run_folders
 from imix_cli.keyvalue import UsageError, at_least, help_requested, parse_key_values
+from imix_cli.messages import EXIT_MISSING_EXTRA
 from imix_cli.running.files.writing import atomic_writer
 
 HELP = """\
@@ -51,8 +53,11 @@ keys:
   run=NAME           run folder (needed when the experiment has several runs)
   seed=K             seed whose policy is shown (default: 0)
   which=mean|best    final distribution mean or best-ever member (default: mean)
-  out=FILE           output, .gif or .mp4, overwritten if it exists (default:
-                     <run folder>/render-seed<K>-<which>.gif, never overwritten)
+  out=FILE           output, .gif or .mp4, overwritten if it exists; a relative
+                     name is in the run folder (out=policy.gif: <run folder>/policy.gif),
+                     an absolute one where it says (out=$PWD/policy.gif: the current
+                     folder) (default: <run folder>/render-seed<K>-<which>.gif, never
+                     overwritten)
   frames=N           at most N frames (default: the whole episode: reset + every step)
   scale=F            resize frames by F in (0, 1] (default: 1; 0.5 halves a GIF's size)
   fps=N              frames per second (default: the env's render_fps, else 30)
@@ -84,7 +89,7 @@ def _is_mujoco(env_id: str) -> bool:
 def make_render_env(header: dict, env_id: str):
     """``gym.make`` of the policy's env ``env_id`` (a registered id, resolved from the header by
     :func:`imix_cli.commands.eval_command.policy_env`: never a ``module:`` one) with ``render_mode="rgb_array"``;
-    UsageError (1) naming what to install."""
+    UsageError naming what to install: status 2 for a missing dependency (every missing extra's), 1 for another failure."""
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # pygame draws to a surface, no display
     import gymnasium as gym
 
@@ -96,8 +101,8 @@ def make_render_env(header: dict, env_id: str):
         with warnings.catch_warnings():  # CartPole-v0 "out of date": imix reproduces v0 on purpose
             warnings.simplefilter("ignore", DeprecationWarning)
             env = gym.make(env_id, render_mode="rgb_array", max_episode_steps=int(header["max_steps"]))
-    except gym.error.DependencyNotInstalled as err:
-        raise UsageError(f"cannot render {env_id}: {_one_line(err)}", 1) from None
+    except gym.error.DependencyNotInstalled as err:  # pygame, mujoco: a missing extra's one status
+        raise UsageError(f"cannot render {env_id}: {_one_line(err)}", EXIT_MISSING_EXTRA) from None
     except Exception as err:  # noqa: BLE001 - GL and driver errors come in many types
         hint = _MUJOCO_HINT if _is_mujoco(env_id) else _one_line(err)
         raise UsageError(f"cannot render {env_id}: {hint}", 1) from None
@@ -134,8 +139,8 @@ def policy_frames(policy, frames: int | None = None, env_id: str | None = None):
             obs, _ = env.reset(seed=seed)
             first = np.asarray(env.render())
         except Exception as err:  # noqa: BLE001
-            if isinstance(err, ImportError) or "DependencyNotInstalled" in type(err).__name__:
-                raise UsageError(f"cannot render {env_id}: {_one_line(err)}", 1) from None
+            if isinstance(err, ImportError) or "DependencyNotInstalled" in type(err).__name__:  # pygame, mujoco: a missing extra
+                raise UsageError(f"cannot render {env_id}: {_one_line(err)}", EXIT_MISSING_EXTRA) from None
             hint = _MUJOCO_HINT if _is_mujoco(env_id) else _one_line(err)
             raise UsageError(f"cannot render {env_id}: {hint}", 1) from None
         yield first
@@ -277,7 +282,7 @@ def main(argv: list | None = None) -> int:
             {**POLICY_KEYS, "seed": 0, "out": None, "frames": None, "scale": "1", "fps": None},
             convert={**POLICY_KEY_CHECKS, "seed": at_least(0), "frames": at_least(1), "fps": at_least(1)},
         )  # fmt: skip
-        out = Path(s["out"] or "policy.gif")
+        out = Path(s["out"] or "policy.gif").expanduser()
         if out.suffix.lower() not in (".gif", ".mp4"):
             raise UsageError(f"bad value for out: {s['out']!r} (expected a .gif or .mp4 file name)")
         try:
@@ -286,16 +291,20 @@ def main(argv: list | None = None) -> int:
             scale = -1.0
         if not 0.0 < scale <= 1.0:
             raise UsageError(f"bad value for scale: {s['scale']!r} (expected a number in (0, 1])")
+        run_dir = _pick_run(run_folders(s["results_dir"], s["experiment"], s["run"]), s["run"])
+        # An absolute out= is the user's own path (its folder may be a link they chose); a relative one names a file in
+        # the run folder, next to the policy it shows (out=reach.gif went into the current folder), as the default
+        # does: inside the results folder, below which the writer follows no link.
+        outside = s["out"] is not None and out.is_absolute()
+        if s["out"] is not None and not outside:
+            out = run_dir / out
+        root = out.parent if outside else s["results_dir"]
         if s["out"] is not None and not out.parent.is_dir():
             raise UsageError(f"bad value for out: folder {out.parent} does not exist")
-        run_dir = _pick_run(run_folders(s["results_dir"], s["experiment"], s["run"]), s["run"])
-        # out= is the user's own path (its folder may be a link they chose); the default is inside the results
-        # folder, below which the writer follows no link
-        root = out.parent if s["out"] is not None else s["results_dir"]
         if s["out"] is None:  # a name of its own, and an earlier render is never replaced without out= saying so
             out = default_out(run_dir, s["seed"], s["which"])
             if out.exists() or out.is_symlink():
-                raise UsageError(f"{out} exists; give out={out} to overwrite it, or another out= name", 1)
+                raise UsageError(f"{out} exists; give out={out.name} to overwrite it (a relative out= is in the run folder), or another out= name", 1)
         path = policy_path(run_dir, s["seed"], s["which"])
         policy = read_policy(path)
         env_id = render_env_id(policy, s["import"], run_dir, str(path))

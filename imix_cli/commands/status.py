@@ -14,7 +14,7 @@ Per seed ``k`` of a run folder (``seeds`` from its config.yaml, else the files f
 * running: not done, and a live ``imix run`` holds the run folder's lock
   (:func:`imix_cli.running.run_folder.lock_holder`: the pid in ``.lock``, holding a lock on it): that run
   runs every unfinished seed of the folder at once, those with nothing on disk yet included;
-* stopped: not done, no live run, and started -- ``seed_<k>.partial.csv`` (rows up to its last checkpoint),
+* stopped: not done, no live run, and started -- ``seed_<k>.partial.csv`` (its rows so far: its live view),
   a checkpoint ``.checkpoints/seed_<k>.*``, or a CSV short of the config's generations with its final state
   to continue from. A run stopped by Ctrl-C or SIGTERM checkpointed every seed's current generation; one
   killed (kill -9) keeps its last periodic checkpoint. Re-running the same command resumes them;
@@ -26,7 +26,10 @@ Per seed ``k`` of a run folder (``seeds`` from its config.yaml, else the files f
 Last gen: per seed, the most advanced of its CSV/partial rows and its checkpoint's header (``generation``,
 if the checkpoint is an ``.npz`` holding a ``header`` entry or has a ``seed_<k>.json`` beside it; anything
 else is tolerated and ignored); shown as the range over the seeds (``370-375/1000``). A running seed's is
-that of its last checkpoint: the run itself is ahead. Best score: the highest ``best_score`` of any
+that of its live view (``seed_<k>.partial.csv``, rewritten with every checkpoint and every few seconds between:
+:data:`imix_cli.running.files.run_writer.LIVE_VIEW_SECONDS`), so it shows from a run's first seconds on; the
+run itself is a little ahead. A stopped seed's is where a re-run resumes: its checkpoint's, when a kill -9 left
+its live view beyond it. Best score: the highest ``best_score`` of any
 generation read; current: the population ``mean_score`` of the last generation read, averaged over the
 seeds that have rows.
 """
@@ -52,8 +55,9 @@ usage: imix status [key=value ...]
 For each run folder: seeds done / running (a live imix run holds the folder) / stopped (started,
 no live run: re-run the same command to resume) / not started, the generations each seed has on
 disk (range over the seeds), the best member score ever and the current population mean score.
-Read-only; safe while runs write. Rows of running seeds are those of their last checkpoint
-(checkpoint_every=, checkpoint_seconds=); Ctrl-C or SIGTERM saves each seed's current generation.
+Read-only; safe while runs write. Rows of running seeds are those of their live view, written
+every few seconds and with each checkpoint (checkpoint_every=, checkpoint_seconds=); Ctrl-C or
+SIGTERM saves each seed's current generation, where a re-run resumes.
 
 keys:
   results_dir=PATH   folder holding the experiments (default: results)
@@ -158,6 +162,9 @@ def run_status(run_dir: Path) -> dict:
             # beyond its CSV. Its rows are the most advanced on disk.
             frame = partial if partial is not None and (final is None or len(partial) > len(final)) else final
             ckpt_gen = _checkpoint_generation(run_dir, seed)
+            if holder is None and frame is partial and frame is not None and ckpt_gen is not None and len(frame) > ckpt_gen:
+                # stopped by a kill -9 after its live view had moved past its checkpoint: a re-run resumes from the checkpoint
+                frame = frame.iloc[:ckpt_gen] if ckpt_gen > 0 else None
             if holder is not None or frame is not None or ckpt_gen is not None or _has_checkpoint(run_dir, seed):
                 unfinished.append(seed)
                 if ckpt_gen is not None and (frame is None or ckpt_gen > len(frame)):

@@ -427,8 +427,10 @@ class MujocoDirectEvaluator(BatchEvaluator):
         return self._roll_out(policy, episodes.reset(seeds), step)
 
 
-#: Gymnasium's MuJoCo environments need the ``mujoco`` package: imix's ``mujoco`` extra.
-MUJOCO_EXTRA_HINT = 'pip install "imix-cli[mujoco]"'
+#: Gymnasium's MuJoCo environments need the ``mujoco`` package: imix's ``mujoco`` extra, installed from the clone
+#: (:func:`imix_cli.messages.install_extra`'s words; the numerical library imports nothing outside it, so they are
+#: written out here and tests/test_missing_extra.py checks they are the same).
+MUJOCO_EXTRA_HINT = 'pip install ".[mujoco]" from the imix clone (or make install-all)'
 
 
 def missing_extra_message(env_id: str) -> str | None:

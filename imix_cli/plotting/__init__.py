@@ -46,8 +46,8 @@ evaluated, each seed is put on a common grid by holding the score of its last
 generation whose cumulative evaluations do not exceed the grid point; curves run
 to the longest seed, dotted where fewer seeds remain. Every run folder is its own
 curve, labelled with its non-default settings (grid-search points: gridsearch
-figures). Seeds still running (seed_<k>.partial.csv) are included up to their
-last checkpoint, with a warning. Groups with fewer than 5 seeds are flagged.
+figures). Seeds still running (seed_<k>.partial.csv) are included with their
+rows so far (written every few seconds), with a warning. Groups with fewer than 5 seeds are flagged.
 
 Robust statistics (Agarwal et al. 2021; 95 %, stratified bootstrap): the iqm table
 (interquartile mean of final return and episodes to threshold), the improvement

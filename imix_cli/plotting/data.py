@@ -42,8 +42,8 @@ Statistics
 
 Running experiments
     A seed without ``seed_<k>.csv`` but with ``seed_<k>.partial.csv`` (written by
-    the runner at each checkpoint) is read as in progress: its rows up to the last
-    checkpoint join the group, and a warning names the run and those seeds.
+    the runner at each checkpoint and every few seconds between) is read as in progress: its rows so
+    far join the group, and a warning names the run and those seeds.
 
     :func:`first_crossing` / :func:`threshold_stats` -- evaluations needed for the
     population mean score to first reach a threshold: the cumulative
@@ -282,7 +282,7 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
         overrides = run_dir.name  # unexpected folder name: keep it distinct from the standard group
     running = sorted(partial_seeds & set(seeds))
     if running:
-        warn(f"{run_dir.name}: seed(s) {', '.join(map(str, running))} still running; their rows up to the last checkpoint are included")
+        warn(f"{run_dir.name}: seed(s) {', '.join(map(str, running))} still running; their rows so far (the live view) are included")
     return RunGroup(algo, env, mixing, overrides, run_dir, config, seeds, frozenset(running))
 
 

@@ -125,6 +125,39 @@ def new_figure(width: float, height: float) -> Figure:
     return Figure(figsize=(width, height), layout="constrained")
 
 
+def fitted_suptitle(fig: Figure, text: str, margin: float = 0.02, **kwargs):
+    """``fig.suptitle(text)`` with each line too wide for the figure wrapped at spaces, so that none is cut.
+
+    Constrained layout makes room above the axes for a title's lines but never narrows them: a title wider than
+    its figure (a one-panel figure: the main job's convergence figure of a single run) lost both ends. Widths are
+    measured with the Agg renderer at the figure's dpi, in the title's own font; ``margin``: the fraction of the
+    width kept free on each side. A line that fits is kept as it is (the figures of several panels are unchanged).
+    """
+    from matplotlib.backends.backend_agg import RendererAgg
+
+    title = fig.suptitle(text, **kwargs)
+    dpi = fig.dpi
+    renderer = RendererAgg(max(1, int(fig.bbox.width)), max(1, int(fig.bbox.height)), dpi)
+    prop = title.get_fontproperties()
+    room = fig.bbox.width * (1.0 - 2.0 * margin)
+
+    def fits(line: str) -> bool:
+        return renderer.get_text_width_height_descent(line, prop, ismath=False)[0] <= room
+
+    lines = []
+    for line in text.split("\n"):
+        words, current = line.split(" "), ""
+        for word in words:
+            candidate = f"{current} {word}" if current else word
+            if current and not fits(candidate):
+                lines.append(current)
+                candidate = word
+            current = candidate
+        lines.append(current)
+    title.set_text("\n".join(lines))
+    return title
+
+
 def save_figure(fig: Figure, out_dir: Path, stem: str, formats=("png", "pdf"), dpi: int = 150, root=None) -> list:
     """Write ``<out_dir>/<stem>.<fmt>`` for each format (no timestamps, so reruns give identical files) through the
     one writer (:mod:`imix_cli.running.files.writing`; ``root``: the results folder, below which no link is followed)."""
@@ -265,7 +298,8 @@ def _es_main_groups(exp: Experiment) -> list:
 def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
     mixings = sorted({g.mixing for g in groups}, key=lambda m: MIXING_NAMES.index(m) if m in MIXING_NAMES else 9)
     n = len(mixings)
-    fig = new_figure(max(0.6 + 3.5 * n, 5.0), 3.4 if n > 1 else 3.7)
+    # One panel (a single run, the main job): as wide as the efficiency figure, and taller for its wrapped title.
+    fig = new_figure(max(0.6 + 3.5 * n, 6.6), 3.4 if n > 1 else 4.4)
     # A shared x-axis: with and without mixing on one scale, so the episodes saved show as distance.
     axes = fig.subplots(1, n, sharey=True, sharex=True, squeeze=False)[0]
     handles = {}
@@ -312,7 +346,7 @@ def _mixing_panels(exp, opts, env, groups, by_evaluations: bool) -> Figure:
     note += ")" if by_evaluations else ";\ndots: return of the distribution mean θ on fresh episodes, mean over seeds)"
     if common:
         title += f"; {settings_text(common)}"
-    fig.suptitle(f"{title}\n{note}{_left_out_note(exp, env)}")
+    fitted_suptitle(fig, f"{title}\n{note}{_left_out_note(exp, env)}")
     return fig
 
 
@@ -386,7 +420,7 @@ def _efficiency_overlay(exp, opts, env, groups) -> Figure:
     if common:
         title += f"; {settings_text(common)}"
     note = f"(dashed: no mixing, solid: mixing; mean ± {opts.ci_level:.0%} Student-t CI over seeds;\n{_seeds_note(groups)}; dotted: fewer seeds)"
-    fig.suptitle(f"{title}\n{note}{_left_out_note(exp, env)}")
+    fitted_suptitle(fig, f"{title}\n{note}{_left_out_note(exp, env)}")
     return fig
 
 
@@ -458,7 +492,7 @@ def ddpg_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
         labels = [h.get_label() for h in handles]
         _add_threshold_entry(handles, labels, opts.thresholds.get(env))
         fig.legend(handles, labels, loc="outside lower center", ncols=min(len(handles), 2))
-        fig.suptitle(f"{env_label(env)}: DDPG vs evolution strategies\n(solid: mean ± {opts.ci_level:.0%} CI over seeds; dotted: median)")
+        fitted_suptitle(fig, f"{env_label(env)}: DDPG vs evolution strategies\n(solid: mean ± {opts.ci_level:.0%} CI over seeds; dotted: median)")
         yield f"ddpg_{slug(env)}", fig
 
 
@@ -529,7 +563,7 @@ def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
         title = f"{env_label(env)}: performance profile of the final return"
         if common:
             title += f"; {settings_text(common)}"
-        fig.suptitle(f"{title}\n(run-score distribution, 95 % stratified-bootstrap band; [seeds]; {_seeds_note(members)})")
+        fitted_suptitle(fig, f"{title}\n(run-score distribution, 95 % stratified-bootstrap band; [seeds]; {_seeds_note(members)})")
         yield f"profile_{slug(env)}", fig
 
 
@@ -600,9 +634,10 @@ def gridsearch_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
             ax.set_xlim(left=0)
             ax.legend(handles, labels, title=PARAM_NAMES.get(param, param), loc="best")
             others = ", ".join(f"{PARAM_NAMES.get(k, k)} {v:g}" for k, v in fixed if v is not None)
-            fig.suptitle(
+            fitted_suptitle(
+                fig,
                 f"{algo_label(algo)}{mixing_suffix(mixing, '')} on {env_label(env)}: effect of the "
-                f"{PARAM_NAMES.get(param, param)}\n({others}; mean ± {opts.ci_level:.0%} CI over seeds)"
+                f"{PARAM_NAMES.get(param, param)}\n({others}; mean ± {opts.ci_level:.0%} CI over seeds)",
             )
             yield f"gridsearch_{slug(algo)}_{slug(env)}_{slug(mixing)}_{param}", fig
 

@@ -2,8 +2,8 @@
 
 Usage::
 
-    python -m imix_cli.plotting.mujoco [results_dir=results] [experiment=mujoco]
-                                       [threshold.<env id>=RETURN ...] [resamples=2000]
+    imix plot mujoco [results_dir=results] [experiment=mujoco]
+                     [threshold.<env id>=RETURN ...] [resamples=2000]
 
 Reads ``<results_dir>/<experiment>/<run>/seed_<k>.csv`` through :mod:`imix_cli.running.files.results`
 and writes into ``<results_dir>/<experiment>/figures/``:
@@ -216,9 +216,37 @@ def parse_args(argv: list) -> dict:
     return {**settings, "thresholds": thresholds}
 
 
+HELP = """\
+usage: imix plot mujoco [key=value ...]
+       (or python -m imix_cli.plotting.mujoco [key=value ...], as make reproduce-mujoco runs it)
+
+Draw the MuJoCo study's figures and table (make reproduce-mujoco, docs/research/mujoco.md)
+from the seed CSVs of <results_dir>/<experiment>/<run>/ into <results_dir>/<experiment>/figures/:
+mujoco_<env>.png/.pdf (the population's mean return against episodes, env steps and wall
+time, one curve per run folder: the mean over seeds with a 95 % bootstrap CI) and
+mujoco_table.csv/.md (per env and run: final return, the mean policy's return on fresh
+episodes, the return at an equal episode budget, reuse rate, episodes, env steps, wall time,
+and the episodes and time to the env's return threshold).
+
+keys:
+  results_dir=PATH              folder holding the experiments (default: results)
+  experiment=NAME               experiment to plot (default: mujoco)
+  threshold.<env id>=RETURN     return counted as reaching the threshold, by gymnasium id
+                                (defaults: {thresholds})
+  resamples=N                   bootstrap resamplings of the seeds, at least 100 (default: 2000)
+
+example:
+  imix plot mujoco experiment=mujoco threshold.Hopper-v5=800
+"""
+
+
+def _help_text() -> str:
+    return HELP.format(thresholds=", ".join(f"{env}={value:g}" for env, value in DEFAULT_THRESHOLDS.items()))
+
+
 def main(argv: list | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if help_requested(argv, __doc__.split("\n\n", 2)[1] + "\n"):
+    if help_requested(argv, _help_text):
         return 0
     try:
         settings = parse_args(argv)

@@ -16,7 +16,7 @@ import os
 import reprlib
 import stat
 
-from imix_cli.messages import RunError
+from imix_cli.messages import MissingExtraError, RunError
 from imix_cli.running.config.run_spec import differing_keys, identity_of, resume_identity
 from imix_cli.running.files.results import CorruptResultError, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
 from imix_cli.running.files.run_lock import LOCK_NAME
@@ -39,7 +39,7 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
     trainer = trainer_for(spec)
     missing = trainer.missing_extra()
     if missing:  # before anything is made: a run that cannot start leaves no folder for status to list
-        raise RunError(missing)
+        raise MissingExtraError(missing)
     run_dir = spec.run_dir
     config_file = run_dir / "config.yaml"
     refuse_links(spec)

@@ -78,31 +78,57 @@ def _run_locked(spec, echo) -> dict:
 
 
 class ResumeLine:
-    """Where the seeds of a run start, said in one line on stderr once every seed to run has been told
-    (``resumed({seed: generation})``, from each process of the run), and only if one resumes:
-    ``imix: resuming 25 seeds of snes-cartpole-eim at generations 370-375 from their checkpoints``."""
+    """Where the seeds of a run start, said on stderr once every seed to run has been told (``resumed({seed:
+    generation})``, from each process of the run): one line per group of seeds resuming at the same generation
+    (the seeds of one process advance in lockstep, so a group is usually a process's share), and one for the seeds
+    that start from generation 0 -- said only if a seed resumes, or one of them had started (its live view is on
+    disk: killed before its first checkpoint, its generations are run again)::
+
+        imix: resuming seeds 0-12 of snes-cartpole-eim at generation 370 from their checkpoints
+        imix: resuming seeds 13-24 of snes-cartpole-eim at generation 375 from their checkpoints
+    """
 
     def __init__(self, spec, todo: list[int], bar):
+        from imix_cli.running.files.results import partial_csv_path
+
         self.spec, self.todo, self.bar, self.starts = spec, set(todo), bar, {}
+        # before any seed runs (a worker's live view of this run, written seconds later, must not count)
+        self.started = {seed for seed in todo if partial_csv_path(spec.run_dir, seed).exists()}
 
     def __call__(self, starts: dict) -> None:
         self.starts.update(starts)
         if self.todo and self.todo <= set(self.starts):
             self.todo = set()  # said once
-            line = resume_line(self.spec.run_name, self.starts)
-            if line:
+            for line in resume_lines(self.spec.run_name, self.starts, self.started):
                 write = getattr(self.bar, "write", None)  # above a progress bar, not through it
                 write(line, file=sys.stderr) if write else print(line, file=sys.stderr, flush=True)
 
 
-def resume_line(run_name: str, starts: dict) -> str | None:
-    """One line saying how many generations the seeds keep, e.g. ``resuming 25 seeds of R at generations 370-375``
-    (and how many start from scratch); None if none resumes."""
-    kept = sorted(g for g in starts.values() if g)
-    if not kept:
-        return None
-    n, low, high = len(kept), kept[0], kept[-1]
-    at = f"generation {low}" if low == high else f"generations {low}-{high}"
-    fresh = len(starts) - n
-    rest = f"; {fresh} start{'s' if fresh == 1 else ''} from generation 0" if fresh else ""
-    return f"imix: resuming {n} seed{'s' if n > 1 else ''} of {run_name} at {at} from their checkpoints{rest}"
+def seeds_text(seeds) -> str:
+    """``seed 3``, ``seeds 0-12``, ``seeds 0,2,5-7``."""
+    seeds = sorted(seeds)
+    ranges, start = [], seeds[0]
+    for a, b in zip(seeds, [*seeds[1:], None]):
+        if b != a + 1:
+            ranges.append(f"{start}" if start == a else f"{start}-{a}")
+            start = b
+    return f"seed{'s' if len(seeds) > 1 else ''} {','.join(ranges)}"
+
+
+def resume_lines(run_name: str, starts: dict, started=()) -> list[str]:
+    """Where the seeds start (``starts``: seed -> generation): one line per generation some seeds resume at, then
+    one for those that start from generation 0, e.g. ``imix: resuming seeds 0-12 of R at generation 370 from their
+    checkpoints``. Nothing if no seed resumes and none of ``started`` (seeds with a live view on disk) is among them."""
+    groups: dict[int, list] = {}
+    for seed, generation in starts.items():
+        groups.setdefault(int(generation), []).append(seed)
+    fresh = groups.pop(0, [])
+    lines = [
+        f"imix: resuming {seeds_text(seeds)} of {run_name} at generation {generation} from {'their checkpoints' if len(seeds) > 1 else 'its checkpoint'}"
+        for generation, seeds in sorted(groups.items())
+    ]
+    if fresh and (lines or set(fresh) & set(started)):
+        again = set(fresh) & set(started)
+        why = f" (no checkpoint: {seeds_text(again)} stopped before {'their' if len(again) > 1 else 'its'} first one)" if again else ""
+        lines.append(f"imix: {seeds_text(fresh)} of {run_name} start{'s' if len(fresh) == 1 else ''} from generation 0{why}")
+    return lines

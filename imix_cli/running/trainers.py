@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from imix_cli.messages import install_extra
 from imix_cli.running.files.results import es_seed_finished
 
 
@@ -101,7 +102,7 @@ EVOLUTION_STRATEGY = Trainer(_run_es_seeds, _es_needs_running, es_seed_finished,
 DDPG = Trainer(
     _run_ddpg_seeds, _ddpg_needs_running, _ddpg_seed_finished, "step", "total_steps", continuable=False, compares_mixing=False,
     needs=(("torch", "torch"), ("stable_baselines3", "stable-baselines3")),
-    install='pip install torch==2.13.0 "imix-cli[ddpg]" (a CPU torch first: an unpinned one pulls several GB of CUDA packages)',
+    install=install_extra("ddpg", first="torch==2.13.0") + " (a CPU torch first: an unpinned one pulls several GB of CUDA packages)",
 )  # fmt: skip
 
 #: Algorithms that are not evolution strategies, by name; every other algo is an ES.

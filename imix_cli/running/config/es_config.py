@@ -13,6 +13,7 @@ from imix_cli.core.algorithms import cmaes
 from imix_cli.core.mixing import config_variants, variant_spec
 from imix_cli.core.processes import default_workers
 from imix_cli.core.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
+from imix_cli.messages import install_extra
 from imix_cli.running.config.checks import ConfigError, as_choice, check_memory, env_of, first_line, gym_env_bytes, parallel_launcher_name, workers_of
 from imix_cli.running.config.keys import KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS, read_keys
 from imix_cli.running.config.run_spec import RunSpec, algo_option_fields, resolve_auto_options
@@ -174,7 +175,7 @@ def _policy_and_evaluator(checked: dict, env_name: str, launcher: str | None) ->
         try:
             import ray  # noqa: F401
         except ImportError:
-            raise ConfigError('evaluator=ray: ray is not installed; pip install "imix-cli[cluster]"') from None
+            raise ConfigError(f"evaluator=ray: ray is not installed; {install_extra('cluster')}") from None
     # config.yaml keeps the policy keys only if one differs from the default, and bias/output only if
     # they do: a run's identity (and folder) stays what it was before these keys existed.
     extra = {k: v for k, v in (("bias", bias), ("output", output)) if v != POLICY_DEFAULTS[k]}

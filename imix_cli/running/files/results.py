@@ -76,9 +76,10 @@ def seed_csv_path(run_dir, seed: int) -> Path:
 
 
 def partial_csv_path(run_dir, seed: int) -> Path:
-    """``seed_<k>.partial.csv``: the rows of an unfinished seed as of its last checkpoint (same columns).
+    """``seed_<k>.partial.csv``: the rows of an unfinished seed so far, its live view (same columns).
 
-    Written atomically at each checkpoint and removed once ``seed_<k>.csv`` exists, so that
+    Written atomically at each checkpoint and every few seconds between (not flushed: a live view, not a result;
+    :mod:`imix_cli.running.files.run_writer`) and removed once ``seed_<k>.csv`` exists, so that
     ``imix plot`` and ``imix status`` can show a running experiment without touching the run.
     """
     return Path(run_dir) / f"seed_{seed}.partial.csv"

@@ -9,6 +9,9 @@ step's :class:`imix_cli.running.loop.lockstep.SeedRecord` -- and it writes what 
   (:mod:`imix_cli.running.files.results`). Why a time floor: a checkpoint bounds the work a kill loses, and that is
   a matter of seconds, not generations -- fifty generations are 10 ms of the main job and hours of a large
   MuJoCo policy; writing one every 50 of the main job's generations cost a fifth of its wall time;
+* between two checkpoints, every :data:`LIVE_VIEW_SECONDS`: the live view alone (no checkpoint), so that ``imix status``
+  and ``imix plot`` see a seed's generations within seconds, not only after its first checkpoint (``checkpoint_seconds``,
+  30 s by default: ``imix status`` said "last gen -" for the first half-minute of the main job while its bar moved);
 * at a finished seed's end: its policy files (:mod:`imix_cli.running.files.policy_files`), its final state, from
   which a larger ``generations=`` continues, then ``seed_<k>.csv``;
 * at a diverged seed's end: one warning line, ``seed_<k>.csv`` ending at the diverged row, and its
@@ -34,6 +37,10 @@ from imix_cli.running.files.results import partial_csv_path, rows_csv_text, seed
 from imix_cli.running.files.tracking import make_tracker
 from imix_cli.running.files.writing import atomic_write_text
 
+#: Seconds between two writes of a seed's live view ``seed_<k>.partial.csv`` when no checkpoint falls due: a rewrite of
+#: text already formatted (only the new rows are), not flushed to the disk -- a few ms every few seconds.
+LIVE_VIEW_SECONDS = 5.0
+
 
 class RunWriter:
     """The files of run ``spec``'s seeds in this process; ``identity``: what their checkpoints are of.
@@ -48,6 +55,7 @@ class RunWriter:
         self.tables: dict[int, dict] = {}  # seed -> its rows' encoding at its last checkpoint (imix_cli.running.files.checkpoints.TableCache)
         self.saved: dict[int, float] = {}  # seed -> when (perf_counter) its last checkpoint was written in this process
         self.saved_generation: dict[int, int] = {}  # seed -> the generation of its checkpoint on disk (written or resumed from)
+        self.viewed: dict[int, float] = {}  # seed -> when (perf_counter) its live view was last written in this process
 
     def write(self, st, record, began: float | None = None) -> None:
         """Seed ``st``'s step ``record``: its new rows, then what falls due. ``began``: when the compiled
@@ -77,7 +85,7 @@ class RunWriter:
             self.summaries[st.seed] = write_run_csv(seed_csv_path(self.run_dir, st.seed), st.rows)
             partial_csv_path(self.run_dir, st.seed).unlink(missing_ok=True)
             self.partial.pop(st.seed, None)
-        elif due:
+        elif due or self._time_for_live_view(st.seed):  # the live view with each checkpoint, and every few seconds between
             self._write_partial(st)
         if ended:  # its checkpoint is no longer needed -- but for a final state, from which a larger ``generations=`` continues
             self.tables.pop(st.seed, None)
@@ -102,10 +110,15 @@ class RunWriter:
         text += rows_csv_text(st.rows[done:], header=not done)
         self.partial[st.seed] = (len(st.rows), text)
         atomic_write_text(partial_csv_path(self.run_dir, st.seed), text, durable=False)  # a live view, not a result
+        self.viewed[st.seed] = time.perf_counter()
 
     def _time_for_checkpoint(self, seed: int) -> bool:
         """Whether ``checkpoint_seconds`` have passed since seed ``seed``'s last checkpoint (or since this process took it)."""
         return time.perf_counter() - self.saved.get(seed, self.started) >= self.spec.checkpoint_seconds
+
+    def _time_for_live_view(self, seed: int) -> bool:
+        """Whether :data:`LIVE_VIEW_SECONDS` have passed since seed ``seed``'s live view was written (or this process started)."""
+        return time.perf_counter() - self.viewed.get(seed, self.started) >= LIVE_VIEW_SECONDS
 
     def close(self) -> None:
         if self.tracker is not None:

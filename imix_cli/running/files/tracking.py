@@ -16,7 +16,7 @@ CSV, with the generation as the step, and nothing else. One small interface (:cl
 ``wandb``        one W&B run per seed (project ``imix``, group ``<experiment>/<run>``, the config);
                  ``WANDB_MODE=offline`` keeps it on disk. Needs a login otherwise.
 
-The packages are optional extras (``pip install "imix-cli[tensorboard]"``, ``[mlflow]``, ``[wandb]``);
+The packages are optional extras (``pip install ".[tensorboard]"`` from the imix clone, ``[mlflow]``, ``[wandb]``);
 a missing one is refused before the run starts.
 """
 
@@ -45,7 +45,9 @@ def missing_logger_package(logger: str) -> str | None:
     needs = LOGGERS[logger]
     if needs is None or importlib.util.find_spec(needs[0]) is not None:
         return None
-    return f'logger={logger}: {needs[0]} is not installed; pip install "imix-cli[{needs[1]}]"'
+    from imix_cli.messages import install_extra
+
+    return f"logger={logger}: {needs[0]} is not installed; {install_extra(needs[1])}"
 
 
 def scalars(row: dict) -> dict:
