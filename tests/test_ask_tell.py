@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 import imix_cli
+from imix_cli.core.ask_tell import MixingES
+from imix_cli.core.algorithms import make_es
 from imix_cli.core.evaluation import make_evaluator
 
 GENERATIONS = 6
@@ -116,3 +118,45 @@ def test_single_policy_helpers_match_the_batched_forward():
     assert imix_cli.policy_action(params, obs[3], 2) == int(np.argmax(batched[3]))
     with pytest.raises(ValueError, match=r"\(d,\)"):
         imix_cli.policy_output(params[None], obs, 2)
+
+
+@pytest.mark.parametrize("algo", ["cem", "pycma"])
+def test_tell_takes_the_pairs_in_any_order_as_pycmas_tell_does(algo):
+    """Issue 47, case 8: ``tell(x, f)`` refused a population told in another order than asked; pycma's tell takes
+    the pairs (x, f) in any order. The pairs are matched to the asked points: the ES ends in the same state as
+    told in order, and a point never asked is refused in one line."""
+    import copy
+
+    if algo == "pycma":
+        cma = pytest.importorskip("cma")
+        es = cma.CMAEvolutionStrategy(5 * [1.0], 0.5, {"seed": 1, "verbose": -9})
+    else:
+        es = make_es("cem", dim=5, popsize=12)
+    m = MixingES(es, "exact", rng=1)
+    for _ in range(5):
+        x = m.ask()
+        m.tell(x, -np.sum(x * x, axis=1))
+    a, b = copy.deepcopy(m), copy.deepcopy(m)
+    x = a.ask()
+    assert np.array_equal(x, b.ask())
+    f = -np.sum(x * x, axis=1)
+    perm = np.random.default_rng(0).permutation(len(f))
+    a.tell(x, f)
+    b.tell(x[perm], f[perm])
+    np.testing.assert_array_equal(a.distribution.mean, b.distribution.mean)
+    c = copy.deepcopy(m)
+    x = c.ask()
+    with pytest.raises(ValueError, match=r"samples\[0\] is not one of the points ask\(\) returned"):
+        c.tell(x + 1.0, f)
+
+
+@pytest.mark.parametrize("bad", [None, "1.5", 1j], ids=["None", "str", "complex"])
+def test_tell_refuses_returns_that_are_not_real_numbers_in_one_line(bad):
+    """Issue 47, case 7: ``tell(x, [None] * n)`` was told as all-NaN without a word, "1.5" was accepted and complex
+    values only warned; the CLI refuses a string reward. One line naming the first bad value, nothing told."""
+    m = MixingES(make_es("cem", dim=3, popsize=8), "exact", rng=0)
+    x = m.ask()
+    before = m.distribution.mean.copy()
+    with pytest.raises(TypeError, match=r"returns\[0\] = .* is not a real number"):
+        m.tell(x, [bad] * len(x))
+    np.testing.assert_array_equal(m.distribution.mean, before)

@@ -108,19 +108,26 @@ class MixingES:
         return self.plan.points
 
     def tell(self, samples_or_returns, returns=None) -> np.ndarray:
-        """Tell the returns of the members :meth:`ask` returned, as ``tell(returns)`` or, like a plain ES,
-        ``tell(samples, returns)`` (the samples must be the ones asked). The ES is told the whole
-        generation, reused members with their stored returns; returns the fitness of every member."""
+        """Tell the returns of the members :meth:`ask` returned, as ``tell(returns)`` (in the order asked) or, like
+        pycma's ``tell``, ``tell(samples, returns)``: the pairs in any order, each sample one of the points asked
+        (matched exactly; a sample never asked is refused in one line). Returns must be real numbers: None, strings
+        and complex values are refused in one line naming the first. The ES is told the whole generation, reused
+        members with their stored returns; returns the fitness of every member."""
         if self.plan is None:
             raise RuntimeError("tell() before ask(): ask for the members to evaluate first")
         asked = self.plan.points
+        order = None
         if returns is None:
             returns = samples_or_returns
-        elif not np.array_equal(np.asarray(samples_or_returns), asked):
-            raise ValueError("tell(samples, returns): samples are not the members ask() returned (in that order)")
-        returns = np.asarray(returns, dtype=np.float64).reshape(-1)
+        else:
+            order = _asked_order(samples_or_returns, asked)
+        returns = _numbers(returns)
         if returns.shape[0] != asked.shape[0]:
             raise ValueError(f"tell(): {returns.shape[0]} returns for the {asked.shape[0]} members ask() returned")
+        if order is not None:  # the pairs (x, f) in any order, as pycma's tell takes them: back in the asked order
+            in_order = np.empty_like(returns)
+            in_order[order] = returns
+            returns = in_order
         plan, self.plan = self.plan, None
         fitness = finish_generation(self.es, self.archive, self.settings, plan, returns)
         if hasattr(self.es, "count_evaluations"):  # an adapter whose library counts evaluations (pycma's countevals)
@@ -159,3 +166,40 @@ class MixingES:
     def reuse(self) -> float:
         """Fraction of the members told so far that were reused (not evaluated)."""
         return self.reused / self.members if self.members else 0.0
+
+
+def _asked_order(samples, asked: np.ndarray) -> np.ndarray | None:
+    """Where each row of ``samples`` is among the ``asked`` points (None: the same order); ValueError naming the
+    first row that is not one of them. Rows are matched exactly, repeated points (two TPA points on one spot) in turn."""
+    try:
+        samples = np.asarray(samples, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"tell(samples, returns): samples are not an array of numbers ({err})") from None
+    if samples.shape != asked.shape:
+        raise ValueError(f"tell(samples, returns): samples have shape {samples.shape}, ask() returned {asked.shape}")
+    if np.array_equal(samples, asked):
+        return None
+    where: dict[bytes, list[int]] = {}
+    for i, row in enumerate(asked):
+        where.setdefault(row.tobytes(), []).append(i)
+    order = np.empty(samples.shape[0], dtype=np.int64)
+    for k, row in enumerate(samples):
+        slots = where.get(row.tobytes())
+        if not slots:
+            raise ValueError(f"tell(samples, returns): samples[{k}] is not one of the points ask() returned (or is told twice)")
+        order[k] = slots.pop(0)
+    return order
+
+
+def _numbers(returns) -> np.ndarray:
+    """``returns`` as a float64 vector; None, strings and complex values refused in one line naming the first."""
+    if isinstance(returns, np.ndarray) and returns.dtype.kind in "fiu":
+        return returns.astype(np.float64, copy=False).reshape(-1)
+    values = np.asarray(returns, dtype=object).reshape(-1)
+    for k, value in enumerate(values):
+        if value is None or isinstance(value, (str, bytes, complex, np.complexfloating)) or not np.isscalar(value) and not isinstance(value, np.ndarray):
+            raise TypeError(f"tell(): returns[{k}] = {str(value)[:40]!r} ({type(value).__name__}) is not a real number")
+    try:
+        return np.asarray(returns, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as err:
+        raise TypeError(f"tell(): returns are not real numbers ({str(err)[:80]})") from None
