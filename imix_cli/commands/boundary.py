@@ -32,6 +32,8 @@ import signal
 import sys
 import traceback
 
+from imix_cli.messages import bounded_line
+
 EXIT_FAILED = 1
 EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141
@@ -104,7 +106,7 @@ def report(command: str, err: BaseException) -> int:
 
 def _say(line: str, status: int) -> int:
     try:
-        print(line, file=sys.stderr, flush=True)
+        print(bounded_line(line), file=sys.stderr, flush=True)
     except OSError:
         pass  # stderr gone too: the status still tells
     return status

@@ -43,6 +43,7 @@ from imix_cli.commands.eval_command import run_folders
 from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key_values
 from imix_cli.running.files.results import MAX_CONFIG_BYTES, ResultMismatchError, read_small_text, regular_file_size
 from imix_cli.running.files.run_lock import lock_holder
+from imix_cli.running.files.safe_yaml import load_yaml_file
 from imix_cli.running.seed_checks import check_seed_csv
 from imix_cli.running.trainers import trainer_named
 
@@ -110,10 +111,8 @@ def _has_checkpoint(run_dir: Path, seed: int) -> bool:
 
 def run_status(run_dir: Path) -> dict:
     """Status of one run folder (see the module docstring); ``generations``: seed -> its last generation on disk."""
-    import yaml
-
     try:
-        config = yaml.safe_load(read_small_text(run_dir / "config.yaml")) or {}
+        config = load_yaml_file(run_dir / "config.yaml") or {}  # bounded (safe_yaml); a refused one is as a missing one
     except Exception:  # noqa: BLE001 - missing or being written: fall back on the files found
         config = {}
     config = config if isinstance(config, dict) else {}

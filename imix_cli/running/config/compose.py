@@ -28,11 +28,13 @@ import re
 from pathlib import Path
 
 from imix_cli.core.registry import ALGO_NAMES, ALGORITHM_SPECS, BUILTIN_ENVS
+from imix_cli.messages import shown_value
 from imix_cli.running.config.checks import ConfigError, as_choice, first_line
 from imix_cli.running.config.ddpg import ddpg_spec
 from imix_cli.running.config.es_config import es_spec
 from imix_cli.running.config.keys import PAPER_DEFAULTS, POLICY_DEFAULTS, TOP_LEVEL_KEYS, did_you_mean
 from imix_cli.running.config.run_spec import DDPG_DEFAULTS, RunSpec, algo_option_fields, differing_keys
+from imix_cli.running.files.safe_yaml import BadYamlError, check_yaml_file
 
 __all__ = [
     "BUILTIN_ENVS",
@@ -40,6 +42,7 @@ __all__ = [
     "PAPER_DEFAULTS",
     "ConfigError",
     "RunSpec",
+    "bound_hydra_reads",
     "config_dir",
     "group_options",
     "point_key",
@@ -56,7 +59,7 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     """
     unknown = sorted(map(str, set(cfg) - set(TOP_LEVEL_KEYS)))
     if unknown:
-        raise ConfigError(f"unknown key {unknown[0]!r}{did_you_mean(unknown[0], all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
+        raise ConfigError(f"unknown key {shown_value(unknown[0])}{did_you_mean(unknown[0], all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
     algo_cfg, env_cfg = cfg.get("algo") or {}, cfg.get("env") or {}
     algo = as_choice(algo_cfg.get("name"), "algo", ALGO_NAMES)
     _refuse_unknown_nested_keys(algo, algo_cfg, env_cfg)
@@ -84,7 +87,7 @@ def _refuse_unknown_nested_keys(algo: str, algo_cfg, env_cfg) -> None:
     not the one asked for. An option of another algorithm (``algo=snes +algo.style=cemrl``) names the one it is for."""
     for group, given, valid in (("algo", algo_cfg, algo_keys(algo)), ("env", env_cfg, ENV_KEYS)):
         if not isinstance(given, dict):
-            raise ConfigError(f"{group}={given!r}: must be a config of the {group} group (one of {', '.join(group_options(group))})")
+            raise ConfigError(f"{group}={shown_value(given)}: must be a config of the {group} group (one of {', '.join(group_options(group))})")
         unknown = [k for k in given if k not in valid]
         if not unknown:
             continue
@@ -93,7 +96,7 @@ def _refuse_unknown_nested_keys(algo: str, algo_cfg, env_cfg) -> None:
         if owners:
             raise ConfigError(f"{key}: applies to algo={' | '.join(owners)} only, not algo={algo}")
         for_algo = f" of algo={algo}" if group == "algo" else ""
-        raise ConfigError(f"unknown key {key!r}{did_you_mean(key, all_keys())}; valid {group} keys{for_algo}: {', '.join(valid)}")
+        raise ConfigError(f"unknown key {shown_value(key)}{did_you_mean(key, all_keys())}; valid {group} keys{for_algo}: {', '.join(valid)}")
 
 
 def all_keys() -> tuple:
@@ -172,12 +175,13 @@ def validate_overrides(
     from hydra.core.override_parser.types import Glob
     from omegaconf import OmegaConf, open_dict
 
+    bound_hydra_reads()
     set_values = dict(values or {})
     # algo and env choose config files: a name of conf/algo or conf/env, composed like the command line's
     overrides = [*overrides, *(_group_choice(key, set_values.pop(key)) for key in ("algo", "env") if key in set_values)]
     for key in set_values:
         if not isinstance(key, str) or not _DOTTED_KEY.match(key) or key.split(".")[0] == "hydra":
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)")
+            raise ConfigError(f"unknown key {shown_value(key)}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)")
     parser = OverridesParser.create()
     try:
         parsed = parser.parse_overrides(overrides)
@@ -253,6 +257,8 @@ def validate_overrides(
                 plain = _resolved(cfg, with_hydra)
             except ConfigError:
                 raise
+            except BadYamlError as err:  # a config file refused by the bounded loader (bound_hydra_reads): it names the file
+                raise ConfigError(str(err)) from None
             except Exception as err:
                 raise ConfigError(_explain_compose_error(err, point)) from None
             specs.append(spec_from_config(plain, launcher))
@@ -260,6 +266,34 @@ def validate_overrides(
                 validated[point_key(plain, launcher)] = specs[-1]
     _refuse_shared_folders(specs)
     return specs
+
+
+def bound_hydra_reads() -> None:
+    """Make every YAML file Hydra reads from a folder pass imix's bounded loader first
+    (:func:`imix_cli.running.files.safe_yaml.check_yaml_file`): the primary config, what its ``defaults`` pull from
+    conf/, a ``--config-dir``, ``--config-path`` or ``hydra.searchpath`` folder -- whichever file, at whichever depth,
+    Hydra reads it through ``FileConfigSource.load_config``, the one place every such read goes through. A file refused
+    (an alias bomb, nesting too deep, a Python tag, more than 1 MiB) raises
+    :class:`~imix_cli.running.files.safe_yaml.BadYamlError` naming it, before OmegaConf expands anything (a bomb of nine
+    anchors ran Hydra for minutes into gigabytes). Installed once per process; Hydra's own configs (``pkg://``) are
+    not a user's and are read as Hydra reads them."""
+    from hydra._internal.sources_registry import SourcesRegistry
+    from hydra.core.plugins import Plugins
+
+    Plugins.instance()  # Hydra's plugin scan (once per process) re-executes its modules: the class it registers is the one used
+    source = SourcesRegistry.instance().resolve("file")
+    original = source.load_config
+    if getattr(original, "imix_bounded", False):
+        return
+
+    def load_config(self, config_path: str):
+        full_path = os.path.realpath(os.path.join(self.path, self._normalize_file_name(config_path)))
+        if os.path.exists(full_path):  # else Hydra's own "Config not found"
+            check_yaml_file(full_path)
+        return original(self, config_path)
+
+    load_config.imix_bounded = True
+    source.load_config = load_config
 
 
 #: Hydra's compositions by (config name, folders, overrides other than plain values, working folder, the config files'
@@ -394,7 +428,7 @@ def _group_choice(group: str, value) -> str:
     """``group=value`` for a config group chosen by a keyword (``algo="snes"``); ConfigError unless it names one of its options."""
     valid = group_options(group)
     if not isinstance(value, str) or value not in valid:
-        raise ConfigError(f"{group}={value!r}: unknown {group}; valid choices are {', '.join(valid)}")
+        raise ConfigError(f"{group}={shown_value(value)}: unknown {group}; valid choices are {', '.join(valid)}")
     return f"{group}={value}"
 
 
@@ -415,15 +449,15 @@ def _set_values(values: dict, cfg) -> None:
             return v
         if type(v).__module__ == "numpy" and hasattr(v, "item"):  # np.int64(5), np.float32(0.1)
             return plain(key, v.item())
-        raise ConfigError(f"{key}={v!r}: a {type(v).__name__} is not a value of the config (give a str, number, bool, None or list)")
+        raise ConfigError(f"{key}={shown_value(v)}: a {type(v).__name__} is not a value of the config (give a str, number, bool, None or list)")
 
     for key, v in values.items():
         try:
             OmegaConf.update(cfg, key, plain(key, v), merge=True)
         except (ConfigAttributeError, ConfigKeyError):
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)") from None
+            raise ConfigError(f"unknown key {shown_value(key)}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)") from None
         except OmegaConfBaseException as err:
-            raise ConfigError(f"{key}={v!r}: {first_line(err)}") from None
+            raise ConfigError(f"{key}={shown_value(v)}: {first_line(err)}") from None
 
 
 def _is_value_override(override) -> bool:
@@ -443,7 +477,7 @@ def _refuse_shared_folders(specs: list[RunSpec]) -> None:
         old, new = other.identity(), spec.identity()
         differing = differing_keys(old, new)
         if differing:
-            changes = ", ".join(f"{k}={old.get(k)!r} / {new.get(k)!r}" for k in differing)
+            changes = ", ".join(f"{k}={shown_value(old.get(k))} / {shown_value(new.get(k))}" for k in differing)
             raise ConfigError(
                 f"two sweep points would share the folder {spec.run_dir} but differ in {changes}; "
                 "sweep that key in separate commands with their own experiment="

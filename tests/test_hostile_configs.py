@@ -1,0 +1,187 @@
+"""Hostile and careless configs: YAML that cannot be read safely, values of a type no run writes, a command line Hydra's
+grammar cannot lex -- each one line naming the file (or the key) and what to do, never a hang or a traceback.
+
+Every YAML imix reads -- a ``--config-dir`` file and what its ``defaults`` pull, a run folder's ``config.yaml`` read back
+by run, plot, eval and status -- passes one bounded loader (:mod:`imix_cli.running.files.safe_yaml`) before Hydra,
+OmegaConf or a reader builds anything: more than 10,000 values once its aliases are expanded, nesting deeper than 64
+levels, an alias inside its own anchor, a Python tag or more than 1 MiB are refused in one line naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from imix_cli.commands.cli import main
+from imix_cli.running.config.compose import ConfigError, config_dir, validate_overrides
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = ["algo=snes", "env=cartpole", "seeds=1", "generations=2", "popsize=4", "workers=1", "progress=false"]
+HEAD = "defaults:\n  - config\n  - _self_\nseeds: 1\ngenerations: 2\nworkers: 1\nprogress: false\n"
+
+
+def alias_bomb(levels: int, key: str = "popsize") -> str:
+    """A "billion laughs": anchors a, b, c, ... each a list of nine aliases of the previous one; ``key: *<last>``
+    expands to 9**levels strings."""
+    names = "abcdefghi"[:levels]
+    text = "lols:\n  - &a [" + ", ".join(['"lol"'] * 9) + "]\n"
+    text += "".join(f"  - &{name} [" + ", ".join([f"*{prev}"] * 9) + "]\n" for prev, name in zip(names, names[1:]))
+    return text + f"{key}: *{names[-1]}\n"
+
+
+def _limited():
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))  # a bomb that expands fails here, not the machine
+
+
+def imix(args, cwd, timeout=120):
+    """``imix ARGS`` in a subprocess (this worktree's imix), under a 3 GiB address-space limit; (result, seconds)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    started = time.perf_counter()
+    result = subprocess.run([sys.executable, "-m", "imix_cli.commands.cli", *args], cwd=cwd, env=env, capture_output=True, text=True,
+                            timeout=timeout, preexec_fn=_limited)  # fmt: skip
+    return result, time.perf_counter() - started
+
+
+def refused(overrides: list, **kwargs) -> str:
+    with pytest.raises(ConfigError) as caught:
+        validate_overrides(overrides, **kwargs)
+    message = str(caught.value)
+    assert "\n" not in message and len(message) < 400, message
+    return message
+
+
+# ------------------------------------------------------------------ 1. a billion laughs in a --config-dir
+@pytest.mark.parametrize("levels", [9, 5])
+@pytest.mark.parametrize("where", ["primary", "defaults"])
+def test_an_alias_bomb_in_a_config_dir_is_refused_in_one_line_within_seconds(tmp_path, levels, where):
+    """Before: nine levels ran Hydra's composition for minutes into gigabytes (killed at 120 s, 549 MB), five levels
+    gave one line after 37 s at 330 MB. Now the file is refused before Hydra builds it, naming the file: in the
+    primary config, or in a group option its ``defaults`` pull (``algo/bomb.yaml``)."""
+    folder = tmp_path / "cfg"
+    (folder / "algo").mkdir(parents=True)
+    if where == "primary":
+        (folder / "mycfg.yaml").write_text(HEAD + alias_bomb(levels))
+        bad = folder / "mycfg.yaml"
+    else:
+        (folder / "mycfg.yaml").write_text("defaults:\n  - config\n  - override algo: bomb\n  - _self_\nseeds: 1\n")
+        (folder / "algo" / "bomb.yaml").write_text("name: snes\n" + alias_bomb(levels, key="generations"))
+        bad = folder / "algo" / "bomb.yaml"
+    result, seconds = imix(["run", "--config-dir", str(folder), "--config-name", "mycfg", "results_dir=out"], tmp_path, timeout=60)
+    err = result.stderr.strip()
+    assert result.returncode == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err[:2000]
+    assert str(bad) in err and "aliases are expanded" in err and len(err) < 400, err[:2000]
+    assert seconds < 20, seconds  # ~1 s on a quiet machine: an interpreter's start-up and imports
+    assert not (tmp_path / "out").exists()
+
+
+HOSTILE_FILES = {
+    "nested 100 deep": (HEAD + "popsize: " + "[" * 100 + "]" * 100 + "\n", "nested more than 64 levels deep"),
+    "nested 100,000 deep": (HEAD + "popsize: " + "[" * 100_000 + "\n", "nested more than 64 levels deep"),  # a RecursionError before
+    "an alias chain 100 deep": (
+        HEAD + "chain:\n  - &a0 [1]\n" + "".join(f"  - &a{k} [*a{k - 1}]\n" for k in range(1, 100)) + "popsize: *a99\n",
+        "levels deep once its aliases are expanded",
+    ),
+    "a recursive alias": (HEAD + "popsize: &a [*a]\n", "an alias inside its own anchor"),
+    "a huge file": (HEAD + "note: '" + "x" * (2 << 20) + "'\n", "bytes, more than the 1,048,576 a config may have"),
+    "not YAML": (HEAD + "popsize: [1, 2\n", "not valid YAML (line"),
+    "an undefined alias": (HEAD + "popsize: *nope\n", "found undefined alias"),
+}
+
+
+@pytest.mark.parametrize("name", list(HOSTILE_FILES))
+def test_a_hostile_config_dir_file_is_one_line_naming_the_file(tmp_path, name):
+    text, says = HOSTILE_FILES[name]
+    (tmp_path / "mycfg.yaml").write_text(text)
+    message = refused(["results_dir=out"], config_name="mycfg", config_dirs=(config_dir(), str(tmp_path)))
+    assert message.startswith(f"{tmp_path / 'mycfg.yaml'}: ") and says in message, message
+
+
+# ------------------------------------------------------------------ 5. a Python tag in a --config-dir file
+def test_a_python_tag_in_a_config_dir_file_names_the_file_and_line_not_an_override(tmp_path, capsys, monkeypatch):
+    """Before: exit 2, but "bad override (algo=cem, results_dir=out): could not determine a constructor for the tag ...":
+    the overrides blamed, the file not named. The tag is never constructed either way."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "cfg").mkdir()
+    (tmp_path / "cfg" / "mycfg.yaml").write_text(HEAD + 'popsize: !!python/object/apply:os.system ["echo hi"]\n')
+    assert main(["run", "--config-dir", "cfg", "--config-name", "mycfg", "algo=cem", "results_dir=out"]) == 2
+    out = capsys.readouterr()
+    err = out.err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"{tmp_path / 'cfg' / 'mycfg.yaml'}: line 8: the tag !!python/object/apply:os.system is not allowed" in err, err
+    assert "bad override" not in err and "hi" not in out.out
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_configs_imix_writes_and_ships_pass_the_bounded_loader(tmp_path):
+    """The other side: conf/ (every file) and a run's own config.yaml are read as before."""
+    from imix_cli.running.files.safe_yaml import check_yaml_file, load_yaml_file
+
+    for path in Path(config_dir()).rglob("*.yaml"):
+        check_yaml_file(path)
+    assert main(["run", *TINY, f"results_dir={tmp_path}"]) == 0
+    (config,) = tmp_path.glob("default/*/config.yaml")
+    assert load_yaml_file(config)["popsize"] == 4
+
+
+# ------------------------------------------------------------------ 2. the bomb in a run folder's config.yaml
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    root = tmp_path_factory.mktemp("hostile") / "results"
+    assert main(["run", *TINY, f"results_dir={root}"]) == 0
+    (run_dir,) = root.glob("default/*")
+    return run_dir
+
+
+@pytest.fixture
+def run_dir(finished, tmp_path):
+    """A private copy of the finished run (results_dir ``tmp_path/results``)."""
+    return Path(shutil.copytree(finished, tmp_path / "results" / "default" / finished.name))
+
+
+def set_config(run_dir: Path, old: str, new: str) -> Path:
+    path = run_dir / "config.yaml"
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new))
+    return path
+
+
+@pytest.mark.parametrize("levels", [9, 5])
+def test_an_alias_bomb_in_a_run_folders_config_yaml_is_a_short_line_naming_it(run_dir, tmp_path, levels):
+    """Before: ``imix run`` printed one line of 1,254,392 bytes (the value's repr, ~46,656 elements per key); plot, eval
+    and status read the bomb as a config. Now each command says, in a line of < 400 characters, that the file is refused."""
+    config = set_config(run_dir, "popsize: 4\n", alias_bomb(levels))
+    root = tmp_path / "results"
+    result, _ = imix(["run", *TINY, f"results_dir={root}"], tmp_path)
+    err = result.stderr.strip()
+    assert result.returncode == 1 and len(err.splitlines()) == 1 and len(err) < 400, err[:2000]
+    assert str(config) in err and "aliases are expanded" in err, err
+    for command in (["plot", "only=iqm"], ["eval", "episodes=2"], ["status"]):
+        result, _ = imix([*command, f"results_dir={root}"], tmp_path)
+        lines = result.stderr.splitlines()
+        assert "Traceback" not in result.stderr and all(len(line) < 400 for line in lines), (command, result.stderr[:2000])
+        assert all(len(line) < 400 for line in result.stdout.splitlines()), (command, result.stdout[:2000])
+        if command[0] != "status":  # plot and eval say why they go on without it; status lists the seeds found
+            assert any(str(config) in line and "aliases are expanded" in line for line in lines), (command, result.stderr)
+
+
+def test_a_long_value_in_a_run_folders_config_yaml_is_shown_shortened(run_dir, tmp_path, capsys):
+    """Any value a message shows from a file is shortened: lists of six lists five levels deep (9,331 values, within the
+    loader's bounds) made a line of ~50 kB (reprlib shortens each level to six items, not the whole)."""
+    import json
+
+    def nested(levels):
+        return 123456 if levels == 0 else [nested(levels - 1)] * 6
+
+    config = set_config(run_dir, "popsize: 4\n", f"popsize: {json.dumps(nested(5))}\n")
+    assert main(["run", *TINY, f"results_dir={tmp_path / 'results'}"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and len(err) < 600 and str(config) in err and "popsize=" in err, err[:2000]
