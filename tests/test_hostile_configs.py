@@ -185,3 +185,31 @@ def test_a_long_value_in_a_run_folders_config_yaml_is_shown_shortened(run_dir, t
     assert main(["run", *TINY, f"results_dir={tmp_path / 'results'}"]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and len(err) < 600 and str(config) in err and "popsize=" in err, err[:2000]
+
+
+# ------------------------------------------------------------------ 3. a value of a type no run writes in config.yaml
+WRONG_TYPES = {
+    "popsize a list": ("popsize: 4\n", "popsize: [1, 2]\n", "popsize=[1, 2]"),
+    "popsize a string": ("popsize: 4\n", "popsize: '4'\n", "popsize='4'"),
+    "popsize a float": ("popsize: 4\n", "popsize: 4.0\n", "popsize=4.0"),
+    "popsize a bool": ("popsize: 4\n", "popsize: true\n", "popsize=True"),
+    "generations a list": ("generations: 2\n", "generations: [2]\n", "generations=[2]"),
+    "eval_mean_every a mapping": ("eval_mean_every: 10\n", "eval_mean_every: {a: 1}\n", "eval_mean_every={'a': 1}"),
+}
+
+
+@pytest.mark.parametrize("name", list(WRONG_TYPES))
+def test_plot_and_eval_refuse_a_config_yaml_value_of_a_type_no_run_writes(run_dir, tmp_path, capsys, name):
+    """Before: ``popsize: [1,2]`` (unlike ``popsize: 7``) was "not compared": plot and eval used the CSVs without a word."""
+    from imix_cli.plotting.data import load_experiment
+
+    old, new, says = WRONG_TYPES[name]
+    config = set_config(run_dir, old, new)
+    warnings = []
+    experiment = load_experiment(tmp_path / "results", "default", warn=warnings.append)
+    assert experiment.groups == [] and any(str(config) in w and says in w for w in warnings), warnings
+    capsys.readouterr()
+    assert main(["eval", f"results_dir={tmp_path / 'results'}", "episodes=2"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(config) in err and says in err, err
+    assert not (run_dir / "eval.csv").exists()

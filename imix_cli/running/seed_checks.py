@@ -8,10 +8,13 @@ every reader's handling of a corrupt CSV applies to it.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from imix_cli.core.env_ids import plain_env_id
 from imix_cli.core.registry import BUILTIN_ENVS
+from imix_cli.messages import shown_value
 from imix_cli.running.files.results import COLUMNS, ResultMismatchError
 from imix_cli.running.trainers import trainer_named
 
@@ -38,8 +41,9 @@ def check_seed_csv(frame, path, config: dict) -> None:
     config of its run.
 
     ``frame``: the CSV as :func:`read_run_csv` returned it (the contract already holds); ``config``: the run's
-    config.yaml mapping (``imix run`` passes its own config, schedule keys from config.yaml). A key ``config`` lacks,
-    or holds in a form no run writes, is not compared: a config.yaml of an older imix still lets its CSVs be read.
+    config.yaml mapping (``imix run`` passes its own config, schedule keys from config.yaml). A key ``config`` lacks (or
+    holds null) is not compared: a config.yaml of an older imix still lets its CSVs be read; one it holds as a value of
+    a type no run writes (``popsize: [1, 2]``) is a mismatch naming config.yaml.
 
     Why: a CSV is a file like any other -- copied from another run, left by an older version, edited -- and every
     reader took one that follows the contract as a seed of the run it sits in: ``imix run`` summed a CSV of another env
@@ -47,6 +51,7 @@ def check_seed_csv(frame, path, config: dict) -> None:
     (``eval_mean_every``) appended rows measured on another schedule. Run, plot, eval (and status) share this one check:
     the schema (the header is :data:`COLUMNS`, in order), algo, env, mixing, popsize, at most the run's budget
     (generations, or DDPG's total_steps), and the distribution mean measured exactly where :data:`SCHEDULE_KEYS` say."""
+    _check_config_types(config, path)
     header = frame.attrs.get("header", COLUMNS)
     if tuple(header) != COLUMNS:
         extra = [c for c in header if c not in COLUMNS]
@@ -70,6 +75,34 @@ def check_seed_csv(frame, path, config: dict) -> None:
         raise ResultMismatchError(f"{path}: has {spent} {unit}, its run's config has {trainer.budget_key}={budget}")
     if trainer.unit == "gen":  # an ES measures its distribution mean on a schedule; DDPG never does
         _check_schedule(frame, path, config)
+
+
+#: The keys of a run's config.yaml that ``check_seed_csv`` compares, and what every run writes there (or null).
+_COUNT_KEYS = ("popsize", "generations", "total_steps", *SCHEDULE_KEYS)
+_NAME_KEYS = (("mixing",), ("algo", "name"), ("env", "name"), ("env", "id"))
+
+
+def _check_config_types(config: dict, path) -> None:
+    """ResultMismatchError naming the run's config.yaml if a key the check compares holds a value of a type no run
+    writes (``popsize: [1, 2]``, ``generations: '2'``, ``mixing: 3``): such a config is not the run's, and comparing
+    nothing with it let plot and eval use the CSVs without a word (``popsize: 7`` was caught, ``[1, 2]`` was not)."""
+    config_file = Path(path).parent / "config.yaml"
+    for key in _COUNT_KEYS:
+        value = config.get(key)
+        if value is not None and not _is_count(value):
+            raise ResultMismatchError(f"{config_file}: {key}={shown_value(value)} is not an integer >= 0, as every run writes it; "
+                                      f"{Path(path).name} is not read against it (fix or move that config.yaml)")  # fmt: skip
+    for keys in _NAME_KEYS:
+        value = config
+        for key in keys:
+            value = value.get(key) if isinstance(value, dict) else None
+        if value is not None and not isinstance(value, str):
+            raise ResultMismatchError(f"{config_file}: {'.'.join(keys)}={shown_value(value)} is not a name, as every run writes it; "
+                                      f"{Path(path).name} is not read against it (fix or move that config.yaml)")  # fmt: skip
+    for group in ("algo", "env"):
+        if config.get(group) is not None and not isinstance(config.get(group), dict):
+            raise ResultMismatchError(f"{config_file}: {group}={shown_value(config.get(group))} is not a mapping, as every run writes it; "
+                                      f"{Path(path).name} is not read against it (fix or move that config.yaml)")  # fmt: skip
 
 
 def _is_count(value) -> bool:
