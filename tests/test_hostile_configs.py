@@ -213,3 +213,30 @@ def test_plot_and_eval_refuse_a_config_yaml_value_of_a_type_no_run_writes(run_di
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(config) in err and says in err, err
     assert not (run_dir / "eval.csv").exists()
+
+
+# ------------------------------------------------------------------ 12. a value Hydra's grammar cannot read unquoted
+@pytest.mark.parametrize(
+    "override, key, value",
+    [("experiment=é", "experiment", "é"), ("experiment=résumé", "experiment", "résumé"), ("experiment=a)b", "experiment", "a)b"),
+     ("env.id=müenv:Reach-v0", "env.id", "müenv:Reach-v0")],
+)  # fmt: skip
+def test_a_value_the_override_grammar_cannot_read_unquoted_gets_a_hint_to_quote_it(tmp_path, capsys, monkeypatch, override, key, value):
+    """Before: "cannot parse overrides: LexerNoViableAltException: experiment=é" -- Hydra's lexer, no word of what to do.
+    Now one line naming the override and the quoted form to type; that form runs (test_a_quoted_unicode_value_runs)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", *TINY, "results_dir=out", override]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert "LexerNoViableAltException" not in err and f"{override}: " in err and f"\"{key}='{value}'\"" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_value_that_cannot_be_read_in_a_sweep_names_it_too():
+    message = refused([*TINY, "sigma=0.1,é"])
+    assert "sigma=0.1,é: " in message and "quote" in message and "LexerNoViableAltException" not in message, message
+
+
+def test_a_quoted_unicode_value_runs(tmp_path):
+    (spec,) = validate_overrides([*TINY, f"results_dir={tmp_path}", "experiment='é'"])
+    assert spec.experiment == "é"

@@ -186,7 +186,7 @@ def validate_overrides(
     try:
         parsed = parser.parse_overrides(overrides)
     except Exception as err:
-        raise ConfigError(f"cannot parse overrides: {first_line(err)}") from None
+        raise _unparsable(err, overrides, parser) from None
     choices = []
     for override in parsed:
         key = override.key_or_group
@@ -221,7 +221,7 @@ def validate_overrides(
             try:
                 parse_cache[line] = parser.parse_overrides([line])[0]
             except Exception as err:
-                raise ConfigError(f"cannot parse overrides: {first_line(err)}") from None
+                raise _unparsable(err, [line], parser) from None
         return parse_cache[line]
 
     specs = []
@@ -458,6 +458,33 @@ def _set_values(values: dict, cfg) -> None:
             raise ConfigError(f"unknown key {shown_value(key)}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)") from None
         except OmegaConfBaseException as err:
             raise ConfigError(f"{key}={shown_value(v)}: {first_line(err)}") from None
+
+
+def _unparsable(err: Exception, lines: list, parser) -> ConfigError:
+    """The one line for an override Hydra's grammar cannot read: the override named, and -- for a value that is not
+    quoted -- the quoted form to type. Hydra's unquoted values are plain words and numbers (ASCII letters, digits and a
+    few signs): ``experiment=é`` came out as "LexerNoViableAltException: experiment=é", ``experiment=a)b`` as
+    "mismatched input ')'"."""
+    culprit = None
+    for line in lines:
+        try:
+            parser.parse_overrides([line])
+        except Exception:  # noqa: BLE001 - any parse error: this is the override to name
+            culprit = line
+            break
+    reason = first_line(err)
+    lexer = "LexerNoViableAltException" in reason
+    if culprit is None or "=" not in culprit:
+        return ConfigError(f"cannot parse overrides: {_shown(reason, 200)}")
+    key, value = culprit.split("=", 1)
+    why = "a character Hydra's override grammar has no rule for" if lexer else _shown(reason, 200)
+    if value[:1] in ("'", '"') or not key or len(culprit) > 200 or not culprit.isprintable():
+        return ConfigError(f"{_shown(culprit)}: cannot be read ({why})")
+    whole = f'"{key}={_quoted(value)}"'
+    if "," in value:  # a sweep: each value quoted that is not a plain word or number
+        each = ",".join(v if re.fullmatch(r"[A-Za-z0-9_.+-]+", v) else _quoted(v) for v in value.split(","))
+        return ConfigError(f'{culprit}: cannot be read unquoted ({why}); quote each value, for the shell too: "{key}={each}" (or {whole}: one value)')
+    return ConfigError(f"{culprit}: cannot be read unquoted ({why}); quote the value, for the shell too: {whole}")
 
 
 def _is_value_override(override) -> bool:
