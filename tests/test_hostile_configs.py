@@ -10,6 +10,7 @@ levels, an alias inside its own anchor, a Python tag or more than 1 MiB are refu
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -240,3 +241,77 @@ def test_a_value_that_cannot_be_read_in_a_sweep_names_it_too():
 def test_a_quoted_unicode_value_runs(tmp_path):
     (spec,) = validate_overrides([*TINY, f"results_dir={tmp_path}", "experiment='é'"])
     assert spec.experiment == "é"
+
+
+# ------------------------------------------------------------------ 4. values that cannot be in a seed CSV
+MEASURED = [*TINY, "eval_mean_every=1", "eval_mean_episodes=2"]  # the distribution mean measured on every row
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    root = tmp_path_factory.mktemp("values") / "results"
+    assert main(["run", *MEASURED, f"results_dir={root}"]) == 0
+    (run_dir,) = root.glob("default/*")
+    return run_dir
+
+
+def set_cells(csv: Path, **cells) -> None:
+    """Set the last row's ``cells`` (column -> text as written in the CSV)."""
+    lines = csv.read_text().splitlines()
+    header = lines[0].split(",")
+    last = lines[-1].split(",")
+    for column, text in cells.items():
+        last[header.index(column)] = text
+    csv.write_text("\n".join([*lines[:-1], ",".join(last)]) + "\n")
+
+
+IMPOSSIBLE = {  # cells of the last row -> what the line says
+    "scores 1e308": ({"mean_score": "1e308", "best_score": "1e308"}, "not a return of cartpole"),
+    "best_score 201 (CartPole's most is 200)": ({"best_score": "201"}, "not a return of cartpole"),
+    "mean_score -1 (CartPole's least is 0)": ({"mean_score": "-1"}, "not a return of cartpole"),
+    "best_score inf": ({"best_score": "inf"}, "best_score"),
+    "mean_score -inf": ({"mean_score": "-inf"}, "mean_score"),
+    "mean_score NaN with every member finite": ({"mean_score": "nan"}, "mean_score"),
+    "mean_policy_score 1e308": ({"mean_policy_score": "1e308"}, "not a return of cartpole"),
+    "mean_policy_score inf": ({"mean_policy_score": "inf"}, "mean_policy_score"),
+    "mean_score above best_score": ({"mean_score": "150", "best_score": "100"}, "above best_score"),
+    "mean_score a word": ({"mean_score": "lots"}, "mean_score"),
+}
+
+
+@pytest.mark.parametrize("name", list(IMPOSSIBLE))
+def test_a_seed_csv_value_that_cannot_be_is_refused_by_run_plot_eval_and_status(measured, tmp_path, capsys, name):
+    """Before: 1e308, inf and NaN scores were accepted -- plot's iqm table counted a CartPole seed scoring 1e308 as
+    reaching 195, status printed a 309-digit number. Checkpoints were checked against the env's possible returns; CSVs
+    now are too, with the same bounds (imix_cli.running.loop.resume.env_return_bounds), by every reader."""
+    from imix_cli.plotting.data import load_experiment
+
+    cells, says = IMPOSSIBLE[name]
+    root = tmp_path / "results"
+    run_dir = Path(shutil.copytree(measured, root / "default" / measured.name))
+    csv = run_dir / "seed_0.csv"
+    set_cells(csv, **cells)
+    warnings = []
+    assert load_experiment(root, "default", warn=warnings.append).groups == []  # no seed for the iqm table
+    assert any(str(csv) in w and says in w for w in warnings), warnings
+    capsys.readouterr()
+    assert main(["run", *MEASURED, f"results_dir={root}"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(csv) in err and says in err, err
+    assert main(["eval", f"results_dir={root}", "episodes=2"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(csv) in err and says in err, err
+    assert main(["status", f"results_dir={root}"]) == 0
+    out = capsys.readouterr().out
+    assert "seed_0.csv" in out and says in out and not re.search(r"\d{20}", out), out  # named as a file to move away
+
+
+def test_status_shows_a_partial_csvs_impossible_score_as_a_problem_not_309_digits(measured, tmp_path, capsys):
+    """A stopped seed's partial CSV is read by status alone: the same check, and numbers printed in a bounded form."""
+    root = tmp_path / "results"
+    run_dir = Path(shutil.copytree(measured, root / "default" / measured.name))
+    (run_dir / "seed_0.csv").rename(run_dir / "seed_0.partial.csv")
+    set_cells(run_dir / "seed_0.partial.csv", mean_score="1e308", best_score="1e308")
+    assert main(["status", f"results_dir={root}"]) == 0
+    out = capsys.readouterr().out
+    assert "not a return of cartpole" in out and not re.search(r"\d{20}", out), out

@@ -44,7 +44,7 @@ from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key
 from imix_cli.running.files.results import MAX_CONFIG_BYTES, ResultMismatchError, read_small_text, regular_file_size
 from imix_cli.running.files.run_lock import lock_holder
 from imix_cli.running.files.safe_yaml import load_yaml_file
-from imix_cli.running.seed_checks import check_seed_csv
+from imix_cli.running.seed_checks import check_seed_csv, check_seed_scores
 from imix_cli.running.trainers import trainer_named
 
 HELP = """\
@@ -136,6 +136,12 @@ def run_status(run_dir: Path) -> dict:
         if final is None and f"seed_{seed}.csv" not in corrupt and (run_dir / f"seed_{seed}.csv").exists():
             final = _read_rows(run_dir / f"seed_{seed}.csv", corrupt)  # replaced between listing and reading: once more
         partial = _read_rows(run_dir / f"seed_{seed}.partial.csv", corrupt)
+        if partial is not None and config:
+            try:  # a stopped seed's rows are read by status alone: their scores checked as a finished seed's
+                check_seed_scores(partial, run_dir / f"seed_{seed}.partial.csv", config)
+            except ResultMismatchError as err:
+                corrupt[f"seed_{seed}.partial.csv"] = str(err).replace(f"{run_dir / f'seed_{seed}.partial.csv'}: ", "", 1)
+                partial = None
         if final is not None and config:
             try:  # a CSV that contradicts its run's config is one imix run refuses: not done (the readers' one check)
                 check_seed_csv(final, run_dir / f"seed_{seed}.csv", config)
@@ -177,6 +183,13 @@ def run_status(run_dir: Path) -> dict:
     }  # fmt: skip
 
 
+def _score(value) -> str:
+    """A score as the table prints it: two decimals, or three significant digits when large (never hundreds of digits)."""
+    if value is None:
+        return "-"
+    return f"{value:.2f}" if abs(value) < 1e7 else f"{value:.3g}"
+
+
 def _seed_list(seeds: list) -> str:
     if not seeds:
         return "-"
@@ -195,8 +208,7 @@ def format_status(experiment: str, statuses: list) -> str:
     for s in statuses:
         low, high = s.get("first_generation"), s["last_generation"]
         last = "-" if high is None else (f"{high}" if low in (None, high) else f"{low}-{high}") + (f"/{s['target']}" if s["target"] else "")
-        best = "-" if s["best_score"] is None else f"{s['best_score']:.2f}"
-        current = "-" if s["current_score"] is None else f"{s['current_score']:.2f}"
+        best, current = _score(s["best_score"]), _score(s["current_score"])
         counts = f"{len(s['done']):>5} {len(s['running']):>8} {len(s['stopped']):>8} {len(s['not_started']):>12}"
         lines.append(f"  {s['run']:<{width}} {counts} {last:>14} {best:>9} {current:>9}")
         if s["running"]:

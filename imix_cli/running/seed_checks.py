@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 
 from imix_cli.core.env_ids import plain_env_id
-from imix_cli.core.registry import BUILTIN_ENVS
+from imix_cli.core.registry import BUILTIN_ENVS, env_return_bounds
 from imix_cli.messages import shown_value
 from imix_cli.running.files.results import COLUMNS, ResultMismatchError
 from imix_cli.running.trainers import trainer_named
 
-__all__ = ["SCHEDULE_KEYS", "check_seed_csv", "csv_env_name"]
+__all__ = ["SCHEDULE_KEYS", "check_seed_csv", "check_seed_scores", "csv_env_name"]
 
 
 #: The schedule keys of a run's config.yaml: where and on how many episodes the distribution mean is measured.
@@ -52,6 +52,7 @@ def check_seed_csv(frame, path, config: dict) -> None:
     the schema (the header is :data:`COLUMNS`, in order), algo, env, mixing, popsize, at most the run's budget
     (generations, or DDPG's total_steps), and the distribution mean measured exactly where :data:`SCHEDULE_KEYS` say."""
     _check_config_types(config, path)
+    check_seed_scores(frame, path, config)
     header = frame.attrs.get("header", COLUMNS)
     if tuple(header) != COLUMNS:
         extra = [c for c in header if c not in COLUMNS]
@@ -75,6 +76,33 @@ def check_seed_csv(frame, path, config: dict) -> None:
         raise ResultMismatchError(f"{path}: has {spent} {unit}, its run's config has {trainer.budget_key}={budget}")
     if trainer.unit == "gen":  # an ES measures its distribution mean on a schedule; DDPG never does
         _check_schedule(frame, path, config)
+
+
+def check_seed_scores(frame, path, config: dict) -> None:
+    """ResultMismatchError (one line naming ``path``, the column, the value and the generation) unless every score of
+    the CSV is a return the run's env can give: the bounds a checkpoint's scores are checked against
+    (:func:`imix_cli.core.registry.env_return_bounds`: CartPole 0 to its episode cap, Acrobot minus the cap to 0;
+    members' returns moved by ARS's ``algo.alive_bonus_offset``), from ``config`` (config.yaml's ``env.name``,
+    ``env.id``, ``env.max_steps``). Before, a CartPole seed scoring 1e308 reached plot's iqm threshold and status
+    printed its 309 digits. (:func:`~imix_cli.running.files.results.read_run_csv` has refused infinities, a NaN
+    where a run writes a number, and a mean above the best.)"""
+    env_name = csv_env_name(config)
+    if env_name is None:
+        return
+    env_cfg = config.get("env") if isinstance(config.get("env"), dict) else {}
+    algo_cfg = config.get("algo") if isinstance(config.get("algo"), dict) else {}
+    cap = env_cfg.get("max_steps") if _is_count(env_cfg.get("max_steps")) else None
+    offset = algo_cfg.get("alive_bonus_offset", 0.0)
+    offset = float(offset) if isinstance(offset, (int, float)) and not isinstance(offset, bool) and np.isfinite(offset) else 0.0
+    for column, training in (("mean_score", True), ("best_score", True), ("mean_policy_score", False)):
+        low, high = env_return_bounds(env_name, cap, offset if training else 0.0)
+        values = frame[column].to_numpy(dtype=np.float64)
+        outside = (values < low - 1e-9 * max(1.0, abs(low))) | (values > high + 1e-9 * max(1.0, abs(high)))  # NaN: neither
+        if outside.any():
+            row = int(np.argmax(outside))
+            episodes = f", episodes of at most {cap} steps" if cap else ""
+            raise ResultMismatchError(f"{path}: {column}={values[row]:.6g} at generation {row} is not a return of {env_name} "
+                                      f"(from {low:g} to {high:g}{episodes})")  # fmt: skip
 
 
 #: The keys of a run's config.yaml that ``check_seed_csv`` compares, and what every run writes there (or null).
