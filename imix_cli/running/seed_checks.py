@@ -50,9 +50,10 @@ def check_seed_csv(frame, path, config: dict) -> None:
     or popsize into its summary as a finished seed ("reuse 100.0%"), and a run continued after a changed default
     (``eval_mean_every``) appended rows measured on another schedule. Run, plot, eval (and status) share this one check:
     the schema (the header is :data:`COLUMNS`, in order), algo, env, mixing, popsize, at most the run's budget
-    (generations, or DDPG's total_steps), and the distribution mean measured exactly where :data:`SCHEDULE_KEYS` say."""
+    (generations, or DDPG's total_steps), the distribution mean measured exactly where :data:`SCHEDULE_KEYS` say, and
+    every score a return the run's env can give (:func:`check_seed_scores`). A compared key of ``config`` holding a value
+    of a type no run writes is a mismatch naming config.yaml."""
     _check_config_types(config, path)
-    check_seed_scores(frame, path, config)
     header = frame.attrs.get("header", COLUMNS)
     if tuple(header) != COLUMNS:
         extra = [c for c in header if c not in COLUMNS]
@@ -76,6 +77,7 @@ def check_seed_csv(frame, path, config: dict) -> None:
         raise ResultMismatchError(f"{path}: has {spent} {unit}, its run's config has {trainer.budget_key}={budget}")
     if trainer.unit == "gen":  # an ES measures its distribution mean on a schedule; DDPG never does
         _check_schedule(frame, path, config)
+    check_seed_scores(frame, path, config)  # last: a CSV of another run is named as such first
 
 
 def check_seed_scores(frame, path, config: dict) -> None:
