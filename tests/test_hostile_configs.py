@@ -91,7 +91,7 @@ HOSTILE_FILES = {
         "levels deep once its aliases are expanded",
     ),
     "a recursive alias": (HEAD + "popsize: &a [*a]\n", "an alias inside its own anchor"),
-    "a huge file": (HEAD + "note: '" + "x" * (2 << 20) + "'\n", "bytes, more than the 1,048,576 a config may have"),
+    "a huge file": (HEAD + "note: '" + "x" * (2 << 20) + "'\n", "more than the 1,048,576 bytes a config may have"),
     "not YAML": (HEAD + "popsize: [1, 2\n", "not valid YAML (line"),
     "an undefined alias": (HEAD + "popsize: *nope\n", "found undefined alias"),
 }

@@ -297,10 +297,10 @@ def _own_sweep_folder(args: list[str]) -> list[str]:
 def _hydra_run() -> None:
     import hydra
 
-    from imix_cli.running.config.compose import bound_hydra_reads, config_dir
+    from imix_cli.running.config.compose import bounded_config_reads, config_dir
 
-    bound_hydra_reads()  # the run composes the files again: each read bounded, as validation read it
-    hydra.main(version_base="1.3", config_path=config_dir(), config_name="config")(_task)()
+    with bounded_config_reads():  # Hydra composes each point again: every file read bounded, as validation read it
+        hydra.main(version_base="1.3", config_path=config_dir(), config_name="config")(_task)()
 
 
 def _point_done(spec):

@@ -34,7 +34,7 @@ from imix_cli.running.config.ddpg import ddpg_spec
 from imix_cli.running.config.es_config import es_spec
 from imix_cli.running.config.keys import PAPER_DEFAULTS, POLICY_DEFAULTS, TOP_LEVEL_KEYS, did_you_mean
 from imix_cli.running.config.run_spec import DDPG_DEFAULTS, RunSpec, algo_option_fields, differing_keys
-from imix_cli.running.files.safe_yaml import BadYamlError, check_yaml_file
+from imix_cli.running.files.safe_yaml import MAX_YAML_BYTES, BadYamlError, check_yaml_file, check_yaml_text
 
 __all__ = [
     "BUILTIN_ENVS",
@@ -42,7 +42,7 @@ __all__ = [
     "PAPER_DEFAULTS",
     "ConfigError",
     "RunSpec",
-    "bound_hydra_reads",
+    "bounded_config_reads",
     "config_dir",
     "group_options",
     "point_key",
@@ -175,7 +175,6 @@ def validate_overrides(
     from hydra.core.override_parser.types import Glob
     from omegaconf import OmegaConf, open_dict
 
-    bound_hydra_reads()
     set_values = dict(values or {})
     # algo and env choose config files: a name of conf/algo or conf/env, composed like the command line's
     overrides = [*overrides, *(_group_choice(key, set_values.pop(key)) for key in ("algo", "env") if key in set_values)]
@@ -240,6 +239,7 @@ def validate_overrides(
                         started = True
                         GlobalHydra.instance().clear()
                         hydra_session.callback(GlobalHydra.instance().clear)
+                        hydra_session.enter_context(bounded_config_reads())  # every config file Hydra reads, checked first
                         hydra_session.enter_context(initialize_config_dir(config_dir=holder, version_base="1.3"))
                     full = compose(config_name, overrides=[*search, *base], return_hydra_config=True)
                     launcher = OmegaConf.select(full, "hydra.launcher._target_")
@@ -257,7 +257,7 @@ def validate_overrides(
                 plain = _resolved(cfg, with_hydra)
             except ConfigError:
                 raise
-            except BadYamlError as err:  # a config file refused by the bounded loader (bound_hydra_reads): it names the file
+            except BadYamlError as err:  # a config file refused by the bounded loader (bounded_config_reads): it names the file
                 raise ConfigError(str(err)) from None
             except Exception as err:
                 raise ConfigError(_explain_compose_error(err, point)) from None
@@ -268,32 +268,39 @@ def validate_overrides(
     return specs
 
 
-def bound_hydra_reads() -> None:
-    """Make every YAML file Hydra reads from a folder pass imix's bounded loader first
-    (:func:`imix_cli.running.files.safe_yaml.check_yaml_file`): the primary config, what its ``defaults`` pull from
-    conf/, a ``--config-dir``, ``--config-path`` or ``hydra.searchpath`` folder -- whichever file, at whichever depth,
-    Hydra reads it through ``FileConfigSource.load_config``, the one place every such read goes through. A file refused
-    (an alias bomb, nesting too deep, a Python tag, more than 1 MiB) raises
-    :class:`~imix_cli.running.files.safe_yaml.BadYamlError` naming it, before OmegaConf expands anything (a bomb of nine
-    anchors ran Hydra for minutes into gigabytes). Installed once per process; Hydra's own configs (``pkg://``) are
-    not a user's and are read as Hydra reads them."""
-    from hydra._internal.sources_registry import SourcesRegistry
-    from hydra.core.plugins import Plugins
+@contextlib.contextmanager
+def bounded_config_reads():
+    """While in this context, every YAML file Hydra reads passes imix's bounded loader first
+    (:mod:`imix_cli.running.files.safe_yaml`): the primary config, what its ``defaults`` pull from conf/, a
+    ``--config-dir`` or ``--config-path`` folder or a ``hydra.searchpath`` -- whichever file, at whichever depth, Hydra
+    hands it to ``OmegaConf.load`` (public API), the one place every config read goes through. A file refused (an alias
+    bomb, nesting too deep, a Python tag, more than 1 MiB) raises :class:`~imix_cli.running.files.safe_yaml.BadYamlError`
+    naming it, before OmegaConf expands anything (a bomb of nine anchors ran Hydra for minutes into gigabytes). At most
+    1 MiB + 1 byte of a file is read for the check. ``OmegaConf.load`` is itself again on leaving."""
+    from omegaconf import OmegaConf
 
-    Plugins.instance()  # Hydra's plugin scan (once per process) re-executes its modules: the class it registers is the one used
-    source = SourcesRegistry.instance().resolve("file")
-    original = source.load_config
-    if getattr(original, "imix_bounded", False):
-        return
+    original = OmegaConf.load
 
-    def load_config(self, config_path: str):
-        full_path = os.path.realpath(os.path.join(self.path, self._normalize_file_name(config_path)))
-        if os.path.exists(full_path):  # else Hydra's own "Config not found"
-            check_yaml_file(full_path)
-        return original(self, config_path)
+    def load(file_):
+        if isinstance(file_, (str, os.PathLike)):
+            check_yaml_file(file_)
+        elif getattr(file_, "read", None) is not None and getattr(file_, "seek", None) is not None:
+            name = getattr(file_, "name", None) or "a config file"
+            text = file_.read(MAX_YAML_BYTES + 1)
+            file_.seek(0)
+            if isinstance(text, bytes):
+                try:
+                    text = text.decode("utf-8")
+                except UnicodeDecodeError as err:
+                    raise BadYamlError(f"{name}: not UTF-8 text (byte {err.start})") from None
+            check_yaml_text(text, name)
+        return original(file_)
 
-    load_config.imix_bounded = True
-    source.load_config = load_config
+    OmegaConf.load = load
+    try:
+        yield
+    finally:
+        OmegaConf.load = original
 
 
 #: Hydra's compositions by (config name, folders, overrides other than plain values, working folder, the config files'

@@ -149,7 +149,7 @@ def check_yaml_text(text: str, where) -> None:
     """Raise :class:`BadYamlError` (one line starting with ``where``, the file's name) unless ``text`` is a YAML document
     within the bounds above; build nothing."""
     if len(text) > MAX_YAML_BYTES:
-        raise BadYamlError(f"{where}: {len(text):,} characters, more than the {MAX_YAML_BYTES:,} a config may have")
+        raise BadYamlError(f"{where}: more than the {MAX_YAML_BYTES:,} bytes a config may have")
     loader, _ = _compose(text, where)
     loader.dispose()
 
@@ -157,7 +157,7 @@ def check_yaml_text(text: str, where) -> None:
 def _text_of(path, limit: int) -> str:
     size = regular_file_size(path)
     if size > limit:
-        raise BadYamlError(f"{path}: {size:,} bytes, more than the {limit:,} a config may have")
+        raise BadYamlError(f"{path}: {size:,} bytes, more than the {limit:,} bytes a config may have")
     try:
         return Path(path).read_text(encoding="utf-8")
     except UnicodeDecodeError as err:
