@@ -10,6 +10,7 @@ levels, an alias inside its own anchor, a Python tag or more than 1 MiB are refu
 from __future__ import annotations
 
 import os
+import random
 import re
 import shutil
 import subprocess
@@ -315,3 +316,83 @@ def test_status_shows_a_partial_csvs_impossible_score_as_a_problem_not_309_digit
     assert main(["status", f"results_dir={root}"]) == 0
     out = capsys.readouterr().out
     assert "not a return of cartpole" in out and not re.search(r"\d{20}", out), out
+
+
+@pytest.mark.parametrize("line, says", [("algo: !!str 4", "algo='4': must be a config of the algo group"), ("algo: 4", "algo=4: must be"),
+                                        ("env: [1]", "env=[1]: must be a config of the env group")])  # fmt: skip
+def test_what_the_config_fuzzer_found_is_one_line(tmp_path, line, says):
+    """A value where a config group goes (``algo: '4'``) was an AttributeError ('str' object has no attribute 'get')."""
+    (tmp_path / "mycfg.yaml").write_text(HEAD + line + "\n")
+    assert says in refused(["results_dir=out"], config_name="mycfg", config_dirs=(config_dir(), str(tmp_path)))
+
+
+# ------------------------------------------------------------------ the fuzzer: 1,000 hostile --config-dir files
+TAGS = ["!!python/object/apply:os.system [x]", "!!python/name:os.system", "!!python/object:os.system {}", "!!binary aGk=", "!!set {a: null}",
+        "!!timestamp 2001-12-14", "!custom x", "!!omap [{a: 1}]", "!!str 4", "!!int '4'", "!!float 4"]  # fmt: skip
+
+
+def random_config(rng) -> tuple[str, dict]:
+    """A ``--config-dir``'s primary config (and maybe a group option its defaults pull): a valid head, then one hostile
+    part -- anchors and aliases of random fan-out and depth, a tag, deep nesting, a huge scalar, broken bytes."""
+    key = rng.choice(["popsize", "seeds", "sigma", "note", "algo"])
+    kind = rng.choice(["aliases", "aliases", "tag", "nesting", "scalar", "broken", "merge"])
+    if kind == "aliases":
+        fan, levels = rng.randint(1, 12), rng.randint(1, 10)
+        body = "lols:\n  - &l0 [" + ", ".join(["x"] * fan) + "]\n"
+        body += "".join(f"  - &l{k} [" + ", ".join([f"*l{k - 1}"] * fan) + "]\n" for k in range(1, levels))
+        part = body + f"{key}: *l{levels - 1}\n"
+    elif kind == "merge":
+        part = "base: &b {popsize: 4, sigma: 0.1}\n" + f"{key}:\n  <<: *b\n"
+    elif kind == "tag":
+        part = f"{key}: {rng.choice(TAGS)}\n"
+    elif kind == "nesting":
+        n = rng.choice([1, 10, 63, 64, 65, 200, 5000])
+        part = f"{key}: " + rng.choice(["[" * n + "1" + "]" * n, "{a: " * n + "1" + "}" * n, "[" * n]) + "\n"
+    elif kind == "scalar":
+        part = f"{key}: '" + "x" * rng.choice([10, 1000, 100_000, 1_100_000]) + "'\n"
+    else:
+        part = f"{key}: [1, 2\n" if rng.random() < 0.5 else f"{key}: " + "".join(rng.choice("\x00\x07\t\n:-[]{}&*!|>'\"%@`#,? aé漢") for _ in range(40)) + "\n"
+    if rng.random() < 0.3:  # the hostile part in a group option the defaults pull
+        option = "name: snes\n" + part.replace(f"{key}:", "generations:")
+        return HEAD.replace("  - _self_", "  - override algo: hostile\n  - _self_"), {"algo/hostile.yaml": option}
+    return HEAD + part, {}
+
+
+@pytest.mark.slow
+def test_fuzz_config_dir_files(tmp_path):
+    """1,000 random hostile ``--config-dir`` files through validation (in-process, each under a 20 s alarm): accepted, or
+    refused with one line of < 1,000 characters -- never another exception, never a hang."""
+    import signal
+
+    def alarm(signum, frame):
+        raise TimeoutError
+
+    rng = random.Random(20261129)
+    previous = signal.signal(signal.SIGALRM, alarm)
+    tally = {"accepted": 0, "refused": 0}
+    try:
+        for k in range(1000):
+            folder = tmp_path / f"case{k}"
+            (folder / "algo").mkdir(parents=True)
+            primary, others = random_config(rng)
+            (folder / "mycfg.yaml").write_text(primary)
+            for name, text in others.items():
+                (folder / name).write_text(text)
+            signal.alarm(20)
+            try:
+                validate_overrides(["results_dir=out"], config_name="mycfg", config_dirs=(config_dir(), str(folder)))
+                tally["accepted"] += 1
+            except ConfigError as err:
+                assert "\n" not in str(err) and len(str(err)) < 1000, f"case {k}: {str(err)[:3000]!r}"
+                tally["refused"] += 1
+            except TimeoutError:
+                pytest.fail(f"case {k}: validation hangs on {primary[:300]!r} {str(others)[:300]}")
+            except Exception as err:  # noqa: BLE001 - a traceback a user would see
+                pytest.fail(f"case {k}: {type(err).__name__}: {str(err)[:300]} on {primary[:300]!r} {str(others)[:300]}")
+            finally:
+                signal.alarm(0)
+            shutil.rmtree(folder)
+    finally:
+        signal.signal(signal.SIGALRM, previous)
+    print(tally)
+    assert tally["accepted"] > 20 and tally["refused"] > 500

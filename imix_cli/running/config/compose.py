@@ -61,6 +61,9 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     if unknown:
         raise ConfigError(f"unknown key {shown_value(unknown[0])}{did_you_mean(unknown[0], all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
     algo_cfg, env_cfg = cfg.get("algo") or {}, cfg.get("env") or {}
+    for group, given in (("algo", algo_cfg), ("env", env_cfg)):  # a YAML's `algo: 4`: a value where a config group goes
+        if not isinstance(given, dict):
+            raise ConfigError(f"{group}={shown_value(given)}: must be a config of the {group} group (one of {', '.join(group_options(group))})")
     algo = as_choice(algo_cfg.get("name"), "algo", ALGO_NAMES)
     _refuse_unknown_nested_keys(algo, algo_cfg, env_cfg)
     build = es_spec if ALGORITHM_SPECS[algo].is_es else ddpg_spec
