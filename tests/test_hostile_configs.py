@@ -319,7 +319,7 @@ def test_status_shows_a_partial_csvs_impossible_score_as_a_problem_not_309_digit
 
 
 @pytest.mark.parametrize("line, says", [("algo: !!str 4", "algo='4': must be a config of the algo group"), ("algo: 4", "algo=4: must be"),
-                                        ("env: [1]", "env=[1]: must be a config of the env group")])  # fmt: skip
+                                        ("env: 3", "env=3: must be a config of the env group")])  # fmt: skip
 def test_what_the_config_fuzzer_found_is_one_line(tmp_path, line, says):
     """A value where a config group goes (``algo: '4'``) was an AttributeError ('str' object has no attribute 'get')."""
     (tmp_path / "mycfg.yaml").write_text(HEAD + line + "\n")
