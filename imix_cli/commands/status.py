@@ -216,7 +216,9 @@ def format_status(experiment: str, statuses: list) -> str:
         if s["stopped"]:
             lines.append(f"  {'':<{width}}   stopped seeds: {_seed_list(s['stopped'])} (re-run the same command to resume them)")
         for name, reason in s.get("corrupt", {}).items():
-            lines.append(f"  {'':<{width}}   corrupt: {name} ({reason}); imix run refuses it: move it away")
+            # imix run refuses a finished seed's CSV; a stopped seed's partial one it writes anew from the seed's checkpoint
+            what = "its rows are left out here (imix run writes it anew)" if name.endswith(".partial.csv") else "imix run refuses it: move it away"
+            lines.append(f"  {'':<{width}}   corrupt: {name} ({reason}); {what}")
     return "\n".join(lines)
 
 
