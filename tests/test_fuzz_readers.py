@@ -363,6 +363,62 @@ def test_fuzz_seed_csv_reader(run):
     assert tally["refused"] > 0.3 * MUTATIONS
 
 
+SCORE_CELLS = ["1e308", "-1e308", "inf", "-inf", "+inf", "nan", "NaN", "", "1e400", "-1e400", "201", "200", "200.0000001", "-1", "-0.0", "0", "150.5",
+               "1e-320", "x", "True", "0x10", "1_000", "'5'"]  # fmt: skip
+SCORE_COLUMNS = ("mean_score", "best_score", "mean_policy_score")
+
+
+@pytest.mark.slow
+def test_fuzz_seed_csv_values(run):
+    """1,000 CSVs with score cells of values that cannot be (±inf, NaN, 1e308, 201 on CartPole, words; one to three cells
+    of the score columns), 1,000 accidents besides, through what every reader runs (``read_run_csv``, then
+    ``check_seed_csv`` against the run's config.yaml): refused in one line, or every score a CartPole return -- finite
+    in [0, 200] or NaN (the population's exactly where every member's return was non-finite), the mean at most the best."""
+    import yaml
+
+    from imix_cli.running.seed_checks import check_seed_csv
+
+    root, _, _ = run
+    (run_dir,) = (root / "default").iterdir()
+    path = run_dir / "seed_0.csv"
+    original = path.read_bytes()
+    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    want = read_run_csv(path)
+
+    def read(target):
+        frame = read_run_csv(target)
+        check_seed_csv(frame, target, config)
+        return frame
+
+    def accepted_ok(frame):
+        if frame.equals(want):
+            return "identical"
+        mean, best, theta = (frame[c].to_numpy(dtype=float) for c in SCORE_COLUMNS)
+        none_finite = frame["nonfinite"].to_numpy() == frame["popsize"].to_numpy()
+        assert np.array_equal(np.isnan(mean), none_finite) and np.array_equal(np.isnan(best), none_finite)
+        for values in (mean, best, theta):
+            measured = values[~np.isnan(values)]
+            assert np.all((measured >= 0) & (measured <= 200)), values
+        assert np.all(mean[~none_finite] <= best[~none_finite] + 1e-9 * np.maximum(1, np.abs(best[~none_finite])))
+        return "valid"
+
+    def forge(data, rng):
+        lines = data.decode().split("\n")
+        header = lines[0].split(",")
+        what = []
+        for _ in range(rng.randint(1, 3)):
+            row = rng.randrange(1, len(lines) - 1)
+            cells = lines[row].split(",")
+            column = rng.choice(SCORE_COLUMNS)
+            cells[header.index(column)] = rng.choice(SCORE_CELLS)
+            lines[row] = ",".join(cells)
+            what.append(f"row {row} {column} -> {cells[header.index(column)]!r}")
+        return "\n".join(lines).encode(), "; ".join(what)
+
+    tally = fuzz(original, path, read, accepted_ok, (CorruptResultError,), random.Random(47), forge, count=2 * MUTATIONS)
+    assert tally["refused"] > 0.5 * MUTATIONS
+
+
 # ------------------------------------------------------------------------------- config.yaml
 @pytest.mark.slow
 def test_fuzz_config_yaml_reader(run, tmp_path):

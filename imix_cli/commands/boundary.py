@@ -33,7 +33,7 @@ import signal
 import sys
 import traceback
 
-from imix_cli.messages import EXIT_MISSING_EXTRA, MissingExtraError
+from imix_cli.messages import EXIT_MISSING_EXTRA, MissingExtraError, bounded_line
 
 EXIT_FAILED = 1
 EXIT_INTERRUPTED = 130
@@ -109,7 +109,7 @@ def report(command: str, err: BaseException) -> int:
 
 def _say(line: str, status: int) -> int:
     try:
-        print(line, file=sys.stderr, flush=True)
+        print(bounded_line(line), file=sys.stderr, flush=True)
     except OSError:
         pass  # stderr gone too: the status still tells
     return status

@@ -15,6 +15,7 @@ import sys
 from concurrent.futures.process import BrokenProcessPool
 
 from imix_cli.commands.boundary import Terminated, guard, report, take_debug_flag  # Terminated: SIGTERM as a Ctrl-C
+from imix_cli.messages import bounded_line
 
 USAGE = """\
 usage: imix <command> [arguments]
@@ -136,7 +137,7 @@ _POINTS_DONE = 0  # points of this process's sweep run so far (their one-line re
 
 
 def _error(message: str, code: int) -> int:
-    print(f"imix run: error: {message}", file=sys.stderr)
+    print(bounded_line(f"imix run: error: {message}"), file=sys.stderr)
     return code
 
 
@@ -297,9 +298,10 @@ def _own_sweep_folder(args: list[str]) -> list[str]:
 def _hydra_run() -> None:
     import hydra
 
-    from imix_cli.running.config.compose import config_dir
+    from imix_cli.running.config.compose import bounded_config_reads, config_dir
 
-    hydra.main(version_base="1.3", config_path=config_dir(), config_name="config")(_task)()
+    with bounded_config_reads():  # Hydra composes each point again: every file read bounded, as validation read it
+        hydra.main(version_base="1.3", config_path=config_dir(), config_name="config")(_task)()
 
 
 def _point_done(spec):

@@ -150,11 +150,11 @@ def _config_max_steps(run_dir) -> int | None:
         return None
     path = Path(run_dir) / "config.yaml"
     try:
-        if not path.is_file() or path.stat().st_size > 1 << 20:
+        if not path.is_file():
             return None
-        import yaml
+        from imix_cli.running.files.safe_yaml import load_yaml_file
 
-        value = (yaml.safe_load(path.read_text()) or {}).get("env", {}).get("max_steps")
+        value = (load_yaml_file(path) or {}).get("env", {}).get("max_steps")  # bounded: size, nesting, aliases, tags
     except Exception:  # an unreadable config.yaml: fall back to the env's own cap
         return None
     return value if isinstance(value, int) and not isinstance(value, bool) and value >= 1 else None

@@ -46,7 +46,8 @@ from imix_cli.commands.eval_command import run_folders
 from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key_values
 from imix_cli.running.files.results import MAX_CONFIG_BYTES, ResultMismatchError, read_small_text, regular_file_size
 from imix_cli.running.files.run_lock import lock_holder
-from imix_cli.running.seed_checks import check_seed_csv
+from imix_cli.running.files.safe_yaml import load_yaml_file
+from imix_cli.running.seed_checks import check_seed_csv, check_seed_scores
 from imix_cli.running.trainers import trainer_named
 
 HELP = """\
@@ -114,10 +115,8 @@ def _has_checkpoint(run_dir: Path, seed: int) -> bool:
 
 def run_status(run_dir: Path) -> dict:
     """Status of one run folder (see the module docstring); ``generations``: seed -> its last generation on disk."""
-    import yaml
-
     try:
-        config = yaml.safe_load(read_small_text(run_dir / "config.yaml")) or {}
+        config = load_yaml_file(run_dir / "config.yaml") or {}  # bounded (safe_yaml); a refused one is as a missing one
     except Exception:  # noqa: BLE001 - missing or being written: fall back on the files found
         config = {}
     config = config if isinstance(config, dict) else {}
@@ -141,6 +140,12 @@ def run_status(run_dir: Path) -> dict:
         if final is None and f"seed_{seed}.csv" not in corrupt and (run_dir / f"seed_{seed}.csv").exists():
             final = _read_rows(run_dir / f"seed_{seed}.csv", corrupt)  # replaced between listing and reading: once more
         partial = _read_rows(run_dir / f"seed_{seed}.partial.csv", corrupt)
+        if partial is not None and config:
+            try:  # a stopped seed's rows are read by status alone: their scores checked as a finished seed's
+                check_seed_scores(partial, run_dir / f"seed_{seed}.partial.csv", config)
+            except ResultMismatchError as err:
+                corrupt[f"seed_{seed}.partial.csv"] = str(err).replace(f"{run_dir / f'seed_{seed}.partial.csv'}: ", "", 1)
+                partial = None
         if final is not None and config:
             try:  # a CSV that contradicts its run's config is one imix run refuses: not done (the readers' one check)
                 check_seed_csv(final, run_dir / f"seed_{seed}.csv", config)
@@ -185,6 +190,13 @@ def run_status(run_dir: Path) -> dict:
     }  # fmt: skip
 
 
+def _score(value) -> str:
+    """A score as the table prints it: two decimals, or three significant digits when large (never hundreds of digits)."""
+    if value is None:
+        return "-"
+    return f"{value:.2f}" if abs(value) < 1e7 else f"{value:.3g}"
+
+
 def _seed_list(seeds: list) -> str:
     if not seeds:
         return "-"
@@ -203,8 +215,7 @@ def format_status(experiment: str, statuses: list) -> str:
     for s in statuses:
         low, high = s.get("first_generation"), s["last_generation"]
         last = "-" if high is None else (f"{high}" if low in (None, high) else f"{low}-{high}") + (f"/{s['target']}" if s["target"] else "")
-        best = "-" if s["best_score"] is None else f"{s['best_score']:.2f}"
-        current = "-" if s["current_score"] is None else f"{s['current_score']:.2f}"
+        best, current = _score(s["best_score"]), _score(s["current_score"])
         counts = f"{len(s['done']):>5} {len(s['running']):>8} {len(s['stopped']):>8} {len(s['not_started']):>12}"
         lines.append(f"  {s['run']:<{width}} {counts} {last:>14} {best:>9} {current:>9}")
         if s["running"]:
@@ -212,7 +223,9 @@ def format_status(experiment: str, statuses: list) -> str:
         if s["stopped"]:
             lines.append(f"  {'':<{width}}   stopped seeds: {_seed_list(s['stopped'])} (re-run the same command to resume them)")
         for name, reason in s.get("corrupt", {}).items():
-            lines.append(f"  {'':<{width}}   corrupt: {name} ({reason}); imix run refuses it: move it away")
+            # imix run refuses a finished seed's CSV; a stopped seed's partial one it writes anew from the seed's checkpoint
+            what = "its rows are left out here (imix run writes it anew)" if name.endswith(".partial.csv") else "imix run refuses it: move it away"
+            lines.append(f"  {'':<{width}}   corrupt: {name} ({reason}); {what}")
     return "\n".join(lines)
 
 

@@ -29,6 +29,7 @@ The paper's hyper-parameters shared by every ES are the defaults of
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -233,6 +234,18 @@ CONTINUOUS_BUILTIN_ENVS = tuple(name for name in BUILTIN_ENVS if ENV_SPECS[name]
 MAIN_GRID_ENVS = ("cartpole", "acrobot")
 #: The MuJoCo configs: config name -> gymnasium id.
 MUJOCO_ENVS = {name: spec.gym_id for name, spec in ENV_SPECS.items() if spec.mujoco}
+
+
+def env_return_bounds(env_name: str, max_steps: int | None = None, alive_bonus_offset: float = 0.0) -> tuple[float, float]:
+    """The returns an episode of ``env_name`` (a config name, or a gymnasium id) can have: a built-in's episode cap
+    (``max_steps``, else its own) times its step rewards, each step's reward moved by ``alive_bonus_offset`` (ARS's
+    training returns; 0 for the env's own return); ``(-inf, inf)`` for an env whose rewards imix does not know.
+    The one source of the bounds a checkpoint's and a seed CSV's scores are checked against."""
+    env = ENV_SPECS.get(env_name)
+    cap = max_steps or (env.max_steps if env else None)
+    if env is None or env.step_reward is None or cap is None:
+        return -math.inf, math.inf
+    return (env.step_reward[0] + min(alive_bonus_offset, 0.0)) * cap, (env.step_reward[1] + max(alive_bonus_offset, 0.0)) * cap
 
 
 def env_label(name: str) -> str:

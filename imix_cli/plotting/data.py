@@ -66,7 +66,8 @@ import pandas as pd
 
 from imix_cli.core.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
 from imix_cli.core.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
-from imix_cli.running.files.results import CorruptResultError, ResultMismatchError, read_run_csv, read_small_text, run_dir_name, seed_csv_path
+from imix_cli.running.files.results import CorruptResultError, ResultMismatchError, read_run_csv, run_dir_name, seed_csv_path
+from imix_cli.running.files.safe_yaml import BadYamlError, load_yaml_file
 from imix_cli.running.seed_checks import check_seed_csv
 
 __all__ = [
@@ -194,14 +195,16 @@ def parse_overrides(text: str) -> dict:
 
 def read_run_config(path: Path, warn, fallback: str = "hyper-parameters taken from the folder name") -> dict:
     """A run's ``config.yaml`` as a dict: ``{}`` if it is absent, or unreadable (``warn`` then says so
-    and what the caller does instead, ``fallback``). Read bounded and with ``yaml.safe_load``: data only."""
+    and what the caller does instead, ``fallback``). Read through imix's one bounded YAML loader
+    (:func:`imix_cli.running.files.safe_yaml.load_yaml_file`): data only, size, nesting and expanded aliases bounded."""
     if not path.exists():
         return {}
     try:
-        import yaml
-
-        data = yaml.safe_load(read_small_text(path))  # a huge file (or /dev/zero) is not read
-    except Exception as err:  # noqa: BLE001 - any parse error: keep going without the config
+        data = load_yaml_file(path)  # a huge file (or /dev/zero), an alias bomb, a Python tag: refused unbuilt
+    except BadYamlError as err:  # names the file and why, in a bounded line
+        warn(f"{err}; {fallback}")
+        return {}
+    except Exception as err:  # noqa: BLE001 - any other error: keep going without the config
         warn(f"{path}: unreadable config.yaml ({type(err).__name__}); {fallback}")
         return {}
     return data if isinstance(data, dict) else {}

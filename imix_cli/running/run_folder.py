@@ -13,13 +13,13 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import reprlib
 import stat
 
-from imix_cli.messages import MissingExtraError, RunError
+from imix_cli.messages import MissingExtraError, RunError, shown_value
 from imix_cli.running.config.run_spec import differing_keys, identity_of, resume_identity
-from imix_cli.running.files.results import CorruptResultError, partial_csv_path, read_run_csv, read_small_text, seed_csv_path
+from imix_cli.running.files.results import CorruptResultError, partial_csv_path, read_run_csv, seed_csv_path
 from imix_cli.running.files.run_lock import LOCK_NAME
+from imix_cli.running.files.safe_yaml import BadYamlError, load_yaml_file
 from imix_cli.running.files.writing import atomic_write_text
 from imix_cli.running.seed_checks import SCHEDULE_KEYS, check_seed_csv
 from imix_cli.running.trainers import trainer_for
@@ -34,8 +34,6 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
     symbolic link, if the folder holds results of a different config, a corrupt CSV, or a seed finished
     beyond ``generations`` (a run is never shortened below what a seed finished).
     """
-    import yaml
-
     trainer = trainer_for(spec)
     missing = trainer.missing_extra()
     if missing:  # before anything is made: a run that cannot start leaves no folder for status to list
@@ -46,7 +44,9 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
     old = recorded = None
     if config_file.exists():
         try:
-            old = yaml.safe_load(read_small_text(config_file))  # bounded: a config is a few kB
+            old = load_yaml_file(config_file)  # bounded: size, nesting, aliases expanded, tags (safe_yaml)
+        except BadYamlError as err:
+            raise RunError(f"{err}; move it away or choose another experiment=") from None
         except OSError as err:
             raise RunError(f"{config_file}: unreadable ({err.strerror or err}); move it away or choose another experiment=") from None
         except Exception as err:
@@ -57,8 +57,8 @@ def check_run_dir(spec) -> tuple[list[int], bool]:
         old, new = identity_of(old), spec.identity()
         differing = differing_keys(resume_identity(old), resume_identity(new))
         if differing:
-            # reprlib: a value read from the file is shown shortened (a YAML alias bomb must not expand here)
-            changes = ", ".join(f"{k}={reprlib.repr(old.get(k))} there, {new.get(k)!r} now" for k in differing[:8])
+            # a value read from the file is shown shortened (shown_value: at most 200 characters, never expanded whole)
+            changes = ", ".join(f"{k}={shown_value(old.get(k))} there, {shown_value(new.get(k))} now" for k in differing[:8])
             raise RunError(f"{config_file} holds a different config ({changes}); choose another experiment= or move that folder away")
     # The config the run's CSVs must agree with (check_seed_csv): this command's -- config.yaml's in every identity key,
     # checked above -- with the schedule of the distribution mean's measurements config.yaml records, which its seeds followed.

@@ -8,14 +8,17 @@ every reader's handling of a corrupt CSV applies to it.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from imix_cli.core.env_ids import plain_env_id
-from imix_cli.core.registry import BUILTIN_ENVS
+from imix_cli.core.registry import BUILTIN_ENVS, env_return_bounds
+from imix_cli.messages import shown_value
 from imix_cli.running.files.results import COLUMNS, ResultMismatchError
 from imix_cli.running.trainers import trainer_named
 
-__all__ = ["SCHEDULE_KEYS", "check_seed_csv", "csv_env_name"]
+__all__ = ["SCHEDULE_KEYS", "check_seed_csv", "check_seed_scores", "csv_env_name"]
 
 
 #: The schedule keys of a run's config.yaml: where and on how many episodes the distribution mean is measured.
@@ -38,15 +41,19 @@ def check_seed_csv(frame, path, config: dict) -> None:
     config of its run.
 
     ``frame``: the CSV as :func:`read_run_csv` returned it (the contract already holds); ``config``: the run's
-    config.yaml mapping (``imix run`` passes its own config, schedule keys from config.yaml). A key ``config`` lacks,
-    or holds in a form no run writes, is not compared: a config.yaml of an older imix still lets its CSVs be read.
+    config.yaml mapping (``imix run`` passes its own config, schedule keys from config.yaml). A key ``config`` lacks (or
+    holds null) is not compared: a config.yaml of an older imix still lets its CSVs be read; one it holds as a value of
+    a type no run writes (``popsize: [1, 2]``) is a mismatch naming config.yaml.
 
     Why: a CSV is a file like any other -- copied from another run, left by an older version, edited -- and every
     reader took one that follows the contract as a seed of the run it sits in: ``imix run`` summed a CSV of another env
     or popsize into its summary as a finished seed ("reuse 100.0%"), and a run continued after a changed default
     (``eval_mean_every``) appended rows measured on another schedule. Run, plot, eval (and status) share this one check:
     the schema (the header is :data:`COLUMNS`, in order), algo, env, mixing, popsize, at most the run's budget
-    (generations, or DDPG's total_steps), and the distribution mean measured exactly where :data:`SCHEDULE_KEYS` say."""
+    (generations, or DDPG's total_steps), the distribution mean measured exactly where :data:`SCHEDULE_KEYS` say, and
+    every score a return the run's env can give (:func:`check_seed_scores`). A compared key of ``config`` holding a value
+    of a type no run writes is a mismatch naming config.yaml."""
+    _check_config_types(config, path)
     header = frame.attrs.get("header", COLUMNS)
     if tuple(header) != COLUMNS:
         extra = [c for c in header if c not in COLUMNS]
@@ -70,6 +77,62 @@ def check_seed_csv(frame, path, config: dict) -> None:
         raise ResultMismatchError(f"{path}: has {spent} {unit}, its run's config has {trainer.budget_key}={budget}")
     if trainer.unit == "gen":  # an ES measures its distribution mean on a schedule; DDPG never does
         _check_schedule(frame, path, config)
+    check_seed_scores(frame, path, config)  # last: a CSV of another run is named as such first
+
+
+def check_seed_scores(frame, path, config: dict) -> None:
+    """ResultMismatchError (one line naming ``path``, the column, the value and the generation) unless every score of
+    the CSV is a return the run's env can give: the bounds a checkpoint's scores are checked against
+    (:func:`imix_cli.core.registry.env_return_bounds`: CartPole 0 to its episode cap, Acrobot minus the cap to 0;
+    members' returns moved by ARS's ``algo.alive_bonus_offset``), from ``config`` (config.yaml's ``env.name``,
+    ``env.id``, ``env.max_steps``). Before, a CartPole seed scoring 1e308 reached plot's iqm threshold and status
+    printed its 309 digits. (:func:`~imix_cli.running.files.results.read_run_csv` has refused infinities, a NaN
+    where a run writes a number, and a mean above the best.)"""
+    env_name = csv_env_name(config)
+    if env_name is None:
+        return
+    env_cfg = config.get("env") if isinstance(config.get("env"), dict) else {}
+    algo_cfg = config.get("algo") if isinstance(config.get("algo"), dict) else {}
+    cap = env_cfg.get("max_steps") if _is_count(env_cfg.get("max_steps")) else None
+    offset = algo_cfg.get("alive_bonus_offset", 0.0)
+    offset = float(offset) if isinstance(offset, (int, float)) and not isinstance(offset, bool) and np.isfinite(offset) else 0.0
+    for column, training in (("mean_score", True), ("best_score", True), ("mean_policy_score", False)):
+        low, high = env_return_bounds(env_name, cap, offset if training else 0.0)
+        values = frame[column].to_numpy(dtype=np.float64)
+        outside = (values < low - 1e-9) | (values > high + 1e-9)  # NaN: neither; the checkpoint check's tolerance
+        if outside.any():
+            row = int(np.argmax(outside))
+            episodes = f", episodes of at most {cap} steps" if cap else ""
+            raise ResultMismatchError(f"{path}: {column}={values[row]:.6g} at generation {row} is not a return of {env_name} "
+                                      f"(from {low:g} to {high:g}{episodes})")  # fmt: skip
+
+
+#: The keys of a run's config.yaml that ``check_seed_csv`` compares, and what every run writes there (or null).
+_COUNT_KEYS = ("popsize", "generations", "total_steps", *SCHEDULE_KEYS)
+_NAME_KEYS = (("mixing",), ("algo", "name"), ("env", "name"), ("env", "id"))
+
+
+def _check_config_types(config: dict, path) -> None:
+    """ResultMismatchError naming the run's config.yaml if a key the check compares holds a value of a type no run
+    writes (``popsize: [1, 2]``, ``generations: '2'``, ``mixing: 3``): such a config is not the run's, and comparing
+    nothing with it let plot and eval use the CSVs without a word (``popsize: 7`` was caught, ``[1, 2]`` was not)."""
+    config_file = Path(path).parent / "config.yaml"
+    for key in _COUNT_KEYS:
+        value = config.get(key)
+        if value is not None and not _is_count(value):
+            raise ResultMismatchError(f"{config_file}: {key}={shown_value(value)} is not an integer >= 0, as every run writes it; "
+                                      f"{Path(path).name} is not read against it (fix or move that config.yaml)")  # fmt: skip
+    for keys in _NAME_KEYS:
+        value = config
+        for key in keys:
+            value = value.get(key) if isinstance(value, dict) else None
+        if value is not None and not isinstance(value, str):
+            raise ResultMismatchError(f"{config_file}: {'.'.join(keys)}={shown_value(value)} is not a name, as every run writes it; "
+                                      f"{Path(path).name} is not read against it (fix or move that config.yaml)")  # fmt: skip
+    for group in ("algo", "env"):
+        if config.get(group) is not None and not isinstance(config.get(group), dict):
+            raise ResultMismatchError(f"{config_file}: {group}={shown_value(config.get(group))} is not a mapping, as every run writes it; "
+                                      f"{Path(path).name} is not read against it (fix or move that config.yaml)")  # fmt: skip
 
 
 def _is_count(value) -> bool:

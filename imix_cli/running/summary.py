@@ -8,7 +8,8 @@ import numpy as np
 
 from imix_cli.core.stats import mean_ci
 from imix_cli.running.config.run_spec import identity_of
-from imix_cli.running.files.results import CorruptResultError, read_run_csv, read_small_text, seed_csv_path, seed_summary
+from imix_cli.running.files.results import CorruptResultError, read_run_csv, seed_csv_path, seed_summary
+from imix_cli.running.files.safe_yaml import load_yaml_file
 from imix_cli.running.trainers import trainer_for
 
 #: Config keys that only say how (and whether) mixing is done: runs that differ in these alone are
@@ -67,7 +68,6 @@ def summarize(spec, run_dir: Path | None = None, known: dict | None = None) -> d
 def counterpart_runs(spec) -> list[Path]:
     """Sibling run folders of the same experiment holding the same config with other mixing settings
     (and at least one finished seed), e.g. the ``-none`` run of an ``-eim`` run."""
-    import yaml
 
     mine = {k: v for k, v in spec.identity().items() if k not in MIXING_KEYS}
     found = []
@@ -75,7 +75,7 @@ def counterpart_runs(spec) -> list[Path]:
         if other == spec.run_dir or not (other / "config.yaml").is_file() or not any(other.glob("seed_*[0-9].csv")):
             continue
         try:
-            config = yaml.safe_load(read_small_text(other / "config.yaml"))  # bounded memory
+            config = load_yaml_file(other / "config.yaml")  # bounded: size, nesting, aliases expanded, tags
         except Exception:  # an unreadable sibling is simply not compared
             continue
         if isinstance(config, dict) and {k: v for k, v in identity_of(config).items() if k not in MIXING_KEYS} == mine:

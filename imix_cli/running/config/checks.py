@@ -13,6 +13,7 @@ import os
 
 from imix_cli.core.processes import default_workers
 from imix_cli.core.registry import BUILTIN_ENVS
+from imix_cli.messages import shown_value
 
 
 class ConfigError(ValueError):
@@ -45,9 +46,9 @@ def as_int(cfg: dict, key: str, minimum: int, label: str | None = None) -> int:
     value = cfg.get(key)
     label = label or key
     if not is_number(value) or (isinstance(value, float) and not value.is_integer()):
-        raise ConfigError(f"{label}={value!r}: must be an integer >= {minimum}")
+        raise ConfigError(f"{label}={shown_value(value)}: must be an integer >= {minimum}")
     if value < minimum:
-        raise ConfigError(f"{label}={value!r}: must be >= {minimum}")
+        raise ConfigError(f"{label}={shown_value(value)}: must be >= {minimum}")
     return int(value)
 
 
@@ -55,11 +56,11 @@ def as_float(cfg: dict, key: str, low: float, low_inclusive: bool, high: float =
     value = cfg.get(key)
     rule = f"{'>=' if low_inclusive else '>'} {low}" + ("" if high == math.inf else f" and {'<=' if high_inclusive else '<'} {high}")
     if not is_number(value) or not math.isfinite(value):
-        raise ConfigError(f"{key}={value!r}: must be a number {rule}")
+        raise ConfigError(f"{key}={shown_value(value)}: must be a number {rule}")
     ok_low = value >= low if low_inclusive else value > low
     ok_high = value <= high if high_inclusive else value < high
     if not (ok_low and ok_high):
-        raise ConfigError(f"{key}={value!r}: must be {rule}")
+        raise ConfigError(f"{key}={shown_value(value)}: must be {rule}")
     return float(value)
 
 
@@ -69,7 +70,7 @@ def as_bounded(cfg: dict, key: str, bound):
     if bound.integer:
         value = as_int(cfg, key, bound.low)
         if not bound.contains(value):
-            raise ConfigError(f"{key}={value!r}: must be {bound.rule()}")
+            raise ConfigError(f"{key}={shown_value(value)}: must be {bound.rule()}")
         return value
     return as_float(cfg, key, bound.low, bound.low_inclusive, bound.high, bound.high_inclusive)
 
@@ -77,20 +78,20 @@ def as_bounded(cfg: dict, key: str, bound):
 def as_bool(cfg: dict, key: str) -> bool:
     value = cfg.get(key)
     if not isinstance(value, bool):
-        raise ConfigError(f"{key}={value!r}: must be true or false")
+        raise ConfigError(f"{key}={shown_value(value)}: must be true or false")
     return value
 
 
 def as_choice(value, key: str, choices) -> str:
     if value not in choices:
-        raise ConfigError(f"{key}={value!r}: valid choices are {', '.join(choices)}")
+        raise ConfigError(f"{key}={shown_value(value)}: valid choices are {', '.join(choices)}")
     return value
 
 
 def as_name(cfg: dict, key: str) -> str:
     value = cfg.get(key)
     if not isinstance(value, str) or not value.strip():
-        raise ConfigError(f"{key}={value!r}: must be a non-empty name")
+        raise ConfigError(f"{key}={shown_value(value)}: must be a non-empty name")
     return value
 
 
@@ -126,10 +127,10 @@ def experiment_of(cfg: dict, key: str = "experiment") -> str:
     """``experiment``: a plain folder name the other commands can name too."""
     experiment = as_name(cfg, key)
     if "/" in experiment or "\\" in experiment or experiment in (".", ".."):
-        raise ConfigError(f"experiment={experiment!r}: must be a plain folder name (no path separators)")
+        raise ConfigError(f"experiment={shown_value(experiment)}: must be a plain folder name (no path separators)")
     printable = "".join(c for c in experiment if c.isprintable())
     if experiment != printable.strip():  # `imix plot experiment= x` and the other commands strip a value: they could not name this folder
-        raise ConfigError(f"experiment={experiment!r}: must be a plain folder name without leading or trailing spaces or control characters "
+        raise ConfigError(f"experiment={shown_value(experiment)}: must be a plain folder name without leading or trailing spaces or control characters "
                           f"(the other commands could not name it), e.g. experiment={printable.strip() or 'default'}")  # fmt: skip
     return experiment
 
@@ -181,12 +182,12 @@ def gym_env_bytes(env_id: str) -> int:
 def env_of(env_cfg: dict):
     name, env_id = env_cfg.get("name"), env_cfg.get("id")
     if name is not None and not isinstance(name, str):  # env.name=[a] from the command line: a name, never a list or a number
-        raise ConfigError(f"env.name={name!r}: must be the name of an env config ({', '.join(BUILTIN_ENVS)}, gym, ...)")
+        raise ConfigError(f"env.name={shown_value(name)}: must be the name of an env config ({', '.join(BUILTIN_ENVS)}, gym, ...)")
     max_steps = env_cfg.get("max_steps")
     if max_steps is not None:
         max_steps = as_int(env_cfg, "max_steps", 1, label="env.max_steps")
     if not isinstance(env_id, str) or not env_id or env_id == "???":
-        raise ConfigError(f"env.id={env_id!r}: give a gymnasium id, e.g. env.id=MountainCar-v0")
+        raise ConfigError(f"env.id={shown_value(env_id)}: give a gymnasium id, e.g. env.id=MountainCar-v0")
     if name in BUILTIN_ENVS and env_id == BUILTIN_ENVS[name]:
         return name, env_id, max_steps
     if name in BUILTIN_ENVS and max_steps is not None:
@@ -206,7 +207,7 @@ def env_of(env_cfg: dict):
     except Exception as err:  # gymnasium raises several error types for unknown/deprecated ids
         reason = str(err).splitlines()[0] if str(err) else type(err).__name__
         hint = "; your own env? give it as module:Id, e.g. env.id=myenvs:Reach1D-v0" if ":" not in env_id else ""
-        raise ConfigError(f"env.id={env_id!r}: not a registered gymnasium environment ({reason}){hint}") from None
+        raise ConfigError(f"env.id={shown_value(env_id)}: not a registered gymnasium environment ({reason}){hint}") from None
     from imix_cli.core.evaluation import missing_extra_message
 
     missing = missing_extra_message(plain)  # names imix's extra, before gymnasium's generic hint
@@ -252,6 +253,6 @@ def _check_env_dependencies(env_id: str) -> None:
     try:
         load_env_creator(entry_point)
     except gym.error.DependencyNotInstalled as err:
-        raise ConfigError(f"env.id={env_id!r}: a dependency is missing: {first_line(err)}") from None
+        raise ConfigError(f"env.id={shown_value(env_id)}: a dependency is missing: {first_line(err)}") from None
     except ImportError as err:
-        raise ConfigError(f"env.id={env_id!r}: cannot import its module ({first_line(err)})") from None
+        raise ConfigError(f"env.id={shown_value(env_id)}: cannot import its module ({first_line(err)})") from None

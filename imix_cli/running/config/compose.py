@@ -28,11 +28,13 @@ import re
 from pathlib import Path
 
 from imix_cli.core.registry import ALGO_NAMES, ALGORITHM_SPECS, BUILTIN_ENVS
+from imix_cli.messages import shown_value
 from imix_cli.running.config.checks import ConfigError, as_choice, first_line
 from imix_cli.running.config.ddpg import ddpg_spec
 from imix_cli.running.config.es_config import es_spec
 from imix_cli.running.config.keys import PAPER_DEFAULTS, POLICY_DEFAULTS, TOP_LEVEL_KEYS, did_you_mean
 from imix_cli.running.config.run_spec import DDPG_DEFAULTS, RunSpec, algo_option_fields, differing_keys
+from imix_cli.running.files.safe_yaml import MAX_YAML_BYTES, BadYamlError, check_yaml_file, check_yaml_text
 
 __all__ = [
     "BUILTIN_ENVS",
@@ -40,6 +42,7 @@ __all__ = [
     "PAPER_DEFAULTS",
     "ConfigError",
     "RunSpec",
+    "bounded_config_reads",
     "config_dir",
     "group_options",
     "point_key",
@@ -56,8 +59,11 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     """
     unknown = sorted(map(str, set(cfg) - set(TOP_LEVEL_KEYS)))
     if unknown:
-        raise ConfigError(f"unknown key {unknown[0]!r}{did_you_mean(unknown[0], all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
+        raise ConfigError(f"unknown key {shown_value(unknown[0])}{did_you_mean(unknown[0], all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)}")
     algo_cfg, env_cfg = cfg.get("algo") or {}, cfg.get("env") or {}
+    for group, given in (("algo", algo_cfg), ("env", env_cfg)):  # a YAML's `algo: 4`: a value where a config group goes
+        if not isinstance(given, dict):
+            raise ConfigError(f"{group}={shown_value(given)}: must be a config of the {group} group (one of {', '.join(group_options(group))})")
     algo = as_choice(algo_cfg.get("name"), "algo", ALGO_NAMES)
     _refuse_unknown_nested_keys(algo, algo_cfg, env_cfg)
     build = es_spec if ALGORITHM_SPECS[algo].is_es else ddpg_spec
@@ -84,7 +90,7 @@ def _refuse_unknown_nested_keys(algo: str, algo_cfg, env_cfg) -> None:
     not the one asked for. An option of another algorithm (``algo=snes +algo.style=cemrl``) names the one it is for."""
     for group, given, valid in (("algo", algo_cfg, algo_keys(algo)), ("env", env_cfg, ENV_KEYS)):
         if not isinstance(given, dict):
-            raise ConfigError(f"{group}={given!r}: must be a config of the {group} group (one of {', '.join(group_options(group))})")
+            raise ConfigError(f"{group}={shown_value(given)}: must be a config of the {group} group (one of {', '.join(group_options(group))})")
         unknown = [k for k in given if k not in valid]
         if not unknown:
             continue
@@ -93,7 +99,7 @@ def _refuse_unknown_nested_keys(algo: str, algo_cfg, env_cfg) -> None:
         if owners:
             raise ConfigError(f"{key}: applies to algo={' | '.join(owners)} only, not algo={algo}")
         for_algo = f" of algo={algo}" if group == "algo" else ""
-        raise ConfigError(f"unknown key {key!r}{did_you_mean(key, all_keys())}; valid {group} keys{for_algo}: {', '.join(valid)}")
+        raise ConfigError(f"unknown key {shown_value(key)}{did_you_mean(key, all_keys())}; valid {group} keys{for_algo}: {', '.join(valid)}")
 
 
 def all_keys() -> tuple:
@@ -177,12 +183,12 @@ def validate_overrides(
     overrides = [*overrides, *(_group_choice(key, set_values.pop(key)) for key in ("algo", "env") if key in set_values)]
     for key in set_values:
         if not isinstance(key, str) or not _DOTTED_KEY.match(key) or key.split(".")[0] == "hydra":
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)")
+            raise ConfigError(f"unknown key {shown_value(key)}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)")
     parser = OverridesParser.create()
     try:
         parsed = parser.parse_overrides(overrides)
     except Exception as err:
-        raise ConfigError(f"cannot parse overrides: {first_line(err)}") from None
+        raise _unparsable(err, overrides, parser) from None
     choices = []
     for override in parsed:
         key = override.key_or_group
@@ -217,7 +223,7 @@ def validate_overrides(
             try:
                 parse_cache[line] = parser.parse_overrides([line])[0]
             except Exception as err:
-                raise ConfigError(f"cannot parse overrides: {first_line(err)}") from None
+                raise _unparsable(err, [line], parser) from None
         return parse_cache[line]
 
     specs = []
@@ -236,6 +242,7 @@ def validate_overrides(
                         started = True
                         GlobalHydra.instance().clear()
                         hydra_session.callback(GlobalHydra.instance().clear)
+                        hydra_session.enter_context(bounded_config_reads())  # every config file Hydra reads, checked first
                         hydra_session.enter_context(initialize_config_dir(config_dir=holder, version_base="1.3"))
                     full = compose(config_name, overrides=[*search, *base], return_hydra_config=True)
                     launcher = OmegaConf.select(full, "hydra.launcher._target_")
@@ -253,6 +260,8 @@ def validate_overrides(
                 plain = _resolved(cfg, with_hydra)
             except ConfigError:
                 raise
+            except BadYamlError as err:  # a config file refused by the bounded loader (bounded_config_reads): it names the file
+                raise ConfigError(str(err)) from None
             except Exception as err:
                 raise ConfigError(_explain_compose_error(err, point)) from None
             specs.append(spec_from_config(plain, launcher))
@@ -260,6 +269,41 @@ def validate_overrides(
                 validated[point_key(plain, launcher)] = specs[-1]
     _refuse_shared_folders(specs)
     return specs
+
+
+@contextlib.contextmanager
+def bounded_config_reads():
+    """While in this context, every YAML file Hydra reads passes imix's bounded loader first
+    (:mod:`imix_cli.running.files.safe_yaml`): the primary config, what its ``defaults`` pull from conf/, a
+    ``--config-dir`` or ``--config-path`` folder or a ``hydra.searchpath`` -- whichever file, at whichever depth, Hydra
+    hands it to ``OmegaConf.load`` (public API), the one place every config read goes through. A file refused (an alias
+    bomb, nesting too deep, a Python tag, more than 1 MiB) raises :class:`~imix_cli.running.files.safe_yaml.BadYamlError`
+    naming it, before OmegaConf expands anything (a bomb of nine anchors ran Hydra for minutes into gigabytes). At most
+    1 MiB + 1 byte of a file is read for the check. ``OmegaConf.load`` is itself again on leaving."""
+    from omegaconf import OmegaConf
+
+    original = OmegaConf.load
+
+    def load(file_):
+        if isinstance(file_, (str, os.PathLike)):
+            check_yaml_file(file_)
+        elif getattr(file_, "read", None) is not None and getattr(file_, "seek", None) is not None:
+            name = getattr(file_, "name", None) or "a config file"
+            text = file_.read(MAX_YAML_BYTES + 1)
+            file_.seek(0)
+            if isinstance(text, bytes):
+                try:
+                    text = text.decode("utf-8")
+                except UnicodeDecodeError as err:
+                    raise BadYamlError(f"{name}: not UTF-8 text (byte {err.start})") from None
+            check_yaml_text(text, name)
+        return original(file_)
+
+    OmegaConf.load = load
+    try:
+        yield
+    finally:
+        OmegaConf.load = original
 
 
 #: Hydra's compositions by (config name, folders, overrides other than plain values, working folder, the config files'
@@ -394,7 +438,7 @@ def _group_choice(group: str, value) -> str:
     """``group=value`` for a config group chosen by a keyword (``algo="snes"``); ConfigError unless it names one of its options."""
     valid = group_options(group)
     if not isinstance(value, str) or value not in valid:
-        raise ConfigError(f"{group}={value!r}: unknown {group}; valid choices are {', '.join(valid)}")
+        raise ConfigError(f"{group}={shown_value(value)}: unknown {group}; valid choices are {', '.join(valid)}")
     return f"{group}={value}"
 
 
@@ -415,15 +459,42 @@ def _set_values(values: dict, cfg) -> None:
             return v
         if type(v).__module__ == "numpy" and hasattr(v, "item"):  # np.int64(5), np.float32(0.1)
             return plain(key, v.item())
-        raise ConfigError(f"{key}={v!r}: a {type(v).__name__} is not a value of the config (give a str, number, bool, None or list)")
+        raise ConfigError(f"{key}={shown_value(v)}: a {type(v).__name__} is not a value of the config (give a str, number, bool, None or list)")
 
     for key, v in values.items():
         try:
             OmegaConf.update(cfg, key, plain(key, v), merge=True)
         except (ConfigAttributeError, ConfigKeyError):
-            raise ConfigError(f"unknown key {key!r}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)") from None
+            raise ConfigError(f"unknown key {shown_value(key)}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)") from None
         except OmegaConfBaseException as err:
-            raise ConfigError(f"{key}={v!r}: {first_line(err)}") from None
+            raise ConfigError(f"{key}={shown_value(v)}: {first_line(err)}") from None
+
+
+def _unparsable(err: Exception, lines: list, parser) -> ConfigError:
+    """The one line for an override Hydra's grammar cannot read: the override named, and -- for a value that is not
+    quoted -- the quoted form to type. Hydra's unquoted values are plain words and numbers (ASCII letters, digits and a
+    few signs): ``experiment=é`` came out as "LexerNoViableAltException: experiment=é", ``experiment=a)b`` as
+    "mismatched input ')'"."""
+    culprit = None
+    for line in lines:
+        try:
+            parser.parse_overrides([line])
+        except Exception:  # noqa: BLE001 - any parse error: this is the override to name
+            culprit = line
+            break
+    reason = first_line(err)
+    lexer = "LexerNoViableAltException" in reason
+    if culprit is None or "=" not in culprit:
+        return ConfigError(f"cannot parse overrides: {_shown(reason, 200)}")
+    key, value = culprit.split("=", 1)
+    why = "a character Hydra's override grammar has no rule for" if lexer else _shown(reason, 200)
+    if value[:1] in ("'", '"') or not key or len(culprit) > 200 or not culprit.isprintable():
+        return ConfigError(f"{_shown(culprit)}: cannot be read ({why})")
+    whole = f'"{key}={_quoted(value)}"'
+    if "," in value:  # a sweep: each value quoted that is not a plain word or number
+        each = ",".join(v if re.fullmatch(r"[A-Za-z0-9_.+-]+", v) else _quoted(v) for v in value.split(","))
+        return ConfigError(f'{culprit}: cannot be read unquoted ({why}); quote each value, for the shell too: "{key}={each}" (or {whole}: one value)')
+    return ConfigError(f"{culprit}: cannot be read unquoted ({why}); quote the value, for the shell too: {whole}")
 
 
 def _is_value_override(override) -> bool:
@@ -443,7 +514,7 @@ def _refuse_shared_folders(specs: list[RunSpec]) -> None:
         old, new = other.identity(), spec.identity()
         differing = differing_keys(old, new)
         if differing:
-            changes = ", ".join(f"{k}={old.get(k)!r} / {new.get(k)!r}" for k in differing)
+            changes = ", ".join(f"{k}={shown_value(old.get(k))} / {shown_value(new.get(k))}" for k in differing)
             raise ConfigError(
                 f"two sweep points would share the folder {spec.run_dir} but differ in {changes}; "
                 "sweep that key in separate commands with their own experiment="

@@ -349,10 +349,38 @@ def read_run_csv(path) -> pd.DataFrame:
         values = frame[column].to_numpy(dtype=np.float64)
         if not np.all(np.isfinite(values)) or np.any(values < 0):
             raise CorruptResultError(f"{path}: column {column!r} holds negative or non-finite values")
+    _check_scores(frame, path)
     header = tuple(map(str, frame.columns))
     frame = frame.loc[:, list(COLUMNS)]
     frame.attrs["header"] = header  # the file's own columns, for check_seed_csv's schema check
     return frame
+
+
+def _check_scores(frame, path) -> None:
+    """CorruptResultError unless the score columns hold what a run writes: a finite number, or NaN -- the population's
+    ``mean_score`` and ``best_score`` only on a generation where every member's return was non-finite (``nonfinite ==
+    popsize``), ``mean_policy_score`` where the distribution mean was not measured -- never an infinity, and a mean
+    at most the best. The env's possible returns are checked against the run's config
+    (:func:`imix_cli.running.seed_checks.check_seed_scores`)."""
+    scores = {c: frame[c].to_numpy(dtype=np.float64) for c in ("mean_score", "best_score", "mean_policy_score")}
+    for column, values in scores.items():
+        infinite = np.isinf(values)
+        if infinite.any():
+            row = int(np.argmax(infinite))
+            raise CorruptResultError(f"{path}: {column}={values[row]} at generation {row}; a score is a finite return (NaN where none was measured)")
+    all_nonfinite = frame["nonfinite"].to_numpy() == frame["popsize"].to_numpy()
+    for column in ("mean_score", "best_score"):
+        wrong = np.isnan(scores[column]) != all_nonfinite
+        if wrong.any():
+            row = int(np.argmax(wrong))
+            what = "NaN" if np.isnan(scores[column][row]) else "a number"
+            raise CorruptResultError(f"{path}: {column} is {what} at generation {row}, where {int(frame['nonfinite'].iloc[row])} of "
+                                     f"{int(frame['popsize'].iloc[row])} members' returns were non-finite (NaN exactly when all were)")  # fmt: skip
+    mean, best = scores["mean_score"], scores["best_score"]
+    above = mean > best + 1e-9 * np.maximum(1.0, np.abs(best))
+    if above.any():
+        row = int(np.argmax(above))
+        raise CorruptResultError(f"{path}: mean_score {mean[row]:.6g} above best_score {best[row]:.6g} at generation {row}")
 
 
 def _counts(values: np.ndarray) -> bool:

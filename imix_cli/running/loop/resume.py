@@ -87,15 +87,12 @@ def _number(value) -> bool:
 def return_bounds(spec, max_steps: int | None, training: bool = True) -> tuple[float, float]:
     """The returns run ``spec`` can produce: a built-in's ``max_steps`` x its step rewards (``training``:
     plus ARS's ``algo.alive_bonus_offset`` per step, which the members' returns include and the
-    distribution mean's measurements do not); else unbounded."""
-    from imix_cli.core.registry import ENV_SPECS
+    distribution mean's measurements do not); else unbounded. The bounds a seed CSV's scores are checked against too
+    (:func:`imix_cli.core.registry.env_return_bounds`, :func:`imix_cli.running.seed_checks.check_seed_scores`)."""
+    from imix_cli.core.registry import env_return_bounds
 
-    env = ENV_SPECS.get(spec.env_name)
-    cap = max_steps or spec.env_max_steps or (env.max_steps if env else None)
-    if env is None or env.step_reward is None or cap is None:
-        return -math.inf, math.inf
     offset = float(spec.algo_options.get("alive_bonus_offset", 0.0)) if training else 0.0
-    return (env.step_reward[0] + min(offset, 0.0)) * cap, (env.step_reward[1] + max(offset, 0.0)) * cap
+    return env_return_bounds(spec.env_name, max_steps or spec.env_max_steps, offset)
 
 
 def validate_seed_state(st, spec, dim: int, max_steps: int | None = None, policy_dim: int | None = None) -> None:
