@@ -33,7 +33,7 @@ DDPG_SEEDS      ?= 4
 DDPG_HARD_SEEDS ?= 2
 SEC43 = eim=true progress=false
 
-.PHONY: install dev install-all docs docs-numbers test test-fast test-install test-extras reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
+.PHONY: install dev install-all bbob docs docs-numbers test test-fast test-install test-extras reproduce reproduce-main reproduce-grid reproduce-ddpg reproduce-full reproduce-quick bench
 
 # `make install` is what the main job needs: the ES runner, plots, eval/render/status, the tests
 # (numpy, scipy, numba, gymnasium, hydra, pandas, matplotlib, cma, pytest, pygame; 36 s here).
@@ -62,13 +62,13 @@ EDITABLE ?=
 dev:  ## create .venv and install imix editable (pip install -e ".[test,render]", the same constraints): edits take effect with no reinstall
 	$(MAKE) install EDITABLE=-e
 
-install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools
+install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools, COCO (bbob)
 	$(PY) -m pip install $(PIN) "$(TORCH)"
 	$(PY) -m pip install $(PIN) $(EDITABLE) ".[all]"
 
 # The tests of the extras `make install-all` adds: one marker per extra (tests/conftest.py, EXTRAS). Without
 # its extra a marked test is skipped, so `make test` passes after a plain `make install`.
-EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs
+EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs or bbob
 
 # The suite runs on every core (pytest-xdist, `-n auto`; TEST_WORKERS=0 runs it in one process): its tests
 # are independent (each writes below its own tmp_path and checks only the processes it started).
@@ -204,6 +204,16 @@ untuned:  ## the untuned-tasks benchmark (held-out tasks at default settings) in
 # noisy budget is the one docs/adapters.md shows (3,000 evaluations).
 ADAPTER_NOISY_BUDGET ?= 3000
 .PHONY: adapters
+# pycma alone and with mixing on COCO's bbob suite (docs/adapters.md, "COCO's bbob suite"; benchmarks/bbob.py): 24
+# functions x d = 2, 5, 10 x instances 1-3, the arms of the table, COCO's observer data, cocopp's runtime ECDFs and
+# the page's table and figures. Needs `pip install ".[bbob]"`. About 25 min of 2 cores for the runs (finished
+# problems are skipped, so an interrupted run resumes), then ~10 min of cocopp.
+BBOB_OUT  ?= results/bbob
+BBOB_ARMS ?= pycma,mixing,mixing-pop2,pycma-pop2,pycma-ipop,mixing-ipop
+bbob:  ## COCO's bbob suite: pycma alone and wrapped (table and cocopp figures of docs/adapters.md)
+	$(PY) benchmarks/bbob.py run --out $(BBOB_OUT) --arms $(BBOB_ARMS)
+	$(PY) benchmarks/bbob.py docs --out $(BBOB_OUT) --arms $(BBOB_ARMS)
+
 adapters:  ## the tables of docs/adapters.md (pycma's test functions, the noisy sphere, evosax on gymnax CartPole) into results/adapters/
 	mkdir -p results/adapters
 	$(PY) benchmarks/adapters.py stepsize > results/adapters/stepsize.md

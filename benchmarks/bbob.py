@@ -290,13 +290,135 @@ def cocopp_figures(out: Path, arms) -> Path:
     os.chdir(out)
     shutil.rmtree("ppdata", ignore_errors=True)
     cocopp.genericsettings.isConv = False
-    cocopp.main(" ".join(f"exdata/{a}" for a in arms) + " -o ppdata --no-svg")
+    cocopp.main("-o ppdata --no-svg " + " ".join(f"exdata/{a}" for a in arms))
     return out / "ppdata"
+
+
+def restarts_per_evaluations(records: list[dict], arms) -> str:
+    """Restarts per 10,000 evaluations, each arm over all its problems: a run that costs fewer evaluations restarts
+    more often within one budget, so the raw count is read beside this."""
+    parts = []
+    for arm in arms:
+        rs = [r for r in records if r["arm"] == arm]
+        restarts, evaluations = sum(max(0, r["restarts"]) for r in rs), sum(r["evaluations"] for r in rs)
+        parts.append(f"{arm} {restarts} restarts in {evaluations:,} evaluations ({1e4 * restarts / max(1, evaluations):.2f} per 10,000)")
+    return "; ".join(parts)
+
+
+#: The pairs of arms docs/adapters.md tabulates, each with what it compares.
+DOC_PAIRS = (
+    (("pycma", "mixing"), "pycma alone against the same ES wrapped (MixingES's defaults)"),
+    (("pycma", "mixing-pop2"), "pycma alone at its default popsize against mixing at twice that popsize"),
+    (("pycma-pop2", "mixing-pop2"), "both at twice pycma's default popsize"),
+    (("pycma-ipop", "mixing-ipop"), "pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)) against imix_cli.fmin2's"),
+)
+#: The arms cocopp draws (all in one figure per group).
+COCOPP_ARMS = ("pycma", "mixing", "mixing-pop2", "pycma-ipop", "mixing-ipop")
+#: cocopp's runtime ECDFs copied into the docs: every group at d = 10, all functions at each d.
+DOC_FIGURES = [f"pprldmany_10D_{g}.svg" for g in ("separ", "lcond", "hcond", "multi", "mult2")] + [f"pprldmany_{d:02d}D_noiselessall.svg" for d in (2, 5, 10)]
+BEGIN, END = "<!-- bbob:begin (benchmarks/bbob.py docs writes this part) -->", "<!-- bbob:end -->"
+
+
+def docs(out: Path, arms, page: Path, figures: Path) -> None:
+    """The section of docs/adapters.md between BEGIN and END, and cocopp's figures into ``figures``."""
+    records = load(out)
+    meta = json.loads((out / "meta.json").read_text()) if (out / "meta.json").exists() else {}
+    have = {r["arm"] for r in records}
+    lines = [BEGIN, ""]
+    lines.append(
+        f"Measured<!-- provenance: commit={meta.get('commit', '?')}; date={meta.get('date', '?')}; what=make bbob "
+        f"(benchmarks/bbob.py run --arms {','.join(arms)}); machine={meta.get('machine', '?')} -->: "
+        f"{len({r['problem'] for r in records})} problems, {len(records)} runs, `make bbob`."
+    )
+    for (a, b), what in DOC_PAIRS:
+        if a in have and b in have:
+            lines += ["", f"**{b} against {a}**: {what}.", "", table(records, (a, b))]
+    lines += ["", "Restarts per evaluation: " + restarts_per_evaluations(records, [a for a in arms if a in have]) + "."]
+    for dim in (2, 5, 10):
+        line = overhead(records, ("pycma", "mixing"), dim)
+        if line:
+            lines.append(f"Overhead, {line} (measured inside the runs, two processes on two cores).")
+    lines += ["", "Stops by criterion (every run of every problem):", "", stop_counts(records, [a for a in arms if a in have]), ""]
+    lines += [f"Exceptions: {exceptions(records)}.", ""]
+    try:
+        pp = cocopp_figures(out, [a for a in COCOPP_ARMS if a in have])
+    except Exception as err:  # noqa: BLE001 (the tables stand without the figures)
+        lines += [f"cocopp failed: {type(err).__name__}: {err}", ""]
+    else:
+        folder = next(p for p in pp.iterdir() if p.is_dir())
+        figures.mkdir(parents=True, exist_ok=True)
+        shown = []
+        for name in DOC_FIGURES:
+            if (folder / name).exists():
+                shutil.copy(folder / name, figures / name)
+                shown.append(name)
+        rel = os.path.relpath(figures, page.parent)
+        lines += ["cocopp's runtime ECDFs (the fraction of (problem, target) pairs solved against evaluations / d; "
+                  f"arms {', '.join(a for a in COCOPP_ARMS if a in have)}):", ""]  # fmt: skip
+        lines += [f"![{name}]({rel}/{name})" for name in shown] + [""]
+    lines.append(END)
+    text = page.read_text()
+    head, _, rest = text.partition(BEGIN)
+    _, _, tail = rest.partition(END)
+    page.write_text(head + "\n".join(lines) + tail)
+
+
+def neutral(seeds: int = 20, generations: int = 100, dim: int = 5) -> str:
+    """Why plateaus and multimodal functions lose under mixing: sigma under neutral selection.
+
+    With no information in the values -- all equal (a plateau: ranks by the order told) or independent uniform
+    draws (a rugged function seen at a small scale) -- CSA's sigma should do a random walk: its path is built from
+    steps that random selection leaves N(0, I). The mean of log sigma after ``generations`` generations, pycma
+    alone, wrapped with its CSA (the adapter's default) and wrapped with imix's TPA (``PycmaES(step_size="tpa")``).
+    A reused member keeps its value: one that ranked well ranks well again, the mean does not move, CSA reads the
+    short path as convergence and shrinks sigma -- reuse makes CMA-ES partly elitist.
+    """
+    import cma
+
+    import imix_cli
+    from imix_cli.core.adapters.pycma import PycmaES
+
+    warnings.simplefilter("ignore")
+    rows = ["| values | pycma alone | mixing, pycma's CSA (default) | mixing, imix's TPA |", "|---|---:|---:|---:|"]
+    for label in ("all equal", "independent uniform"):
+        cells = []
+        for arm in ("alone", "pycma", "tpa"):
+            logs = []
+            for seed in range(seeds):
+                options = {"seed": seed + 1, "verbose": -9, "tolflatfitness": 1e9, "tolfun": 0, "tolfunhist": 0, "tolstagnation": 0}
+                es = cma.CMAEvolutionStrategy(np.zeros(dim), 1.0, options)
+                m = es if arm == "alone" else imix_cli.MixingES(PycmaES(es, step_size=arm), "exact", rng=seed)
+                values = np.random.default_rng(seed)
+                for _ in range(generations):
+                    x = m.ask()
+                    m.tell(x, np.ones(len(x)) if label == "all equal" else values.random(len(x)))
+                logs.append(math.log(es.sigma))
+            cells.append(f"{np.mean(logs):+.2f} ± {np.std(logs, ddof=1) / math.sqrt(seeds):.2f}")
+        rows.append(f"| {label} | " + " | ".join(cells) + " |")
+    return f"mean log sigma after {generations} generations (sigma0 = 1), d = {dim}, {seeds} seeds, ± its standard error:\n\n" + "\n".join(rows)
+
+
+def _meta(out: Path) -> None:
+    import platform
+    import subprocess
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = "?"
+    cpu = (
+        next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name")), platform.machine())
+        if Path("/proc/cpuinfo").exists()
+        else platform.machine()
+    )
+    (out / "meta.json").write_text(json.dumps({"commit": commit, "date": time.strftime("%Y-%m-%d"), "machine": f"{os.cpu_count()}-core {cpu}"}))
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=["run", "table", "cocopp"])
+    parser.add_argument("section", choices=["run", "table", "cocopp", "docs", "neutral"])
+    parser.add_argument("--page", type=Path, default=Path("docs/adapters.md"), help="docs: the page whose bbob section is rewritten")
+    parser.add_argument("--figures", type=Path, default=Path("docs/bbob"), help="docs: where cocopp's figures go")
     parser.add_argument("--out", type=Path, default=Path("results/bbob"))
     parser.add_argument("--functions", default="1-24")
     parser.add_argument("--dims", default="2,5,10")
@@ -319,6 +441,9 @@ def main(argv=None) -> int:
         parser.error(f"unknown arm {unknown[0]!r}; valid: {', '.join(ARMS)}")
     out = args.out.resolve()
     if args.section == "run":
+        out.mkdir(parents=True, exist_ok=True)
+        if not (out / "meta.json").exists():
+            _meta(out)
         run(out, ints(args.functions), ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim)
     elif args.section == "table":
         records = load(out)
@@ -332,6 +457,10 @@ def main(argv=None) -> int:
         print(stop_counts(records, arms))
         print()
         print(exceptions(records))
+    elif args.section == "neutral":
+        print(neutral())
+    elif args.section == "docs":
+        docs(out, arms, args.page.resolve(), args.figures.resolve())
     else:
         print(cocopp_figures(out, arms))
     return 0

@@ -48,6 +48,7 @@ EXTRAS = {
     ),
     "tensorboard": (("tensorboard",), 'pip install ".[tensorboard]"'),
     "docs": (("mkdocs", "mkdocstrings", "material"), 'pip install ".[docs]"'),
+    "bbob": (("cocoex", "cocopp", "cma"), 'pip install ".[bbob]"'),
     "peers": (("jax", "evosax", "gymnax"), 'pip install ".[peers]"'),
     "ars": (("sb3_contrib", "stable_baselines3", "torch", "mujoco"), 'pip install torch==2.13.0 ".[ars]"'),
     "mlflow": (("mlflow",), 'pip install ".[mlflow]"'),
@@ -57,7 +58,7 @@ EXTRAS = {
 }
 
 #: The extras `make install-all` installs (pyproject's `all`): CI runs their tests with -m "mujoco or ddpg or ...".
-INSTALL_ALL = ("mujoco", "ddpg", "cluster", "tensorboard", "docs")
+INSTALL_ALL = ("mujoco", "ddpg", "cluster", "tensorboard", "docs", "bbob")
 
 
 def importable(module: str) -> bool:

@@ -1,0 +1,54 @@
+"""The bbob benchmark (benchmarks/bbob.py, `make bbob`): its protocol on a few problems, end to end.
+
+What `make bbob` publishes in docs/adapters.md comes from these commands: `run` (COCO's suite and observer, pycma
+alone, wrapped, and pycma's IPOP restarts with imix_cli.fmin2), `table` and `docs` (cocopp's figures and the page's
+section between its markers). Here on bbob f1 and f7 (the step ellipsoid whose plateaus the adapter's tie order is
+for), d = 2, instance 1, with a budget of 300 d evaluations.
+"""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.bbob, pytest.mark.slow]
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "bbob.py"
+
+
+def _bbob(*args, cwd):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}  # this tree's imix_cli, not only the installed copy
+    return subprocess.run([sys.executable, str(SCRIPT), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
+
+
+def test_the_bbob_protocol_runs_every_arm_and_writes_cocos_data_the_table_and_the_page(tmp_path):
+    out = tmp_path / "bbob"
+    arms = "pycma,mixing,pycma-ipop,mixing-ipop"
+    done = _bbob("run", "--out", str(out), "--functions", "1,7", "--dims", "2", "--instances", "1", "--arms", arms,
+                 "--workers", "1", "--budget-per-dim", "300", cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    records = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    assert sorted((r["function"], r["arm"]) for r in records) == sorted((f, a) for f in (1, 7) for a in arms.split(","))
+    for r in records:
+        assert r["exception"] is None, r
+        assert r["evaluations"] <= 300 * 2 + 50, r  # the budget, plus at most the generation that crossed it
+    sphere = {r["arm"]: r for r in records if r["function"] == 1}
+    assert all(sphere[a]["hit"] for a in sphere), sphere
+    assert sphere["mixing"]["runtime"] < sphere["pycma"]["runtime"], sphere  # the sphere: mixing saves evaluations
+    assert list((out / "exdata" / "mixing").rglob("*.info")), "COCO's observer data for cocopp"
+    again = _bbob("run", "--out", str(out), "--functions", "1,7", "--dims", "2", "--instances", "1", "--arms", arms, cwd=tmp_path)
+    assert again.returncode == 0 and "done" in again.stderr, again.stderr  # finished problems are skipped
+    table = _bbob("table", "--out", str(out), "--arms", "pycma,mixing", cwd=tmp_path)
+    assert table.returncode == 0 and "| separable f1-5 | 1/1 | 1/1 |" in table.stdout, table.stdout + table.stderr
+    page = tmp_path / "page.md"
+    page.write_text("before\n<!-- bbob:begin (benchmarks/bbob.py docs writes this part) -->\nold\n<!-- bbob:end -->\nafter\n")
+    made = _bbob("docs", "--out", str(out), "--arms", arms, "--page", str(page), "--figures", str(tmp_path / "figures"), cwd=tmp_path)
+    assert made.returncode == 0, made.stderr[-2000:]
+    text = page.read_text()
+    assert text.startswith("before\n") and text.endswith("after\n") and "old" not in text
+    assert "**mixing against pycma**" in text and "**mixing-ipop against pycma-ipop**" in text
+    assert list((tmp_path / "figures").glob("pprldmany_02D_noiselessall.svg")), text
