@@ -44,14 +44,18 @@ ARMS = {
     "mixing-K1": ({"eim_generations": 1}, {}),
     "mixing-fresh3": ({"min_fresh": 3}, {}),
     "mixing-tpa": ({}, {"step_size": "tpa"}),
+    "mixing-fresh-half": ({"min_fresh": "half"}, {}),
+    "mixing-cond": ({"variant": "conditional"}, {}),
+    "mixing-cond-pop2": ({"variant": "conditional"}, {}),
     "mixing-pop2": ({}, {}),  # pycma's default popsize doubled (POPSIZE_FACTOR)
     "pycma-pop2": None,
 }
 #: arms that run pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)), alone or with mixing (imix_cli.fmin2)
-IPOP_ARMS = {"pycma-ipop": None, "mixing-ipop": {}, "pycma-bipop": None, "mixing-bipop": {}}
+IPOP_ARMS = {"pycma-ipop": None, "mixing-ipop": {}, "pycma-bipop": None, "mixing-bipop": {}, "mixing-ipop-tpa": {"step_size": "tpa"},
+             "mixing-ipop-fresh-half": {"min_fresh": "half"}}  # fmt: skip
 ARMS.update(IPOP_ARMS)
 #: arms whose pycma popsize is POPSIZE_FACTOR x pycma's default (4 + 3 ln d)
-POPSIZE_FACTOR = {"mixing-pop2": 2, "pycma-pop2": 2}
+POPSIZE_FACTOR = {"mixing-pop2": 2, "pycma-pop2": 2, "mixing-cond-pop2": 2}
 GROUPS = (
     ("separable f1-5", range(1, 6)),
     ("low/moderate conditioning f6-9", range(6, 10)),
@@ -94,7 +98,11 @@ def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM) -> d
             es = cma.CMAEvolutionStrategy(x0, SIGMA0, options)
             if ARMS[arm] is not None:
                 mixing_options, adapter_options = ARMS[arm]
-                es = imix_cli.MixingES(PycmaES(es, **adapter_options), "exact", rng=seed, **mixing_options)
+                if mixing_options.get("min_fresh") == "half":
+                    mixing_options = {**mixing_options, "min_fresh": es.popsize // 2}
+                mixing_options = dict(mixing_options)
+                variant = mixing_options.pop("variant", "exact")
+                es = imix_cli.MixingES(PycmaES(es, **adapter_options), variant, rng=seed, **mixing_options)
             while True:
                 t0 = time.perf_counter()
                 stop = es.stop()
@@ -147,7 +155,10 @@ def _run_ipop(problem, arm, budget, starts, record, stops) -> dict:
 
     options = {"seed": seed, "verbose": -9, "CMA_mirrors": 0, "termination_callback": done}
     fmin2 = cma.fmin2 if ARMS[arm] is None else imix_cli.fmin2
-    kwargs = {} if ARMS[arm] is None else {"mixing": ARMS[arm]}
+    mixing = dict(ARMS[arm] or {})
+    if mixing.get("min_fresh") == "half":  # half of the default popsize (IPOP's later runs: a smaller share)
+        mixing["min_fresh"] = (4 + int(3 * math.log(dim))) // 2
+    kwargs = {} if ARMS[arm] is None else {"mixing": mixing}
     t0 = time.perf_counter()
     try:
         _, es = fmin2(objective, lambda: starts.uniform(-4, 4, dim), SIGMA0, options, restarts=9, incpopsize=2, bipop="bipop" in arm, **kwargs)
@@ -398,6 +409,42 @@ def neutral(seeds: int = 20, generations: int = 100, dim: int = 5) -> str:
     return f"mean log sigma after {generations} generations (sigma0 = 1), d = {dim}, {seeds} seeds, ± its standard error:\n\n" + "\n".join(rows)
 
 
+def overhead_bench(dims=(2, 5, 10), generations: int = 300, repeats: int = 5) -> str:
+    """The time per generation in ask + tell (the objective excluded), pycma alone against wrapped, measured in turn
+    in this process (``repeats`` pairs, the median of each): pycma's rotated ellipsoid (cma.ff.elli after a fixed
+    rotation), x0 = 1, sigma0 = 0.5, default popsize. Per generation and per evaluation (mixing evaluates fewer)."""
+    import cma
+
+    import imix_cli
+
+    warnings.simplefilter("ignore")
+    rows = ["| d | pycma alone, ms per generation | wrapped | ratio | ratio per evaluation |", "|---:|---:|---:|---:|---:|"]
+    for dim in dims:
+        q, _ = np.linalg.qr(np.random.default_rng(dim).standard_normal((dim, dim)))
+        per = {"alone": [], "mixing": []}
+        per_eval = {"alone": [], "mixing": []}
+        for rep in range(repeats):
+            for arm in ("alone", "mixing"):
+                es = cma.CMAEvolutionStrategy(np.ones(dim), 0.5, {"seed": rep + 1, "verbose": -9, "tolx": 0, "tolfun": 0, "tolfunhist": 0})
+                m = es if arm == "alone" else imix_cli.MixingES(es, "exact", rng=rep)
+                spent, evaluations = 0.0, 0
+                for _ in range(generations):
+                    t0 = time.perf_counter()
+                    x = m.ask()
+                    t1 = time.perf_counter()
+                    f = [cma.ff.elli(q @ xi) for xi in x]
+                    t2 = time.perf_counter()
+                    m.tell(x, f)
+                    spent += (t1 - t0) + (time.perf_counter() - t2)
+                    evaluations += len(x)
+                per[arm].append(spent / generations)
+                per_eval[arm].append(spent / evaluations)
+        a, b = (float(np.median(per[k])) * 1e3 for k in ("alone", "mixing"))
+        ea, eb = (float(np.median(per_eval[k])) for k in ("alone", "mixing"))
+        rows.append(f"| {dim} | {a:.3f} | {b:.3f} | {b / a:.2f} | {eb / ea:.2f} |")
+    return "\n".join(rows)
+
+
 def _meta(out: Path) -> None:
     import platform
     import subprocess
@@ -416,7 +463,7 @@ def _meta(out: Path) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=["run", "table", "cocopp", "docs", "neutral"])
+    parser.add_argument("section", choices=["run", "table", "cocopp", "docs", "neutral", "overhead"])
     parser.add_argument("--page", type=Path, default=Path("docs/adapters.md"), help="docs: the page whose bbob section is rewritten")
     parser.add_argument("--figures", type=Path, default=Path("docs/bbob"), help="docs: where cocopp's figures go")
     parser.add_argument("--out", type=Path, default=Path("results/bbob"))
@@ -457,6 +504,8 @@ def main(argv=None) -> int:
         print(stop_counts(records, arms))
         print()
         print(exceptions(records))
+    elif args.section == "overhead":
+        print(overhead_bench())
     elif args.section == "neutral":
         print(neutral())
     elif args.section == "docs":

@@ -402,3 +402,23 @@ def test_a_singular_pycma_factor_draws_without_reuse_instead_of_raising(monkeypa
     m.es._dist = None
     m.optimize(cma.ff.sphere, iterations=5)
     assert m.reused > 0
+
+
+def test_the_adapter_gives_pycmas_recombination_weights_to_conditional_mixing():
+    """Variant "conditional" conditions each reused member on its weight in the mean's move; the adapter gives
+    pycma's: the mu best members of the generation told carry pycma's positive weights by rank (summing to 1), the
+    others 0, in the generation's order whatever order they were told in."""
+    m = imix_cli.MixingES(cma.CMAEvolutionStrategy(5 * [1.0], 0.5, {"seed": 3, "verbose": -9}), "conditional", rng=3)
+    for _ in range(6):
+        x = m.ask()
+        f = np.array([cma.ff.elli(xi) for xi in x])
+        m.tell(x, f)
+    es = m.es.es
+    samples = m.generation.samples
+    values = np.array([cma.ff.elli(xi) for xi in samples])
+    c = m.es.mean_weights
+    mu = es.sp.weights.mu
+    best = np.argsort(values)[:mu]
+    np.testing.assert_allclose(c[best], np.asarray(es.sp.weights)[:mu], rtol=0, atol=1e-15)
+    assert np.count_nonzero(c) == mu and abs(c.sum() - 1.0) < 1e-12
+    assert m.generation.mean_weights is not None and m.reuse > 0.2

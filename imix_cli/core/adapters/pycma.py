@@ -140,7 +140,7 @@ class PycmaES:
         if self.pycma_tpa and step_size == "tpa":
             raise ValueError("step_size='tpa' with pycma's AdaptSigma=CMAAdaptSigmaTPA: two TPAs; use step_size='pycma' for pycma's")
         self.generation = 0
-        self.mean_weights = None  # "conditional" mixing has no weights for pycma's update: the other variants only
+        self.mean_weights = None  # pycma's weight of each member told last ("conditional" mixing): _mean_weights
         # imix's TPA (step_size="tpa"): pycma 4.5's CMAAdaptSigmaTPA constants, its state s and the last move
         self.tpa_damp = 0.7 + 2 * math.log(self.dim) + 2 * math.log(max(1, es.popsize - self.dim))
         self.tpa_s = 0.0
@@ -223,6 +223,7 @@ class PycmaES:
         es.evaluations_per_f_value = 1
         es._is_independent_sample = [False] * (len(solutions) - samples.shape[0]) + [True] * samples.shape[0]
         self._pycma.tell(es, solutions, values, check_points=False)  # no repair (module docstring, "Told as pycma's own draws")
+        self.mean_weights = self._mean_weights(len(solutions) - samples.shape[0], order)
         if self.step_size == "tpa" and not self.pycma_tpa:
             step = self._tpa_step(probe_fitness, fitness)
             es.sigma = sigma_before * math.exp(min(max(step, -1.0), 1.0))
@@ -251,6 +252,20 @@ class PycmaES:
         return self.distribution.mean
 
     # ------------------------------------------------------------------ internals
+    def _mean_weights(self, probes: int, order: np.ndarray) -> np.ndarray:
+        """c_j of each member of the generation just told (in the generation's order): pycma's positive
+        recombination weight of its rank, 0 beyond mu -- what variant ``"conditional"`` conditions on
+        (:mod:`imix_cli.core.mixing`, "Reuse inside the loop"). ``probes``: pycma's TPA points told first."""
+        es = self.es
+        told = len(es.fit.idx)
+        ranks = np.empty(told, dtype=np.int64)
+        ranks[np.asarray(es.fit.idx)] = np.arange(told)
+        weights = np.asarray(es.sp.weights, dtype=np.float64)
+        c = np.where(ranks < es.sp.weights.mu, weights[np.minimum(ranks, weights.size - 1)], 0.0)[probes:]
+        out = np.empty(c.size)
+        out[order] = c
+        return out
+
     def _tell_order(self, n: int) -> np.ndarray:
         """The order the members are told to pycma in: a random permutation.
 
