@@ -48,7 +48,7 @@ EXTRAS = {
     ),
     "tensorboard": (("tensorboard",), 'pip install ".[tensorboard]"'),
     "docs": (("mkdocs", "mkdocstrings", "material"), 'pip install ".[docs]"'),
-    "bbob": (("cocoex", "cocopp", "cma"), 'pip install ".[bbob]"'),
+    "bbob": (("cocoex", "cocopp"), 'pip install ".[bbob]"'),
     "peers": (("jax", "evosax", "gymnax"), 'pip install ".[peers]"'),
     "ars": (("sb3_contrib", "stable_baselines3", "torch", "mujoco"), 'pip install torch==2.13.0 ".[ars]"'),
     "mlflow": (("mlflow",), 'pip install ".[mlflow]"'),

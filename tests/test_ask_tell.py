@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import imix_cli
-from imix_cli.core.ask_tell import MixingES
 from imix_cli.core.algorithms import make_es
+from imix_cli.core.ask_tell import MixingES
 from imix_cli.core.evaluation import make_evaluator
 
 GENERATIONS = 6
@@ -84,7 +84,7 @@ def test_misuse_is_one_clear_error():
         es.ask()
     with pytest.raises(ValueError, match="returns for the"):
         es.tell(np.zeros(len(x) + 1))
-    with pytest.raises(ValueError, match="not the members"):
+    with pytest.raises(ValueError, match="not one of the points ask"):
         es.tell(x + 1.0, np.zeros(len(x)))
 
 
