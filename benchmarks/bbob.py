@@ -322,6 +322,8 @@ DOC_PAIRS = (
     (("pycma", "mixing-pop2"), "pycma alone at its default popsize against mixing at twice that popsize"),
     (("pycma-pop2", "mixing-pop2"), "both at twice pycma's default popsize"),
     (("pycma-ipop", "mixing-ipop"), "pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)) against imix_cli.fmin2's"),
+    (("pycma", "mixing-cond"), 'pycma alone against mixing with variant "conditional" (MixingES(es, "conditional"))'),
+    (("pycma", "mixing-cond-pop2"), 'pycma alone at its default popsize against "conditional" mixing at twice that popsize'),
 )
 #: The arms cocopp draws (all in one figure per group).
 COCOPP_ARMS = ("pycma", "mixing", "mixing-pop2", "pycma-ipop", "mixing-ipop")
@@ -336,14 +338,17 @@ def docs(out: Path, arms, page: Path, figures: Path) -> None:
     meta = json.loads((out / "meta.json").read_text()) if (out / "meta.json").exists() else {}
     have = {r["arm"] for r in records}
     lines = [BEGIN, ""]
-    lines.append(
-        f"Measured<!-- provenance: commit={meta.get('commit', '?')}; date={meta.get('date', '?')}; what=make bbob "
-        f"(benchmarks/bbob.py run --arms {','.join(arms)}); machine={meta.get('machine', '?')} -->: "
-        f"{len({r['problem'] for r in records})} problems, {len(records)} runs, `make bbob`."
-    )
+    commits = meta.get("commits", {})
+
+    def mark(*pair):
+        commit = next((commits[a] for a in pair[::-1] if a in commits), "0000000")
+        return (f"<!-- provenance: commit={commit}; date={meta.get('date', '?')}; what=make bbob (benchmarks/bbob.py run --arms "
+                f"{','.join(pair)}); machine={meta.get('machine', '?')} -->")  # fmt: skip
+
+    lines.append(f"{len({r['problem'] for r in records})} problems, {len(records)} runs, `make bbob`.")
     for (a, b), what in DOC_PAIRS:
         if a in have and b in have:
-            lines += ["", f"**{b} against {a}**: {what}.", "", table(records, (a, b))]
+            lines += ["", f"**{b} against {a}**{mark(a, b)}: {what}.", "", table(records, (a, b))]
     lines += ["", "Restarts per evaluation: " + restarts_per_evaluations(records, [a for a in arms if a in have]) + "."]
     for dim in (2, 5, 10):
         line = overhead(records, ("pycma", "mixing"), dim)
@@ -445,7 +450,8 @@ def overhead_bench(dims=(2, 5, 10), generations: int = 300, repeats: int = 5) ->
     return "\n".join(rows)
 
 
-def _meta(out: Path) -> None:
+def _meta(out: Path, arms) -> None:
+    """OUT/meta.json: the date and machine of the first run, and the commit each arm was run at (its provenance)."""
     import platform
     import subprocess
 
@@ -458,7 +464,12 @@ def _meta(out: Path) -> None:
         if Path("/proc/cpuinfo").exists()
         else platform.machine()
     )
-    (out / "meta.json").write_text(json.dumps({"commit": commit, "date": time.strftime("%Y-%m-%d"), "machine": f"{os.cpu_count()}-core {cpu}"}))
+    path = out / "meta.json"
+    meta = json.loads(path.read_text()) if path.exists() else {"date": time.strftime("%Y-%m-%d"), "machine": f"{os.cpu_count()}-core {cpu}"}
+    commits = meta.setdefault("commits", {})
+    for arm in arms:
+        commits.setdefault(arm, commit)
+    path.write_text(json.dumps(meta))
 
 
 def main(argv=None) -> int:
@@ -489,8 +500,7 @@ def main(argv=None) -> int:
     out = args.out.resolve()
     if args.section == "run":
         out.mkdir(parents=True, exist_ok=True)
-        if not (out / "meta.json").exists():
-            _meta(out)
+        _meta(out, arms)
         run(out, ints(args.functions), ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim)
     elif args.section == "table":
         records = load(out)
