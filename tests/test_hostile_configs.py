@@ -326,6 +326,30 @@ def test_what_the_config_fuzzer_found_is_one_line(tmp_path, line, says):
     assert says in refused(["results_dir=out"], config_name="mycfg", config_dirs=(config_dir(), str(tmp_path)))
 
 
+# ------------------------------------------------------------------ 6. the library's keyword errors are the command line's
+@pytest.mark.parametrize(
+    "keywords, override, suggested",
+    [({"popsze": 10}, ["popsze=10"], "'popsize'"), ({"sigmaa": 0.1}, ["sigmaa=0.1"], "'sigma'"),
+     ({"policy": {"hiden": [4]}}, ["policy.hiden=[4]"], "'policy.hidden'"),
+     ({"algo": "cem", "algo.stlye": "x"}, ["algo=cem", "algo.stlye=x"], "'algo.style'"), ({"zzzzqqq": 1}, ["zzzzqqq=1"], None)],
+)  # fmt: skip
+def test_the_librarys_unknown_keyword_is_the_command_lines_one_line(tmp_path, capsys, monkeypatch, keywords, override, suggested):
+    """Before: ``imix_cli.run(popsze=10)`` and ``Experiment(sigmaa=...)`` said "unknown key 'popsze'; valid keys: ..."
+    without the command line's "did you mean". Now one function words both (``compose.unknown_key_message``)."""
+    import imix_cli
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(imix_cli.ConfigError) as caught:
+        imix_cli.run(**keywords, results_dir="out", experiment="lib")
+    assert main(["run", *override, "results_dir=out"]) == 2
+    cli = capsys.readouterr().err.strip().removeprefix("imix run: error: ")
+    assert str(caught.value) == cli, (str(caught.value), cli)
+    assert ("did you mean" not in cli) if suggested is None else f"did you mean {suggested}?" in cli, cli
+    with pytest.raises(imix_cli.ConfigError, match=re.escape(cli)):
+        imix_cli.Experiment(**keywords)
+    assert not (tmp_path / "out").exists()
+
+
 # ------------------------------------------------------------------ the fuzzer: 1,000 hostile --config-dir files
 TAGS = ["!!python/object/apply:os.system [x]", "!!python/name:os.system", "!!python/object:os.system {}", "!!binary aGk=", "!!set {a: null}",
         "!!timestamp 2001-12-14", "!custom x", "!!omap [{a: 1}]", "!!str 4", "!!int '4'", "!!float 4"]  # fmt: skip
