@@ -350,6 +350,45 @@ def test_the_librarys_unknown_keyword_is_the_command_lines_one_line(tmp_path, ca
     assert not (tmp_path / "out").exists()
 
 
+# ------------------------------------------------------------------ 9. a run folder made read-only mid-run
+@pytest.mark.parametrize("how", ["rename", "create", "mkdir"])
+def test_a_run_folder_made_read_only_mid_run_is_named_with_what_to_do(tmp_path, capsys, monkeypatch, how):
+    """Before: ``chattr +i`` on the run folder mid-run ended with "cannot write .seed_1.partial.csv.3d89911e.tmp:
+    Operation not permitted" (or ".checkpoints"): a bare temporary, no folder, nothing to do. Now the line names the run
+    folder, the file and what to do, and a re-run once the folder is writable resumes and finishes. Simulated (root
+    writes through ``chmod a-w``): the writer's rename, its create of the temporary, or the checkpoints' folder's
+    ``mkdir`` refused with EPERM / EROFS after the run started, as ``chattr +i`` or a read-only remount refuse them."""
+    import errno
+
+    monkeypatch.chdir(tmp_path)
+    args = ["run", *TINY, "generations=30", "checkpoint_every=5", "checkpoint_seconds=0", "results_dir=out"]
+    real = {"rename": os.replace, "create": os.open, "mkdir": os.mkdir}[how]
+    calls = {"n": 0}
+
+    def refused_after_a_while(*a, **k):
+        name = str(a[0])
+        ours = name.endswith(".tmp") and ".partial.csv" in name if how != "mkdir" else name == ".checkpoints"
+        if ours:
+            calls["n"] += 1
+            if calls["n"] > (1 if how != "mkdir" else 0):
+                code = errno.EROFS if how == "create" else errno.EPERM
+                raise OSError(code, os.strerror(code), name)
+        return real(*a, **k)
+
+    monkeypatch.setattr(os, {"rename": "replace", "create": "open", "mkdir": "mkdir"}[how], refused_after_a_while)
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip()
+    (run_dir,) = (tmp_path / "out" / "default").iterdir()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"cannot write in the run folder out/default/{run_dir.name} (" in err, err
+    assert "make it writable" in err and "re-run the same command: the run resumes from its checkpoints" in err, err
+    assert ".tmp" not in err, err
+    monkeypatch.undo()  # the folder writable again: the same command resumes and finishes
+    monkeypatch.chdir(tmp_path)
+    assert main(args) == 0, capsys.readouterr().err
+    assert (run_dir / "seed_0.csv").exists() and not list(run_dir.glob(".*.tmp"))
+
+
 # ------------------------------------------------------------------ the fuzzer: 1,000 hostile --config-dir files
 TAGS = ["!!python/object/apply:os.system [x]", "!!python/name:os.system", "!!python/object:os.system {}", "!!binary aGk=", "!!set {a: null}",
         "!!timestamp 2001-12-14", "!custom x", "!!omap [{a: 1}]", "!!str 4", "!!int '4'", "!!float 4"]  # fmt: skip

@@ -15,6 +15,7 @@ other seeds sharing its batch, or whether it was resumed (:mod:`imix_cli.running
 
 from __future__ import annotations
 
+import errno
 import sys
 import time
 
@@ -38,8 +39,39 @@ def run(spec, echo=print) -> dict:
     before it touches anything.
     """
     check_run_dir(spec)
-    with run_dir_lock(spec):
-        return _run_locked(spec, echo)
+    try:
+        with run_dir_lock(spec):
+            return _run_locked(spec, echo)
+    except OSError as err:
+        refused = write_refused(spec.run_dir, err)
+        if refused is None:
+            raise
+        raise refused from None
+
+
+#: A write the run folder refused: read-only or immutable (``chmod a-w``, ``chattr +i``, a read-only mount), or full.
+_NOT_WRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS}
+_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+
+
+def write_refused(run_dir, err: OSError) -> RunError | None:
+    """The one line for a write the run folder refused (mid-run, in this process or a worker): the run folder named,
+    the file and the reason, and what to do -- ``None`` if ``err`` is not such a write (another errno, a file outside
+    the run folder: a user env's own error keeps its line). Before, the line named only the temporary being written
+    (``.seed_1.partial.csv.3d89911e.tmp``), not the folder or what to do (issue 47, case 9)."""
+    import os
+    from pathlib import Path
+
+    if err.errno not in _NOT_WRITABLE | _FULL or not err.filename:
+        return None
+    folder, target = Path(os.path.abspath(run_dir)), Path(os.path.abspath(os.fsdecode(err.filename)))
+    if target != folder and folder not in target.parents:
+        return None
+    what = "free some space" if err.errno in _FULL else "make it writable (chmod u+w; chattr -i if made immutable)"
+    name = "the folder itself" if target == folder else str(target.relative_to(folder))
+    return RunError(
+        f"cannot write in the run folder {run_dir} ({name}: {err.strerror or err}); {what} and re-run the same command: the run resumes from its checkpoints"
+    )
 
 
 def run_seeds(spec, seeds: list[int], progress=None, resumed=None) -> dict:
