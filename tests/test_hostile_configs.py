@@ -389,6 +389,46 @@ def test_a_run_folder_made_read_only_mid_run_is_named_with_what_to_do(tmp_path, 
     assert (run_dir / "seed_0.csv").exists() and not list(run_dir.glob(".*.tmp"))
 
 
+# ------------------------------------------------------------------ 11. a finished run's broken policy file
+@pytest.mark.parametrize("checkpoints", ["final state", "checkpoint_every=0"])
+def test_a_broken_policy_file_of_a_finished_run_is_rebuilt_by_the_same_command(tmp_path, capsys, monkeypatch, checkpoints):
+    """Before: a truncated ``policy_0_mean.npz`` in a finished run: re-running the command exited 0 with "0 seed(s) run
+    now" and left the broken file (``imix eval`` then refused it). Now the re-run reads every finished seed's policy
+    files back, says in one line which one is broken, and writes it again: from the seed's final checkpoint (the same
+    params and header, the CSV untouched), or, with none (``checkpoint_every=0``), by running the seed again."""
+    import pandas as pd
+
+    from imix_cli.running.files.policy_files import read_policy
+
+    monkeypatch.chdir(tmp_path)
+    args = ["run", *TINY, "seeds=2", "generations=6", "results_dir=out"] + (["checkpoint_every=0"] if checkpoints != "final state" else [])
+    assert main(args) == 0
+    capsys.readouterr()
+    (run_dir,) = (tmp_path / "out" / "default").iterdir()
+    good = {which: read_policy(run_dir / f"policy_0_{which}.npz") for which in ("mean", "best")}
+    csv = (run_dir / "seed_0.csv").read_bytes()
+    broken = run_dir / "policy_0_mean.npz"
+    broken.write_bytes(broken.read_bytes()[:300])  # truncated
+    assert main(args) == 0
+    out = capsys.readouterr()
+    lines = out.err.strip().splitlines()
+    assert len(lines) == 1 and "policy_0_mean.npz: not a readable imix policy file" in lines[0], out.err
+    if checkpoints == "final state":
+        assert "rebuilding it from seed 0's final checkpoint" in lines[0], lines
+        assert (run_dir / "seed_0.csv").read_bytes() == csv  # only the policy files are written again
+    else:
+        assert "no final state to rebuild it from (checkpoint_every=0): running it again from generation 0" in lines[0], lines
+        again = pd.read_csv(run_dir / "seed_0.csv").drop(columns="wall_time")
+        pd.testing.assert_frame_equal(again, pd.read_csv(pd.io.common.BytesIO(csv)).drop(columns="wall_time"))
+    assert "1 seed(s) run now" in out.out, out.out
+    for which, policy in good.items():
+        rebuilt = read_policy(run_dir / f"policy_0_{which}.npz")
+        assert (rebuilt.params == policy.params).all() and rebuilt.header == policy.header
+    assert main(args) == 0  # and then the run is whole again
+    out = capsys.readouterr()
+    assert "0 seed(s) run now" in out.out and not out.err.strip(), out
+
+
 # ------------------------------------------------------------------ the fuzzer: 1,000 hostile --config-dir files
 TAGS = ["!!python/object/apply:os.system [x]", "!!python/name:os.system", "!!python/object:os.system {}", "!!binary aGk=", "!!set {a: null}",
         "!!timestamp 2001-12-14", "!custom x", "!!omap [{a: 1}]", "!!str 4", "!!int '4'", "!!float 4"]  # fmt: skip

@@ -121,17 +121,21 @@ class ResumeLine:
     """
 
     def __init__(self, spec, todo: list[int], bar):
-        from imix_cli.running.files.results import partial_csv_path
+        from imix_cli.running.files.results import partial_csv_path, seed_csv_path
 
         self.spec, self.todo, self.bar, self.starts = spec, set(todo), bar, {}
         # before any seed runs (a worker's live view of this run, written seconds later, must not count)
         self.started = {seed for seed in todo if partial_csv_path(spec.run_dir, seed).exists()}
+        # finished seeds run again only to rebuild a policy file: their worker says so, in a line of its own
+        self.finished = {seed for seed in todo if seed_csv_path(spec.run_dir, seed).exists()}
 
     def __call__(self, starts: dict) -> None:
         self.starts.update(starts)
         if self.todo and self.todo <= set(self.starts):
             self.todo = set()  # said once
-            for line in resume_lines(self.spec.run_name, self.starts, self.started):
+            budget = getattr(self.spec, "generations", None)
+            starts = {seed: g for seed, g in self.starts.items() if not (seed in self.finished and g == budget)}
+            for line in resume_lines(self.spec.run_name, starts, self.started):
                 write = getattr(self.bar, "write", None)  # above a progress bar, not through it
                 write(line, file=sys.stderr) if write else print(line, file=sys.stderr, flush=True)
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import os
 import time
 from pathlib import Path
 
@@ -50,6 +51,7 @@ def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> d
             st = None
         if st is not None:
             progress(st.generation)
+        _say_policy_rebuild(spec, seed, st, settings.generations)
         states.append(fresh if st is None else st)
     if resumed is not None:
         resumed({st.seed: st.generation for st in states})
@@ -133,4 +135,42 @@ def needs_running(spec, seed: int, path: Path, frame) -> bool:
                 "move it away or choose another experiment="
             )
         return True
-    return False
+    # A finished seed whose policy file is there but cannot be read back (truncated, damaged): its files are written
+    # again from its final state -- or, with none (checkpoint_every=0), by running it again (_say_policy_rebuild).
+    return bool(unreadable_policies(run_dir, seed))
+
+
+def unreadable_policies(run_dir, seed: int) -> list[str]:
+    """The one-line refusal (:class:`~imix_cli.running.files.policy_files.PolicyFileError`) of each policy file of seed
+    ``seed`` that exists but cannot be read back as data (:func:`~imix_cli.running.files.policy_files.read_policy`).
+    A missing file is not one: a diverged seed writes none."""
+    from imix_cli.running.files.policy_files import WHICH, PolicyFileError, policy_path, read_policy
+
+    broken = []
+    for which in WHICH:
+        path = policy_path(run_dir, seed, which)
+        if os.path.lexists(path):
+            try:
+                read_policy(path)
+            except PolicyFileError as err:
+                broken.append(str(err))
+    return broken
+
+
+def _say_policy_rebuild(spec, seed: int, st, generations: int) -> None:
+    """One line for a finished seed run again only because a policy file of its cannot be read back
+    (:func:`needs_running`): rebuilt from its final state (``st`` at ``generations``: only its files are written), or
+    run again from generation 0 (no final state: ``checkpoint_every=0``). Before, a truncated ``policy_0_mean.npz`` was
+    left as it was: "0 seed(s) run now" (issue 47, case 11)."""
+    from imix_cli.running.files.results import seed_csv_path
+
+    if not seed_csv_path(spec.run_dir, seed).exists() or (st is not None and st.generation < generations):
+        return  # a seed continued to more generations writes its policy files anew at its end all the same
+    broken = unreadable_policies(spec.run_dir, seed)
+    if not broken:
+        return
+    more = f" (and {len(broken) - 1} other policy file)" if len(broken) > 1 else ""
+    how = f"rebuilding {'them' if more else 'it'} from seed {seed}'s final checkpoint"
+    if st is None:
+        how = f"seed {seed} has no final state to rebuild {'them' if more else 'it'} from (checkpoint_every=0): running it again from generation 0"
+    warn(f"{broken[0]}{more}; {how}")
