@@ -25,45 +25,52 @@ from imix_cli.running.files.run_writer import RunWriter
 from imix_cli.running.loop import stopping
 from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state, seed_record
 from imix_cli.running.loop.resume import can_checkpoint, load_checkpoint
+from imix_cli.running.trainers import SEED_GROUP
 
 
 def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> dict:
-    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep, on the run's ``evaluator``
-    (:func:`imix_cli.core.parallel_evaluation.build_evaluator`, built and closed by the caller); ``progress(n)`` gets
-    the number of seed-generations just completed, ``resumed({seed: generation})`` once, the generation each seed
-    starts from (0: from scratch), for the runner's one line about them. Returns seed ->
-    :func:`imix_cli.running.files.results.seed_summary`.
+    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep groups of :data:`SEED_GROUP`, on the run's
+    ``evaluator`` (:func:`imix_cli.core.parallel_evaluation.build_evaluator`, built and closed by the caller);
+    ``progress(n)`` gets the number of seed-generations just completed, ``resumed({seed: generation})`` the generation
+    each seed of a group starts from (0: from scratch) as the group is set up, for the runner's one line about them.
+    Returns seed -> :func:`imix_cli.running.files.results.seed_summary`.
 
     Stopped by a signal (:mod:`imix_cli.running.loop.stopping`, which the caller sets up), the loop checkpoints every
-    unfinished seed at its current generation and raises :class:`~imix_cli.running.loop.stopping.StopRequested`."""
+    unfinished seed of its group at its current generation and raises :class:`~imix_cli.running.loop.stopping.StopRequested`;
+    the groups before it are finished (their CSVs written), those after it not started."""
     identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
     settings = loop_settings(spec, evaluator)
-    states = []
-    for seed in seeds:
-        fresh = new_seed_state(settings, seed)
-        path = checkpoint_path(spec.run_dir, seed)
-        # A refused checkpoint may have been half loaded into the state it was given: a copy of the fresh one.
-        st = load_checkpoint(
-            spec.run_dir, seed, identity, copy.deepcopy(fresh), spec=spec, max_steps=int(evaluator.max_steps), policy_dim=evaluator.num_params
-        )  # fmt: skip
-        if st is not None and st.generation > settings.generations:  # a longer continuation's, killed before it finished
-            warn(f"{path}: checkpoint at generation {st.generation} is past generations={settings.generations}; seed {seed} restarts from generation 0")
-            st = None
-        if st is not None:
-            progress(st.generation)
-        _say_policy_rebuild(spec, seed, st, settings.generations)
-        states.append(fresh if st is None else st)
-    if resumed is not None:
-        resumed({st.seed: st.generation for st in states})
-    if states and not can_checkpoint(states[0].es):
-        settings = dataclasses.replace(settings, checkpoint_every=0)
     writer = RunWriter(spec, evaluator, identity)
-    writer.saved_generation.update({st.seed: st.generation for st in states if st.generation})  # on disk already
     try:
-        _run_loop(settings, states, evaluator, writer, progress)
+        for first in range(0, len(seeds), SEED_GROUP):
+            if stopping.requested():  # the groups not set up yet have nothing to save
+                raise stopping.StopRequested(stopping.requested())
+            states = [_set_up(spec, seed, settings, identity, evaluator, progress) for seed in seeds[first : first + SEED_GROUP]]
+            if resumed is not None:
+                resumed({st.seed: st.generation for st in states})
+            group_settings = settings if can_checkpoint(states[0].es) else dataclasses.replace(settings, checkpoint_every=0)
+            writer.begin_group({st.seed: st.generation for st in states if st.generation})  # on disk already
+            _run_loop(group_settings, states, evaluator, writer, progress)
     finally:
         writer.close()
     return writer.summaries
+
+
+def _set_up(spec, seed: int, settings, identity: dict, evaluator, progress):
+    """Seed ``seed``'s state: from its checkpoint if it has a valid one, else fresh at generation 0."""
+    fresh = new_seed_state(settings, seed)
+    path = checkpoint_path(spec.run_dir, seed)
+    # A refused checkpoint may have been half loaded into the state it was given: a copy of the fresh one.
+    st = load_checkpoint(
+        spec.run_dir, seed, identity, copy.deepcopy(fresh), spec=spec, max_steps=int(evaluator.max_steps), policy_dim=evaluator.num_params
+    )  # fmt: skip
+    if st is not None and st.generation > settings.generations:  # a longer continuation's, killed before it finished
+        warn(f"{path}: checkpoint at generation {st.generation} is past generations={settings.generations}; seed {seed} restarts from generation 0")
+        st = None
+    if st is not None:
+        progress(st.generation)
+    _say_policy_rebuild(spec, seed, st, settings.generations)
+    return fresh if st is None else st
 
 
 #: Most generations a seed runs in one compiled call (:mod:`imix_cli.running.loop.compiled_loop`): the progress bar
