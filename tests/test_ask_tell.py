@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import imix_cli
-from imix_cli.core.ask_tell import MixingES
 from imix_cli.core.algorithms import make_es
+from imix_cli.core.ask_tell import MixingES
 from imix_cli.core.evaluation import make_evaluator
 
 GENERATIONS = 6
