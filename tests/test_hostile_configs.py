@@ -5,6 +5,10 @@ Every YAML imix reads -- a ``--config-dir`` file and what its ``defaults`` pull,
 by run, plot, eval and status -- passes one bounded loader (:mod:`imix_cli.running.files.safe_yaml`) before Hydra,
 OmegaConf or a reader builds anything: more than 10,000 values once its aliases are expanded, nesting deeper than 64
 levels, an alias inside its own anchor, a Python tag or more than 1 MiB are refused in one line naming the file.
+
+Also issue 47's cases 6 (the library's unknown keyword is the command line's line, "did you mean" included), 9 (a run
+folder made read-only mid-run is named with what to do), 10 (seeds set up and run in bounded groups) and 11 (a finished
+run's broken policy file rebuilt by the same command).
 """
 
 from __future__ import annotations

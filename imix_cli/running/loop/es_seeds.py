@@ -1,8 +1,9 @@
-"""The evolution strategies' trainer: seeds of one run, in lockstep, with checkpoints and resume.
+"""The evolution strategies' trainer: seeds of one run, in lockstep groups, with checkpoints and resume.
 
-The run is read once (:func:`imix_cli.running.loop.lockstep.loop_settings`); each seed starts fresh or from its
-checkpoint (:mod:`imix_cli.running.loop.resume`); the loop steps the seeds (:mod:`imix_cli.running.loop.lockstep`,
-:mod:`imix_cli.running.loop.compiled_loop`) and hands each step's record to the run's one writer
+The run is read once (:func:`imix_cli.running.loop.lockstep.loop_settings`); a process's seeds are set up and run
+in groups of :data:`~imix_cli.running.trainers.SEED_GROUP`, one group after the other (memory bounded whatever
+``seeds=`` is); each seed starts fresh or from its checkpoint (:mod:`imix_cli.running.loop.resume`); the loop
+steps the seeds (:mod:`imix_cli.running.loop.lockstep`, :mod:`imix_cli.running.loop.compiled_loop`) and hands each step's record to the run's one writer
 (:mod:`imix_cli.running.files.run_writer`): ``seed_<k>.csv`` written atomically when seed ``k`` finishes, its
 state checkpointed every ``checkpoint_every`` generations with ``seed_<k>.partial.csv`` as a live view,
 and at its current generation when the run is stopped (:mod:`imix_cli.running.loop.stopping`). Re-running the
