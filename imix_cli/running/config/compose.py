@@ -102,6 +102,14 @@ def _refuse_unknown_nested_keys(algo: str, algo_cfg, env_cfg) -> None:
         raise ConfigError(f"unknown key {shown_value(key)}{did_you_mean(key, all_keys())}; valid {group} keys{for_algo}: {', '.join(valid)}")
 
 
+def unknown_key_message(key: str) -> str:
+    """The one line for a key ``imix run`` does not have, the closest key of the table suggested
+    (:func:`~imix_cli.running.config.keys.did_you_mean`): ``imix run popsze=10`` (a command line, a ``--config-name``
+    YAML) and the library's ``imix_cli.run(popsze=10)`` / ``Experiment(sigmaa=...)`` say the same."""
+    shown = f"{key[:100]!r}{'...' if len(key) > 100 else ''}"
+    return f"unknown key {shown}{did_you_mean(key, all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*, policy.*, hydra.*)"
+
+
 def all_keys() -> tuple:
     """Every key ``imix run`` reads, dotted (``seeds``, ``policy.hidden``, ``env.max_steps``, ``algo.style`` ...): what a
     mistyped key is compared with for its "did you mean" (:func:`~imix_cli.running.config.keys.did_you_mean`)."""
@@ -182,8 +190,10 @@ def validate_overrides(
     # algo and env choose config files: a name of conf/algo or conf/env, composed like the command line's
     overrides = [*overrides, *(_group_choice(key, set_values.pop(key)) for key in ("algo", "env") if key in set_values)]
     for key in set_values:
-        if not isinstance(key, str) or not _DOTTED_KEY.match(key) or key.split(".")[0] == "hydra":
-            raise ConfigError(f"unknown key {shown_value(key)}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)")
+        if isinstance(key, str) and _DOTTED_KEY.match(key) is None and key.split(".")[0] != "hydra":
+            raise ConfigError(unknown_key_message(key))  # `"seeds=1,2": 3` -- as the command line words an unknown key
+        if not isinstance(key, str) or key.split(".")[0] == "hydra":
+            raise ConfigError(f"unknown key {shown_value(key)}: a keyword names a key of imix run (algo.*, env.*, policy.*, ...), not Hydra's settings")
     parser = OverridesParser.create()
     try:
         parsed = parser.parse_overrides(overrides)
@@ -465,7 +475,7 @@ def _set_values(values: dict, cfg) -> None:
         try:
             OmegaConf.update(cfg, key, plain(key, v), merge=True)
         except (ConfigAttributeError, ConfigKeyError):
-            raise ConfigError(f"unknown key {shown_value(key)}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*)") from None
+            raise ConfigError(unknown_key_message(key)) from None  # the command line's line: one did-you-mean (issue 47, case 6)
         except OmegaConfBaseException as err:
             raise ConfigError(f"{key}={shown_value(v)}: {first_line(err)}") from None
 
@@ -524,9 +534,7 @@ def _refuse_shared_folders(specs: list[RunSpec]) -> None:
 def _explain_compose_error(err: Exception, point) -> str:
     text = str(err)
     if "not in struct" in text or "Could not override" in text or "Key '" in text and "is not in struct" in text:
-        key = _unknown_key_of(text, point) or first_line(err)
-        shown = f"{key[:100]!r}{'...' if len(key) > 100 else ''}"
-        return f"unknown key {shown}{did_you_mean(key, all_keys())}; valid keys: {', '.join(TOP_LEVEL_KEYS)} (and algo.*, env.*, policy.*, hydra.*)"
+        return unknown_key_message(_unknown_key_of(text, point) or first_line(err))
     missing = re.search(r"Could not find '([^']+)/([^'/]+)'", text)
     if missing:  # a config group option that does not exist, e.g. hydra/launcher=nope
         group, option = missing.groups()

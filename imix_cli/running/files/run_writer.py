@@ -57,6 +57,12 @@ class RunWriter:
         self.saved_generation: dict[int, int] = {}  # seed -> the generation of its checkpoint on disk (written or resumed from)
         self.viewed: dict[int, float] = {}  # seed -> when (perf_counter) its live view was last written in this process
 
+    def begin_group(self, on_disk: dict) -> None:
+        """A new group of seeds starts (:data:`imix_cli.running.loop.es_seeds.SEED_GROUP`): its rows' wall times count
+        from now, as a share's did from its start; ``on_disk``: seed -> the generation of its checkpoint on disk."""
+        self.started = time.perf_counter()
+        self.saved_generation.update(on_disk)
+
     def write(self, st, record, began: float | None = None) -> None:
         """Seed ``st``'s step ``record``: its new rows, then what falls due. ``began``: when the compiled
         chunk that made the rows began (``time.perf_counter()``): their wall times spread evenly over it."""

@@ -57,8 +57,12 @@ def _open_folder(root: Path, parts: tuple, create: bool) -> int:
             except FileNotFoundError:
                 if not create:
                     raise
-                with contextlib.suppress(FileExistsError):  # made by another writer meanwhile: opened below all the same
+                try:
                     os.mkdir(part, 0o777, dir_fd=fd)
+                except FileExistsError:  # made by another writer meanwhile: opened below all the same
+                    pass
+                except OSError as err:  # a read-only or immutable folder: named by its path, not by `part` alone
+                    raise OSError(err.errno, err.strerror, str(where)) from None
                 child = _open_child(part, fd, where)
             except OSError as err:
                 raise _refusal(part, fd, where, err) from None
@@ -110,8 +114,10 @@ def atomic_writer(path, *, root=None, durable: bool = True):
     base.mkdir(parents=True, exist_ok=True)  # the root and above are the user's: created, links followed
     folder = _open_folder(base, parts, create=True)
     tmp = None
+    names = (path.name,)
     try:
         tmp = f".{path.name[:200]}.{secrets.token_hex(4)}.tmp"
+        names = (path.name, tmp)
         fd = os.open(tmp, _TMP_FLAGS, 0o666, dir_fd=folder)  # 0666 less the umask: a file's usual permissions
         with os.fdopen(fd, "wb") as fh:
             yield fh
@@ -126,12 +132,14 @@ def atomic_writer(path, *, root=None, durable: bool = True):
         if durable:
             os.fsync(folder)
     except OSError as err:
-        if err.filename is None:  # ENOSPC from write/fsync names no file: name the one we were writing
+        # ENOSPC from write/fsync names no file, a refused create or rename names the bare temporary
+        # (`.seed_1.partial.csv.3d89911e.tmp`): name the file we were writing, by its path
+        if not isinstance(err, LinkRefusedError) and (err.filename is None or err.filename in names):
             raise OSError(err.errno, err.strerror or str(err), str(path)) from None
         raise
     finally:
-        if tmp is not None:
-            with contextlib.suppress(FileNotFoundError):
+        if tmp is not None:  # a folder made read-only meanwhile keeps it: the error above is the one to tell (a re-run clears it)
+            with contextlib.suppress(OSError):
                 os.unlink(tmp, dir_fd=folder)
         os.close(folder)
 

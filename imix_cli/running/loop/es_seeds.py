@@ -1,8 +1,9 @@
-"""The evolution strategies' trainer: seeds of one run, in lockstep, with checkpoints and resume.
+"""The evolution strategies' trainer: seeds of one run, in lockstep groups, with checkpoints and resume.
 
-The run is read once (:func:`imix_cli.running.loop.lockstep.loop_settings`); each seed starts fresh or from its
-checkpoint (:mod:`imix_cli.running.loop.resume`); the loop steps the seeds (:mod:`imix_cli.running.loop.lockstep`,
-:mod:`imix_cli.running.loop.compiled_loop`) and hands each step's record to the run's one writer
+The run is read once (:func:`imix_cli.running.loop.lockstep.loop_settings`); a process's seeds are set up and run
+in groups of :data:`~imix_cli.running.trainers.SEED_GROUP`, one group after the other (memory bounded whatever
+``seeds=`` is); each seed starts fresh or from its checkpoint (:mod:`imix_cli.running.loop.resume`); the loop
+steps the seeds (:mod:`imix_cli.running.loop.lockstep`, :mod:`imix_cli.running.loop.compiled_loop`) and hands each step's record to the run's one writer
 (:mod:`imix_cli.running.files.run_writer`): ``seed_<k>.csv`` written atomically when seed ``k`` finishes, its
 state checkpointed every ``checkpoint_every`` generations with ``seed_<k>.partial.csv`` as a live view,
 and at its current generation when the run is stopped (:mod:`imix_cli.running.loop.stopping`). Re-running the
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import os
 import time
 from pathlib import Path
 
@@ -24,44 +26,52 @@ from imix_cli.running.files.run_writer import RunWriter
 from imix_cli.running.loop import stopping
 from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state, seed_record
 from imix_cli.running.loop.resume import can_checkpoint, load_checkpoint
+from imix_cli.running.trainers import SEED_GROUP
 
 
 def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> dict:
-    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep, on the run's ``evaluator``
-    (:func:`imix_cli.core.parallel_evaluation.build_evaluator`, built and closed by the caller); ``progress(n)`` gets
-    the number of seed-generations just completed, ``resumed({seed: generation})`` once, the generation each seed
-    starts from (0: from scratch), for the runner's one line about them. Returns seed ->
-    :func:`imix_cli.running.files.results.seed_summary`.
+    """Run ``seeds`` of ``spec`` to completion in this process, in lockstep groups of :data:`SEED_GROUP`, on the run's
+    ``evaluator`` (:func:`imix_cli.core.parallel_evaluation.build_evaluator`, built and closed by the caller);
+    ``progress(n)`` gets the number of seed-generations just completed, ``resumed({seed: generation})`` the generation
+    each seed of a group starts from (0: from scratch) as the group is set up, for the runner's one line about them.
+    Returns seed -> :func:`imix_cli.running.files.results.seed_summary`.
 
     Stopped by a signal (:mod:`imix_cli.running.loop.stopping`, which the caller sets up), the loop checkpoints every
-    unfinished seed at its current generation and raises :class:`~imix_cli.running.loop.stopping.StopRequested`."""
+    unfinished seed of its group at its current generation and raises :class:`~imix_cli.running.loop.stopping.StopRequested`;
+    the groups before it are finished (their CSVs written), those after it not started."""
     identity = resume_identity(spec.identity())  # a run continued to more generations resumes too
     settings = loop_settings(spec, evaluator)
-    states = []
-    for seed in seeds:
-        fresh = new_seed_state(settings, seed)
-        path = checkpoint_path(spec.run_dir, seed)
-        # A refused checkpoint may have been half loaded into the state it was given: a copy of the fresh one.
-        st = load_checkpoint(
-            spec.run_dir, seed, identity, copy.deepcopy(fresh), spec=spec, max_steps=int(evaluator.max_steps), policy_dim=evaluator.num_params
-        )  # fmt: skip
-        if st is not None and st.generation > settings.generations:  # a longer continuation's, killed before it finished
-            warn(f"{path}: checkpoint at generation {st.generation} is past generations={settings.generations}; seed {seed} restarts from generation 0")
-            st = None
-        if st is not None:
-            progress(st.generation)
-        states.append(fresh if st is None else st)
-    if resumed is not None:
-        resumed({st.seed: st.generation for st in states})
-    if states and not can_checkpoint(states[0].es):
-        settings = dataclasses.replace(settings, checkpoint_every=0)
     writer = RunWriter(spec, evaluator, identity)
-    writer.saved_generation.update({st.seed: st.generation for st in states if st.generation})  # on disk already
     try:
-        _run_loop(settings, states, evaluator, writer, progress)
+        for first in range(0, len(seeds), SEED_GROUP):
+            if stopping.requested():  # the groups not set up yet have nothing to save
+                raise stopping.StopRequested(stopping.requested())
+            states = [_set_up(spec, seed, settings, identity, evaluator, progress) for seed in seeds[first : first + SEED_GROUP]]
+            if resumed is not None:
+                resumed({st.seed: st.generation for st in states})
+            group_settings = settings if can_checkpoint(states[0].es) else dataclasses.replace(settings, checkpoint_every=0)
+            writer.begin_group({st.seed: st.generation for st in states if st.generation})  # on disk already
+            _run_loop(group_settings, states, evaluator, writer, progress)
     finally:
         writer.close()
     return writer.summaries
+
+
+def _set_up(spec, seed: int, settings, identity: dict, evaluator, progress):
+    """Seed ``seed``'s state: from its checkpoint if it has a valid one, else fresh at generation 0."""
+    fresh = new_seed_state(settings, seed)
+    path = checkpoint_path(spec.run_dir, seed)
+    # A refused checkpoint may have been half loaded into the state it was given: a copy of the fresh one.
+    st = load_checkpoint(
+        spec.run_dir, seed, identity, copy.deepcopy(fresh), spec=spec, max_steps=int(evaluator.max_steps), policy_dim=evaluator.num_params
+    )  # fmt: skip
+    if st is not None and st.generation > settings.generations:  # a longer continuation's, killed before it finished
+        warn(f"{path}: checkpoint at generation {st.generation} is past generations={settings.generations}; seed {seed} restarts from generation 0")
+        st = None
+    if st is not None:
+        progress(st.generation)
+    _say_policy_rebuild(spec, seed, st, settings.generations)
+    return fresh if st is None else st
 
 
 #: Most generations a seed runs in one compiled call (:mod:`imix_cli.running.loop.compiled_loop`): the progress bar
@@ -133,4 +143,42 @@ def needs_running(spec, seed: int, path: Path, frame) -> bool:
                 "move it away or choose another experiment="
             )
         return True
-    return False
+    # A finished seed whose policy file is there but cannot be read back (truncated, damaged): its files are written
+    # again from its final state -- or, with none (checkpoint_every=0), by running it again (_say_policy_rebuild).
+    return bool(unreadable_policies(run_dir, seed))
+
+
+def unreadable_policies(run_dir, seed: int) -> list[str]:
+    """The one-line refusal (:class:`~imix_cli.running.files.policy_files.PolicyFileError`) of each policy file of seed
+    ``seed`` that exists but cannot be read back as data (:func:`~imix_cli.running.files.policy_files.read_policy`).
+    A missing file is not one: a diverged seed writes none."""
+    from imix_cli.running.files.policy_files import WHICH, PolicyFileError, policy_path, read_policy
+
+    broken = []
+    for which in WHICH:
+        path = policy_path(run_dir, seed, which)
+        if os.path.lexists(path):
+            try:
+                read_policy(path)
+            except PolicyFileError as err:
+                broken.append(str(err))
+    return broken
+
+
+def _say_policy_rebuild(spec, seed: int, st, generations: int) -> None:
+    """One line for a finished seed run again only because a policy file of its cannot be read back
+    (:func:`needs_running`): rebuilt from its final state (``st`` at ``generations``: only its files are written), or
+    run again from generation 0 (no final state: ``checkpoint_every=0``). Before, a truncated ``policy_0_mean.npz`` was
+    left as it was: "0 seed(s) run now" (issue 47, case 11)."""
+    from imix_cli.running.files.results import seed_csv_path
+
+    if not seed_csv_path(spec.run_dir, seed).exists() or (st is not None and st.generation < generations):
+        return  # a seed continued to more generations writes its policy files anew at its end all the same
+    broken = unreadable_policies(spec.run_dir, seed)
+    if not broken:
+        return
+    more = f" (and {len(broken) - 1} other policy file)" if len(broken) > 1 else ""
+    how = f"rebuilding {'them' if more else 'it'} from seed {seed}'s final checkpoint"
+    if st is None:
+        how = f"seed {seed} has no final state to rebuild {'them' if more else 'it'} from (checkpoint_every=0): running it again from generation 0"
+    warn(f"{broken[0]}{more}; {how}")
