@@ -326,7 +326,7 @@ DOC_PAIRS = (
     (("pycma", "mixing-cond-pop2"), 'pycma alone at its default popsize against "conditional" mixing at twice that popsize'),
 )
 #: The arms cocopp draws (all in one figure per group).
-COCOPP_ARMS = ("pycma", "mixing", "mixing-pop2", "pycma-ipop", "mixing-ipop")
+COCOPP_ARMS = ("pycma", "mixing", "mixing-pop2")
 #: cocopp's runtime ECDFs copied into the docs: every group at d = 10, all functions at each d.
 DOC_FIGURES = [f"pprldmany_10D_{g}.svg" for g in ("separ", "lcond", "hcond", "multi", "mult2")] + [f"pprldmany_{d:02d}D_noiselessall.svg" for d in (2, 5, 10)]
 BEGIN, END = "<!-- bbob:begin (benchmarks/bbob.py docs writes this part) -->", "<!-- bbob:end -->"

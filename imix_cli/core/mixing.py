@@ -298,8 +298,9 @@ def _cached_log_prob(dist, x: np.ndarray) -> np.ndarray:
     for bit. The array itself is kept beside its values, so an id is never mistaken for another array's.
     """
     cache = dist.__dict__.setdefault("_log_prob_cache", {})
-    hit = cache.get(id(x))
+    hit = cache.pop(id(x), None)
     if hit is not None and hit[0] is x:
+        cache[id(x)] = hit  # least recently used last: the archived arrays, asked for every generation, stay
         return hit[1]
     values = dist.log_prob(x)
     if len(cache) >= _LOG_PROB_CACHE:
