@@ -270,23 +270,23 @@ def test_the_sharp_ridge_runs_to_the_end_where_pycma_runs_bbob_f13(seed):
     assert np.max(np.abs(es.mean - 1.0)) < 1e-3, es.mean  # at the optimum, not run away (pycma's repair: see above)
 
 
-def test_from_factor_is_the_gaussian_of_its_factor_at_condition_numbers_where_cholesky_of_c_fails():
+def test_the_gaussian_from_pycmas_factor_is_exact_at_condition_numbers_where_cholesky_of_c_fails():
     """A factor of condition 1e9 (C: 1e18, at the edge of float64): the log-density from the factor matches the one
     computed in the factor's own terms (|A^-1 (x - m)|^2), and the square of the factor is C; a singular factor is
     refused in one line (the adapter then draws without reuse)."""
-    from imix_cli.core.distributions import FullGaussian
+    from imix_cli.core.adapters.pycma import gaussian_from_factor
 
     rng = np.random.default_rng(0)
     q, _ = np.linalg.qr(rng.standard_normal((6, 6)))
     a = q * np.logspace(0, -9, 6)  # columns scaled: A = Q diag(1 .. 1e-9)
-    dist = FullGaussian.from_factor(np.zeros(6), a)
+    dist = gaussian_from_factor(np.zeros(6), a)
     x = a @ rng.standard_normal((6, 50))
     z = np.linalg.solve(a, x)
     expected = -0.5 * 6 * np.log(2 * np.pi) - np.sum(np.log(np.logspace(0, -9, 6))) - 0.5 * np.sum(z * z, axis=0)
     np.testing.assert_allclose(dist.log_prob(x.T), expected, rtol=1e-6)  # both at cond(A) * eps
     np.testing.assert_allclose(dist.chol @ dist.chol.T, a @ a.T, rtol=0, atol=1e-15)
     with pytest.raises(ValueError, match="singular"):
-        FullGaussian.from_factor(np.zeros(6), np.diag([1.0, 1, 1, 1, 1, 0]))
+        gaussian_from_factor(np.zeros(6), np.diag([1.0, 1, 1, 1, 1, 0]))
 
 
 def _stop_after(mixing: bool, seed: int):

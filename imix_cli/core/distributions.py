@@ -310,35 +310,25 @@ class FullGaussian:
         self.log_norm = -0.5 * self.dim * xp.LOG_2PI - float(np.sum(xp.log(np.diag(self.chol))))
 
     @classmethod
-    def from_factor(cls, mean, factor, dtype=np.float64) -> FullGaussian:
-        """N(mean, A A^T) from any square root ``A`` of the covariance (a library's own factor, e.g. pycma's
-        B D), without ever forming A A^T and factoring it again.
+    def from_cholesky(cls, mean, chol, dtype=np.float64) -> FullGaussian:
+        """N(mean, L L^T) from its lower-triangular factor L itself, never from L L^T factored again.
 
-        Why: a Cholesky factorisation of C = A A^T works at C's condition number, the square of A's: pycma
-        runs to condition numbers of C near 1e14 (its ``tolconditioncov``), where a round-off of C is no longer
-        positive definite (bbob's sharp ridge f13, d = 5: pycma went on, the old adapter raised). The QR
-        factorisation of A^T = Q R works at A's condition number and gives C = R^T R: L = R^T, each column's
-        sign flipped so that L's diagonal is positive. ValueError if A is singular (a zero or non-finite
-        diagonal of L): the density does not exist, and the caller decides what to do (the pycma adapter then
-        draws without reuse, as pycma would go on drawing).
+        Why: a Cholesky factorisation of C works at C's condition number, the square of its factor's; a library
+        that keeps a square root of C (pycma's B D: :func:`imix_cli.core.adapters.pycma.gaussian_from_factor`
+        turns it into L) gives the density at its own precision this way. ValueError (one line) if ``chol`` is
+        not lower triangular with a finite, positive diagonal: the density does not exist.
         """
         mean = np.array(mean, dtype=np.float64, copy=True).reshape(-1)
-        factor = np.asarray(factor, dtype=np.float64)
+        chol = np.array(chol, dtype=np.float64, copy=True)
         dim = mean.shape[0]
-        if factor.shape != (dim, dim):
-            raise ValueError(f"FullGaussian: factor has shape {factor.shape}, expected {(dim, dim)}")
-        if not np.all(np.isfinite(factor)):
-            raise ValueError("FullGaussian: the covariance factor is not finite")
-        r = np.linalg.qr(factor.T, mode="r")
-        signs = np.where(np.diag(r) < 0, -1.0, 1.0)
-        chol = np.ascontiguousarray((r * signs[:, None]).T)
+        if chol.shape != (dim, dim):
+            raise ValueError(f"FullGaussian: the factor has shape {chol.shape}, expected {(dim, dim)}")
         diag = np.diag(chol)
-        if not np.all(diag > 0) or not np.all(np.isfinite(diag)):
-            raise ValueError("FullGaussian: the covariance factor is singular")
+        if not np.all(np.isfinite(chol)) or not np.all(diag > 0) or np.any(np.triu(chol, 1)):
+            raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)")
         self = cls.__new__(cls)
-        self.mean = mean
-        self.chol = chol
-        self.cov = chol @ chol.T
+        self.mean, self.chol = mean, chol
+        self.cov = xp.mat_mat(chol, np.ascontiguousarray(chol.T))
         self.dtype = np.dtype(dtype)
         self.log_norm = -0.5 * dim * xp.LOG_2PI - float(np.sum(xp.log(diag)))
         return self

@@ -112,7 +112,7 @@ def _run_locked(spec, echo) -> dict:
 class ResumeLine:
     """Where the seeds of a run start, said on stderr once every seed of each process's first group has been told
     (``resumed({seed: generation})``, from each process of the run, as it sets a group of seeds up:
-    :data:`~imix_cli.running.trainers.SEED_GROUP`), then for each later group as it starts: one line per set of seeds
+    :data:`~imix_cli.running.loop.SEED_GROUP`), then for each later group as it starts: one line per set of seeds
     resuming at the same generation (the seeds of a group advance in lockstep, so a set is usually a group), and one for
     the seeds that start from generation 0 -- said only if a seed resumes, or one of them had started (its live view is
     on disk: killed before its first checkpoint, its generations are run again). A run whose shares fit in one group

@@ -27,7 +27,7 @@ it finds too long), which pycma never does to its own samples. Reused and fresh 
 pycma's distribution, so a repair only bends the update: on bbob's sharp ridge f13 (d = 5) the repaired
 updates let the mean run away (4e9 after 900 generations) until the covariance broke and the adapter raised
 (issue 45; tests/test_adapters_pycma.py, ``test_the_sharp_ridge_runs_to_the_end_where_pycma_runs_bbob_f13``).
-The distribution is read from pycma's own factor (:meth:`FullGaussian.from_factor`), never C = A^T A factored
+The distribution is read from pycma's own factor (:func:`gaussian_from_factor`), never C = A^T A factored
 again, and where that factor is singular the generation is drawn without reuse (:attr:`PycmaES.mixable`).
 
 Ties. Members are told in a random order (:meth:`PycmaES._tell_order`): pycma keeps ties in the order told.
@@ -70,7 +70,7 @@ import numpy as np
 
 from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
 
-__all__ = ["FreshRecord", "PycmaES", "REFUSED_OPTIONS", "STEP_SIZES", "is_pycma"]
+__all__ = ["FreshRecord", "PycmaES", "gaussian_from_factor", "REFUSED_OPTIONS", "STEP_SIZES", "is_pycma"]
 
 #: ``step_size`` values (module docstring); the first is the default.
 STEP_SIZES = ("pycma", "tpa")
@@ -308,10 +308,10 @@ class PycmaES:
         off = rows - np.diag(np.diag(rows))
         if not np.any(off):  # a diagonal map (CMA_diagonal, or C still the identity): the std is the map itself
             return DiagonalGaussian(mean, np.abs(np.diag(rows)))
-        # pycma's factor itself, never C = rows^T rows factored again (FullGaussian.from_factor: that squares the condition)
+        # pycma's factor itself, never C = rows^T rows factored again (gaussian_from_factor: that squares the condition)
         try:
             self._degenerate = False
-            return FullGaussian.from_factor(mean, rows.T)
+            return gaussian_from_factor(mean, rows.T)
         except ValueError:  # a singular (or non-finite) factor: pycma goes on drawing from it, so does the adapter, without reuse
             self._degenerate = True
             return _Degenerate(mean, rows)
@@ -420,6 +420,22 @@ class FreshRecord:
             for name, value in own.items():
                 setattr(es.fit, name, value)
             self.new = False
+
+
+def gaussian_from_factor(mean, factor) -> FullGaussian:
+    """N(mean, A A^T) from any square root ``A`` of the covariance (pycma's B D), without forming A A^T.
+
+    The QR factorisation A^T = Q R works at A's condition number and gives A A^T = R^T R: L = R^T, each column's sign
+    flipped so that L's diagonal is positive (:meth:`FullGaussian.from_cholesky`). Factoring C = A A^T itself would
+    work at the square of that condition number, where pycma's runs go (``tolconditioncov`` 1e14). ValueError if A
+    is singular or not finite (the adapter then draws without reuse: :attr:`PycmaES.mixable`).
+    """
+    factor = np.asarray(factor, dtype=np.float64)
+    if not np.all(np.isfinite(factor)):
+        raise ValueError("the covariance factor is not finite")
+    r = np.linalg.qr(factor.T, mode="r")
+    signs = np.where(np.diag(r) < 0, -1.0, 1.0)
+    return FullGaussian.from_cholesky(mean, np.tril((r * signs[:, None]).T))
 
 
 def _child_stream(rng: np.random.Generator) -> np.random.Generator:

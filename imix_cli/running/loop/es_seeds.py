@@ -1,7 +1,7 @@
 """The evolution strategies' trainer: seeds of one run, in lockstep groups, with checkpoints and resume.
 
 The run is read once (:func:`imix_cli.running.loop.lockstep.loop_settings`); a process's seeds are set up and run
-in groups of :data:`~imix_cli.running.trainers.SEED_GROUP`, one group after the other (memory bounded whatever
+in groups of :data:`~imix_cli.running.loop.SEED_GROUP`, one group after the other (memory bounded whatever
 ``seeds=`` is); each seed starts fresh or from its checkpoint (:mod:`imix_cli.running.loop.resume`); the loop
 steps the seeds (:mod:`imix_cli.running.loop.lockstep`, :mod:`imix_cli.running.loop.compiled_loop`) and hands each step's record to the run's one writer
 (:mod:`imix_cli.running.files.run_writer`): ``seed_<k>.csv`` written atomically when seed ``k`` finishes, its
@@ -23,10 +23,9 @@ from imix_cli.running.config.run_spec import resume_identity
 from imix_cli.running.files.checkpoints import checkpoint_path
 from imix_cli.running.files.results import es_seed_finished
 from imix_cli.running.files.run_writer import RunWriter
-from imix_cli.running.loop import stopping
+from imix_cli.running.loop import SEED_GROUP, stopping
 from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state, seed_record
 from imix_cli.running.loop.resume import can_checkpoint, load_checkpoint
-from imix_cli.running.trainers import SEED_GROUP
 
 
 def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> dict:
