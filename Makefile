@@ -206,10 +206,10 @@ ADAPTER_NOISY_BUDGET ?= 3000
 .PHONY: adapters
 # pycma alone and with mixing on COCO's bbob suite (docs/adapters.md, "COCO's bbob suite"; benchmarks/bbob.py): 24
 # functions x d = 2, 5, 10 x instances 1-3, the arms of the table, COCO's observer data, cocopp's runtime ECDFs and
-# the page's table and figures. Needs `pip install ".[bbob]"`. About 25 min of 2 cores for the runs (finished
+# the page's table and figures. Needs `pip install ".[bbob]"`. About 45 min of 2 cores for the runs (finished
 # problems are skipped, so an interrupted run resumes), then ~10 min of cocopp.
 BBOB_OUT  ?= results/bbob
-BBOB_ARMS ?= pycma,mixing,mixing-pop2,pycma-pop2,pycma-ipop,mixing-ipop
+BBOB_ARMS ?= pycma,mixing,mixing-pop2,pycma-pop2,pycma-ipop,mixing-ipop,pycma-bipop,mixing-bipop,mixing-cond,mixing-cond-pop2
 bbob:  ## COCO's bbob suite: pycma alone and wrapped (table and cocopp figures of docs/adapters.md)
 	$(PY) benchmarks/bbob.py run --out $(BBOB_OUT) --arms $(BBOB_ARMS)
 	$(PY) benchmarks/bbob.py docs --out $(BBOB_OUT) --arms $(BBOB_ARMS)

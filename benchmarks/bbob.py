@@ -322,6 +322,7 @@ DOC_PAIRS = (
     (("pycma", "mixing-pop2"), "pycma alone at its default popsize against mixing at twice that popsize"),
     (("pycma-pop2", "mixing-pop2"), "both at twice pycma's default popsize"),
     (("pycma-ipop", "mixing-ipop"), "pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)) against imix_cli.fmin2's"),
+    (("pycma-bipop", "mixing-bipop"), "pycma's BIPOP restarts (cma.fmin2(..., restarts=9, bipop=True)) against imix_cli.fmin2's"),
     (("pycma", "mixing-cond"), 'pycma alone against mixing with variant "conditional" (MixingES(es, "conditional"))'),
     (("pycma", "mixing-cond-pop2"), 'pycma alone at its default popsize against "conditional" mixing at twice that popsize'),
 )
