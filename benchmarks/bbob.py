@@ -245,7 +245,6 @@ def table(records: list[dict], arms=("pycma", "mixing")) -> str:
         f"| restarts {other}/{base} | tolflatfitness stops | exceptions |",
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
-    total = collections.Counter()
     all_ratios = []
     for name, fids in (*GROUPS, ("all", range(1, 25))):
         ks = [k for k in keys if k[0] in fids]
@@ -265,7 +264,6 @@ def table(records: list[dict], arms=("pycma", "mixing")) -> str:
         med = f"{np.median(ratios):.2f} ({len(ratios)})" if ratios else "-"
         rr = f"{rb / ra:.2f} ({rb}/{ra})" if ra else f"- ({rb}/{ra})"
         lines.append(f"| {name} | {sum(x['hit'] for x in a)}/{len(ks)} | {sum(y['hit'] for y in b)}/{len(ks)} | {med} | {rr} | {fb} vs {fa} | {exc} |")
-        total[name] = len(ks)
     return "\n".join(lines)
 
 

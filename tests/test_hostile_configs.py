@@ -139,12 +139,17 @@ def test_the_configs_imix_writes_and_ships_pass_the_bounded_loader(tmp_path):
 
 
 # ------------------------------------------------------------------ 2. the bomb in a run folder's config.yaml
-@pytest.fixture(scope="module")
-def finished(tmp_path_factory):
-    root = tmp_path_factory.mktemp("hostile") / "results"
-    assert main(["run", *TINY, f"results_dir={root}"]) == 0
+def _finished_run(tmp_path_factory, name: str, args) -> Path:
+    """The run folder of ``imix run args`` in a new folder ``name``."""
+    root = tmp_path_factory.mktemp(name) / "results"
+    assert main(["run", *args, f"results_dir={root}"]) == 0
     (run_dir,) = root.glob("default/*")
     return run_dir
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    return _finished_run(tmp_path_factory, "hostile", TINY)
 
 
 @pytest.fixture
@@ -255,10 +260,7 @@ MEASURED = [*TINY, "eval_mean_every=1", "eval_mean_episodes=2"]  # the distribut
 
 @pytest.fixture(scope="module")
 def measured(tmp_path_factory):
-    root = tmp_path_factory.mktemp("values") / "results"
-    assert main(["run", *MEASURED, f"results_dir={root}"]) == 0
-    (run_dir,) = root.glob("default/*")
-    return run_dir
+    return _finished_run(tmp_path_factory, "values", MEASURED)
 
 
 def set_cells(csv: Path, **cells) -> None:

@@ -26,6 +26,7 @@ given). While :func:`fmin2` runs, ``cma.evolution_strategy.CMAEvolutionStrategy`
 from __future__ import annotations
 
 import contextlib
+import functools
 import threading
 
 import numpy as np
@@ -38,8 +39,9 @@ MIXING_DEFAULTS = {"variant": "exact"}
 _LOCK = threading.Lock()
 
 
+@functools.cache
 def _subclass():
-    """The pycma subclass, made on first use (cma is imported only here)."""
+    """The pycma subclass, made once, on first use (cma is imported only here)."""
     import cma
 
     base = cma.CMAEvolutionStrategy
