@@ -87,16 +87,36 @@ def test_cma_es_step_size_under_neutral_selection_with_mixing_drifts_as_without(
     assert csa - none < -5.0, f"CSA with mixing no longer collapses ({csa:.3f} vs {none:.3f}): the test lost its power"
 
 
-def test_the_runner_gives_cma_es_two_point_adaptation_only_when_it_mixes():
+#: RunSpec fields that say how (and whether) members are reused: the only ones an ``eim=false,true`` sweep may change.
+MIXING_FIELDS = {"mixing", "variant"}
+#: Config keys an ``eim=false,true`` / ``im=false,true`` sweep sets (``mixing``: what they resolve to).
+MIXING_CONFIG_KEYS = {"im", "eim", "mixing"}
+
+
+@pytest.mark.parametrize("algo", ["openes", "snes", "cem", "cmaes", "ars"])
+@pytest.mark.parametrize("mixing_key", ["eim", "im"])
+def test_a_mixing_sweep_changes_the_mixing_alone(algo, mixing_key):
+    """``imix run -m algo=X eim=false,true``: every resolved setting but the mixing is the same in both arms (CMA-ES's
+    step-size control once resolved to CSA without mixing and TPA with it, so such a sweep compared two rules)."""
+    specs = validate_overrides([f"algo={algo}", f"{mixing_key}=false,true"])
+    assert [s.mixing for s in specs] == ["none", mixing_key]
+    without, with_mixing = (s.to_dict() for s in specs)
+    differing = sorted(k for k in without if k not in MIXING_FIELDS | {"config"} and without[k] != with_mixing[k])
+    assert not differing, f"algo={algo}: {mixing_key}=false,true also changes {differing}"
+    configs = [{k: v for k, v in s.config.items() if k not in MIXING_CONFIG_KEYS} for s in specs]
+    assert configs[0] == configs[1]
+
+
+def test_cma_es_runs_two_point_adaptation_with_and_without_mixing_unless_told_csa():
     specs = {eim: validate_overrides(["algo=cmaes", f"eim={eim}"])[0] for eim in ("true", "false")}
-    assert specs["true"].algo_options["step_size_control"] == "tpa"
-    assert specs["false"].algo_options["step_size_control"] == "csa"
-    assert specs["true"].run_name == "cmaes-cartpole-eim"  # auto's choice is not a change of setting
-    chosen = validate_overrides(["algo=cmaes", "eim=true", "algo.step_size_control=csa"])[0]
-    assert chosen.algo_options["step_size_control"] == "csa"
-    assert chosen.run_name == "cmaes-cartpole-eim-algo.step_size_control=csa"
-    with pytest.raises(ConfigError, match="algo.step_size_control"):
-        validate_overrides(["algo=cmaes", "algo.step_size_control=fast"])
+    assert {s.algo_options["step_size_control"] for s in specs.values()} == {"tpa"}
+    assert specs["false"].run_name == "cmaes-cartpole-none"  # the default is not a change of setting
+    chosen = validate_overrides(["algo=cmaes", "eim=false,true", "algo.step_size_control=csa"])
+    assert [s.algo_options["step_size_control"] for s in chosen] == ["csa", "csa"]
+    assert [s.run_name for s in chosen] == ["cmaes-cartpole-none-algo.step_size_control=csa", "cmaes-cartpole-eim-algo.step_size_control=csa"]
+    for bad in ("fast", "auto"):  # auto (TPA with mixing, CSA without) is gone: a folder run with it is not this default's
+        with pytest.raises(ConfigError, match="algo.step_size_control"):
+            validate_overrides(["algo=cmaes", f"algo.step_size_control={bad}"])
 
 
 def test_the_runner_evaluates_and_counts_the_two_points(tmp_path):

@@ -36,8 +36,8 @@ Where we differ from pycma, on purpose:
   pycma's update over all orders of the tied members. Without ties this is pycma's update.
 * Step-size control is CSA at every d (pycma switches to TPA for d >= 300), unless
   ``step_size_control="tpa"`` (below).
-* Two-point step-size adaptation (``step_size_control="tpa"``; ``imix run``'s ``auto`` picks it
-  when the run mixes, CSA otherwise). Why: CSA compares the mean's step with the step of
+* Two-point step-size adaptation (``step_size_control="tpa"``; ``imix run``'s default, with and
+  without mixing, so that ``eim=false,true`` changes the mixing alone). Why: CSA compares the mean's step with the step of
   *fresh* randomly ranked members. Under importance mixing a third of CMA-ES's members are
   reused, and given the loop they are not fresh draws of the current distribution (they sit
   nearer its mean and ahead along the last move: constant fitness, d = 130, N = 50, E[z^2] 0.977,
@@ -110,13 +110,8 @@ SUPPORTED_OPTIONS = {
     "conditioncov_alleviate": (1e8, 1e12),
 }
 
-#: Values of :attr:`CMAESParams.step_size_control` (``"auto"``: resolved by the runner, see the field).
-STEP_SIZE_CONTROLS = ("csa", "tpa", "auto")
-
-
-def step_size_control_for(mixing: bool) -> str:
-    """What ``algo.step_size_control=auto`` means: TPA when members are reused (module docstring), CSA (pycma's) otherwise."""
-    return "tpa" if mixing else "csa"
+#: Values of :attr:`CMAESParams.step_size_control`.
+STEP_SIZE_CONTROLS = ("csa", "tpa")
 
 
 # pycma's GaussFullSampler raises when an eigenvalue is <= 0 and retries after adding the
@@ -256,13 +251,16 @@ class CMAESParams(Params):
 
     #: Step-size control: ``"csa"`` (pycma's cumulative step-size adaptation) or ``"tpa"``
     #: (two-point adaptation: two extra fresh evaluations per generation, :meth:`CMAES.probes`;
-    #: module docstring). ``imix run``'s ``algo.step_size_control=auto`` resolves to ``"tpa"``
-    #: when the run mixes and to ``"csa"`` otherwise (:func:`step_size_control_for`).
+    #: module docstring). The class's default is pycma's rule, which a plain ask/tell loop needs
+    #: (TPA asks for two extra evaluations); ``imix run``'s (``run_default``) is TPA with *and*
+    #: without mixing: CSA misreads reused members, and an ``eim=false,true`` sweep whose arms ran
+    #: two step-size rules would compare the rules as well as the mixing (docs/research/bias.md).
     step_size_control: str = field(default="csa", metadata={
-        "choices": STEP_SIZE_CONTROLS, "auto": step_size_control_for, "short": "csa | tpa | auto (tpa with im/eim, csa without)",
-        "doc": "`algo=cmaes` only: `csa` (pycma's cumulative step-size adaptation), `tpa` (two-point adaptation: two extra "
-               "fresh episodes per generation along the last move of the mean; its signal does not come from reused members), "
-               "`auto` (`tpa` with `im`/`eim`, `csa` without); docs/research/bias.md",
+        "choices": STEP_SIZE_CONTROLS, "run_default": "tpa", "short": "csa | tpa (default tpa, with and without mixing)",
+        "doc": "`algo=cmaes` only: `tpa` (two-point adaptation: two extra fresh episodes per generation along the last move "
+               "of the mean; its signal does not come from reused members; the default, with and without mixing, so that "
+               "`eim=false,true` changes the mixing alone), `csa` (pycma's cumulative step-size adaptation, the paper's CMA-ES; "
+               "with mixing it misreads reused members); docs/research/bias.md",
     })  # fmt: skip
 
 
@@ -323,7 +321,7 @@ class CMAES(EvolutionStrategy):
         self.transform_inverse = None
         self.countiter = 0  # pycma's countiter: number of updates
         if self.params.step_size_control not in ("csa", "tpa"):
-            raise ValueError(f"step_size_control={self.params.step_size_control!r}: must be 'csa' or 'tpa' ('auto' is resolved by imix run)")
+            raise ValueError(f"step_size_control={self.params.step_size_control!r}: must be 'csa' or 'tpa'")
         # TPA (pycma's CMAAdaptSigmaTPA constants): the damping, the smoothing c, the state s and
         # the last move of the mean (genotype), from which the next two test points are made
         self.tpa_damp = 0.7 + 2 * _log(d) + 2 * _log(max(1, self.popsize - d))

@@ -16,7 +16,7 @@ from imix_cli.core.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
 from imix_cli.messages import install_extra
 from imix_cli.running.config.checks import ConfigError, as_choice, check_memory, env_of, first_line, gym_env_bytes, parallel_launcher_name, workers_of
 from imix_cli.running.config.keys import KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS, read_keys
-from imix_cli.running.config.run_spec import RunSpec, algo_option_fields, resolve_auto_options
+from imix_cli.running.config.run_spec import RunSpec, algo_option_fields, run_default
 
 
 def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
@@ -30,7 +30,6 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     if eim and checked["im_variant"] != PAPER_DEFAULTS["im_variant"]:
         raise ConfigError(f"im_variant={checked['im_variant']}: applies to im=true only; with eim=true choose eim_variant={'|'.join(eim_variants)}")
     mixing = "eim" if eim else ("im" if im else "none")
-    algo_options = resolve_auto_options(algo, algo_options, mixing != "none")
     variant = eim_variants[checked["eim_variant"]].name if eim else (im_variants[checked["im_variant"]].name if im else None)
     if checked["im_alpha"] != 0.0 and not (variant is not None and variant_spec(variant).uses_alpha):
         raise ConfigError(f"im_alpha={checked['im_alpha']}: only applies with im=true im_variant=sun2009")
@@ -99,7 +98,7 @@ def _algo_options(algo: str, algo_cfg: dict) -> dict:
     checked; the ES's Params checks them all with the run's popsize (:func:`_check_params_together`)."""
     options = {}
     for key, f in algo_option_fields(algo).items():
-        value = algo_cfg.get(key, f.default)
+        value = algo_cfg.get(key, run_default(f))
         if "choices" in f.metadata:
             as_choice(value, f"algo.{key}", f.metadata["choices"])
         options[key] = value

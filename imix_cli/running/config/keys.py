@@ -308,7 +308,7 @@ KEYS = (
 
 def _algo_option_keys() -> tuple:
     """``algo.<option>`` of each ES that has options: a field of its ``Params``, documented in the field's metadata
-    (``short``, ``doc``); its default there (``auto`` where the field resolves one: conf/algo/<name>.yaml's)."""
+    (``short``, ``doc``); its default in ``imix run`` (:func:`imix_cli.running.config.run_spec.run_default`: conf/algo/<name>.yaml's)."""
     import dataclasses
 
     from imix_cli.core.registry import ALGORITHM_SPECS
@@ -318,7 +318,7 @@ def _algo_option_keys() -> tuple:
         fields = {f.name: f for f in dataclasses.fields(spec.es_class().Params)} if spec.options else {}
         for option in spec.options:
             f = fields[option]
-            shown = "auto" if "auto" in f.metadata else yaml_value(f.default)
+            shown = yaml_value(f.metadata.get("run_default", f.default))
             keys.append(RunKey(f"algo.{option}", GROUP, f"algo={algo} only: {f.metadata['short']}", f.metadata["doc"], "what to run", shown=shown))
     return tuple(keys)
 

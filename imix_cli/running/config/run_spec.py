@@ -27,11 +27,11 @@ def algo_option_fields(algo: str) -> dict:
     return {key: by_name[key] for key in spec.options}
 
 
-def resolve_auto_options(algo: str, options: dict, mixing: bool) -> dict:
-    """``options`` with each ``"auto"`` value replaced by what its field's ``metadata["auto"]`` picks for a
-    run that mixes or not (CMA-ES's ``step_size_control``)."""
-    fields = algo_option_fields(algo)
-    return {k: fields[k].metadata["auto"](mixing) if v == "auto" and "auto" in fields[k].metadata else v for k, v in options.items()}
+def run_default(option_field):
+    """An ``algo.<key>`` option's default in ``imix run``: its field's ``metadata["run_default"]`` where the class's
+    own default serves a plain ask/tell loop instead (CMA-ES's ``step_size_control``), else the field's default.
+    The same with and without mixing, so that ``eim=false,true`` changes the mixing alone."""
+    return option_field.metadata.get("run_default", option_field.default)
 
 
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
@@ -113,8 +113,7 @@ class RunSpec:
             return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))
         values = {key.name: self._folder_value(key.name) for key in KEYS if key.names_folder_with(self.mixing)}
         changed = {k: v for k, v in values.items() if v != PAPER_DEFAULTS[k]}
-        mixes = self.mixing != "none"  # an "auto" option's default is what auto picks for this run
-        defaults = {k: f.metadata["auto"](mixes) if "auto" in f.metadata else f.default for k, f in algo_option_fields(self.algo).items()}
+        defaults = {k: run_default(f) for k, f in algo_option_fields(self.algo).items()}
         changed.update({f"algo.{k}": v for k, v in self.algo_options.items() if v != defaults.get(k)})
         if self.hidden != POLICY_DEFAULTS["hidden"]:
             changed["hidden"] = "x".join(map(str, self.hidden)) or "linear"
