@@ -443,3 +443,72 @@ def test_one_runs_figure_titles_lie_inside_the_figure(tmp_path):
         title, box = fig.get_suptitle(), fig._suptitle.get_window_extent(renderer)
         assert title.count("\n") >= 2, (name, title)  # still the whole title: what, how, the dots
         assert 0 <= box.x0 and box.x1 <= fig.bbox.width and 0 <= box.y0 and box.y1 <= fig.bbox.height, (name, box, fig.bbox)
+
+
+def _noisy_pair(root, theta_measured=True):
+    """A noisy task where the population flatters mixing: with EIM the population mean (reused members keep lucky
+    stored returns) crosses 195 at generation 2 while θ on fresh episodes only does at generation 8; without mixing
+    both cross at generation 5. Costs: 10 episodes per generation without mixing, 4 with EIM (6 reused)."""
+    for mixing, population_at, theta_at, reused in (("none", 5, 5, 0), ("eim", 2, 8, 6)):
+        run_dir = root / EXPERIMENT / run_dir_name("cem", "cartpole", mixing)
+        run_dir.mkdir(parents=True)
+        for seed in range(6):
+            population = [150.0] * population_at + [199.0] * (10 - population_at)
+            rows = run_rows("cem", "cartpole", mixing, seed, population, 10, [0] + [reused] * 9)
+            for g, row in enumerate(rows):  # θ measured every other generation, as eval_mean_every=2 does
+                measured = theta_measured and g % 2 == 0
+                row["mean_policy_score"] = (196.0 + 0.5 * seed if g >= theta_at else 120.0) if measured else float("nan")
+            write_run_csv(run_dir / f"seed_{seed}.csv", rows)
+
+
+def test_headline_tables_and_figures_measure_theta_on_fresh_episodes_where_the_population_flatters_mixing(tmp_path, capsys):
+    """Where population and θ disagree (a noisy task), the threshold, iqm, improvement tables, the efficiency figure and
+    the profile rank by θ by default; measure=population gives the paper's measure. Made to fail: with the threshold
+    table's column fixed to mean_score the default run reads the population's 60 and 18 episodes, not θ's 70 and 42."""
+    _noisy_pair(tmp_path)
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=threshold,iqm,improvement,efficiency,profile"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    table = pd.read_csv(figures_dir(tmp_path) / "evaluations_to_threshold.csv").set_index("mixing")
+    # θ: none at generation 6 (first measurement at or after 5): 70 episodes; eim at 8: 10 + 8 * 4 = 42
+    assert table.loc["none", "evaluations_mean"] == pytest.approx(70) and table.loc["eim", "evaluations_mean"] == pytest.approx(42)
+    assert set(table["measure"]) == {"θ on fresh episodes"}
+    iqm = pd.read_csv(figures_dir(tmp_path) / "iqm.csv").set_index("mixing")
+    assert iqm.loc["eim", "final_iqm"] == pytest.approx(197.25)  # θ's final 196 + seed / 2 (middle four); the population ends at 199
+    assert table.loc["eim", "reached"] == 6
+    assert "θ on fresh episodes" in (figures_dir(tmp_path) / "evaluations_to_threshold.md").read_text()
+    improvement = pd.read_csv(figures_dir(tmp_path) / "improvement.csv")
+    assert improvement["p_fewer_episodes"].tolist() == [1.0]  # 42 < 70 on every pair, by θ too
+    (figures_dir(tmp_path) / "evaluations_to_threshold.csv").unlink()
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=threshold", "measure=population"]) == 0
+    table = pd.read_csv(figures_dir(tmp_path) / "evaluations_to_threshold.csv").set_index("mixing")
+    assert table.loc["none", "evaluations_mean"] == pytest.approx(60) and table.loc["eim", "evaluations_mean"] == pytest.approx(18)
+    assert set(table["measure"]) == {"population mean return"}
+
+
+def test_the_efficiency_figure_draws_theta_held_between_measurements_and_the_population_thin_beside_it(tmp_path):
+    from imix_cli.plotting.data import PlotOptions, load_experiment
+    from imix_cli.plotting.figures import efficiency_figures, efficiency_curves, efficiency_groups
+
+    _noisy_pair(tmp_path)
+    exp = load_experiment(tmp_path, EXPERIMENT)
+    (stem, fig), = list(efficiency_figures(exp, PlotOptions()))
+    ax = fig.axes[0]
+    assert ax.get_ylabel() == "θ on fresh episodes"
+    assert any("thin: population mean return" in t.get_text() for t in fig.legends[0].get_texts())
+    _, curves = efficiency_curves(efficiency_groups(exp, "cartpole"), "mean_policy_score")
+    for group, x, matrix in curves:
+        assert np.isfinite(matrix).all()  # held from each measurement to the next, never a gap
+        assert set(np.unique(matrix[0])) == {120.0, 196.0}  # seed 0: before and after θ's crossing
+
+
+def test_a_run_without_theta_falls_back_to_the_population_for_the_whole_output_with_one_warning(tmp_path, capsys):
+    _noisy_pair(tmp_path, theta_measured=False)
+    assert main([f"results_dir={tmp_path}", f"experiment={EXPERIMENT}", "only=threshold"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("no θ measured in") == 1 and "eval_mean_every=0" in err
+    table = pd.read_csv(figures_dir(tmp_path) / "evaluations_to_threshold.csv")
+    assert set(table["measure"]) == {"population mean return"}
+
+
+def test_measure_key_is_checked():
+    assert main(["measure=fresh"]) == 2

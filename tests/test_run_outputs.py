@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
+import pytest
 
 from imix_cli.commands.cli import main
 from imix_cli.running.config.compose import validate_overrides
@@ -66,13 +67,24 @@ def test_argparse_style_option_suggests_key_value(tmp_path, capsys):
     assert len(err) == 2 and all("seeds=3" in line for line in err)
 
 
-def test_summary_shows_theta_on_fresh_episodes_beside_the_population_and_says_which_has_no_reused_returns(tmp_path, capsys):
+def test_summary_leads_with_theta_on_fresh_episodes_then_the_population_and_says_which_has_no_reused_returns(tmp_path, capsys):
+    """The first score of the summary is θ on fresh episodes, the population mean (stored returns) beside it; the line
+    comparing a run with its twin without mixing compares θ. Made to fail by swapping the columns back."""
+    assert main(["run", "-m", *TINY, "seeds=2", "eim=false,true", "eval_mean_every=2", f"results_dir={tmp_path}"]) == 0
+    out = capsys.readouterr().out
+    lines = out[out.index("sweep: 2 run(s)") :].splitlines()
+    assert lines[1].index("θ fresh") < lines[1].index("population")
+    for line in lines[2:4]:
+        run = line.split()[0]
+        frames = [read_run_csv(tmp_path / "default" / run / f"seed_{k}.csv") for k in (0, 1)]
+        theta = np.mean([f["mean_policy_score"].dropna().iloc[-1] for f in frames])
+        population = np.mean([f["mean_score"].iloc[-1] for f in frames])
+        scores = line.split()[2:]  # after the name and the seeds: θ's mean, ±, half-width, then the population's
+        assert float(scores[0]) == pytest.approx(theta, abs=0.006) and float(scores[3]) == pytest.approx(population, abs=0.006)
     assert main(["run", *TINY, "seeds=2", "eim=true", "eval_mean_every=2", f"results_dir={tmp_path}"]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    assert "population" in lines[0] and "θ fresh" in lines[0]
-    frames = [read_run_csv(tmp_path / "default" / "cem-cartpole-eim-popsize=8" / f"seed_{k}.csv") for k in (0, 1)]
-    theta = np.mean([f["mean_policy_score"].dropna().iloc[-1] for f in frames])
-    assert f"{theta:.2f} ±" in lines[1]
+    comparison = [line for line in capsys.readouterr().out.splitlines() if " vs " in line]
+    assert comparison and "(the same settings but the mixing)" in comparison[0] and "final θ fresh" in comparison[0]
+    lines = out.splitlines()
     assert any("θ fresh: distribution mean on fresh episodes" in line and "free of reused returns" in line for line in lines)
 
 

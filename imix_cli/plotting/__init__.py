@@ -25,7 +25,14 @@ as CSV, Markdown and LaTeX).
 keys:
   results_dir=PATH        folder holding the experiments (default: results)
   experiment=NAME         experiment to plot (default: default)
-  threshold.<env>=RETURN  population mean return that counts as solved, for the
+  measure=theta|population
+                          what the efficiency figures, the threshold, iqm and
+                          improvement tables and the profiles measure a run by
+                          (default: theta, the distribution mean on fresh
+                          episodes, free of reused returns; population: the last
+                          generation's mean return with reused members' stored
+                          returns, the paper's measure, drawn beside θ anyway)
+  threshold.<env>=RETURN  return that counts as solved, for the
                           evaluations-to-threshold table (defaults: cartpole=195,
                           acrobot=-100, continuous_cartpole=195,
                           continuous_cartpole_hard=195; other envs are left out
@@ -94,6 +101,14 @@ def _formats(key: str, value: str) -> tuple:
     return tuple(dict.fromkeys(fmts))
 
 
+def _measure(key: str, value: str) -> str:
+    from .data import MEASURES
+
+    if value not in MEASURES:
+        raise UsageError(f"bad value for measure: {value!r} (expected {' or '.join(MEASURES)})")
+    return value
+
+
 def _dpi(key: str, value: str) -> int:
     try:
         dpi = int(value)
@@ -104,9 +119,9 @@ def _dpi(key: str, value: str) -> int:
     return dpi
 
 
-_DEFAULTS = {"results_dir": "results", "experiment": "default", "ci": 0.68, "only": None, "formats": ("png", "pdf"), "dpi": 150, "didactic": False}
-_CONVERT = {"results_dir": results_dir_value, "experiment": experiment_name, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi, "didactic": flag}
-_KNOWN = "results_dir, experiment, threshold.<env>, ci, only, formats, dpi, didactic"
+_DEFAULTS = {"results_dir": "results", "experiment": "default", "ci": 0.68, "only": None, "formats": ("png", "pdf"), "dpi": 150, "didactic": False, "measure": "theta"}
+_CONVERT = {"results_dir": results_dir_value, "experiment": experiment_name, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi, "didactic": flag, "measure": _measure}
+_KNOWN = "results_dir, experiment, measure, threshold.<env>, ci, only, formats, dpi, didactic"
 
 
 def parse_args(argv: list) -> dict:
@@ -170,6 +185,7 @@ def main(argv: list | None = None) -> int:
         ci_level=settings["ci_level"],
         dpi=settings["dpi"],
         formats=settings["formats"],
+        measure=settings["measure"],
     )
     exp = load_experiment(settings["results_dir"], settings["experiment"], warn=opts.warn)
     select_main_groups(exp.groups, warn=opts.warn)  # names the grid-search runs the main figures leave out

@@ -80,6 +80,11 @@ __all__ = [
     "align_by_generation",
     "align_on_grid",
     "first_crossing",
+    "final_value",
+    "column_for",
+    "headline",
+    "MEASURES",
+    "THETA",
     "threshold_stats",
     "reuse_stats",
     "HYPERPARAMS",
@@ -105,6 +110,16 @@ def _stderr_warn(message: str) -> None:
     print(f"imix plot: warning: {message}", file=sys.stderr)
 
 
+#: CSV column of the distribution mean θ's return on fresh episodes (every ``eval_mean_every`` generations, NaN between).
+THETA = "mean_policy_score"
+
+#: What a headline figure or table measures a run by (``imix plot measure=``): CSV column and its name in the outputs.
+#: ``theta`` (the default): θ on fresh episodes, free of reused returns. ``population``: the last generation's mean
+#: return, reused members counted with the returns they were stored with -- the paper's measure, which on noisy tasks
+#: flatters mixing (selection keeps the reused members whose stored episodes were lucky).
+MEASURES = {"theta": (THETA, "θ on fresh episodes"), "population": ("mean_score", "population mean return")}
+
+
 @dataclass
 class PlotOptions:
     """Everything the figure and table builders need besides the data."""
@@ -114,6 +129,39 @@ class PlotOptions:
     dpi: int = 150
     formats: tuple = ("png", "pdf")
     warn: Callable[[str], None] = _stderr_warn
+    measure: str = "theta"  # a key of MEASURES: what the efficiency figures, threshold, iqm, improvement tables and profiles use
+
+
+def has_theta(group) -> bool:
+    """Whether every seed of ``group`` measured θ at least once (``eval_mean_every`` > 0)."""
+    return all(np.isfinite(f[THETA].to_numpy(dtype=float)).any() for f in group.frames())
+
+
+def headline(groups, opts: PlotOptions, output: str) -> tuple[str, str]:
+    """``(column, name)`` of the measure ``output`` ranks ``groups`` by: ``opts.measure``'s, or, for θ when a run never
+    measured it (``eval_mean_every=0``), the population mean for the whole output, with one warning naming the runs
+    (one output never mixes two measures)."""
+    if opts.measure == "theta":
+        missing = [g.name for g in groups if g.algo not in NON_ES_NAMES and not has_theta(g)]
+        if not missing:
+            return MEASURES["theta"]
+        opts.warn(f"{output}: no θ measured in {', '.join(missing)} (eval_mean_every=0): the population mean (stored returns) is used instead")
+    return MEASURES["population"]
+
+
+def column_for(group, column: str) -> str:
+    """The column that holds ``column``'s measure for ``group``: a learner that is not an ES (DDPG) has no θ column, and
+    its rows' returns are its own fresh episodes (nothing reused), so its ``mean_score`` stands for both measures."""
+    return "mean_score" if group.algo in NON_ES_NAMES else column
+
+
+def final_value(frame, column: str) -> float:
+    """A seed's final value of ``column``: its last row's, or for θ (measured every few generations) the last measured one."""
+    values = frame[column].to_numpy(dtype=float)
+    if column == THETA:
+        values = values[np.isfinite(values)]
+        return float(values[-1]) if values.size else math.nan
+    return float(values[-1])
 
 
 @dataclass
@@ -406,7 +454,9 @@ def align_on_grid(group: RunGroup, x: str = "evaluations", y: str = "mean_score"
         grid = np.linspace(lo, hi, points)
     if grid.size:
         grid[0], grid[-1] = lo, hi  # exact end points despite rounding
-    matrix = np.vstack([_step_values(xv, f[y].to_numpy(dtype=float), grid) for xv, f in zip(xs, frames)])
+    # θ is measured every few generations: held from one measurement to the next (NaN before the first)
+    values = [f[y].ffill() if y == THETA else f[y] for f in frames]
+    matrix = np.vstack([_step_values(xv, v.to_numpy(dtype=float), grid) for xv, v in zip(xs, values)])
     return grid, matrix
 
 
@@ -419,12 +469,12 @@ def first_crossing(frame: pd.DataFrame, threshold: float, score: str = "mean_sco
     return float(frame[cost].to_numpy()[hits[0]])
 
 
-def threshold_stats(group: RunGroup, threshold: float, level: float = 0.68, cost: str = "evaluations") -> dict:
-    """Evaluations to first reach ``threshold``: mean, CI half-width and median over the seeds that reach it.
+def threshold_stats(group: RunGroup, threshold: float, level: float = 0.68, cost: str = "evaluations", score: str = "mean_score") -> dict:
+    """Evaluations to first reach ``threshold`` (by ``score``): mean, CI half-width and median over the seeds that reach it.
 
     ``reached`` counts those seeds out of ``n_seeds``; with none, the statistics are NaN.
     """
-    values = [first_crossing(f, threshold, cost=cost) for f in group.frames()]
+    values = [first_crossing(f, threshold, score=score, cost=cost) for f in group.frames()]
     hit = [v for v in values if v is not None]
     if hit:
         mean, half, _ = mean_ci(hit, level)

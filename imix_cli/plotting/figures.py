@@ -50,8 +50,12 @@ from .data import (
     HYPERPARAMS,
     Experiment,
     PlotOptions,
+    MEASURES,
     align_by_generation,
     align_on_grid,
+    column_for,
+    final_value,
+    headline,
     mean_ci,
     rank_sweep,
     select_main_groups,
@@ -362,10 +366,11 @@ def convergence_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
 
 
 def efficiency_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
-    """Paper Figs 7-8, on one axis: population mean return vs cumulative episodes evaluated, no mixing
-    (dashed) and mixing (solid) of each algorithm overlaid, so the episodes mixing saves show as the
-    horizontal distance between two lines of one colour. Log x when the runs' episode counts differ by
-    :data:`LOG_X_RATIO` or more (mixing's curves would otherwise sit in the leftmost few per cent)."""
+    """Paper Figs 7-8, on one axis: return vs cumulative episodes evaluated, no mixing (dashed) and mixing
+    (solid) of each algorithm overlaid, so the episodes mixing saves show as the horizontal distance between
+    two lines of one colour. The bands are the headline measure (:func:`headline`: θ on fresh episodes by
+    default), thin lines the other one (the paper plotted the population mean). Log x when the runs' episode
+    counts differ by :data:`LOG_X_RATIO` or more (mixing's curves would otherwise sit in the leftmost few per cent)."""
     groups = _es_main_groups(exp)
     for env in sorted({g.env for g in groups}):
         yield f"efficiency_{slug(env)}", _efficiency_overlay(exp, opts, env, efficiency_groups(exp, env))
@@ -378,14 +383,15 @@ LOG_X_RATIO = 4.0
 MIXING_LINESTYLES = {"none": (0, (4, 2)), "im": "-.", "eim": "-"}
 
 
-def efficiency_curves(groups) -> tuple[bool, list]:
+def efficiency_curves(groups, column: str = "mean_score") -> tuple[bool, list]:
     """The data an efficiency figure draws: whether its x axis is logarithmic, and per group ``(group, x,
-    matrix)``, each seed's population mean return held on the common grid ``x`` of episodes evaluated
-    (a row per seed). ``python -m imix_cli.commands.docs_numbers`` writes it next to the README's figure."""
+    matrix)``, each seed's ``column`` (population mean return, or θ held between its measurements) on the
+    common grid ``x`` of episodes evaluated (a row per seed). ``python -m imix_cli.commands.docs_numbers``
+    writes it next to the README's figure."""
     finals = [max(f["evaluations"].iloc[-1] for f in g.frames()) for g in groups]
     firsts = [min(f["evaluations"].iloc[0] for f in g.frames()) for g in groups]
     log = min(finals) > 0 and min(firsts) > 0 and max(finals) / min(finals) >= LOG_X_RATIO
-    return log, [(group, *align_on_grid(group, "evaluations", "mean_score", log=log)) for group in groups]
+    return log, [(group, *align_on_grid(group, "evaluations", column_for(group, column), log=log)) for group in groups]
 
 
 def efficiency_groups(exp: Experiment, env: str) -> list:
@@ -394,18 +400,27 @@ def efficiency_groups(exp: Experiment, env: str) -> list:
 
 
 def _efficiency_overlay(exp, opts, env, groups) -> Figure:
-    log, curves = efficiency_curves(groups)
-    fig = new_figure(6.6, 4.2)
+    column, measure = headline(groups, opts, f"efficiency_{slug(env)}")
+    other_column, other = next(m for m in MEASURES.values() if m[0] != column)
+    log, curves = efficiency_curves(groups, column)
+    _, beside = efficiency_curves(groups, other_column)
+    fig = new_figure(6.6, 4.4)
     ax = fig.subplots()
     common = common_settings(groups)
     threshold = opts.thresholds.get(env)
     handles = []
-    for group, x, matrix in curves:
+    for (group, x, matrix), (_, x2, matrix2) in zip(curves, beside):
         label = own_settings_label(group, common, with_mixing=True)
         style_ = MIXING_LINESTYLES.get(group.mixing, ":")
         handles.append(_draw_band(ax, x, matrix, algo_color(group.algo), label, opts.ci_level, linestyle=style_, clip=achievable_range(env, matrix)))
+        if group.algo not in NON_ES and np.isfinite(matrix2).any():  # the other measure, thin, without a band
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                ax.plot(x2, np.nanmean(matrix2, axis=0), color=algo_color(group.algo), linestyle=style_, linewidth=0.7, alpha=0.45)
     _threshold_line(ax, threshold)
     labels = [h.get_label() for h in handles]
+    handles.append(Line2D([], [], color="0.35", linewidth=0.7, alpha=0.6))
+    labels.append(f"thin: {other}")
     _add_threshold_entry(handles, labels, threshold)
     if log:
         ax.set_xscale("log")
@@ -414,9 +429,9 @@ def _efficiency_overlay(exp, opts, env, groups) -> Figure:
         ax.set_xlabel("episodes evaluated")
         ax.set_xlim(left=0)
     ax.xaxis.set_major_formatter(FuncFormatter(_short_number))
-    ax.set_ylabel("population mean return")
+    ax.set_ylabel(measure)
     fig.legend(handles, labels, loc="outside lower center", ncols=min(len(handles), 3))
-    title = f"{env_label(env)}: population mean return vs episodes evaluated"
+    title = f"{env_label(env)}: {measure} vs episodes evaluated"
     if common:
         title += f"; {settings_text(common)}"
     note = f"(dashed: no mixing, solid: mixing; mean ± {opts.ci_level:.0%} Student-t CI over seeds;\n{_seeds_note(groups)}; dotted: fewer seeds)"
@@ -521,9 +536,9 @@ def es_settings_text(group) -> str:
 
 
 def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
-    """Performance profiles (Agarwal et al. 2021) of the final population mean return, per env.
+    """Performance profiles (Agarwal et al. 2021) of the final return (the headline measure, :func:`headline`), per env.
 
-    For each return tau, the fraction of runs (seeds) whose final population mean return exceeds
+    For each return tau, the fraction of runs (seeds) whose final return exceeds
     tau, with a 95 % stratified-bootstrap band (:func:`imix_cli.core.stats.performance_profile_ci`).
     A curve further up and right is better everywhere, not only on average.
     """
@@ -532,7 +547,8 @@ def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
     groups = select_main_groups(exp.groups)
     for env in sorted({g.env for g in groups}):
         members = [g for g in groups if g.env == env]
-        finals = {g.name: np.array([f["mean_score"].to_numpy(dtype=float)[-1] for f in g.frames()]) for g in members}
+        column, measure = headline(members, opts, f"profile_{slug(env)}")
+        finals = {g.name: np.array([final_value(f, column_for(g, column)) for f in g.frames()]) for g in members}
         values = np.concatenate(list(finals.values()))
         values = values[np.isfinite(values)]
         if values.size == 0:
@@ -556,7 +572,7 @@ def profile_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
         if threshold is not None:
             ax.axvline(threshold, zorder=1, label=f"threshold {threshold:g}", **_THRESHOLD_STYLE)
         ax.set_xlim(lo, hi)
-        ax.set_xlabel("final population mean return τ")
+        ax.set_xlabel(f"final {measure} τ")
         ax.set_ylabel("fraction of runs with return > τ")
         ax.set_ylim(-0.02, 1.02)
         ax.legend(loc="best", fontsize=7.5)

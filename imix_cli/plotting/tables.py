@@ -40,6 +40,9 @@ from .data import (
     HYPERPARAMS,
     Experiment,
     PlotOptions,
+    column_for,
+    final_value,
+    headline,
     rank_sweep,
     reuse_stats,
     select_main_groups,
@@ -193,7 +196,8 @@ def reuse_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
 
 
 def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
-    """Episodes evaluated until the population mean return first reaches the threshold, with and without mixing."""
+    """Episodes evaluated until the headline measure (:func:`headline`: θ on fresh episodes by default, the population
+    mean with ``measure=population``) first reaches the threshold, with and without mixing."""
     groups = select_main_groups(exp.groups)
     skipped = sorted({g.env for g in groups if opts.thresholds.get(g.env) is None})
     if skipped:
@@ -201,7 +205,8 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     groups = [g for g in groups if opts.thresholds.get(g.env) is not None]
     if not groups:
         return
-    stats = [threshold_stats(group, opts.thresholds[group.env], opts.ci_level) for group in groups]
+    column, measure = headline(groups, opts, "evaluations_to_threshold")
+    stats = [threshold_stats(group, opts.thresholds[group.env], opts.ci_level, score=column_for(group, column)) for group in groups]
     # an env no seed reached (a short run: make reproduce-quick's 30 generations) would be a table of 0/n and –
     unreached = sorted({g.env for g in groups} - {g.env for g, s in zip(groups, stats) if s["reached"]})
     if unreached:
@@ -220,6 +225,7 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
         records.append(
             {
                 "env": group.env,
+                "measure": measure,
                 "threshold": threshold,
                 "algo": group.algo,
                 "overrides": group.overrides,
@@ -258,14 +264,14 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
         )
     header = ["Env", "Threshold", "Algorithm", "Mixing", "Reached", f"Episodes (mean ± {level} CI)", "Median", "Reduction"]
     notes = (
-        "Episodes evaluated until the population mean return first reaches the threshold. Mean, CI and median "
+        f"Episodes evaluated until the {measure} first reaches the threshold{_MEASURE_NOTES[column]}. Mean, CI and median "
         "are over the seeds that reach it (Reached = those seeds / all seeds); seeds that never reach it are "
         "left out, not imputed. Reduction = mean without mixing / mean with mixing."
     )
     latex = latex_table(
         header,
         rows,
-        "Episodes evaluated until the population mean return first reaches the threshold "
+        f"Episodes evaluated until the {measure} first reaches the threshold "
         f"(mean ± {level} CI over the seeds that reach it; Reached counts them). "
         "Reduction: mean without mixing divided by mean with mixing.",
         "table:evaluations_to_threshold",
@@ -292,11 +298,20 @@ def _twin_key(group) -> tuple:
     return (group.env, group.algo, tuple(sorted(rest.items())))
 
 
-def episodes_to_threshold(group, threshold: float) -> list:
-    """Per seed, the episodes until the population mean return first reaches ``threshold``; +inf if never."""
+def episodes_to_threshold(group, threshold: float, score: str = "mean_score") -> list:
+    """Per seed, the episodes until ``score`` first reaches ``threshold``; +inf if never."""
     from .data import first_crossing
 
-    return [math.inf if v is None else v for v in (first_crossing(f, threshold) for f in group.frames())]
+    return [math.inf if v is None else v for v in (first_crossing(f, threshold, score=score) for f in group.frames())]
+
+
+#: What the notes of a table add about its measure (data.MEASURES).
+_MEASURES_NOTE_THETA = (
+    " (θ: the distribution mean, measured on fresh episodes every eval_mean_every generations, so a crossing is seen at "
+    "the first measurement after it; those episodes are not counted, the same for every run; imix plot measure=population "
+    "gives the paper's measure)"
+)
+_MEASURE_NOTES = {"mean_policy_score": _MEASURES_NOTE_THETA, "mean_score": " (reused members counted with their stored returns: the paper's measure)"}
 
 
 def _flag(n: int) -> str:
@@ -318,15 +333,16 @@ def iqm_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     groups = [g for g in select_main_groups(exp.groups) if g.algo not in NON_ES]
     if not groups:
         return
+    column, measure = headline(groups, opts, "iqm")
     records, rows = [], []
     for i, group in enumerate(groups):
-        finals = [float(f["mean_score"].to_numpy(dtype=float)[-1]) for f in group.frames()]
+        finals = [final_value(f, column_for(group, column)) for f in group.frames()]
         finals = [v for v in finals if math.isfinite(v)]
         f_iqm, f_lo, f_hi = iqm_ci(finals, 0.95, BOOTSTRAP_REPS, seed=i) if finals else (math.nan,) * 3
         f_mean, f_half, _ = mean_ci(finals, 0.95) if finals else (math.nan, math.nan, 0)
         threshold = opts.thresholds.get(group.env)
         if threshold is not None:
-            episodes = episodes_to_threshold(group, threshold)
+            episodes = episodes_to_threshold(group, threshold, column_for(group, column))
             e_iqm, e_lo, e_hi = iqm_ci(episodes, 0.95, BOOTSTRAP_REPS, seed=i)
             reached = sum(math.isfinite(v) for v in episodes)
         else:
@@ -334,7 +350,7 @@ def iqm_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
             reached = None
         records.append(
             {"env": group.env, "algo": group.algo, "mixing": group.mixing, "overrides": group.overrides, "seeds": group.n_seeds,
-             "flag": _flag(group.n_seeds), "final_iqm": f_iqm, "final_iqm_low": f_lo, "final_iqm_high": f_hi,
+             "measure": measure, "flag": _flag(group.n_seeds), "final_iqm": f_iqm, "final_iqm_low": f_lo, "final_iqm_high": f_hi,
              "final_mean": f_mean, "final_mean_ci95": f_half, "threshold": threshold if threshold is not None else math.nan,
              "reached": reached if reached is not None else math.nan,
              "episodes_iqm": e_iqm, "episodes_iqm_low": e_lo, "episodes_iqm_high": e_hi}
@@ -348,6 +364,7 @@ def iqm_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     header = ["Env", "Algorithm", "Mixing", "Seeds", "Final return IQM [95% CI]", "Final return mean ± 95% CI",
               "Reached", "Episodes to threshold IQM [95% CI]"]  # fmt: skip
     notes = (
+        f"Measure: {measure}{_MEASURE_NOTES[column]}. "
         "IQM: interquartile mean (mean of the middle 50 % of seeds), 95 % CI by stratified percentile bootstrap "
         f"({BOOTSTRAP_REPS} resamples, Agarwal et al. 2021); mean ± 95 % Student-t CI for reference. Episodes to "
         "threshold: a seed that never reaches it counts as +inf, so the IQM is finite while fewer than 25 % of "
@@ -363,19 +380,20 @@ def improvement_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
 
     groups = [g for g in select_main_groups(exp.groups) if g.algo not in NON_ES and opts.thresholds.get(g.env) is not None]
     baselines = {_twin_key(g): g for g in groups if g.mixing == "none"}
+    column, measure = headline(groups, opts, "improvement")
     records, rows = [], []
     for i, group in enumerate(g for g in groups if g.mixing != "none"):
         base = baselines.get(_twin_key(group))
         if base is None:
             continue
         threshold = opts.thresholds[group.env]
-        mixed = [-v for v in episodes_to_threshold(group, threshold)]  # higher is better: fewer episodes
-        plain = [-v for v in episodes_to_threshold(base, threshold)]
+        mixed = [-v for v in episodes_to_threshold(group, threshold, column)]  # higher is better: fewer episodes
+        plain = [-v for v in episodes_to_threshold(base, threshold, column)]
         point, lo, hi = probability_of_improvement_ci(mixed, plain, 0.95, BOOTSTRAP_REPS, seed=i)
         n = min(group.n_seeds, base.n_seeds)
         records.append(
             {"env": group.env, "algo": group.algo, "mixing": group.mixing, "overrides": group.overrides,
-             "baseline": base.name, "seeds_mixing": group.n_seeds, "seeds_none": base.n_seeds, "flag": _flag(n),
+             "baseline": base.name, "measure": measure, "seeds_mixing": group.n_seeds, "seeds_none": base.n_seeds, "flag": _flag(n),
              "threshold": threshold, "p_fewer_episodes": point, "ci_low": lo, "ci_high": hi}
         )  # fmt: skip
         rows.append(
@@ -386,6 +404,7 @@ def improvement_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
         return
     header = ["Env", "Algorithm", "Mixing", "Seeds", "Threshold", "P(fewer episodes than no mixing) [95% CI]"]
     notes = (
+        f"Measure: {measure}{_MEASURE_NOTES[column]}. "
         "Probability that a seed with mixing reaches the threshold with fewer episodes than a seed of the same "
         "config without mixing (Mann-Whitney U / (n_x n_y), ties count half; a seed that never reaches it needs "
         "+inf episodes). 0.5: no difference. 95 % CI: stratified percentile bootstrap, both groups resampled "

@@ -91,7 +91,7 @@ def _score(mean: float, half: float) -> str:
 
 #: The footnote of every summary table: which score is free of reused returns.
 SCORES_NOTE = (
-    "population: last generation's mean return (reused members with stored returns); θ fresh: distribution mean on fresh episodes (free of reused returns); "
+    "θ fresh: distribution mean on fresh episodes (free of reused returns; the measure to compare runs by); population: last generation's mean return (reused members with stored returns); "
     "no-fresh: generations in which every member was reused (all seeds)"
 )
 
@@ -100,14 +100,14 @@ def format_table(rows: list[dict]) -> list[str]:
     """The table's header and one line per summary of :func:`summarize`."""
     width = max(32, *(len(r["run"]) for r in rows))
     header = (
-        f"{'run':<{width}} {'seeds':>5} {'population (68% CI)':>22} {'θ fresh (68% CI)':>20} {'episodes/seed':>14} "
+        f"{'run':<{width}} {'seeds':>5} {'θ fresh (68% CI)':>20} {'population (68% CI)':>22} {'episodes/seed':>14} "
         f"{'env steps/seed':>15} {'reuse':>7} {'no-fresh':>8} {'non-finite':>10} {'diverged':>8}"
     )
     lines = [header]
     for r in rows:
         theta = _score(r.get("theta_mean_score", float("nan")), r.get("theta_ci68", float("nan")))
         lines.append(
-            f"{r['run']:<{width}} {r['seeds']:>5} {_score(r['final_mean_score'], r['ci68']):>22} {theta:>20} {r['evaluations_per_seed']:>14,.0f} "
+            f"{r['run']:<{width}} {r['seeds']:>5} {theta:>20} {_score(r['final_mean_score'], r['ci68']):>22} {r['evaluations_per_seed']:>14,.0f} "
             f"{r['env_steps_per_seed']:>15,.0f} {r['reuse_percent']:>6.1f}% {r.get('stalled_generations', 0):>8} {r['nonfinite_returns']:>10} "
             f"{r['diverged_seeds']:>8}"
         )
@@ -129,9 +129,9 @@ def format_summary(spec, s: dict) -> str:
         for r in with_mixing:
             if r["evaluations_per_seed"]:
                 lines.append(
-                    f"  {r['run']} vs {base['run']}: {base['evaluations_per_seed'] / r['evaluations_per_seed']:.2f}x fewer "
-                    f"episodes for the same {spec.generations} generations (final mean score {r['final_mean_score']:.2f} vs "
-                    f"{base['final_mean_score']:.2f}; sample efficiency to a threshold: imix plot)"
+                    f"  {r['run']} vs {base['run']} (the same settings but the mixing): {base['evaluations_per_seed'] / r['evaluations_per_seed']:.2f}x "
+                    f"fewer episodes for the same {spec.generations} generations (final θ fresh {_score(r['theta_mean_score'], float('nan'))} vs "
+                    f"{_score(base['theta_mean_score'], float('nan'))}; sample efficiency to a threshold: imix plot)"
                 )
     lines.append(SCORES_NOTE)
     if "seeds_run" in s:
