@@ -17,6 +17,12 @@ rule), and stored noisy returns told again (``reeval_count``). Each section isol
 ``noisy``     a sphere whose evaluations carry noise the size of the population's spread of
               true values: the true f(mean) at the end (lower is better).
 ``sphere``    the same sphere without noise: what reuse does to a search whose returns are exact.
+``echo``      neutral returns again, for the mechanism of OpenES/SNES + EIM on noisy tasks: the
+              cosine between consecutive rank-utility gradient estimates g_t = mean_i(u_i z_i)
+              (u centred ranks of the told returns, z the members whitened by their generation's
+              distribution: OpenES's and SNES's estimate of the mean's gradient), 0 when every
+              return is a fresh draw; and the displacement. ``--beta1`` sets OpenES/SNES's Adam
+              first-moment decay (OpenES's default 0.99), to separate the echo from the momentum.
 ``tasks``     reads an experiment of ``imix run`` CSVs (CartPole, Acrobot, MuJoCo: see
               ``make reuse-bias``) and prints, per run: the population's mean return at the
               end (reused returns included), the mean policy theta on fresh episodes at the end
@@ -25,14 +31,16 @@ rule), and stored noisy returns told again (``reeval_count``). Each section isol
 
 Usage::
 
-    python benchmarks/reuse_bias.py constant|neutral|noisy|sphere [--seeds 5] [--generations 400] [--workers 2]
+    python benchmarks/reuse_bias.py constant|neutral|noisy|sphere|echo [--seeds 5] [--generations 400] [--workers 2] [--beta1 B]
     python benchmarks/reuse_bias.py tasks [--experiment results/paper --experiment results/reuse_rules]
 
 d = 130 (the CartPole policy's size), N = 50, sigma0 0.25, lr 0.01, no weight decay in the
 synthetic sections. Rows: ``none`` (no mixing), ``exact`` (``eim=true eim_variant=exact``),
 ``conditional`` (``eim=true eim_variant=conditional``), ``exact + reeval 2`` (``eim=true
-reeval_count=2``); CMA-ES with mixing uses two-point step-size adaptation, as ``imix run``'s
-``algo.step_size_control=auto`` does, and ``exact + CSA`` is CMA-ES with mixing and pycma's CSA.
+reeval_count=2``); CMA-ES with mixing uses two-point step-size adaptation and ``exact + CSA`` is
+CMA-ES with mixing and pycma's CSA; CMA-ES's ``none`` row is pycma's CSA, as the published tables
+were made (``imix run`` now runs TPA without mixing too, so that ``eim=false,true`` changes the
+mixing alone).
 """
 
 from __future__ import annotations
@@ -76,15 +84,17 @@ DIM, POPSIZE, SIGMA0 = 130, 50, 0.25
 WARMUP = 20  # generations before E[z^2] and the offset are averaged
 
 
-def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int, dim: int = DIM, popsize: int = POPSIZE) -> dict:
+def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int, dim: int = DIM, popsize: int = POPSIZE, beta1=None) -> dict:
     """One run of ``algo`` with ``rule`` on a synthetic objective; the statistics of the module docstring."""
     rng = np.random.default_rng(seed)
     noise_rng = np.random.default_rng(seed + 10_000)
     mean0 = np.full(dim, 0.5) if objective in ("noisy", "sphere") else None
-    es = make_es(algo, dim, popsize=popsize, sigma=SIGMA0, lr=0.01, weight_decay=0.0, mean=mean0, **es_options(algo, rule))
+    momentum = {"beta1": beta1} if beta1 is not None and algo in ("openes", "snes") else {}
+    es = make_es(algo, dim, popsize=popsize, sigma=SIGMA0, lr=0.01, weight_decay=0.0, mean=mean0, **es_options(algo, rule), **momentum)
     settings, archive = RULES[rule], Archive()
     start, sigma0 = es.mean.copy(), es.distribution.sigma_mean
     z2, offset, previous_mean = [], [], None
+    echo, previous_gradient = [], None
     reused = evaluated = 0
     for g in range(generations):
         dist = es.distribution
@@ -101,13 +111,19 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
         todo = plan.points  # the members to evaluate, then CMA-ES's two TPA points
         if objective == "constant":
             returns = np.zeros(todo.shape[0])
-        elif objective == "neutral":
+        elif objective in ("neutral", "echo"):
             returns = noise_rng.standard_normal(todo.shape[0])
         elif objective == "sphere":
             returns = -np.sum(todo * todo, axis=1)
         else:  # true f spread across a population ~ sigma^2 sqrt(2d); noise of that size
             returns = -np.sum(todo * todo, axis=1) + SIGMA0**2 * np.sqrt(2 * dim) * noise_rng.standard_normal(todo.shape[0])
-        finish_generation(es, archive, settings, plan, returns)
+        fitness = finish_generation(es, archive, settings, plan, returns)
+        # the rank-utility gradient estimate of this generation, and its cosine with the previous one's
+        utilities = np.argsort(np.argsort(fitness, kind="stable"), kind="stable") / (popsize - 1) - 0.5
+        gradient = utilities @ _whitened(dist, x) / popsize
+        if g >= WARMUP and previous_gradient is not None:
+            echo.append(float(gradient @ previous_gradient / (np.linalg.norm(gradient) * np.linalg.norm(previous_gradient))))
+        previous_gradient = gradient
         reused += plan.generation.reused
         evaluated += todo.shape[0]
     return {
@@ -118,6 +134,7 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
         "reuse": reused / (generations * popsize),
         "episodes": evaluated,
         "true f(mean)": float(np.sum(es.mean**2)),
+        "echo": float(np.mean(echo)),
     }
 
 
@@ -125,8 +142,8 @@ def _one(job):
     return job, synthetic(*job)
 
 
-def synthetic_table(objective: str, seeds: int, generations: int, workers: int, algos, rules) -> None:
-    jobs = [(objective, a, r, s, generations) for a, r, s in itertools.product(algos, rules, range(seeds)) if a == "cmaes" or r not in CMAES_ONLY]
+def synthetic_table(objective: str, seeds: int, generations: int, workers: int, algos, rules, beta1=None) -> None:
+    jobs = [(objective, a, r, s, generations, DIM, POPSIZE, beta1) for a, r, s in itertools.product(algos, rules, range(seeds)) if a == "cmaes" or r not in CMAES_ONLY]
     results = {}
     with ProcessPoolExecutor(workers) as pool:
         for job, out in pool.map(_one, jobs):
@@ -136,8 +153,10 @@ def synthetic_table(objective: str, seeds: int, generations: int, workers: int, 
         "neutral": ("sigma/sigma0", "displacement", "reuse", "episodes"),
         "noisy": ("true f(mean)", "sigma/sigma0", "reuse", "episodes"),
         "sphere": ("true f(mean)", "sigma/sigma0", "reuse", "episodes"),
+        "echo": ("echo", "displacement", "reuse"),
     }[objective]
-    print(f"objective={objective}, d={DIM}, N={POPSIZE}, {generations} generations, {seeds} seeds: mean over seeds (± s.e.)")
+    momentum = f", Adam beta1={beta1} (OpenES, SNES)" if beta1 is not None else ""
+    print(f"objective={objective}, d={DIM}, N={POPSIZE}, {generations} generations, {seeds} seeds{momentum}: mean over seeds (± s.e.)")
     print("| ES | rule | " + " | ".join(columns) + " | vs none: " + ", ".join(c for c in columns if c in ("sigma/sigma0", "displacement")) + " |")
     print("|---|---|" + "---:|" * len(columns) + "---:|")
     for algo in algos:
@@ -200,19 +219,20 @@ def tasks_table(experiments: list[str]) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("section", choices=("constant", "neutral", "noisy", "sphere", "tasks"))
+    parser.add_argument("section", choices=("constant", "neutral", "noisy", "sphere", "echo", "tasks"))
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--generations", type=int, default=400)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--algos", default=",".join(ALGOS))
     parser.add_argument("--rules", default=",".join(RULES))
+    parser.add_argument("--beta1", type=float, default=None, help="OpenES/SNES's Adam first-moment decay (default: each ES's own)")
     parser.add_argument("--experiment", action="append", help="an experiment folder of seed CSVs (repeatable)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
     if args.section == "tasks":
         tasks_table(args.experiment or ["results/paper", "results/reuse_rules"])
     else:
-        synthetic_table(args.section, args.seeds, args.generations, args.workers, args.algos.split(","), args.rules.split(","))
+        synthetic_table(args.section, args.seeds, args.generations, args.workers, args.algos.split(","), args.rules.split(","), args.beta1)
     print(f"({time.perf_counter() - started:.0f} s)", file=sys.stderr)
     return 0
 
