@@ -134,7 +134,7 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
         "reuse": reused / (generations * popsize),
         "episodes": evaluated,
         "true f(mean)": float(np.sum(es.mean**2)),
-        "echo": float(np.mean(echo)),
+        "echo": float(np.mean(echo)) if echo else float("nan"),  # none before the warm-up ends
     }
 
 

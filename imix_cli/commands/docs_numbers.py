@@ -110,7 +110,7 @@ def figure_data(name: str, png_to: Path | None = None) -> str:
     import io
     import shutil
 
-    from imix_cli.plotting.data import load_experiment
+    from imix_cli.plotting.data import PlotOptions, headline, load_experiment
     from imix_cli.plotting.figures import efficiency_curves, efficiency_groups
 
     block = FIGURES[name]
@@ -121,9 +121,11 @@ def figure_data(name: str, png_to: Path | None = None) -> str:
         if png_to is not None:
             _run_imix(["plot", f"results_dir={results}", f"experiment={block.experiment}", "only=efficiency", "formats=png"], tmp)
             shutil.copyfile(Path(results) / block.experiment / "figures" / f"efficiency_{block.env}.png", png_to)
-        log, curves = efficiency_curves(efficiency_groups(load_experiment(results, block.experiment, warn=lambda _: None), block.env))
+        groups = efficiency_groups(load_experiment(results, block.experiment, warn=lambda _: None), block.env)
+        column, measure = headline(groups, PlotOptions(warn=lambda _: None), "efficiency")  # as imix plot's default draws it
+        log, curves = efficiency_curves(groups, column)
     out = io.StringIO()
-    out.write(f"# the curves of {block.png} ({'log' if log else 'linear'} x): population mean return per seed on a common grid of episodes\n")
+    out.write(f"# the curves of {block.png} ({'log' if log else 'linear'} x): {measure} per seed on a common grid of episodes\n")
     out.write("run,episodes," + ",".join(f"seed_{k}" for k in range(max(len(m) for _, _, m in curves))) + "\n")
     for group, x, matrix in curves:
         for i, episodes in enumerate(x):
