@@ -104,3 +104,17 @@ def test_version(capsys):
 
     assert main(["--version"]) == 0
     assert capsys.readouterr().out.strip() == f"imix {__version__}"
+
+
+def test_a_sweep_table_says_whether_its_runs_with_mixing_differ_from_their_twins_in_the_mixing_alone():
+    """The sweep's table names any resolved setting besides the mixing that differs between a run with mixing and its
+    nearest run without (CMA-ES's step-size rule once did, by default). Made to fail: with the comparison reading only
+    the top-level keys, the step-size rule (algo.step_size_control, nested) went unnamed."""
+    from imix_cli.running.summary import mixing_pairs_note
+
+    assert mixing_pairs_note(validate_overrides(["algo=cmaes", "eim=false,true", "popsize=20,30"])) == (
+        "with and without mixing: each pair of runs differs in the mixing alone"
+    )
+    mismatched = [*validate_overrides(["algo=cmaes", "eim=false"]), *validate_overrides(["algo=cmaes", "eim=true", "algo.step_size_control=csa"])]
+    assert mixing_pairs_note(mismatched) == "cmaes-cartpole-eim-algo.step_size_control=csa vs cmaes-cartpole-none: differ in algo.step_size_control besides the mixing"
+    assert mixing_pairs_note(validate_overrides(["algo=cmaes", "eim=true", "popsize=20,30"])) is None

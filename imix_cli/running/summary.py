@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from imix_cli.core.stats import mean_ci
-from imix_cli.running.config.run_spec import identity_of
+from imix_cli.running.config.run_spec import differing_keys, identity_of
 from imix_cli.running.files.results import CorruptResultError, read_run_csv, seed_csv_path, seed_summary
 from imix_cli.running.files.safe_yaml import load_yaml_file
 from imix_cli.running.trainers import trainer_for
@@ -170,6 +170,39 @@ def _value(v) -> str:
     return str(list(v)) if isinstance(v, tuple) else str(v)
 
 
+def _flat(config: dict, prefix: str = "") -> dict:
+    """``{"algo": {"name": "cmaes"}}`` -> ``{"algo.name": "cmaes"}``: a setting named as its key is written."""
+    out = {}
+    for k, v in config.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _without_mixing(spec) -> dict:
+    return {k: v for k, v in _flat(spec.identity()).items() if k.split(".")[0] not in MIXING_KEYS}
+
+
+def mixing_pairs_note(specs) -> str | None:
+    """What a sweep's runs with mixing differ in from their nearest run without it, besides the mixing: one line saying that
+    the pairs differ in the mixing alone, or one line per run with mixing naming the other settings (None if the sweep
+    has no run on one side). Every resolved setting is compared (config.yaml's), so a preset or a default that changes
+    with the mixing is named here."""
+    plain = [s for s in specs if s.mixing == "none"]
+    mixed = [s for s in specs if s.mixing != "none"]
+    if not plain or not mixed:
+        return None
+    lines = []
+    for spec in mixed:
+        mine = _without_mixing(spec)
+        differing, twin = min(((differing_keys(mine, _without_mixing(p)), p) for p in plain), key=lambda pair: len(pair[0]))
+        if differing:
+            lines.append(f"{spec.run_name} vs {twin.run_name}: differ in {', '.join(differing)} besides the mixing")
+    return "\n".join(lines) if lines else "with and without mixing: each pair of runs differs in the mixing alone"
+
+
 def format_sweep_table(specs) -> str | None:
     """One table of every point of a sweep (``imix run -m``), printed after the last one; None for a single run.
     A run's name is followed by the values its name leaves out that differ between the points (:func:`hidden_values`).
@@ -188,6 +221,9 @@ def format_sweep_table(specs) -> str | None:
     hidden = hidden_values(specs)
     rows = [{**r, "run": f"{r['run']} ({hidden[r['run']]})"} if hidden.get(r["run"]) else r for r in rows]
     lines = [f"sweep: {len(rows)} run(s) of {specs[0].results_dir}/{specs[0].experiment}", *format_table(rows), SCORES_NOTE]
+    pairs = mixing_pairs_note(specs)
+    if pairs:
+        lines.append(pairs)
     if missing:
         lines.append(f"not finished: {', '.join(missing)}")
     return "\n".join(lines)
