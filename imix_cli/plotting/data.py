@@ -45,9 +45,10 @@ Running experiments
     the runner at each checkpoint and every few seconds between) is read as in progress: its rows so
     far join the group, and a warning names the run and those seeds.
 
-    :func:`first_crossing` / :func:`threshold_stats` -- evaluations needed for the
-    population mean score to first reach a threshold: the cumulative
-    ``evaluations`` of the first generation whose ``mean_score >= threshold``.
+    :func:`first_crossing` / :func:`threshold_stats` -- evaluations needed for a
+    score (θ on fresh episodes, ``mean_policy_score``, by default: :func:`headline`; or the
+    population mean, ``mean_score``) to first reach a threshold: the cumulative
+    ``evaluations`` of the first generation whose score ``>= threshold``.
     Seeds that never reach it are counted (``reached`` of ``n_seeds``) and left
     out of the mean, CI and median, which are therefore conditional on success.
 """
