@@ -264,14 +264,14 @@ def threshold_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
         )
     header = ["Env", "Threshold", "Algorithm", "Mixing", "Reached", f"Episodes (mean ± {level} CI)", "Median", "Reduction"]
     notes = (
-        f"Episodes evaluated until the {measure} first reaches the threshold{_MEASURE_NOTES[column]}. Mean, CI and median "
+        f"Episodes evaluated until {_the(measure)} first reaches the threshold{_MEASURE_NOTES[column]}. Mean, CI and median "
         "are over the seeds that reach it (Reached = those seeds / all seeds); seeds that never reach it are "
         "left out, not imputed. Reduction = mean without mixing / mean with mixing."
     )
     latex = latex_table(
         header,
         rows,
-        f"Episodes evaluated until the {measure} first reaches the threshold "
+        f"Episodes evaluated until {_the(measure)} first reaches the threshold "
         f"(mean ± {level} CI over the seeds that reach it; Reached counts them). "
         "Reduction: mean without mixing divided by mean with mixing.",
         "table:evaluations_to_threshold",
@@ -303,6 +303,11 @@ def episodes_to_threshold(group, threshold: float, score: str = "mean_score") ->
     from .data import first_crossing
 
     return [math.inf if v is None else v for v in (first_crossing(f, threshold, score=score) for f in group.frames())]
+
+
+def _the(measure: str) -> str:
+    """A measure's name inside a sentence: "θ on fresh episodes", "the population mean return"."""
+    return measure if measure.startswith("θ") else f"the {measure}"
 
 
 #: What the notes of a table add about its measure (data.MEASURES).
