@@ -422,3 +422,22 @@ def test_the_adapter_gives_pycmas_recombination_weights_to_conditional_mixing():
     np.testing.assert_allclose(c[best], np.asarray(es.sp.weights)[:mu], rtol=0, atol=1e-15)
     assert np.count_nonzero(c) == mu and abs(c.sum() - 1.0) < 1e-12
     assert m.generation.mean_weights is not None and m.reuse > 0.2
+
+
+def test_a_wrapped_pycma_es_keeps_its_result_logger_and_disp(tmp_path, monkeypatch):
+    """A pycma user's tools still work on the wrapped ES: ``es.result`` (its evaluations the episodes run, not the members
+    told), ``es.logger`` writing the files ``cma.plot()`` reads, ``es.disp()``, ``es.sigma``. Made to fail: without
+    MixingES.__getattr__, ``es.result`` raised AttributeError."""
+    monkeypatch.chdir(tmp_path)
+    es = imix_cli.MixingES(cma.CMAEvolutionStrategy(np.ones(5), 0.5, {"seed": 1, "verbose": -1}), "exact", rng=1)
+    while not es.stop():
+        x = es.ask()
+        es.tell(x, [float(np.sum(np.asarray(p) ** 2)) for p in x])
+        es.logger.add()
+    assert es.reused > 0 and es.result.evaluations == es.evaluations < es.members
+    assert es.result.fbest < 1e-8 and es.sigma == es.es.es.sigma
+    es.disp()
+    logged = cma.CMADataLogger().load()
+    assert logged.f.shape[0] >= es.countiter and logged.f[-1][1] == es.evaluations  # column 1: evaluations
+    with pytest.raises(AttributeError, match="nor has the ES it wraps"):
+        es.no_such_thing  # noqa: B018

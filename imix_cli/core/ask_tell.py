@@ -167,6 +167,18 @@ class MixingES:
         """Fraction of the members told so far that were reused (not evaluated)."""
         return self.reused / self.members if self.members else 0.0
 
+    def __getattr__(self, name):
+        """What the wrapper lacks is the wrapped ES's: its adapter's, then its library's own object -- for pycma
+        ``es.result`` (``evaluations`` counts only the episodes run, the adapter keeps ``countevals`` so),
+        ``es.logger``/``cma.plot()``, ``es.disp()``, ``es.sigma``; for imix's ES its attributes. Why: a user
+        who wraps the ES they had keeps the tools they had around it."""
+        if name.startswith("__") or "es" not in self.__dict__:  # copy/pickle probes, or a half-built object
+            raise AttributeError(name)
+        for owner in (self.__dict__["es"], getattr(self.__dict__["es"], "es", None)):
+            if owner is not None and hasattr(owner, name):
+                return getattr(owner, name)
+        raise AttributeError(f"'MixingES' object has no attribute {name!r}, nor has the ES it wraps")
+
 
 def _asked_order(samples, asked: np.ndarray) -> np.ndarray | None:
     """Where each row of ``samples`` is among the ``asked`` points (None: the same order); ValueError naming the
