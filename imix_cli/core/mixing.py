@@ -196,7 +196,10 @@ import numpy as np
 from imix_cli.core import numerics as xp
 from imix_cli.core.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
 
-__all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "Variant", "VARIANT_SPECS", "VARIANTS", "config_variants", "mix", "variant_spec"]
+__all__ = [
+    "DiagonalGaussian", "FullGaussian", "Generation", "MIXING_DEFAULTS", "MixingDefaults", "Variant", "VARIANT_SPECS", "VARIANTS",
+    "config_variants", "mix", "variant_spec",
+]  # fmt: skip
 
 # Sun et al.'s rule-2 loop accepts a fresh draw with probability ~(1 - lambda); when the two
 # distributions nearly coincide that can take very many draws. After this many candidate
@@ -685,8 +688,7 @@ class Variant:
         return eim_generations if self.looks_back else 1
 
 
-#: Every variant, by name, in the order of the module docstring; the first a mixing scheme offers is
-#: its default (``im_variant=paper``, ``eim_variant=exact``: conf/config.yaml).
+#: Every variant, by name, in the order of the module docstring (each scheme's default: :data:`MIXING_DEFAULTS`).
 VARIANT_SPECS: dict[str, Variant] = {
     v.name: v
     for v in (
@@ -704,9 +706,50 @@ VARIANT_SPECS: dict[str, Variant] = {
 VARIANTS = tuple(VARIANT_SPECS)
 
 
+@dataclass(frozen=True)
+class MixingDefaults:
+    """Every mixing setting's default, declared once (:data:`MIXING_DEFAULTS`).
+
+    Why one record: :func:`mix`, :class:`~imix_cli.core.ask_tell.MixingES`,
+    :class:`~imix_cli.core.generation.MixingSettings`, the ``imix run`` keys
+    (:mod:`imix_cli.running.config.keys`) and the RunSpec each take these settings; each reads its default here, so
+    a library user gets the rule ``imix run eim=true`` runs (tests/test_mixing_defaults.py compares them all).
+
+    Attributes
+    ----------
+    variant : str
+        The library's variant (:func:`mix`, :class:`~imix_cli.core.ask_tell.MixingES`) and ``eim=true``'s
+        (``eim_variant``): ``"exact"``, unbiased over chains of generations.
+    im_variant : str
+        ``im=true``'s (``im_variant``): ``"paper"``, the paper's Algorithm 2.
+    eim_generations : int
+        K, the archived generations ``"exact"`` and ``"eim_paper"`` reuse from.
+    alpha : float
+        ``"sun2009"``'s minimal refresh rate (``im_alpha``).
+    min_fresh : int
+        Fresh members of every mixed generation, at least (module docstring, "A minimal refresh"): 1, so a
+        distribution that stops moving cannot make a fixed point; 0 is the rules alone.
+    reeval_age, reeval_prob, reeval_count
+        Re-evaluation of reused members (:class:`~imix_cli.core.generation.MixingSettings`): none.
+    """
+
+    variant: str = "exact"
+    im_variant: str = "paper"
+    eim_generations: int = 3
+    alpha: float = 0.0
+    min_fresh: int = 1
+    reeval_age: int | None = None
+    reeval_prob: float = 0.0
+    reeval_count: int = 0
+
+
+#: The defaults of every mixing setting: the one declaration (:class:`MixingDefaults`).
+MIXING_DEFAULTS = MixingDefaults()
+
+
 def config_variants(scheme: str) -> dict[str, Variant]:
-    """The values of ``<scheme>_variant`` (``scheme``: ``"im"`` or ``"eim"``) -> the :class:`Variant` each selects,
-    the default first."""
+    """The values of ``<scheme>_variant`` (``scheme``: ``"im"`` or ``"eim"``) -> the :class:`Variant` each selects, in
+    the order of :data:`VARIANT_SPECS` (each scheme's default: :data:`MIXING_DEFAULTS`)."""
     return {v.config_name: v for v in VARIANT_SPECS.values() if scheme in v.selected_by}
 
 
@@ -746,11 +789,11 @@ def mix(
     archive,
     popsize: int,
     rng: np.random.Generator,
-    variant: str = "paper",
-    alpha: float = 0.0,
-    eim_generations: int = 3,
+    variant: str = MIXING_DEFAULTS.variant,
+    alpha: float = MIXING_DEFAULTS.alpha,
+    eim_generations: int = MIXING_DEFAULTS.eim_generations,
     compiled: bool | None = None,
-    min_fresh: int = 0,
+    min_fresh: int = MIXING_DEFAULTS.min_fresh,
 ) -> Generation:
     """Build a generation of ``popsize`` members distributed as ``new_dist``, reusing archived samples.
 
@@ -766,8 +809,9 @@ def mix(
         Size N of the new generation.
     rng : numpy.random.Generator
         Source of all randomness (acceptance tests, fresh draws, orderings).
-    variant : {"paper", "sun2009", "exact", "conditional", "eim_paper"}
-        See the module docstring. ``"paper"``, ``"sun2009"`` and ``"conditional"`` use ``archive[0]`` only
+    variant : {"exact", "paper", "sun2009", "conditional", "eim_paper"}
+        See the module docstring; default ``"exact"``, as ``imix run eim=true`` (:data:`MIXING_DEFAULTS`).
+        ``"paper"``, ``"sun2009"`` and ``"conditional"`` use ``archive[0]`` only
         (``"conditional"`` reads its ``mean_weights`` if it is a Generation),
         ``"exact"`` and ``"eim_paper"`` up to ``eim_generations`` entries. ``"exact"`` keeps each
         Generation's heights in it (``log_u``): pass the same Generation objects again; a
@@ -775,10 +819,11 @@ def mix(
     alpha : float in [0, 1)
         Minimal refresh rate of ``"sun2009"`` (ignored by the other variants).
     eim_generations : int >= 1
-        K, the number of archived generations ``"exact"`` and ``"eim_paper"`` may draw from.
+        K, the number of archived generations ``"exact"`` and ``"eim_paper"`` may draw from (default 3).
     min_fresh : int >= 0
         The minimal refresh (module docstring): this many slots, drawn at random, hold fresh members
-        whenever the archive is not empty (0: none, the rules alone). The generation keeps its law.
+        whenever the archive is not empty; default 1, as ``imix run`` (0: none, the rules alone). The generation
+        keeps its law.
     compiled : bool or None
         None (default): take the compiled step (:mod:`imix_cli.core.mixing_kernels`) where it
         applies -- ``"paper"``, ``"sun2009"``, ``"exact"`` between float64 DiagonalGaussians,
