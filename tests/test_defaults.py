@@ -79,3 +79,57 @@ def test_a_library_user_gets_the_rule_without_a_fixed_point():
     archive = [mix(dist, [], 20, rng)]
     g = mix(dist, archive, 20, rng)
     assert g.reused == 20 - MIXING_DEFAULTS.min_fresh >= 0 and MIXING_DEFAULTS.min_fresh >= 1
+
+
+#: RunSpec fields with a default that is no key's, and why (every other defaulted field is a key's: ``_key``).
+NOT_A_KEY = {
+    "mixing": "from the keys im and eim (false: none)",
+    "variant": "from im/eim and im_variant/eim_variant (no mixing: None)",
+    "generations": "the key's default is the algorithm's (${algo.generations}); DDPG runs total_steps",
+    "algo_options": "the algo.* options, from the ES's Params",
+    "ddpg": "algo=ddpg's settings, from conf/algo/ddpg.yaml",
+}
+
+
+def _checked_default(key):
+    """What ``imix run`` makes of the key's default: its check's value (``checkpoint_seconds``' 30 is 30.0)."""
+    return key.check({key.name: key.default}, key.name) if key.check is not None else key.default
+
+
+def test_every_run_spec_default_is_its_keys():
+    """Each RunSpec field with a default names its key (``_key``) and defaults to what ``imix run`` makes of that key's
+    default; each key the RunSpec holds (``spec=True``) is the field of its name. The five fields that once defaulted to
+    something else (checkpoint_every 0 vs 50, checkpoint_seconds 0 vs 30, eval_mean_every 0 vs 10, obs_norm_warmup 0 vs 5,
+    evaluator_workers 1 vs null) are among them."""
+    from imix_cli.running.config.run_spec import RunSpec
+
+    fields = {f.name: f for f in dataclasses.fields(RunSpec)}
+    for f in fields.values():
+        has_default = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+        if not has_default:
+            continue  # given by every caller (es_config, ddpg)
+        if f.name in NOT_A_KEY:
+            assert "key" not in f.metadata, f.name
+            continue
+        assert "key" in f.metadata, f"RunSpec.{f.name} has a default of its own ({f.default!r}): make it _key(<its key>) or say why in NOT_A_KEY"
+        key = BY_NAME[f.metadata["key"]]
+        want = _checked_default(key)
+        assert f.default == want and isinstance(f.default, bool) == isinstance(want, bool), (
+            f"RunSpec.{f.name}={f.default!r} but imix run's default of {key.name} is {want!r}"
+        )
+    for key in BY_NAME.values():
+        if key.spec:
+            f = fields[key.name]
+            assert f.default is dataclasses.MISSING or f.metadata.get("key") == key.name or key.name in NOT_A_KEY, key.name
+
+
+def test_the_run_spec_of_the_default_config_holds_the_field_defaults():
+    """The RunSpec ``imix run`` builds from the default config equals, field by field, the RunSpec defaults (but what
+    the launcher or the env resolve): the CLI and a RunSpec made in Python start from the same values."""
+    from imix_cli.running.config.compose import validate_overrides
+    from imix_cli.running.config.run_spec import RunSpec
+
+    (spec,) = validate_overrides([])
+    for f in dataclasses.fields(RunSpec):
+        if "key" in f.metadata:
+            assert getattr(spec, f.name) == f.default, f.name
