@@ -75,7 +75,8 @@ class MixingES:
         if missing:
             raise TypeError(f"es must be an evolution strategy (imix_cli.core.algorithms.make_es), got {type(es).__name__} without {', '.join(missing)}")
         self.es = es
-        self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob, reeval_count, min_fresh=min_fresh)
+        self.settings = MixingSettings(variant=variant, eim_generations=eim_generations, alpha=alpha, reeval_age=reeval_age,
+                                       reeval_prob=reeval_prob, reeval_count=reeval_count, min_fresh=min_fresh)  # fmt: skip
         if isinstance(rng, bool) or not (rng is None or isinstance(rng, (np.random.Generator, int, np.integer, np.random.SeedSequence))):
             raise TypeError(f"rng must be a numpy Generator, an int seed or None, got {rng!r}")
         try:
