@@ -40,7 +40,7 @@ def main():
                 archive = [(old, old.sample(args.popsize, rng))]
                 if variant == "exact":  # a second, older generation drawn from the same old density
                     archive.append((old, old.sample(args.popsize, rng)))
-                g = mix(new, archive, args.popsize, rng, variant=variant)
+                g = mix(new, archive, args.popsize, rng, variant=variant, min_fresh=0)  # the rules alone
                 pooled.append(g.samples[:, 0])
                 reused += g.reused
             x = np.concatenate(pooled)[:, None]

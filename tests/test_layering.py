@@ -4,7 +4,9 @@
 The graph is the code's own: every ``import`` and ``from ... import`` of every module of the package, those
 inside functions included (a deferred import still ties two modules), resolved to the module it names
 (``from imix_cli.core import mixing`` -> ``imix_cli.core.mixing``; ``from imix_cli.core.mixing import mix``
--> ``imix_cli.core.mixing``; relative imports too). The package's face, ``imix_cli/__init__.py``, is no
+-> ``imix_cli.core.mixing``; relative imports too), with the packages each import runs: importing
+``imix_cli.core.algorithms.snes`` runs ``core/algorithms/__init__`` first, so a module that imports it imports that
+package too (unless the module is inside the package, whose ``__init__`` its own import started). The package's face, ``imix_cli/__init__.py``, is no
 node: Python runs it before any module of the package, so importing a constant of it loads nothing; a
 module that took one of its public names (each loaded on first read from a module of some layer) would be
 reported.
@@ -13,7 +15,10 @@ Made to fail: by a package written to a temporary folder with a planted upward i
 (:func:`test_the_checker_finds_a_planted_upward_import_and_a_planted_circle`), and in the real tree by
 ``from imix_cli.running.files.results import COLUMNS`` appended to ``core/mixing.py`` (an import that climbs,
 and out of the numerical library) and ``from imix_cli.core import evaluation`` inside a function appended to
-``core/policies.py`` (a circle: evaluation imports policies): three tests failed, naming both.
+``core/policies.py`` (a circle: evaluation imports policies): three tests failed, naming both. The packages an import
+runs: with ``core/algorithms/__init__`` importing the registry again (as it did), whose loaders import the ES modules,
+:func:`test_no_modules_import_each_other_in_a_circle` failed naming ``imix_cli.core.algorithms`` and
+``imix_cli.core.registry``, a loop the graph of modules alone did not show.
 """
 
 from __future__ import annotations
@@ -89,11 +94,25 @@ def imports_of(name: str, path: Path, modules: dict[str, Path], root: str) -> se
     return found
 
 
+def with_packages(name: str, targets: set[str], modules: dict[str, Path], root: str) -> set[str]:
+    """``targets`` and the packages Python runs to import them: importing ``a.b.c`` runs ``a/__init__`` and
+    ``a/b/__init__`` first -- all but the packages module ``name`` itself is in (its import started them already)."""
+    found = set(targets)
+    for target in targets:
+        parts = target.split(".")
+        for n in range(2, len(parts)):
+            package = ".".join(parts[:n])
+            if package in modules and package != root and name != package and not name.startswith(package + "."):
+                found.add(package)
+    return found
+
+
 def import_graph(package: Path = PACKAGE) -> dict[str, set[str]]:
-    """Module -> the modules it imports, for every module of ``package`` but its face (the root ``__init__``)."""
+    """Module -> the modules it imports, for every module of ``package`` but its face (the root ``__init__``), with
+    the packages each import runs (:func:`with_packages`)."""
     modules = modules_of(package)
     root = package.name
-    return {name: imports_of(name, path, modules, root) - {root} for name, path in modules.items() if name != root}
+    return {name: with_packages(name, imports_of(name, path, modules, root), modules, root) - {root} for name, path in modules.items() if name != root}
 
 
 def circles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -194,13 +213,33 @@ def test_the_checker_finds_a_planted_upward_import_and_a_planted_circle(tmp_path
         (pkg / rel).write_text(text)
     layers = [["base"], ["top"]]
     graph = import_graph(pkg)
-    assert graph["toy.base.b"] == {"toy.top.cli"} and graph["toy.top.cli"] == {"toy.base.c"}
-    assert climbing(graph, layers) == ["toy.base.b -> toy.top.cli"]
+    assert graph["toy.base.b"] == {"toy.top", "toy.top.cli"} and graph["toy.top.cli"] == {"toy.base", "toy.base.c"}
+    assert climbing(graph, layers) == ["toy.base.b -> toy.top", "toy.base.b -> toy.top.cli"]
     assert circles(graph) == [["toy.base.c", "toy.base.d"]]
     (pkg / "base/b.py").write_text("def f():\n    pass\n")
     (pkg / "base/d.py").write_text("def g():\n    pass\n")
     graph = import_graph(pkg)
     assert climbing(graph, layers) == [] and circles(graph) == []
+
+
+def test_the_checker_sees_the_packages_an_import_runs(tmp_path):
+    """A registry whose deferred loader imports a module of a package whose ``__init__`` imports the registry: a loop
+    through the package's ``__init__``, found; a module of a package importing its sibling is none."""
+    pkg = tmp_path / "toy"
+    for rel, text in {
+        "__init__.py": "",
+        "registry.py": "def load():\n    from toy.algos.one import One  # runs toy/algos/__init__ first\n",
+        "algos/__init__.py": "from toy.algos.one import One\nfrom toy.registry import load\n",
+        "algos/one.py": "from toy.algos import two\n",
+        "algos/two.py": "",
+    }.items():
+        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
+        (pkg / rel).write_text(text)
+    graph = import_graph(pkg)
+    assert graph["toy.registry"] == {"toy.algos", "toy.algos.one"} and graph["toy.algos.one"] == {"toy.algos.two"}
+    assert circles(graph) == [["toy.algos", "toy.registry"]]
+    (pkg / "algos/__init__.py").write_text("from toy.algos.one import One\n")
+    assert circles(import_graph(pkg)) == []
 
 
 def test_the_checker_on_a_synthetic_graph():

@@ -76,7 +76,7 @@ def test_sun2009_reuse_rate_equals_overlap(shift, scale):
     rng = np.random.default_rng(7)
     old, new = DiagonalGaussian([0.0, 0.0], [1.0, 1.0]), DiagonalGaussian([shift, 0.0], [scale, 1.0])
     overlap = monte_carlo_overlap(old, new, rng)
-    reused = sum(mix(new, [(old, old.sample(50, rng))], 50, rng, variant="sun2009").reused for _ in range(2000))
+    reused = sum(mix(new, [(old, old.sample(50, rng))], 50, rng, variant="sun2009", min_fresh=0).reused for _ in range(2000))
     assert abs(reused / (50 * 2000) - overlap) < 0.01
 
 
@@ -88,7 +88,7 @@ def test_sun2009_alpha_reuse_rate():
     x = new.sample(400_000, rng)
     expected = float(np.mean(np.minimum(np.exp(old.log_prob(x) - new.log_prob(x)), 1 - alpha)))
     assert expected < monte_carlo_overlap(old, new, rng) - 0.1  # alpha really lowers reuse
-    reused = sum(mix(new, [(old, old.sample(50, rng))], 50, rng, variant="sun2009", alpha=alpha).reused for _ in range(2000))
+    reused = sum(mix(new, [(old, old.sample(50, rng))], 50, rng, variant="sun2009", alpha=alpha, min_fresh=0).reused for _ in range(2000))
     assert abs(reused / (50 * 2000) - expected) < 0.01
 
 
@@ -120,11 +120,11 @@ def test_eim_draws_from_older_generations_when_previous_is_far():
     # The pass over the 5-row far generation can yield at most 5 (fresh, rule-2) members; the
     # rest must then come from the older generation, whose density equals the new one.
     archive = [(far, far.sample(5, rng)), (new, new.sample(20, rng))]
-    g = mix(new, archive, 20, rng, variant="eim_paper")
+    g = mix(new, archive, 20, rng, variant="eim_paper", min_fresh=0)  # the rules alone, here and below
     assert g.reused_from_previous == 0 and g.reused_from_older == 15
     # "exact": every rule-2 draw lands under the older generation's graph (its density is the
     # new one) and under no newer one, so each is swapped for one of its members: all 20.
-    g = mix(new, archive, 20, rng, variant="exact")
+    g = mix(new, archive, 20, rng, variant="exact", min_fresh=0)
     assert g.reused_from_previous == 0 and g.reused_from_older == 20
     g = mix(new, archive, 20, rng, variant="paper")
     assert g.reused == 0
@@ -135,7 +135,7 @@ def test_identical_distribution_reuses_everything():
     dist = DiagonalGaussian(np.zeros(10), np.ones(10))
     old = dist.sample(50, rng)
     for variant in VARIANTS:
-        g = mix(dist, [(dist, old)], 50, rng, variant=variant)
+        g = mix(dist, [(dist, old)], 50, rng, variant=variant, min_fresh=0)  # the rules alone
         assert g.reused == 50
         np.testing.assert_array_equal(np.sort(g.index), np.arange(50))
 
@@ -434,7 +434,7 @@ def test_a_registered_variant_is_what_mix_and_the_settings_read(monkeypatch):
     rng = np.random.default_rng(0)
     dist = DiagonalGaussian(np.zeros(3), np.ones(3))
     archive = [(dist, dist.sample(10, rng)) for _ in range(4)]
-    g = mix(dist, archive, 10, rng, variant="probe", eim_generations=4)
+    g = mix(dist, archive, 10, rng, variant="probe", eim_generations=4, min_fresh=0)
     assert depths == [4] and g.samples.shape == (10, 3) and g.reused == 10  # the same distribution: all reused
     assert MixingSettings("probe", eim_generations=4).depth == 4
     for name in VARIANTS:

@@ -200,7 +200,7 @@ def test_conditional_without_weights_is_sun2009_slot_by_slot():
     old, new = DiagonalGaussian([0.0, 0.0], [1.0, 1.0]), DiagonalGaussian([0.4, 0.0], [1.0, 1.0])
     x = new.sample(400_000, rng)
     overlap = float(np.mean(np.exp(np.minimum(0.0, old.log_prob(x) - new.log_prob(x)))))
-    reused = sum(mix(new, [(old, old.sample(50, rng))], 50, rng, variant="conditional").reused for _ in range(2000))
+    reused = sum(mix(new, [(old, old.sample(50, rng))], 50, rng, variant="conditional", min_fresh=0).reused for _ in range(2000))
     assert abs(reused / (50 * 2000) - overlap) < 0.01
 
 

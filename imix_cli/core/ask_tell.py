@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from imix_cli.core.generation import Archive, MixingSettings, Plan, finish_generation, plan_generation
+from imix_cli.core.mixing import MIXING_DEFAULTS
 
 __all__ = ["MixingES"]
 
@@ -39,12 +40,13 @@ class MixingES:
         (:mod:`imix_cli.core.adapters`). Fitness is the ES's own: maximised for imix's, minimised for
         pycma's and evosax's.
     variant : {"exact", "sun2009", "paper", "conditional", "eim_paper", None}
-        The :func:`~imix_cli.core.mixing.mix` variant (``"exact"``: ``imix run eim=true``; ``"paper"``:
+        The :func:`~imix_cli.core.mixing.mix` variant (``"exact"``, the default: ``imix run eim=true``; ``"paper"``:
         ``im=true``; :data:`~imix_cli.core.mixing.VARIANT_SPECS`); None draws every generation fresh, i.e. the plain ES.
+        Every default here is :data:`~imix_cli.core.mixing.MIXING_DEFAULTS`' (``imix run``'s).
     rng : numpy Generator, int or None
         The stream that draws and mixes the generations (an int seeds a new Generator).
     eim_generations : int
-        K, the archived generations ``"exact"`` and ``"eim_paper"`` reuse from (the config key of the same
+        K, the archived generations ``"exact"`` and ``"eim_paper"`` reuse from (default 3; the config key of the same
         name; :class:`~imix_cli.core.generation.MixingSettings`).
     alpha : float
         ``"sun2009"``'s minimal refresh rate in [0, 1) (the config key ``im_alpha``).
@@ -60,8 +62,10 @@ class MixingES:
         repeats its update (:mod:`imix_cli.core.mixing`, "A minimal refresh"); 0: the rules alone.
     """
 
-    def __init__(self, es, variant: str | None = "exact", *, rng=None, eim_generations: int = 3, alpha: float = 0.0,
-                 reeval_age: int | None = None, reeval_prob: float = 0.0, reeval_count: int = 0, min_fresh: int = 1):  # fmt: skip
+    def __init__(self, es, variant: str | None = MIXING_DEFAULTS.variant, *, rng=None, eim_generations: int = MIXING_DEFAULTS.eim_generations,
+                 alpha: float = MIXING_DEFAULTS.alpha, reeval_age: int | None = MIXING_DEFAULTS.reeval_age,
+                 reeval_prob: float = MIXING_DEFAULTS.reeval_prob, reeval_count: int = MIXING_DEFAULTS.reeval_count,
+                 min_fresh: int = MIXING_DEFAULTS.min_fresh):  # fmt: skip
         from imix_cli.core.adapters import adapt
 
         # Every argument is checked here, with imix run's bounds (MixingSettings: imix_cli.core.generation.MIXING_BOUNDS):
@@ -71,7 +75,8 @@ class MixingES:
         if missing:
             raise TypeError(f"es must be an evolution strategy (imix_cli.core.algorithms.make_es), got {type(es).__name__} without {', '.join(missing)}")
         self.es = es
-        self.settings = MixingSettings(variant, eim_generations, alpha, reeval_age, reeval_prob, reeval_count, min_fresh=min_fresh)
+        self.settings = MixingSettings(variant=variant, eim_generations=eim_generations, alpha=alpha, reeval_age=reeval_age,
+                                       reeval_prob=reeval_prob, reeval_count=reeval_count, min_fresh=min_fresh)  # fmt: skip
         if isinstance(rng, bool) or not (rng is None or isinstance(rng, (np.random.Generator, int, np.integer, np.random.SeedSequence))):
             raise TypeError(f"rng must be a numpy Generator, an int seed or None, got {rng!r}")
         try:

@@ -43,7 +43,7 @@ import numpy as np
 
 from imix_cli.core import numerics as xp
 from imix_cli.core.bounds import Bound
-from imix_cli.core.mixing import Generation, mix, variant_spec
+from imix_cli.core.mixing import MIXING_DEFAULTS, Generation, mix, variant_spec
 
 #: The range of each numeric :class:`MixingSettings` field, checked when one is made and by ``imix run``'s config (its
 #: keys ``eim_generations``, ``im_alpha``, ``reeval_*``, ``min_fresh``: :mod:`imix_cli.running.config.keys`): one copy of the numbers.
@@ -59,7 +59,8 @@ MIXING_BOUNDS = {
 
 @dataclass(frozen=True)
 class MixingSettings:
-    """How generations are built.
+    """How generations are built. The defaults are :data:`~imix_cli.core.mixing.MIXING_DEFAULTS`' (``imix run``'s), but
+    ``variant``: None, the plain ES, as ``imix run`` without ``im``/``eim``.
 
     Attributes
     ----------
@@ -84,12 +85,12 @@ class MixingSettings:
     """
 
     variant: str | None = None
-    eim_generations: int = 3
-    alpha: float = 0.0
-    reeval_age: int | None = None
-    reeval_prob: float = 0.0
-    reeval_count: int = 0
-    min_fresh: int = 1
+    eim_generations: int = MIXING_DEFAULTS.eim_generations
+    alpha: float = MIXING_DEFAULTS.alpha
+    reeval_age: int | None = MIXING_DEFAULTS.reeval_age
+    reeval_prob: float = MIXING_DEFAULTS.reeval_prob
+    reeval_count: int = MIXING_DEFAULTS.reeval_count
+    min_fresh: int = MIXING_DEFAULTS.min_fresh
 
     def __post_init__(self):
         """Every setting checked here, with the bounds ``imix run`` checks its keys with (:data:`MIXING_BOUNDS`): a bad

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imix_cli.core.generation import Archive, GenerationScheme, MixingSettings, Plan
-from imix_cli.core.mixing import Generation, mix
+from imix_cli.core.mixing import MIXING_DEFAULTS, Generation, mix
 
 
 @dataclass
@@ -52,17 +52,19 @@ class MirroredPlan(Plan):
     anchors: Generation | None = None
 
 
-def mix_pairs(dist, archive: list, directions: int, rng: np.random.Generator, variant: str | None, alpha: float = 0.0, eim_generations: int = 3):
+def mix_pairs(dist, archive: list, directions: int, rng: np.random.Generator, variant: str | None, alpha: float = MIXING_DEFAULTS.alpha,
+              eim_generations: int = MIXING_DEFAULTS.eim_generations):  # fmt: skip
     """N mirrored pairs of ``dist`` (mean m'), their anchors mixed from ``archive`` (module docstring).
 
     Returns ``(anchors, members)``: the anchors' :class:`~imix_cli.core.mixing.Generation` (N rows) and
-    the 2N members ``[anchors; 2m' - anchors]``. ``variant`` None (or an empty archive): all fresh.
+    the 2N members ``[anchors; 2m' - anchors]``. ``variant`` None (or an empty archive): all fresh. No minimal
+    refresh (``min_fresh=0``): every mirror is fresh, so no generation is reused whole (:mod:`imix_cli.core.mixing`).
     """
     if variant is None or not archive:
         n = directions
         anchors = Generation(dist.sample(n, rng), np.zeros(n, np.int64), np.full(n, -1, np.int64), dist)
     else:
-        anchors = mix(dist, archive, directions, rng, variant=variant, alpha=alpha, eim_generations=eim_generations)
+        anchors = mix(dist, archive, directions, rng, variant=variant, alpha=alpha, eim_generations=eim_generations, min_fresh=0)
     return anchors, np.concatenate([anchors.samples, mirror(anchors.samples, dist.mean)])
 
 

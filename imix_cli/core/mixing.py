@@ -1,189 +1,21 @@
 """Importance mixing: build a new ES generation that reuses already-evaluated samples.
 
-Why it works (after section 2 of Pourchot, Perrin & Sigaud 2018)
-------------------------------------------------------------------
-Drawing x from a density p is the same as drawing a point (x, y) uniformly
-from the region under the graph of p and keeping its abscissa; and a uniform
-point of that region is obtained by drawing x ~ p and then y = u * p(x) with
-u ~ U[0, 1]. Rejection sampling adds one more fact: uniform points of a region
-that happen to land in a sub-region are uniform in the sub-region.
+Why: an ES that moves its search distribution a little draws a generation much like the last one, whose returns
+are known. :func:`mix` keeps the earlier members the new distribution would have drawn anyway and draws fresh only
+the rest, so that the generation is still distributed as the new distribution while most of it costs no episode.
 
-Let an ES move from p_old to p_new. The region under p_new splits into
+How, in brief: rule 1 keeps an old member with probability min(1, p_new/p_old), rule 2 keeps a fresh draw with
+probability max(0, 1 - p_old/p_new); each variant (:data:`VARIANT_SPECS`) is one way of applying them to the
+archive; ``min_fresh`` slots, chosen at random, are then drawn fresh, so that a distribution that stops moving
+cannot repeat its generation. All in log space, from log-ratios.
 
-* the *overlap*, under min(p_old, p_new), of volume lambda, and
-* the *leftover*, between min(p_old, p_new) and p_new, of volume 1 - lambda.
+The argument, one section per question, is docs/research/mixing.md ("How importance mixing builds a generation"):
+"Why it works" (the two rules), "Variants" (``paper``, ``sun2009``, ``exact``, ``conditional``, ``eim_paper``),
+"Multi-generation mixing" (why Algorithm 3 drifts and what ``exact`` does instead), "Reuse inside the loop" (why
+``conditional``), "A minimal refresh" (``min_fresh``) and "In log space". The defaults of every setting:
+:data:`MIXING_DEFAULTS`.
 
-An old sample z (drawn from p_old) with height u * p_old(z) lies in the
-overlap when u < p_new(z) / p_old(z): **rule 1** keeps an old sample with
-probability min(1, p_new/p_old), and what it keeps is uniform in the overlap.
-A fresh draw z' ~ p_new with height u * p_new(z') lies in the leftover when
-u >= p_old(z') / p_new(z'): **rule 2** keeps a fresh draw with probability
-max(0, 1 - p_old/p_new), and what it keeps is uniform in the leftover. An old
-sample lands in the overlap with probability lambda, a fresh one in the
-leftover with probability 1 - lambda: trying one of each in turn therefore
-feeds both parts in proportion to their volumes, and the union is uniform under
-p_new -- one generation built this way from an independent sample of p_old is
-distributed as p_new, yet only the rule-2 samples (about (1 - lambda) N of them)
-must be evaluated. The fitness of a reused sample is already known. Whether a
-*chain* of such generations stays distributed as its distributions is another
-question, answered per variant below.
-
-Variants (``mix(..., variant=...)``)
-------------------------------------
-Each is one :class:`Variant` of :data:`VARIANT_SPECS`, which also says which config key selects it
-and by what value (``im_variant=`` with ``im=true``, ``eim_variant=`` with ``eim=true``): the value is
-the variant's name, except ``eim_variant=paper``, which is ``"eim_paper"`` (Algorithm 3) because
-``"paper"`` is already Algorithm 2 (``im_variant=paper``).
-
-``"paper"``     Algorithm 2: alternate rule 1 on the previous generation (in a
-                random order) and rule 2 on a fresh draw; stop as soon as the
-                generation is full; if the last step overfilled it, drop one
-                member at random; fill what is still missing with plain draws.
-                Reuses 1.4-2.4 members fewer than lambda N at N = 50 (it fills with
-                fresh draws after N steps), and over-represents the overlap at very
-                small N (N = 2); unbiased over chains at N = 50 (tests).
-``"sun2009"``   Sun et al. (2009): rule 1 on every sample of the previous
-                generation with acceptance min(1, (1 - alpha) p_new/p_old), then
-                rule 2 with acceptance max(alpha, 1 - p_old/p_new) until full;
-                alpha is the minimal refresh rate. With alpha = 0 it takes a
-                Binomial(N, lambda) number of members from the overlap and the rest
-                from the leftover: exactly the law of N independent draws.
-``"exact"``     imix's multi-generation rule (``eim=true``, ``eim_variant=exact``, the
-                default): ``"sun2009"``'s step
-                from the previous generation, then rule-2 draws that land in an older
-                generation's exclusive region are swapped for unused old members of
-                that region (below). Exact over chains; reuses more than
-                ``"sun2009"``.
-``"conditional"`` Sun et al.'s rule, slot by slot, with each member of the previous
-                generation taken for what it is *given the update it took part in*
-                (below, "Reuse inside the loop"): exact over the chains an ES makes
-                itself under neutral fitness, where the other variants are exact only
-                along a path that does not depend on the members. A named option
-                (``eim_variant=conditional``), not the default: see below why.
-``"eim_paper"`` the paper's Algorithm 3 (``eim_variant=paper``): Algorithm 2's alternation over the K most
-                recent generations in turn, newest first, each tested against the
-                density of its own generation, until full; a point present in several
-                archive entries is taken at most once (a departure from the paper and
-                the authors' code, which could take it twice). Kept for reproduction:
-                its generations are NOT distributed as their distribution over chains
-                of generations -- in a random walk of the search distribution
-                (lambda ~ 0.95, K = 3) their variance is 1.14 times the target, and in a
-                drift their mean runs ahead (tests/test_mixing.py).
-
-Multi-generation mixing: why Algorithm 3 drifts and what ``"exact"`` does instead
---------------------------------------------------------------------------------
-Testing each archived generation against its own density treats it as a fresh,
-independent sample. It is not: generations share members, and a member of generation
-t-2 that is *not* in generation t-1 carries the information that rule 1 rejected it --
-it lies where p_{t-2} exceeds p_{t-1}. Re-testing it with a fresh uniform ignores that.
-
-Keep instead, for every archived member, the height y = u p(x) that decided its fate
-(``Generation.log_u``, drawn when the generation is first mixed from). Generation t-1 is
-N independent uniform points (x, y) under the graph of p_{t-1}. Its points under the new
-graph are kept (rule 1 with that height: Sun et al.'s step), a Binomial(N, lambda) count of
-uniform points of the overlap. The rest of generation t must be uniform points of the
-leftover L = {p_{t-1}(x) <= y < p_t(x)}: rule-2 draws, fresh (x, y) under p_t kept when
-above p_{t-1}. Such a draw may land in the region E_k of an older generation k: under
-p_k's graph and under no newer archived graph. The members of generation k in E_k were
-never taken by a newer generation (a newer generation takes every point of its
-predecessor under its own graph, and swaps only inside its own region), so they are
-independent uniform points of E_k; those also under p_t are uniform points of E_k and of
-the new graph -- the very cell the rule-2 draw landed in. Replacing a uniform point of a
-cell by another, independent uniform point of the same cell changes no law: the draw is
-swapped for an unused such member (chosen at random), and only draws that find no member
-left in their cell are evaluated. Each generation is then exactly N independent draws
-from p_t, over any chain of (exogenous) distributions, and a point is never taken twice.
-Heights are drawn when a generation is first mixed from (not carried from the mix that
-built it), so members do not stick longer than under ``"sun2009"``: carried heights kept
-CEM's population frozen under neutral selection (98 % reuse, sigma growing) in a trial.
-Like ``"sun2009"``, it needs rule-2 draws in proportion to 1/(1 - lambda): after
-200 draws per missing member the rest is filled with plain draws (never hit in practice).
-
-Reuse inside the loop: why ``"conditional"``
-----------------------------------------------
-Every argument above holds along a *fixed* path of distributions. Inside an ES the path is
-made from the members themselves: the generation told at step t moved the mean toward its
-best members, and those members are then reused. Given the new distribution, a member of
-generation t is no longer a draw from p_t: the move it took part in is evidence about where
-it lies. Rule 1, which treats it as a draw from p_t, then keeps the members that pulled the
-mean -- they sit ahead along the move -- and the next generation is not distributed as p_t+1.
-Measured under constant fitness (every return equal, so every move is neutral and every
-deviation is the loop's own; d = 130, N = 50, ``benchmarks/reuse_bias.py constant``): with
-``"exact"`` CMA-ES's members sit ahead along the last mean step and are too concentrated
-(E[z^2] ~ 0.98), which shortens CSA's path and halves its step size.
-
-The law of a member given the move. Write the generation in the coordinates whitened by
-p_t, z_j ~ N(0, I) independent, and the move of the mean it causes as proportional to
-s = sum_j c_j z_j, with weights c_j fixed by the ranks (the ES's :attr:`mean_weights`: the
-positive recombination weights of CMA-ES, CEM's elite weights, the utilities of the
-gradient ES). When the ranks carry no information about where the members lie (constant or
-neutral fitness: the case the loop's own bias is measured in), Gaussian conditioning gives
-
-    z_i | s  ~  N(a_i s, (1 - b_i) I),    a_i = c_i / sum_j c_j^2,    b_i = c_i^2 / sum_j c_j^2
-
--- a member that carried a large share of the move is pulled along it and known more
-precisely. Call that law q_i. The rule is Sun et al.'s, one slot per old member, with q_i in
-place of p_t: keep member i with probability min(1, p_t+1/q_i); otherwise draw from p_t+1
-until a draw x lands where p_t+1(x) > q_i(x), accepting it with probability 1 - q_i/p_t+1.
-Slot i then holds min(q_i, p_t+1) + (p_t+1 - min(q_i, p_t+1)) = p_t+1: each slot is a draw
-from the new distribution *given everything the ES has seen*, and so is the next generation,
-whose own move is then conditioned on in turn -- the construction needs nothing older than
-the previous generation (hence no multi-generation swaps: an older member's law given
-several moves and rejections has no closed form here).
-
-What it does not cover, and what it costs -- why ``"exact"`` stays the default. (1) It
-conditions on the mean's move only; CMA-ES's covariance and CEM's variance also depend on
-the members (their outer products), which this rule ignores (CEM's variance is the elites'
-own, hence CEM's residual). (2) Reuse drops: little for CMA-ES and CEM, whose weights are
-spread over ~N/2 elites, but by half for the gradient ES, whose d-dimensional gradient
-reveals every member -- where the offset is harmless anyway (utilities sum to zero, so a
-common offset of the population cancels from the gradient). (3) Under real fitness the ranks
-*do* depend on where the members lie: the elites sit ahead along the move because they are
-good, not only because they pulled it, and the rule, which takes all of that for the loop's
-own pull, pushes the next generation back along a good move (CMA-ES on CartPole: 181 with
-four seeds stuck below 120, against 199.6 with ``"exact"``). Measured in docs/research/bias.md
-("Reused returns and the search").
-
-A minimal refresh: why every generation evaluates at least ``min_fresh`` members
----------------------------------------------------------------------------------
-When the distribution stops moving, p_new = p_old and every rule above keeps every old
-member (rule 1 accepts with probability 1, rule 2 with 0): the generation is the previous
-one, its returns are the stored ones, and an ES whose update is a function of its members
-and their returns (CEM, CMA-ES's mean and covariance) makes the same update again -- a fixed
-point in which nothing is searched. (ARS's mirrored pairs need no refresh: every mirror is
-fresh, so :mod:`imix_cli.core.mirrored` does not apply it.) Measured: CEM + ``exact`` on a noise-free 10-d
-sphere (N = 20, 300 generations) reused every member in 98-145 generations, runs of up to
-78; on Rastrigin one seed froze for 263 generations at f = -140.
-
-The cure keeps every law above: after a rule has built the generation, ``min_fresh`` slots
-are chosen uniformly at random, independently of the members, and the member in each --
-reused or fresh -- is replaced by a fresh draw from p_new. A generation of N independent
-draws from p_new whose members in slots chosen independently of them are replaced by
-independent draws from p_new is again N independent draws from p_new: the chain tests
-hold unchanged. The choice must not look at the members: replacing only the *reused*
-members of the chosen slots (keeping a fresh one where it was) thins the overlap, where
-the reused members lie -- tried, and the chain test saw it (E[z^2] 1.020-1.026, z 2.5-5.5,
-with 3-10 slots). A fresh member replaced costs nothing: it was not evaluated yet. The archive's
-bookkeeping is untouched: a replaced old member lies under the new graph, so ``"exact"``
-counts it as covered by the new generation and never offers it again. Every generation
-then holds at least ``min_fresh`` fresh members, whose returns are new information: with
-CEM, a slot held an elite with probability K_e / N, and a fresh member enters the elites
-with about the same probability, so the elites turn over and the mean moves. The cost is
-about ``min_fresh`` x (reuse rate) episodes per generation.
-
-Everything is computed in log space: a Gaussian density underflows at d = 10^4
-while log p is an ordinary number. Rule 1 accepts when log u < log p_new -
-log p_old; rule 2 when u < -expm1(log p_old - log p_new).
-
-Only log-ratios log(p_new/p_old) are needed. Between two DiagonalGaussians they
-are computed directly, as sums of per-coordinate terms that are small when the
-distributions are close -- accurate even in float32 at d = 10^6 and cheap
-enough that a mixing step costs little more than drawing the generation (see
-``benchmarks/mixing_speed.py``). Any other distribution objects only need
-``sample(n, rng)`` and ``log_prob(x)``.
-
-Archive entries are ``(dist, samples)`` pairs or :class:`Generation` objects
-returned by an earlier ``mix``.
+Archive entries are ``(dist, samples)`` pairs or :class:`Generation` objects returned by an earlier ``mix``.
 """
 
 from __future__ import annotations
@@ -196,7 +28,10 @@ import numpy as np
 from imix_cli.core import numerics as xp
 from imix_cli.core.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
 
-__all__ = ["DiagonalGaussian", "FullGaussian", "Generation", "Variant", "VARIANT_SPECS", "VARIANTS", "config_variants", "mix", "variant_spec"]
+__all__ = [
+    "DiagonalGaussian", "FullGaussian", "Generation", "MIXING_DEFAULTS", "MixingDefaults", "Variant", "VARIANT_SPECS", "VARIANTS",
+    "config_variants", "mix", "variant_spec",
+]  # fmt: skip
 
 # Sun et al.'s rule-2 loop accepts a fresh draw with probability ~(1 - lambda); when the two
 # distributions nearly coincide that can take very many draws. After this many candidate
@@ -685,8 +520,7 @@ class Variant:
         return eim_generations if self.looks_back else 1
 
 
-#: Every variant, by name, in the order of the module docstring; the first a mixing scheme offers is
-#: its default (``im_variant=paper``, ``eim_variant=exact``: conf/config.yaml).
+#: Every variant, by name, in the order of the module docstring (each scheme's default: :data:`MIXING_DEFAULTS`).
 VARIANT_SPECS: dict[str, Variant] = {
     v.name: v
     for v in (
@@ -704,9 +538,50 @@ VARIANT_SPECS: dict[str, Variant] = {
 VARIANTS = tuple(VARIANT_SPECS)
 
 
+@dataclass(frozen=True)
+class MixingDefaults:
+    """Every mixing setting's default, declared once (:data:`MIXING_DEFAULTS`).
+
+    Why one record: :func:`mix`, :class:`~imix_cli.core.ask_tell.MixingES`,
+    :class:`~imix_cli.core.generation.MixingSettings`, the ``imix run`` keys
+    (:mod:`imix_cli.running.config.keys`) and the RunSpec each take these settings; each reads its default here, so
+    a library user gets the rule ``imix run eim=true`` runs (tests/test_mixing_defaults.py compares them all).
+
+    Attributes
+    ----------
+    variant : str
+        The library's variant (:func:`mix`, :class:`~imix_cli.core.ask_tell.MixingES`) and ``eim=true``'s
+        (``eim_variant``): ``"exact"``, unbiased over chains of generations.
+    im_variant : str
+        ``im=true``'s (``im_variant``): ``"paper"``, the paper's Algorithm 2.
+    eim_generations : int
+        K, the archived generations ``"exact"`` and ``"eim_paper"`` reuse from.
+    alpha : float
+        ``"sun2009"``'s minimal refresh rate (``im_alpha``).
+    min_fresh : int
+        Fresh members of every mixed generation, at least (module docstring, "A minimal refresh"): 1, so a
+        distribution that stops moving cannot make a fixed point; 0 is the rules alone.
+    reeval_age, reeval_prob, reeval_count
+        Re-evaluation of reused members (:class:`~imix_cli.core.generation.MixingSettings`): none.
+    """
+
+    variant: str = "exact"
+    im_variant: str = "paper"
+    eim_generations: int = 3
+    alpha: float = 0.0
+    min_fresh: int = 1
+    reeval_age: int | None = None
+    reeval_prob: float = 0.0
+    reeval_count: int = 0
+
+
+#: The defaults of every mixing setting: the one declaration (:class:`MixingDefaults`).
+MIXING_DEFAULTS = MixingDefaults()
+
+
 def config_variants(scheme: str) -> dict[str, Variant]:
-    """The values of ``<scheme>_variant`` (``scheme``: ``"im"`` or ``"eim"``) -> the :class:`Variant` each selects,
-    the default first."""
+    """The values of ``<scheme>_variant`` (``scheme``: ``"im"`` or ``"eim"``) -> the :class:`Variant` each selects, in
+    the order of :data:`VARIANT_SPECS` (each scheme's default: :data:`MIXING_DEFAULTS`)."""
     return {v.config_name: v for v in VARIANT_SPECS.values() if scheme in v.selected_by}
 
 
@@ -746,11 +621,11 @@ def mix(
     archive,
     popsize: int,
     rng: np.random.Generator,
-    variant: str = "paper",
-    alpha: float = 0.0,
-    eim_generations: int = 3,
+    variant: str = MIXING_DEFAULTS.variant,
+    alpha: float = MIXING_DEFAULTS.alpha,
+    eim_generations: int = MIXING_DEFAULTS.eim_generations,
     compiled: bool | None = None,
-    min_fresh: int = 0,
+    min_fresh: int = MIXING_DEFAULTS.min_fresh,
 ) -> Generation:
     """Build a generation of ``popsize`` members distributed as ``new_dist``, reusing archived samples.
 
@@ -766,8 +641,9 @@ def mix(
         Size N of the new generation.
     rng : numpy.random.Generator
         Source of all randomness (acceptance tests, fresh draws, orderings).
-    variant : {"paper", "sun2009", "exact", "conditional", "eim_paper"}
-        See the module docstring. ``"paper"``, ``"sun2009"`` and ``"conditional"`` use ``archive[0]`` only
+    variant : {"exact", "paper", "sun2009", "conditional", "eim_paper"}
+        See the module docstring; default ``"exact"``, as ``imix run eim=true`` (:data:`MIXING_DEFAULTS`).
+        ``"paper"``, ``"sun2009"`` and ``"conditional"`` use ``archive[0]`` only
         (``"conditional"`` reads its ``mean_weights`` if it is a Generation),
         ``"exact"`` and ``"eim_paper"`` up to ``eim_generations`` entries. ``"exact"`` keeps each
         Generation's heights in it (``log_u``): pass the same Generation objects again; a
@@ -775,10 +651,11 @@ def mix(
     alpha : float in [0, 1)
         Minimal refresh rate of ``"sun2009"`` (ignored by the other variants).
     eim_generations : int >= 1
-        K, the number of archived generations ``"exact"`` and ``"eim_paper"`` may draw from.
+        K, the number of archived generations ``"exact"`` and ``"eim_paper"`` may draw from (default 3).
     min_fresh : int >= 0
         The minimal refresh (module docstring): this many slots, drawn at random, hold fresh members
-        whenever the archive is not empty (0: none, the rules alone). The generation keeps its law.
+        whenever the archive is not empty; default 1, as ``imix run`` (0: none, the rules alone). The generation
+        keeps its law.
     compiled : bool or None
         None (default): take the compiled step (:mod:`imix_cli.core.mixing_kernels`) where it
         applies -- ``"paper"``, ``"sun2009"``, ``"exact"`` between float64 DiagonalGaussians,

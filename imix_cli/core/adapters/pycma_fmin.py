@@ -31,10 +31,7 @@ import threading
 
 import numpy as np
 
-__all__ = ["MIXING_DEFAULTS", "fmin2"]  # and MixingCMAEvolutionStrategy, made on first use (module __getattr__)
-
-#: What each run's :class:`~imix_cli.core.ask_tell.MixingES` is made with unless ``mixing=`` says otherwise.
-MIXING_DEFAULTS = {"variant": "exact"}
+__all__ = ["fmin2"]  # and MixingCMAEvolutionStrategy, made on first use (module __getattr__)
 
 _LOCK = threading.Lock()
 
@@ -49,7 +46,7 @@ def _subclass():
     class MixingCMAEvolutionStrategy(base):
         """A pycma ES that mixes: ``ask_and_eval``, ``tell`` and ``stop`` through :class:`~imix_cli.core.ask_tell.MixingES`."""
 
-        _mixing_options: dict = dict(MIXING_DEFAULTS)
+        _mixing_options: dict = {}  # MixingES's keywords (fmin2's mixing=); those left out: its defaults
 
         def _mixing(self):
             m = self.__dict__.get("_mixing_es")
@@ -58,11 +55,10 @@ def _subclass():
                 from imix_cli.core.ask_tell import MixingES
 
                 options = dict(self._mixing_options)
-                variant = options.pop("variant", "exact")
                 step_size = options.pop("step_size", "pycma")
                 seed = self.opts["seed"]  # pycma's seed of this run (fmin adds 1 per restart): the mixing stream's too
                 rng = int(seed) if isinstance(seed, (int, np.integer)) and seed > 0 else None
-                m = self._mixing_es = MixingES(PycmaES(self, step_size=step_size), variant, rng=rng, **options)
+                m = self._mixing_es = MixingES(PycmaES(self, step_size=step_size), rng=rng, **options)
             return m
 
         def ask_and_eval(self, func, args=(), gradf=None, number=None, xmean=None, sigma_fac=1, evaluations=1,
@@ -118,7 +114,8 @@ def fmin2(objective_function, x0, sigma0, options=None, *, mixing=None, **kwargs
         be a callable, as in pycma. Refused with one line (ValueError): ``noise_handler``, ``gradf``, an ES as x0.
     mixing : dict or None
         :class:`~imix_cli.core.ask_tell.MixingES`'s keywords for every run (``variant``, ``eim_generations``,
-        ``min_fresh``, ...) and the adapter's ``step_size``; default :data:`MIXING_DEFAULTS`.
+        ``min_fresh``, ...) and the adapter's ``step_size``; each left out takes MixingES's default
+        (:data:`imix_cli.core.mixing.MIXING_DEFAULTS`: ``"exact"``, as ``imix run eim=true``).
 
     Returns
     -------
@@ -134,6 +131,6 @@ def fmin2(objective_function, x0, sigma0, options=None, *, mixing=None, **kwargs
     options = dict(options or {})
     options.setdefault("CMA_mirrors", 0)  # pycma mirrors by default below popsize 6: not independent samples
     base = _subclass()
-    cls = type("MixingCMAEvolutionStrategy", (base,), {"_mixing_options": {**MIXING_DEFAULTS, **(mixing or {})}})
+    cls = type("MixingCMAEvolutionStrategy", (base,), {"_mixing_options": dict(mixing or {})})
     with _pycma_makes(cls):
         return cma.fmin2(objective_function, x0, sigma0, options, **kwargs)

@@ -10,8 +10,10 @@ cmaes      :class:`CMAES`          N(mu, sigma^2 C), full C (pycma)
 ars        :class:`ARS`            N(mu, nu^2 I) in mirrored pairs (Mania et al. 2018)
 =========  ======================  =========================================
 
-``make_es("snes", dim=130, popsize=50)`` builds one by name; the names are those of
-:data:`imix_cli.core.registry.ALGORITHM_SPECS` (where a new ES is registered). Each class takes
+``make_es("snes", dim=130, popsize=50)`` builds one by name, its class's ``name`` (the same names as
+:data:`imix_cli.core.registry.ALGORITHM_SPECS`, where a new ES is registered too: tests/test_registry.py). This
+package does not import the registry: the registry's loaders import the ES modules, and importing one runs this
+``__init__`` first, so the two would import each other (tests/test_layering.py). Each class takes
 its parameter record, ``SNES(130, SNES.Params(popsize=50))``, or the record's fields as
 keywords (:class:`~imix_cli.core.algorithms.base.Params`).
 """
@@ -24,13 +26,14 @@ from imix_cli.core.algorithms.cem import CEM
 from imix_cli.core.algorithms.cmaes import CMAES
 from imix_cli.core.algorithms.openes import OpenES
 from imix_cli.core.algorithms.snes import SNES
-from imix_cli.core.registry import ALGORITHM_SPECS, ES_NAMES
 
-#: ES name -> class, for every evolution strategy of the registry whose ``tell`` takes any population
+#: Every evolution strategy of the package, in the registry's order.
+_CLASSES = (OpenES, SNES, CEM, CMAES, ARS)
+#: ES name -> class, for every evolution strategy whose ``tell`` takes any population
 #: (any rows, in any order); ARS's members come in mirrored pairs (:data:`MIRRORED_ALGORITHMS`).
-ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if ALGORITHM_SPECS[name].es_class().generation_scheme is None}
+ALGORITHMS = {cls.name: cls for cls in _CLASSES if cls.generation_scheme is None}
 #: ES name -> class, for the ES whose ``tell`` takes N mirrored pairs ``[plus; minus]`` (imix_cli.core.mirrored).
-MIRRORED_ALGORITHMS = {name: ALGORITHM_SPECS[name].es_class() for name in ES_NAMES if name not in ALGORITHMS}
+MIRRORED_ALGORITHMS = {cls.name: cls for cls in _CLASSES if cls.generation_scheme is not None}
 
 
 def make_es(name: str, dim: int, **kwargs) -> EvolutionStrategy:

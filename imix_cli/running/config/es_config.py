@@ -183,8 +183,8 @@ def _policy_and_evaluator(checked: dict, env_name: str, launcher: str | None) ->
     default = hidden == POLICY_DEFAULTS["hidden"] and not obs_norm and not extra
     stored = None if default else {"hidden": list(hidden), "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else None, **extra}
     return {
-        "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else 0, "policy_bias": bias, "policy_output": output,
-        "obs_var_floor": var_floor if obs_norm else POLICY_DEFAULTS["obs_var_floor"], "evaluator_workers": n_workers or 1, "stored": stored,
+        "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup, "policy_bias": bias, "policy_output": output,
+        "obs_var_floor": var_floor if obs_norm else POLICY_DEFAULTS["obs_var_floor"], "evaluator_workers": n_workers, "stored": stored,
     }  # fmt: skip
 
 

@@ -9,7 +9,9 @@ one :class:`RunKey` record, as pycma declares each option once in ``CMAOptions``
   and the configuration reference ``docs/configuration.md``; tests/test_config_keys.py fails when one of them drifts);
 - the checks: :func:`read_keys` checks every key that has a ``check`` (:mod:`imix_cli.running.config.es_config` then checks
   the keys together); the numeric bounds are the library's own (:data:`imix_cli.core.algorithms.base.PARAM_BOUNDS`,
-  :data:`imix_cli.core.generation.MIXING_BOUNDS`), so ``imix run`` and the constructors refuse the same values;
+  :data:`imix_cli.core.generation.MIXING_BOUNDS`), so ``imix run`` and the constructors refuse the same values; the
+  mixing keys' defaults are the library's one declaration of them (:data:`imix_cli.core.mixing.MIXING_DEFAULTS`), so
+  ``imix_cli.mix`` and ``MixingES`` run the rule ``imix run`` runs;
 - the RunSpec's fields (``spec``), a run's folder name (``names_folder``), what a resume must match (``identity``)
   and what algo=ddpg ignores (``es_only``): :data:`TOP_LEVEL_KEYS`, :data:`PAPER_DEFAULTS`, :data:`NON_IDENTITY_KEYS`,
   :data:`ES_ONLY_KEYS`, :data:`POLICY_DEFAULTS`.
@@ -29,8 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from imix_cli.core.algorithms.base import PARAM_BOUNDS, WEIGHT_DECAY_FORMS, Params
-from imix_cli.core.generation import MIXING_BOUNDS, MixingSettings
-from imix_cli.core.mixing import config_variants
+from imix_cli.core.generation import MIXING_BOUNDS
+from imix_cli.core.mixing import MIXING_DEFAULTS, config_variants, variant_spec
 from imix_cli.running.config.checks import ConfigError, as_bool, as_bounded, as_choice, as_float, as_int, as_name, experiment_of, seeds_of
 
 
@@ -201,35 +203,35 @@ KEYS = (
            "gradient estimates 0.92 alike under pure noise) and θ follows it further (1.7× the drift): θ can end worse "
            "than without mixing, at equal episodes too; `eim_variant=conditional` cuts that echo to 0.15 (docs/research/bias.md, "
            "\"Noisy returns told again\")", "mixing", flag),
-    RunKey("im_variant", next(iter(config_variants("im"))), "paper (Algorithm 2) | sun2009 | conditional, with im=true",
+    RunKey("im_variant", variant_spec(MIXING_DEFAULTS.im_variant).config_name, "paper (Algorithm 2) | sun2009 | conditional, with im=true",
            "with `im=true`: `paper` (Algorithm 2), `sun2009` (Sun et al. 2009) or `conditional` (Sun et al.'s rule with each "
            "member taken given the ES's move it took part in: the research notes, \"Reused returns and the search\")", "mixing",
            choice(lambda: config_variants("im")), names_folder="im"),
-    RunKey("eim_variant", next(iter(config_variants("eim"))), "exact (unbiased over chains) | conditional | paper (Algorithm 3), with eim=true",
+    RunKey("eim_variant", variant_spec(MIXING_DEFAULTS.variant).config_name, "exact (unbiased over chains) | conditional | paper (Algorithm 3), with eim=true",
            "with `eim=true`: `exact` (imix's rule, unbiased over chains of generations), `conditional` (each member of the "
            "previous generation taken given the ES's move: unbiased inside the loop under neutral fitness, worse for CMA-ES "
            "on CartPole) or `paper` (the paper's Algorithm 3, biased over chains: for reproduction). `exact` and `conditional` "
            "are the library's variants of the same names (`imix_cli.core.mixing.VARIANT_SPECS`); `paper` is its `eim_paper`, "
            "because its `paper` is Algorithm 2 (`im_variant=paper`)", "mixing",
-           choice(lambda: config_variants("eim")), names_folder="eim", absent=next(iter(config_variants("eim")))),
-    RunKey("im_alpha", MixingSettings.alpha, "sun2009's minimal refresh rate in [0, 1)", "`sun2009`'s minimal refresh rate α ∈ [0, 1)",
+           choice(lambda: config_variants("eim")), names_folder="eim", absent=variant_spec(MIXING_DEFAULTS.variant).config_name),
+    RunKey("im_alpha", MIXING_DEFAULTS.alpha, "sun2009's minimal refresh rate in [0, 1)", "`sun2009`'s minimal refresh rate α ∈ [0, 1)",
            "mixing", bounded(MIXING_BOUNDS["alpha"]), spec=True, names_folder="im"),
-    RunKey("eim_generations", MixingSettings.eim_generations, "K, archived generations eim reuses from",
+    RunKey("eim_generations", MIXING_DEFAULTS.eim_generations, "K, archived generations eim reuses from",
            "K, the archived generations `eim` reuses from", "mixing", bounded(MIXING_BOUNDS["eim_generations"]), spec=True, names_folder="eim"),
-    RunKey("min_fresh", MixingSettings.min_fresh, "with mixing: fresh members per generation, at least (no fixed point)",
+    RunKey("min_fresh", MIXING_DEFAULTS.min_fresh, "with mixing: fresh members per generation, at least (no fixed point)",
            "with `im=true` or `eim=true`: at least this many members of every generation are fresh, in slots drawn at random "
            "independently of the members, so the generation keeps its law (`0`: the rules alone). Without it a distribution "
            "that stops moving reuses every member and an ES whose update depends only on its members and their returns (CEM, "
            "CMA-ES) repeats its update: a fixed point (the research notes, \"Reused returns and the search\"). `algo=ars` leaves it "
            "unused: every mirror of its pairs is evaluated, so no generation is reused whole", "mixing",
            bounded(MIXING_BOUNDS["min_fresh"]), spec=True, names_folder="mixing"),
-    RunKey("reeval_age", MixingSettings.reeval_age, "re-evaluate reused members whose return is older (generations)",
+    RunKey("reeval_age", MIXING_DEFAULTS.reeval_age, "re-evaluate reused members whose return is older (generations)",
            "re-evaluate a reused member whose stored return is more than this many generations old (`null`: never; a remedy "
            "for the selection bias of stored returns, see the research notes)", "mixing",
            optional(bounded(MIXING_BOUNDS["reeval_age"])), spec=True, names_folder="mixing"),
-    RunKey("reeval_prob", MixingSettings.reeval_prob, "re-evaluate each reused member with this probability",
+    RunKey("reeval_prob", MIXING_DEFAULTS.reeval_prob, "re-evaluate each reused member with this probability",
            "re-evaluate each reused member with this probability", "mixing", bounded(MIXING_BOUNDS["reeval_prob"]), spec=True, names_folder="mixing"),
-    RunKey("reeval_count", MixingSettings.reeval_count, "re-evaluate this many reused members per generation; calibrate the others on them",
+    RunKey("reeval_count", MIXING_DEFAULTS.reeval_count, "re-evaluate this many reused members per generation; calibrate the others on them",
            "re-evaluate this many reused members (at random) every generation, and tell the ES the other stored returns "
            "calibrated on those (stored, fresh) pairs: fresh ≈ α + β·stored, β ∈ [0, 1] (the research notes, \"Reused returns "
            "and the search\")", "mixing", bounded(MIXING_BOUNDS["reeval_count"]), spec=True, names_folder="mixing"),

@@ -15,7 +15,7 @@ from pathlib import Path
 from imix_cli.core.ddpg.settings import PAPER_SETTINGS
 from imix_cli.core.mixing import variant_spec
 from imix_cli.core.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
-from imix_cli.running.config.keys import KEYS, NON_IDENTITY_KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS
+from imix_cli.running.config.keys import BY_NAME, KEYS, NON_IDENTITY_KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS
 
 
 def algo_option_fields(algo: str) -> dict:
@@ -34,6 +34,12 @@ def run_default(option_field):
     return option_field.metadata.get("run_default", option_field.default)
 
 
+def _key(name: str):
+    """A RunSpec field that is ``imix run``'s key ``name``: its default is the key's (:data:`~imix_cli.running.config.keys.BY_NAME`),
+    read from the table, never written again here (tests/test_defaults.py compares every field with its key)."""
+    return field(default=BY_NAME[name].default, metadata={"key": name})
+
+
 #: The settings of algo=ddpg (conf/algo/ddpg.yaml, paper section 4.3). A DDPG run folder's name
 #: carries, as ``-key=value,...``, the ones that differ from these.
 DDPG_DEFAULTS = PAPER_SETTINGS
@@ -41,7 +47,12 @@ DDPG_DEFAULTS = PAPER_SETTINGS
 
 @dataclass(frozen=True, kw_only=True)
 class RunSpec:
-    """Everything a run needs, validated. Built by :func:`imix_cli.running.config.compose.spec_from_config` (keyword arguments only)."""
+    """Everything a run needs, validated. Built by :func:`imix_cli.running.config.compose.spec_from_config` (keyword arguments only).
+
+    A field that is a key of ``imix run`` (``_key``) defaults to that key's default in the key table
+    (:mod:`imix_cli.running.config.keys`); the fields without a default are given by every caller; the few other
+    defaults say why they are not a key's.
+    """
 
     algo: str
     env_name: str  # config name ("cartpole", "acrobot") or the gymnasium id of a generic env
@@ -53,44 +64,44 @@ class RunSpec:
     results_dir: str
     experiment: str
     # The evolution strategies' keys; an algorithm that is not an ES (DDPG) leaves them at these
-    # defaults (the paper's values; no generations, no mixing), which it never reads:
-    mixing: str = "none"  # none | im | eim
+    # defaults (the keys'; no generations, no mixing), which it never reads:
+    mixing: str = "none"  # none | im | eim: from the keys im and eim (both false by default)
     variant: str | None = None  # mix() variant: paper | sun2009 | exact | conditional | eim_paper; None without mixing
-    im_alpha: float = PAPER_DEFAULTS["im_alpha"]
-    eim_generations: int = PAPER_DEFAULTS["eim_generations"]
-    min_fresh: int = PAPER_DEFAULTS["min_fresh"]  # with mixing: fresh members per generation, at least (mixing.mix)
-    reeval_age: int | None = None  # re-evaluate a reused member whose return is older than this (None: never)
-    reeval_prob: float = 0.0  # ... and any reused member with this probability
-    reeval_count: int = 0  # ... and this many reused members per generation, calibrating the other stored returns
-    generations: int = 0
-    popsize: int = PAPER_DEFAULTS["popsize"]
-    sigma: float = PAPER_DEFAULTS["sigma"]
-    lr: float = PAPER_DEFAULTS["lr"]
-    weight_decay: float = PAPER_DEFAULTS["weight_decay"]
-    weight_decay_form: str = PAPER_DEFAULTS["weight_decay_form"]
-    checkpoint_every: int = 0
-    checkpoint_seconds: float = 0.0  # a periodic checkpoint at most this often (RunWriter)
+    im_alpha: float = _key("im_alpha")
+    eim_generations: int = _key("eim_generations")
+    min_fresh: int = _key("min_fresh")  # with mixing: fresh members per generation, at least (mixing.mix)
+    reeval_age: int | None = _key("reeval_age")  # re-evaluate a reused member whose return is older than this (None: never)
+    reeval_prob: float = _key("reeval_prob")  # ... and any reused member with this probability
+    reeval_count: int = _key("reeval_count")  # ... and this many reused members per generation, calibrating the other stored returns
+    generations: int = 0  # the key's default is the algorithm's (${algo.generations}); DDPG runs total_steps, no generations
+    popsize: int = _key("popsize")
+    sigma: float = _key("sigma")
+    lr: float = _key("lr")
+    weight_decay: float = _key("weight_decay")
+    weight_decay_form: str = _key("weight_decay_form")
+    checkpoint_every: int = _key("checkpoint_every")
+    checkpoint_seconds: float = _key("checkpoint_seconds")  # a periodic checkpoint at most this often (RunWriter)
     config: dict = field(repr=False, compare=False)  # the resolved config, written as config.yaml
     algo_options: dict = field(default_factory=dict, compare=False)  # per-ES options (algo.style of cem)
     # algo=ddpg only:
-    total_steps: int | None = None  # environment steps of each seed
+    total_steps: int | None = _key("total_steps")  # environment steps of each seed
     ddpg: dict | None = field(default=None, compare=False)  # validated conf/algo/ddpg.yaml settings
     # The ES policy and where its episodes run (see imix_cli.running.config.es_config):
-    hidden: tuple = (8, 8)  # policy.hidden: tanh hidden layer sizes, () = linear
-    obs_norm: bool = False  # policy.obs_norm: observation normalisation, frozen after the warm-up
-    obs_norm_warmup: int = 0  # policy.obs_norm_warmup: generations of statistics (mixing off) before it freezes
-    obs_var_floor: float = POLICY_DEFAULTS["obs_var_floor"]  # policy.obs_var_floor: lower bound of each observation coordinate's variance
-    policy_bias: bool = True  # policy.bias: false = the ES searches the weights only, biases stay 0 (ARS's a = M s)
-    policy_output: str = "tanh"  # policy.output: continuous actions tanh-squashed or clipped (imix_cli.core.policies)
-    evaluator: str = "local"  # local | pool | ray (imix_cli.core.parallel_evaluation)
-    evaluator_workers: int = 1  # processes (pool) or actors (ray)
-    ray_address: str | None = None  # ray.init(address=...) for evaluator=ray
+    hidden: tuple = _key("policy.hidden")  # tanh hidden layer sizes, () = linear
+    obs_norm: bool = _key("policy.obs_norm")  # observation normalisation, frozen after the warm-up
+    obs_norm_warmup: int = _key("policy.obs_norm_warmup")  # generations of statistics (mixing off) before it freezes; with obs_norm only
+    obs_var_floor: float = _key("policy.obs_var_floor")  # lower bound of each observation coordinate's variance
+    policy_bias: bool = _key("policy.bias")  # false = the ES searches the weights only, biases stay 0 (ARS's a = M s)
+    policy_output: str = _key("policy.output")  # continuous actions tanh-squashed or clipped (imix_cli.core.policies)
+    evaluator: str = _key("evaluator")  # local | pool | ray (imix_cli.core.parallel_evaluation)
+    evaluator_workers: int | None = _key("evaluator_workers")  # processes (pool) or actors (ray); None: every core / CPU
+    ray_address: str | None = _key("ray_address")  # ray.init(address=...) for evaluator=ray
     # The return of the distribution mean theta (the policy one deploys), measured on
     # eval_mean_episodes fresh episodes every eval_mean_every generations (0: never); these episodes
     # are counted apart (CSV column mean_policy_episodes), never in evaluations or env_steps.
-    eval_mean_every: int = 0
-    eval_mean_episodes: int = 5
-    logger: str = "none"  # none | tensorboard | mlflow | wandb: a copy of the CSV's rows (imix_cli.running.files.tracking)
+    eval_mean_every: int = _key("eval_mean_every")
+    eval_mean_episodes: int = _key("eval_mean_episodes")
+    logger: str = _key("logger")  # none | tensorboard | mlflow | wandb: a copy of the CSV's rows (imix_cli.running.files.tracking)
 
     @property
     def evaluator_key(self) -> str:

@@ -23,9 +23,10 @@ Where it applies (:func:`applies`): any ES with a compiled step over a float64 d
 (OpenES and SNES) and compiled utilities (centred ranks, the estool weight decay), no
 mixing or the ``paper``/``sun2009``/``exact`` rules with no re-evaluation options, no observation
 normalisation, a built-in CartPole environment (CartPole, ContinuousCartPole, its Hard variant)
-evaluated in the process. Anything else takes the Python path, unchanged. Acrobot is left out on
-purpose: its reset computes the first observation with numpy's float32 ``cos``/``sin`` (SIMD code
-of numpy's own), which a compiled loop cannot reproduce bit for bit.
+evaluated in the process. Anything else takes the Python path, unchanged. Acrobot is not taken yet only
+because the loop calls CartPole's episode kernel alone: its first observation (numpy's float32 ``cos``/``sin``)
+is computed bit for bit in compiled code (:func:`imix_cli.core.envs.kernels.acrobot_first_observations`, with
+:mod:`imix_cli.core.elementary`'s ``cos32``/``sin32``), as :class:`imix_cli.core.evaluation.AcrobotEvaluator` does.
 
 When a chunk meets what the Python path treats specially -- a non-finite return, or an update that
 leaves the distribution non-finite (divergence) -- the chunk is dropped (the random generators are

@@ -133,7 +133,8 @@ def new_seed_state(settings: LoopSettings, seed: int) -> SeedState:
 
 
 def mixing_settings(spec) -> MixingSettings:
-    return MixingSettings(spec.variant, spec.eim_generations, spec.im_alpha, spec.reeval_age, spec.reeval_prob, spec.reeval_count, spec.min_fresh)
+    return MixingSettings(variant=spec.variant, eim_generations=spec.eim_generations, alpha=spec.im_alpha, reeval_age=spec.reeval_age,
+                          reeval_prob=spec.reeval_prob, reeval_count=spec.reeval_count, min_fresh=spec.min_fresh)  # fmt: skip
 
 
 def generation_row(*, algo: str, env: str, mixing: str, seed: int, generation: int, evaluations: int, env_steps: int,
