@@ -68,7 +68,7 @@ install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluste
 
 # The tests of the extras `make install-all` adds: one marker per extra (tests/conftest.py, EXTRAS). Without
 # its extra a marked test is skipped, so `make test` passes after a plain `make install`.
-EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs or bbob
+EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs or bbob or search
 
 # The suite runs on every core (pytest-xdist, `-n auto`; TEST_WORKERS=0 runs it in one process): its tests
 # are independent (each writes below its own tmp_path and checks only the processes it started).
