@@ -193,12 +193,14 @@ def recover_stale_trials(study, storage) -> list[int]:
             continue  # another machine's, still beating (or not yet silent for GRACE_SECONDS)
         why = f"its process {attrs.get('pid')} on {host} is gone" if mine else f"no heartbeat for {GRACE_SECONDS} s"
         trial_id = trial._trial_id
-        if not storage.set_trial_state_values(trial_id, state=TrialState.FAIL):
-            continue  # another process marked it first
-        storage.set_trial_user_attr(trial_id, "imix_stale", f"left RUNNING by a killed search ({why}); re-run as a new trial")
+        try:
+            storage.set_trial_user_attr(trial_id, "imix_stale", f"left RUNNING by a killed search ({why}); re-run as a new trial")
+            if not storage.set_trial_state_values(trial_id, state=TrialState.FAIL):
+                continue
+        except optuna.exceptions.UpdateFinishedTrialError:
+            continue  # another search marked it first (and enqueued its retry)
         study.enqueue_trial(dict(trial.params), user_attrs={"imix_retry_of": trial.number}, skip_if_exists=False)
         recovered.append(trial.number)
-    del optuna
     return recovered
 
 
