@@ -43,9 +43,7 @@ def states(study) -> dict:
 
 
 def test_a_tiny_search_stores_its_trials_and_their_runs_in_sqlite(tmp_path, capsys):
-    """Made to fail: with the task returning the population's final score instead of θ's (trial_result given
-    objective="return_at"-like values), the values no longer match the CSVs' mean_policy_score; with the study's direction
-    minimize for theta, the direction assertion fails."""
+    """Made to fail: with objective theta's direction set to minimize (OBJECTIVES), the direction assertion failed."""
     args = ["run", "-m", "hydra/sweeper=optuna", *TINY, *SPACE, "hydra.sweeper.n_trials=3", "hydra.sweeper.seed=1", f"results_dir={tmp_path}", "experiment=s"]
     assert main(args) == 0
     out = capsys.readouterr().out

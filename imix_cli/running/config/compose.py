@@ -73,8 +73,9 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     return spec
 
 
-#: The keys of the ``env`` group (conf/env/*.yaml): every env config has these and no other.
-ENV_KEYS = ("name", "id", "max_steps")
+#: The keys of the ``env`` group (conf/env/*.yaml): every env config has the first three; ``env.kwargs`` (the env's
+#: constructor arguments, ``+env.kwargs.continuous=true``) is added on the command line.
+ENV_KEYS = ("name", "id", "max_steps", "kwargs")
 
 
 def algo_keys(algo: str) -> tuple:
