@@ -289,7 +289,8 @@ class Search:
         n_trials, n_jobs = self.settings["n_trials"], self.settings["n_jobs"]
         recovered = recover_stale_trials(study, storage)
         if recovered:
-            say(f"trial(s) {', '.join(map(str, recovered))} were left running by a killed search: marked FAIL and run again with the same parameters")
+            which = f"trial {recovered[0]} was" if len(recovered) == 1 else f"trials {', '.join(map(str, recovered))} were"
+            say(f"{which} left running by a killed search: marked FAIL and run again with the same parameters")
         complete = lambda: len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))  # noqa: E731
         say(f"study {study.study_name!r} in {url}: {complete()} of {n_trials} trials completed; objective {self._objective_text()}")
         returns, job, failures, host = [], 0, 0, socket.gethostname()

@@ -3,7 +3,8 @@
 Drawn when the experiment's folder holds a study (``optuna.db``, :mod:`imix_cli.commands.search`) and the search extra
 is installed, with Optuna's own matplotlib plots (the ones users know from Optuna's visualisation):
 
-- ``study_history``: the optimisation history (each completed trial's value, the best so far);
+- ``study_history``: the optimisation history (each completed trial's value, the best so far; imix's own drawing, which
+  marks the trials of objective=episodes where a seed never reached the threshold);
 - ``study_importances``: the parameters' importances, by PED-ANOVA (Optuna's, no scikit-learn: the default fANOVA
   needs it, and the search extra does not install it);
 - ``study_slice``: one slice plot per parameter (the value against the parameter, coloured by trial number);
@@ -13,7 +14,7 @@ completed trials are plotted; failed ones (a killed search's, re-run since) are 
 
 For objective=episodes a trial where some seed never reached the threshold holds a value above
 :data:`imix_cli.running.objective.UNREACHED` (its ranking): the figures draw such trials at 1.1 times the largest value of
-the trials where every seed reached it (their y axis says so), so that the others stay readable.
+the trials where every seed reached it (the history marks them with crosses), so that the others stay readable.
 
 The best trial's command line is printed (``imix plot: best trial ...: imix run ...``) to re-run it with more seeds.
 """
@@ -48,18 +49,51 @@ def load_study(exp_path: Path):
 
 
 def _target(study):
-    """The value each figure draws, and its axis label: objective=episodes's unreached trials capped (module docstring)."""
+    """The value each figure draws, its axis label, and whether a trial is drawn capped (objective=episodes: some seed
+    never reached the threshold; module docstring)."""
     from imix_cli.running.objective import UNREACHED
 
     objective = study.user_attrs["imix"]["objective"]
     name = objective["objective"]
     if name != "episodes":
-        label = {"theta": "θ's return on fresh episodes (mean over seeds)", "iqm": "θ's return (IQM over seeds)"}.get(name)
-        return (lambda t: t.value), label or f"return at {objective.get('budget')} episodes (mean over seeds)"
+        label = {"theta": "θ's return on fresh episodes", "iqm": "θ's return (IQM over seeds)"}.get(name)
+        return (lambda t: t.value), label or f"return at {objective.get('budget')} episodes", (lambda t: False)
     reached = [t.value for t in study.trials if t.value is not None and t.value < UNREACHED]
     cap = 1.1 * max(reached) if reached else 1.0
-    label = f"episodes to {objective.get('threshold'):g} (mean over seeds; top: some seed never reached it)"
-    return (lambda t: t.value if t.value < UNREACHED else cap), label
+    unreached = lambda t: t.value >= UNREACHED  # noqa: E731
+    return (lambda t: cap if unreached(t) else t.value), f"episodes to {objective.get('threshold'):g} (mean over seeds)", unreached
+
+
+def _history(study, done, target, label, capped):
+    """The optimisation history: each completed trial's value by trial number, the best so far as a step line; trials
+    drawn capped (a seed never reached the threshold) as crosses at the top."""
+    from matplotlib.figure import Figure
+
+    maximize = study.direction.name == "MAXIMIZE"
+    fig = Figure(figsize=(6.4, 4.0))
+    ax = fig.add_subplot()
+    numbers = [t.number for t in done]
+    values = [target(t) for t in done]
+    plain = [(n, v) for n, v, t in zip(numbers, values, done) if not capped(t)]
+    if plain:
+        ax.scatter(*zip(*plain), color="#0072B2", s=22, zorder=3, label="trial")
+    top = [(n, v) for n, v, t in zip(numbers, values, done) if capped(t)]
+    if top:
+        ax.scatter(*zip(*top), marker="x", color="#D55E00", s=28, zorder=3, label="some seed never reached it (ranked below)")
+    best, running = [], None
+    for t in done:
+        running = t.value if running is None else (max(running, t.value) if maximize else min(running, t.value))
+        best.append(target(type("T", (), {"value": running})()))
+    ax.step(numbers, best, where="post", color="#009E73", label="best so far")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("trial")
+    ax.set_ylabel(label)
+    ax.set_title(f"study {study.study_name}: {len(done)} completed trials", fontsize=10)
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    return fig
 
 
 def study_figures(exp, opts) -> Iterator:
@@ -80,12 +114,11 @@ def study_figures(exp, opts) -> Iterator:
         return
     best = study.best_trial
     print(f"imix plot: best trial of study {study.study_name!r}: trial {best.number} ({best.value:.6g}), re-run it with more seeds: {best_command(study, best)}")
-    target, label = _target(study)
+    target, label, capped = _target(study)
+    yield "study_history", _history(study, done, target, label, capped)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         warnings.filterwarnings("ignore", message=".*PedAnova.*")
-        ax = ovm.plot_optimization_history(study, target=target, target_name=label)
-        yield "study_history", _figure(ax)
         if len(done) >= 2 and len(best.params) >= 1:
             evaluator = optuna.importance.PedAnovaImportanceEvaluator()
             ax = ovm.plot_param_importances(study, evaluator=evaluator, target=target, target_name=label)

@@ -472,8 +472,18 @@ def study_tables(exp, opts) -> Iterator:
                         "retry_of": t.user_attrs.get("imix_retry_of"), "run_dir": t.user_attrs.get("run_dir", "")})  # fmt: skip
     frame = pd.DataFrame(records)
     header = ["Trial", "State", "Value", *params, "Run folder"]
-    rows = [[str(r["trial"]), r["state"], "–" if not math.isfinite(r["value"]) else f"{r['value']:.6g}", *(str(r[p]) for p in params),
-             Path(r["run_dir"]).name if r["run_dir"] else "–"] for r in records]  # fmt: skip
+    from imix_cli.running.objective import UNREACHED
+
+    def shown(t, r) -> str:  # objective=episodes: a value that ranks seeds that never reached the threshold, said so
+        if not math.isfinite(r["value"]):
+            return "–"
+        if r["seeds_reached"] is not None and r["value"] >= UNREACHED:
+            seeds = len(t.user_attrs.get("per_seed", ()))
+            return f"{seeds - r['seeds_reached']}/{seeds} seeds never reached it"
+        return f"{r['value']:.6g}"
+
+    rows = [[str(r["trial"]), r["state"], shown(t, r), *(str(r[p]) for p in params), Path(r["run_dir"]).name if r["run_dir"] else "–"]
+            for t, r in zip(study.trials, records)]  # fmt: skip
     objective = study.user_attrs.get("imix", {}).get("objective", {})
     notes = (f"Study {study.study_name!r}: objective {objective.get('objective')}, {study.direction.name.lower()}d. FAIL: a trial that did not "
              "finish (one a killed search left running is re-run as a new trial, its retry_of).")  # fmt: skip
