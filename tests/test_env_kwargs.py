@@ -7,7 +7,6 @@ here failed; with the kwargs left out of the folder name (RunSpec.overrides_suff
 second was refused; with GymEvaluator ignoring env_kwargs, the evaluator's env had g = 10.
 """
 
-
 import pytest
 import yaml
 

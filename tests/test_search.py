@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import extra_installed
+
 from imix_cli.commands.cli import main
 from imix_cli.running.files.results import read_run_csv, rows_to_frame, write_run_csv
 

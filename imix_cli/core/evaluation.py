@@ -485,7 +485,9 @@ def mujoco_backend(backend: str | None = None) -> str:
     return value
 
 
-def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, backend: str | None = None, output: str = "tanh", env_kwargs=None) -> BatchEvaluator:
+def make_evaluator(
+    env_name: str, max_steps: int | None = None, hidden=HIDDEN, backend: str | None = None, output: str = "tanh", env_kwargs=None
+) -> BatchEvaluator:
     """Evaluator for a built-in (``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
     ``"continuous_cartpole_hard"``: :data:`imix_cli.core.registry.BUILTIN_ENVS`) or a gymnasium id
     (see the module docstring).

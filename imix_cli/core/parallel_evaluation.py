@@ -197,8 +197,9 @@ class RayEvaluator(_Remote):
     max_restarts = 3
 
     def __init__(
-        self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, address: str | None = None, output: str = "tanh", env_kwargs=None
-    ):
+        self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, address: str | None = None, output: str = "tanh",
+        env_kwargs=None,
+    ):  # fmt: skip
         super().__init__(env_key, max_steps, hidden, output, env_kwargs)
         import ray
 

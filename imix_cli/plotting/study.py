@@ -21,7 +21,6 @@ The best trial's command line is printed (``imix plot: best trial ...: imix run 
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -113,7 +112,8 @@ def study_figures(exp, opts) -> Iterator:
         opts.warn(f"study {study.study_name!r} in {exp.path / STUDY_FILE} has no completed trial yet: nothing to draw")
         return
     best = study.best_trial
-    print(f"imix plot: best trial of study {study.study_name!r}: trial {best.number} ({best.value:.6g}), re-run it with more seeds: {best_command(study, best)}")
+    command = best_command(study, best)
+    print(f"imix plot: best trial of study {study.study_name!r}: trial {best.number} ({best.value:.6g}), re-run it with more seeds: {command}")
     target, label, capped = _target(study)
     yield "study_history", _history(study, done, target, label, capped)
     with warnings.catch_warnings():

@@ -67,7 +67,8 @@ def objective_value(run_dir, seeds: int, objective: str, threshold=None, budget=
             spent = frame["evaluations"].to_numpy(dtype=float)
             within = np.flatnonzero(spent <= budget)
             if not within.size:
-                raise ObjectiveError(f"objective=return_at: seed {seed} of {run_dir} spent {int(spent[0])} episodes in its first generation, more than budget={budget}")
+                first = int(spent[0])
+                raise ObjectiveError(f"objective=return_at: seed {seed} of {run_dir} spent {first} episodes in its first generation, more than budget={budget}")
             values.append(float(frame["mean_score"].to_numpy(dtype=float)[within[-1]]))
         short = sum(int(f["evaluations"].iloc[-1]) < budget for f in frames)  # seeds that ended before the budget: their last value
         return float(np.mean(values)), {"per_seed": values, "seeds_short_of_budget": short}

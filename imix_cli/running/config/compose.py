@@ -33,8 +33,8 @@ from imix_cli.running.config.checks import ConfigError, as_choice, first_line
 from imix_cli.running.config.ddpg import ddpg_spec
 from imix_cli.running.config.es_config import es_spec
 from imix_cli.running.config.keys import PAPER_DEFAULTS, POLICY_DEFAULTS, TOP_LEVEL_KEYS, did_you_mean
-from imix_cli.running.config.search import SWEEPER_KEYS, check_search_settings, check_trial_config, is_search, probe_values
 from imix_cli.running.config.run_spec import DDPG_DEFAULTS, RunSpec, algo_option_fields, differing_keys
+from imix_cli.running.config.search import SWEEPER_KEYS, check_search_settings, check_trial_config, is_search, probe_values
 from imix_cli.running.files.safe_yaml import MAX_YAML_BYTES, BadYamlError, check_yaml_file, check_yaml_text
 
 __all__ = [

@@ -14,7 +14,17 @@ from imix_cli.core.mixing import config_variants, variant_spec
 from imix_cli.core.processes import default_workers
 from imix_cli.core.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
 from imix_cli.messages import install_extra
-from imix_cli.running.config.checks import ConfigError, as_choice, check_memory, env_kwargs_of, env_of, first_line, gym_env_bytes, parallel_launcher_name, workers_of
+from imix_cli.running.config.checks import (
+    ConfigError,
+    as_choice,
+    check_memory,
+    env_kwargs_of,
+    env_of,
+    first_line,
+    gym_env_bytes,
+    parallel_launcher_name,
+    workers_of,
+)
 from imix_cli.running.config.keys import KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS, read_keys
 from imix_cli.running.config.run_spec import RunSpec, algo_option_fields, resolve_auto_options
 
