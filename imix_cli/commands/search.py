@@ -308,8 +308,8 @@ class Search:
                 try:
                     results = self.launcher.launch(batch, initial_job_idx=job)
                 except BaseException:
-                    for trial in trials:  # a Ctrl-C, SIGTERM, a failed launch: these trials will not finish here
-                        _tell_failed(study, trial, "the search stopped during the trial")
+                    for trial in trials:  # a Ctrl-C, SIGTERM, a failed launch: these trials will not finish here; the next search re-runs them
+                        _tell_failed(study, trial, "the search stopped during the trial", retry=True)
                     raise
             job += len(batch)
             returns.append(results)
@@ -366,14 +366,18 @@ class Search:
         say(f"re-run it with more seeds: {best_command(study, best)}")
 
 
-def _tell_failed(study, trial, why: str) -> None:
+def _tell_failed(study, trial, why: str, retry: bool = False) -> None:
+    """Tell ``trial`` FAIL (``why`` in its user attribute ``imix_failed``); ``retry``: a search stopped during it (Ctrl-C,
+    SIGTERM), so its parameters are enqueued to run again (``imix_retry_of``), as a killed search's are on resuming."""
     from optuna.trial import TrialState
 
     try:
         trial.set_user_attr("imix_failed", why)
         study.tell(trial, state=TrialState.FAIL)
     except Exception:  # noqa: BLE001 - already finished (told by another path)
-        pass
+        return
+    if retry:
+        study.enqueue_trial(dict(trial.params), user_attrs={"imix_retry_of": trial.number}, skip_if_exists=False)
 
 
 def best_command(study, trial) -> str:
