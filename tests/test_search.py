@@ -144,20 +144,21 @@ def _search_command(results: Path, n_trials: int) -> list:
             f"hydra.sweeper.n_trials={n_trials}", "hydra.sweeper.seed=3", f"results_dir={results}", "experiment=k"]  # fmt: skip
 
 
-@pytest.mark.slow
-def test_a_search_killed_mid_trial_resumes_with_no_trial_lost_or_counted_twice(tmp_path):
-    """SIGKILL while a trial runs (after at least one completed), then the same command: the killed trial is FAIL (why in
-    its user attribute), re-run once with its parameters in the same run folder, and the study ends with exactly n_trials
-    completed, the ones completed before the kill unchanged.
+def _rows(path: Path) -> int:
+    """Lines of a seed's live CSV (a checkpoint has written it); a large number if it is gone meanwhile."""
+    try:
+        return path.read_text().count("\n")
+    except OSError:
+        return 10**9
 
-    Made to fail: with recover_stale_trials returning at once, the resumed search left the killed trial RUNNING (it
-    counted as under way) and ended with 3 completed trials, not 4; with the retry not enqueued (the enqueue_trial line
-    removed), no completed trial had imix_retry_of."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    n_trials = 4
-    proc = subprocess.Popen(_search_command(tmp_path, n_trials), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    db = tmp_path / "k" / "optuna.db"
-    killed_number = None
+
+def _stop_mid_trial(results: Path, n_trials: int, signum: int, env: dict) -> int:
+    """Start the search, send ``signum`` once a trial runs (after one completed) and its seeds have a checkpoint in the
+    first half of their 400 generations (a poor trial runs them in about a second: not near its end); return the number
+    of the trial it stopped."""
+    proc = subprocess.Popen(_search_command(results, n_trials), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    db = results / "k" / "optuna.db"
+    stopped = None
     deadline = time.monotonic() + 240
     try:
         while time.monotonic() < deadline and proc.poll() is None:
@@ -165,22 +166,33 @@ def test_a_search_killed_mid_trial_resumes_with_no_trial_lost_or_counted_twice(t
             if not db.exists():
                 continue
             try:
-                study = study_of(tmp_path, "k")
+                by_state = states(study_of(results, "k"))
             except Exception:  # the study is being created
                 continue
-            by_state = states(study)
             running = by_state.get("RUNNING", [])
-            if by_state.get("COMPLETE") and running:
-                run_dir = next(tmp_path.glob("k/snes-*/seed_0.partial.csv"), None)
-                if run_dir is not None:  # the running trial has started its seeds: kill it mid-trial
-                    killed_number = running[0]
-                    proc.send_signal(signal.SIGKILL)
-                    break
+            if by_state.get("COMPLETE") and running and any(_rows(p) < 200 for p in results.glob("k/snes-*/seed_0.partial.csv")):
+                stopped = running[0]  # the running trial has started its seeds: stop it mid-trial
+                proc.send_signal(signum)
+                break
     finally:
-        if proc.poll() is None and killed_number is None:
+        if proc.poll() is None and stopped is None:
             proc.kill()
-        proc.wait(timeout=60)
-    assert killed_number is not None, "the search ended before it could be killed mid-trial: " + (proc.stdout.read()[-2000:] if proc.stdout else "")
+        out = proc.communicate(timeout=120)[0]
+    assert stopped is not None, "the search ended before it could be stopped mid-trial: " + out[-2000:]
+    return stopped
+
+
+@pytest.mark.slow
+def test_a_search_killed_mid_trial_resumes_with_no_trial_lost_or_counted_twice(tmp_path):
+    """SIGKILL while a trial runs (after at least one completed), then the same command: the killed trial is FAIL (why in
+    its user attribute), re-run once with its parameters in the same run folder, and the study ends with exactly n_trials
+    completed, the ones completed before the kill unchanged.
+
+    Made to fail: with recover_stale_trials returning at once, the resumed search left the killed trial RUNNING (it
+    counted as under way) and ended with 3 completed trials, not 4."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    n_trials = 4
+    killed_number = _stop_mid_trial(tmp_path, n_trials, signal.SIGKILL, env)
     before = {t.number: (t.value, t.params) for t in study_of(tmp_path, "k").get_trials(states=(optuna.trial.TrialState.COMPLETE,))}
     killed = study_of(tmp_path, "k").trials[killed_number]
     assert killed.state == optuna.trial.TrialState.RUNNING  # as a kill -9 leaves it
@@ -188,17 +200,41 @@ def test_a_search_killed_mid_trial_resumes_with_no_trial_lost_or_counted_twice(t
     resumed = subprocess.run(_search_command(tmp_path, n_trials), env=env, capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-3000:] + resumed.stdout[-3000:]
     assert f"trial {killed_number} was left running by a killed search" in resumed.stdout
-    study = study_of(tmp_path, "k")
+    _assert_retried_once(tmp_path, n_trials, killed, before)
+    assert "killed search" in study_of(tmp_path, "k").trials[killed_number].user_attrs["imix_stale"]
+    assert "resuming" in resumed.stderr  # its seeds resumed from their checkpoints
+
+
+@pytest.mark.slow
+def test_a_search_stopped_by_ctrl_c_reruns_the_trial_it_stopped(tmp_path):
+    """SIGINT (Ctrl-C) during a trial: the search ends with 130, the trial is FAIL and its parameters enqueued; the same
+    command runs them (resuming the seeds' checkpoints) and ends with n_trials completed.
+
+    Made to fail: with _tell_failed's retry ignored (no enqueue_trial), no completed trial was the stopped one's retry."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    n_trials = 3
+    stopped_number = _stop_mid_trial(tmp_path, n_trials, signal.SIGINT, env)
+    before = {t.number: (t.value, t.params) for t in study_of(tmp_path, "k").get_trials(states=(optuna.trial.TrialState.COMPLETE,))}
+    stopped = study_of(tmp_path, "k").trials[stopped_number]
+    assert stopped.state == optuna.trial.TrialState.FAIL and stopped.user_attrs["imix_failed"] == "the search stopped during the trial"
+    resumed = subprocess.run(_search_command(tmp_path, n_trials), env=env, capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-3000:] + resumed.stdout[-3000:]
+    _assert_retried_once(tmp_path, n_trials, stopped, before)
+    assert "resuming" in resumed.stderr
+
+
+def _assert_retried_once(results: Path, n_trials: int, lost, before: dict) -> None:
+    """The study holds exactly ``n_trials`` completed trials, one FAIL (``lost``), none running; those completed before are
+    unchanged; ``lost`` was re-run exactly once, with its parameters, in its run folder."""
+    study = study_of(results, "k")
     complete = study.get_trials(states=(optuna.trial.TrialState.COMPLETE,))
     assert len(complete) == n_trials
-    assert states(study).get("RUNNING") is None and states(study)["FAIL"] == [killed_number]
-    assert "killed search" in study.trials[killed_number].user_attrs["imix_stale"]
-    for number, (value, params) in before.items():  # those completed before the kill: the same trials, not re-run
+    assert states(study).get("RUNNING") is None and states(study)["FAIL"] == [lost.number]
+    for number, (value, params) in before.items():  # those completed before: the same trials, not re-run
         assert study.trials[number].value == value and study.trials[number].params == params
-    retries = [t for t in complete if t.user_attrs.get("imix_retry_of") == killed_number]
-    assert len(retries) == 1 and retries[0].params == killed.params  # re-run once, with its parameters
-    assert f"sigma={killed.params['sigma']!r}" in Path(retries[0].user_attrs["run_dir"]).name  # the killed trial's run folder
-    assert "resuming" in resumed.stderr  # its seeds resumed from their checkpoints
+    retries = [t for t in complete if t.user_attrs.get("imix_retry_of") == lost.number]
+    assert len(retries) == 1 and retries[0].params == lost.params  # re-run once, with its parameters
+    assert f"sigma={lost.params['sigma']!r}" in Path(retries[0].user_attrs["run_dir"]).name  # in its run folder
 
 
 def test_imix_plot_draws_the_study_and_prints_the_best_command(tmp_path, capsys):
