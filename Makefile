@@ -62,7 +62,7 @@ EDITABLE ?=
 dev:  ## create .venv and install imix editable (pip install -e ".[test,render]", the same constraints): edits take effect with no reinstall
 	$(MAKE) install EDITABLE=-e
 
-install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools, COCO (bbob)
+install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools, COCO (bbob), Optuna (search)
 	$(PY) -m pip install $(PIN) "$(TORCH)"
 	$(PY) -m pip install $(PIN) $(EDITABLE) ".[all]"
 
