@@ -5,6 +5,7 @@ against its run's CSVs and its run folder; a search killed with SIGKILL in the m
 lost or counted twice; a typo is one line and exit status 2 before any trial; ``imix plot`` draws the study.
 """
 
+import contextlib
 import math
 import os
 import signal
@@ -144,6 +145,24 @@ def _search_command(results: Path, n_trials: int) -> list:
             f"hydra.sweeper.n_trials={n_trials}", "hydra.sweeper.seed=3", f"results_dir={results}", "experiment=k"]  # fmt: skip
 
 
+def _states_read_only(db: Path) -> dict:
+    """Trial numbers by state, read from the study's SQLite file opened read-only: a poll through Optuna's storage
+    would create the schema itself if it came before the search's, racing the search for it."""
+    import sqlite3
+
+    if not db.exists():
+        return {}
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=1)) as connection:
+            rows = connection.execute("SELECT number, state FROM trials").fetchall()
+    except sqlite3.Error:  # no table yet, or locked for a moment
+        return {}
+    out: dict = {}
+    for number, state in sorted(rows):
+        out.setdefault(str(state), []).append(number)
+    return out
+
+
 def _rows(path: Path) -> int:
     """Lines of a seed's live CSV (a checkpoint has written it); a large number if it is gone meanwhile."""
     try:
@@ -163,12 +182,7 @@ def _stop_mid_trial(results: Path, n_trials: int, signum: int, env: dict) -> int
     try:
         while time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.3)
-            if not db.exists():
-                continue
-            try:
-                by_state = states(study_of(results, "k"))
-            except Exception:  # the study is being created
-                continue
+            by_state = _states_read_only(db)
             running = by_state.get("RUNNING", [])
             if by_state.get("COMPLETE") and running and any(_rows(p) < 200 for p in results.glob("k/snes-*/seed_0.partial.csv")):
                 stopped = running[0]  # the running trial has started its seeds: stop it mid-trial
