@@ -64,6 +64,31 @@ def make_storage(url: str):
     return optuna.storages.RDBStorage(url, heartbeat_interval=HEARTBEAT_SECONDS, grace_period=GRACE_SECONDS)
 
 
+def mark_pruned(run_dir: Path, number: int, study_name: str, generations: int) -> None:
+    """Write the run folder's PRUNED file (:data:`imix_cli.running.files.results.PRUNED_FILE`): what stopped it, where."""
+    from imix_cli.running.files.results import PRUNED_FILE
+    from imix_cli.running.files.writing import atomic_write_text
+
+    text = (f"trial {number} of the Optuna study {study_name!r} was pruned at generation {generations}: the seeds' CSVs here stop there "
+            "(partial results of a trial stopped early, left out of imix plot); a later trial with the same parameters continues them\n")  # fmt: skip
+    atomic_write_text(run_dir / PRUNED_FILE, text, root=run_dir.parent.parent)
+
+
+def unmark_pruned(run_dir: Path) -> None:
+    from imix_cli.running.files.results import PRUNED_FILE
+
+    try:
+        (run_dir / PRUNED_FILE).unlink()
+    except FileNotFoundError:
+        pass
+
+
+def make_pruner(name: str):
+    import optuna
+
+    return optuna.pruners.MedianPruner() if name == "median" else optuna.pruners.NopPruner()
+
+
 def make_sampler(name: str, seed):
     import optuna
 
@@ -143,7 +168,7 @@ def open_study(settings: dict, experiment_dir: Path, experiment: str, identity: 
     direction = OBJECTIVES[settings["objective"]]
     storage = make_storage(url)
     study = optuna.create_study(study_name=name, storage=storage, sampler=make_sampler(settings["sampler"], settings.get("seed")),
-                                direction=direction, load_if_exists=True)  # fmt: skip
+                                pruner=make_pruner(settings.get("pruner", "none")), direction=direction, load_if_exists=True)  # fmt: skip
     stored = study.user_attrs.get("imix")
     if stored is None:
         if study.trials:
@@ -287,11 +312,13 @@ class Search:
         experiment_dir = Path(str(results_dir)) / str(experiment)
         study, storage, url = open_study(self.settings, experiment_dir, str(experiment), study_identity(fixed, space, self.settings))
         n_trials, n_jobs = self.settings["n_trials"], self.settings["n_jobs"]
+        stages = self._stages(composed, space)
         recovered = recover_stale_trials(study, storage)
         if recovered:
             which = f"trial {recovered[0]} was" if len(recovered) == 1 else f"trials {', '.join(map(str, recovered))} were"
             say(f"{which} left running by a killed search: marked FAIL and run again with the same parameters")
-        complete = lambda: len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))  # noqa: E731
+        # finished trials: completed, and pruned ones (a pruner spends the trials it stops early on others)
+        complete = lambda: len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)))  # noqa: E731
         say(f"study {study.study_name!r} in {url}: {complete()} of {n_trials} trials completed; objective {self._objective_text()}")
         returns, job, failures, host = [], 0, 0, socket.gethostname()
         while True:
@@ -303,23 +330,74 @@ class Search:
             for trial in trials:
                 trial.set_user_attr("host", host)
                 trial.set_user_attr("pid", os.getpid())
-            batch = [[*fixed, *(f"{k}={value_text(v)}" for k, v in trial.params.items())] for trial in trials]
-            with _Heartbeat(storage, [t._trial_id for t in trials]):
-                try:
-                    results = self.launcher.launch(batch, initial_job_idx=job)
-                except BaseException:
-                    for trial in trials:  # a Ctrl-C, SIGTERM, a failed launch: these trials will not finish here; the next search re-runs them
-                        _tell_failed(study, trial, "the search stopped during the trial", retry=True)
-                    raise
-            job += len(batch)
-            returns.append(results)
-            for trial, result in zip(trials, results):
-                if not self._tell(study, trial, result):
-                    failures += 1
+            for generations in stages:  # one stage (the run) without a pruner
+                last = generations == stages[-1]
+                # a re-run trial (its folder may hold seeds beyond the early stages, which a run never shortens) runs its last stage only
+                now = [t for t in trials if last or "imix_retry_of" not in t.user_attrs]
+                if not now:
+                    continue
+                base = fixed if generations is None else [*(f for f in fixed if f.split("=", 1)[0] != "generations"), f"generations={generations}"]
+                batch = [[*base, *(f"{k}={value_text(v)}" for k, v in trial.params.items())] for trial in now]
+                with _Heartbeat(storage, [t._trial_id for t in trials]):
+                    try:
+                        results = self.launcher.launch(batch, initial_job_idx=job)
+                    except BaseException:
+                        for trial in trials:  # a Ctrl-C, SIGTERM, a failed launch: these trials will not finish here; the next search re-runs them
+                            _tell_failed(study, trial, "the search stopped during the trial", retry=True)
+                        raise
+                job += len(batch)
+                returns.append(results)
+                stopped = set()
+                for trial, result in zip(now, results):
+                    told = self._tell(study, trial, result) if last else self._report_stage(study, trial, result, generations)
+                    failures += told is False
+                    stopped |= set() if told is None else {trial.number}
+                trials = [t for t in trials if t.number not in stopped]
+                if not trials:
+                    break
             if failures >= n_trials:
                 raise SearchError(f"{failures} trials failed in this search (see the lines above); stopping")
         self._report(study)
         return returns
+
+    def _stages(self, composed, space: dict) -> list:
+        """The generations each trial's run is made in: ``[None]`` (its own) without a pruner; with one, the fractions
+        :data:`~imix_cli.running.config.search.PRUNING_STAGES` of ``generations``."""
+        from omegaconf import OmegaConf
+
+        from imix_cli.running.config.search import PRUNING_STAGES
+
+        if self.settings.get("pruner", "none") == "none":
+            return [None]
+        if "generations" in space:
+            raise SearchError("hydra.sweeper.pruner: a search over generations cannot be pruned (the pruner runs each trial in stages of its generations)")
+        total = int(OmegaConf.select(composed, "generations"))
+        return sorted({max(1, round(total * f)) for f in PRUNING_STAGES})
+
+    def _report_stage(self, study, trial, result, generations: int):
+        """A stage short of the trial's ``generations``: its objective reported to the pruner; True if the trial is
+        pruned (told PRUNED, its run folder marked), None if it goes on, False if it failed."""
+        from optuna.trial import TrialState
+
+        try:
+            returned = result.return_value
+        except BaseException:
+            _tell_failed(study, trial, "the run raised an error")
+            raise
+        if not isinstance(returned, dict) or "value" not in returned:
+            why = returned.get("error") if isinstance(returned, dict) else "the run did not finish (see the lines above)"
+            _tell_failed(study, trial, why)
+            say(f"trial {trial.number} failed: {why}")
+            return False
+        trial.report(returned["value"], step=generations)
+        if not trial.should_prune():
+            return None
+        mark_pruned(Path(returned["run_dir"]), trial.number, study.study_name, generations)
+        trial.set_user_attr("run_dir", returned["run_dir"])
+        trial.set_user_attr("pruned_at_generation", generations)
+        study.tell(trial, state=TrialState.PRUNED)
+        say(f"trial {trial.number} pruned at generation {generations}: {self._value_text(returned)} (its run folder is marked PRUNED)")
+        return True
 
     def _objective_text(self) -> str:
         s = self.settings
@@ -342,6 +420,7 @@ class Search:
         for key, value in returned.items():
             if key != "value":
                 trial.set_user_attr(key, value)
+        unmark_pruned(Path(returned["run_dir"]))  # a completed run in a folder an earlier trial with these parameters left pruned
         study.tell(trial, returned["value"])
         params = ", ".join(f"{k}={value_text(v)}" for k, v in trial.params.items())
         say(f"trial {trial.number}: {self._value_text(returned)}  ({params})")
@@ -359,10 +438,12 @@ class Search:
         from optuna.trial import TrialState
 
         done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+        pruned = len(study.get_trials(deepcopy=False, states=(TrialState.PRUNED,)))
         if not done:
             return
         best = study.best_trial
-        say(f"{len(done)} trials completed; best: trial {best.number}, {self._value_text({'value': best.value, **best.user_attrs})}")
+        also = f", {pruned} pruned" if pruned else ""
+        say(f"{len(done)} trials completed{also}; best: trial {best.number}, {self._value_text({'value': best.value, **best.user_attrs})}")
         say(f"re-run it with more seeds: {best_command(study, best)}")
 
 

@@ -28,7 +28,12 @@ SAMPLERS = ("tpe", "cmaes", "random")
 #: The ``_target_`` of conf/hydra/sweeper/optuna.yaml: how validation and the task know the search is imix's own.
 SWEEPER_TARGET = "hydra_plugins.imix_optuna_sweeper.optuna_sweeper.ImixOptunaSweeper"
 #: The sweeper's keys (conf/hydra/sweeper/optuna.yaml), with ``_target_``.
-SWEEPER_KEYS = ("_target_", "objective", "threshold", "budget", "n_trials", "n_jobs", "sampler", "seed", "storage", "study_name")
+SWEEPER_KEYS = ("_target_", "objective", "threshold", "budget", "n_trials", "n_jobs", "sampler", "seed", "storage", "study_name", "pruner")
+PRUNERS = ("none", "median")
+#: With a pruner, a trial's run is made in these fractions of its ``generations`` (a run continued to more generations
+#: is exactly the run made with them at once: :data:`imix_cli.running.config.run_spec.CONTINUABLE_KEYS`), its objective
+#: reported to the pruner after each but the last.
+PRUNING_STAGES = (0.25, 0.5, 1.0)
 
 
 def is_search(sweeper_target) -> bool:
@@ -75,6 +80,9 @@ def check_search_settings(sweeper: dict) -> dict:
         raise ConfigError(f"hydra.sweeper.budget={shown_value(budget)}: objective=return_at needs the episodes per seed, an integer >= 1")
     if objective != "return_at" and budget is not None:
         raise ConfigError(f"hydra.sweeper.budget={shown_value(budget)}: read by objective=return_at only (objective={objective})")
+    if sweeper.get("pruner", "none") not in PRUNERS:
+        raise ConfigError(f"hydra.sweeper.pruner={shown_value(sweeper.get('pruner'))}: must be one of {', '.join(PRUNERS)}")
+    out["pruner"] = sweeper.get("pruner", "none")
     for key in ("storage", "study_name"):
         value = sweeper.get(key)
         if value is not None and (not isinstance(value, str) or not value.strip() or not value.isprintable()):
