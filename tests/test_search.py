@@ -265,3 +265,36 @@ def test_imix_plot_draws_the_study_and_prints_the_best_command(tmp_path, capsys)
     best = study_of(tmp_path, "p").best_trial
     line = next(line for line in out.splitlines() if "best trial" in line)
     assert f"trial {best.number}" in line and f"sigma={best.params['sigma']!r}" in line and "imix run algo=snes env=cartpole" in line
+
+
+def test_pruning_stops_trials_early_marks_their_folders_and_keeps_completed_runs_exact(tmp_path, capsys):
+    """hydra.sweeper.pruner=median: trials run in stages (1/4, 1/2, all of generations=40); pruned ones end PRUNED with
+    their folder marked and left out of imix plot's runs; a completed trial's CSVs are those of the same run made at once.
+
+    Made to fail: with mark_pruned's call removed, the pruned trials' folders had no PRUNED file (and imix plot read
+    their partial CSVs as runs)."""
+    from imix_cli.plotting.data import load_experiment
+    from imix_cli.running.files.results import PRUNED_FILE
+
+    common = ["algo=snes", "env=cartpole", "seeds=2", "generations=40", "eval_mean_every=5", "progress=false", "workers=1"]
+    space = ["sigma=interval(0.01,0.5)", "lr=tag(log, interval(1e-3,1e-1))"]
+    args = ["run", "-m", "hydra/sweeper=optuna", *common, *space, "hydra.sweeper.n_trials=10", "hydra.sweeper.pruner=median", "hydra.sweeper.seed=0"]
+    assert main([*args, f"results_dir={tmp_path}", "experiment=p"]) == 0
+    study = study_of(tmp_path, "p")
+    by_state = states(study)
+    assert by_state.get("PRUNED") and len(by_state["COMPLETE"]) + len(by_state["PRUNED"]) == 10, by_state
+    for number in by_state["PRUNED"]:
+        trial = study.trials[number]
+        run_dir = Path(trial.user_attrs["run_dir"])
+        assert (run_dir / PRUNED_FILE).is_file() and trial.user_attrs["pruned_at_generation"] in (10, 20)
+        assert len(read_run_csv(run_dir / "seed_0.csv")) == trial.user_attrs["pruned_at_generation"]
+    loaded = {g.path.name for g in load_experiment(tmp_path, "p", warn=lambda message: None).groups}
+    assert loaded == {Path(study.trials[n].user_attrs["run_dir"]).name for n in by_state["COMPLETE"]}
+    best = study.best_trial
+    assert not (Path(best.user_attrs["run_dir"]) / PRUNED_FILE).exists()
+    direct = [f"sigma={best.params['sigma']!r}", f"lr={best.params['lr']!r}"]
+    assert main(["run", *common, *direct, f"results_dir={tmp_path / 'direct'}", "experiment=p"]) == 0
+    for seed in range(2):
+        staged = read_run_csv(Path(best.user_attrs["run_dir"]) / f"seed_{seed}.csv").drop(columns="wall_time")
+        at_once = read_run_csv(next((tmp_path / "direct" / "p").glob(f"*/seed_{seed}.csv"))).drop(columns="wall_time")
+        assert staged.equals(at_once)
