@@ -12,7 +12,7 @@ The study
     command that differs (another space, objective or seeds) is refused in one line rather than mixed into it.
 
 Resuming
-    Re-running the same command continues the study until it holds ``n_trials`` completed trials. A trial left
+    Re-running the same command continues the study until it holds ``n_trials`` finished (completed or pruned) trials. A trial left
     RUNNING by a search that was killed (``kill -9``, a power cut) is found -- on this machine by its process id,
     which is no longer alive; on another, by its heartbeat (recorded every :data:`HEARTBEAT_SECONDS`, stale after
     :data:`GRACE_SECONDS`) -- marked FAIL (Optuna's state for a trial that will not finish; its user attribute
@@ -20,6 +20,12 @@ Resuming
     is run once more, in the same run folder, where its seeds resume from their checkpoints. A FAIL trial never counts
     towards ``n_trials``; a retried one counts once, when it completes. Trials RUNNING in a live search (the same study
     from another process) are left alone and count as under way.
+
+Pruning
+    With ``hydra.sweeper.pruner=median`` a trial's run is made in stages (:data:`imix_cli.running.config.search.PRUNING_STAGES`
+    of its generations; a continued run is exactly the run made at once), its objective reported to Optuna's
+    MedianPruner after each but the last; a pruned trial's run folder gets a PRUNED file
+    (:data:`imix_cli.running.files.results.PRUNED_FILE`) and ``imix plot`` leaves it out.
 
 Each trial records its run folder (``run_dir``), its per-seed values and the process that ran it as user attributes.
 Two trials with the same parameters share a run folder (the same config: its finished seeds are not run again).
