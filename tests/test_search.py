@@ -288,6 +288,9 @@ def test_pruning_stops_trials_early_marks_their_folders_and_keeps_completed_runs
         run_dir = Path(trial.user_attrs["run_dir"])
         assert (run_dir / PRUNED_FILE).is_file() and trial.user_attrs["pruned_at_generation"] in (10, 20)
         assert len(read_run_csv(run_dir / "seed_0.csv")) == trial.user_attrs["pruned_at_generation"]
+    capsys.readouterr()
+    assert main(["status", f"results_dir={tmp_path}", "experiment=p"]) == 0
+    assert capsys.readouterr().out.count("pruned by an Optuna search") == len(by_state["PRUNED"])
     loaded = {g.path.name for g in load_experiment(tmp_path, "p", warn=lambda message: None).groups}
     assert loaded == {Path(study.trials[n].user_attrs["run_dir"]).name for n in by_state["COMPLETE"]}
     best = study.best_trial
