@@ -62,13 +62,13 @@ EDITABLE ?=
 dev:  ## create .venv and install imix editable (pip install -e ".[test,render]", the same constraints): edits take effect with no reinstall
 	$(MAKE) install EDITABLE=-e
 
-install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools, COCO (bbob)
+install-all: install  ## install + the DDPG baseline (CPU torch pin), the cluster launchers, MuJoCo, TensorBoard, the docs tools, COCO (bbob), Optuna (search)
 	$(PY) -m pip install $(PIN) "$(TORCH)"
 	$(PY) -m pip install $(PIN) $(EDITABLE) ".[all]"
 
 # The tests of the extras `make install-all` adds: one marker per extra (tests/conftest.py, EXTRAS). Without
 # its extra a marked test is skipped, so `make test` passes after a plain `make install`.
-EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs or bbob
+EXTRA_TESTS = mujoco or ddpg or cluster or tensorboard or docs or bbob or search
 
 # The suite runs on every core (pytest-xdist, `-n auto`; TEST_WORKERS=0 runs it in one process): its tests
 # are independent (each writes below its own tmp_path and checks only the processes it started).

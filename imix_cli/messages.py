@@ -31,7 +31,7 @@ class MissingExtraError(RunError):
 EXIT_MISSING_EXTRA = 2
 
 #: The extras `make install-all` installs (pyproject's ``all``): for them that make target is the other way in.
-INSTALL_ALL_EXTRAS = ("test", "render", "ddpg", "cluster", "mujoco", "tensorboard", "docs", "bbob")
+INSTALL_ALL_EXTRAS = ("test", "render", "ddpg", "cluster", "mujoco", "tensorboard", "docs", "bbob", "search")
 
 
 def install_extra(extra: str, first: str = "") -> str:

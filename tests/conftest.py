@@ -49,6 +49,7 @@ EXTRAS = {
     "tensorboard": (("tensorboard",), 'pip install ".[tensorboard]"'),
     "docs": (("mkdocs", "mkdocstrings", "material"), 'pip install ".[docs]"'),
     "bbob": (("cocoex", "cocopp"), 'pip install ".[bbob]"'),
+    "search": (("optuna",), 'pip install ".[search]"'),
     "peers": (("jax", "evosax", "gymnax"), 'pip install ".[peers]"'),
     "ars": (("sb3_contrib", "stable_baselines3", "torch", "mujoco"), 'pip install torch==2.13.0 ".[ars]"'),
     "mlflow": (("mlflow",), 'pip install ".[mlflow]"'),
@@ -58,7 +59,7 @@ EXTRAS = {
 }
 
 #: The extras `make install-all` installs (pyproject's `all`): CI runs their tests with -m "mujoco or ddpg or ...".
-INSTALL_ALL = ("mujoco", "ddpg", "cluster", "tensorboard", "docs", "bbob")
+INSTALL_ALL = ("mujoco", "ddpg", "cluster", "tensorboard", "docs", "bbob", "search")
 
 
 def importable(module: str) -> bool:

@@ -70,7 +70,7 @@ def test_each_algorithms_options_are_its_params_fields_and_its_yaml_holds_their_
 
 def test_every_key_imix_run_accepts_is_declared_and_nothing_else():
     accepted = {k for k in TOP_LEVEL_KEYS if k != "policy"} | {f"policy.{k}" for k in POLICY_DEFAULTS}
-    declared = {k.name for k in KEYS if "," not in k.name and not k.name.startswith("algo.") and k.name not in ("env.id", "env.max_steps")}
+    declared = {k.name for k in KEYS if "," not in k.name and not k.name.startswith("algo.") and k.name not in ("env.id", "env.max_steps", "env.kwargs.<name>")}
     assert declared == accepted
     options = {f"algo.{o}" for spec in ALGORITHM_SPECS.values() for o in spec.options} | {"algo.generations"}
     assert {k.name for k in KEYS if k.name.startswith("algo.") and "," not in k.name} == options  # "a, b, ...": the DDPG section

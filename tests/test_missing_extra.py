@@ -56,6 +56,7 @@ def _hide(monkeypatch, top: str) -> None:
         ("torch", ["algo=ddpg", "env=continuous_cartpole"], "ddpg"),
         ("tensorboard", ["logger=tensorboard"], "tensorboard"),
         ("ray", ["evaluator=ray"], "cluster"),
+        ("optuna", ["-m", "hydra/sweeper=optuna", "sigma=interval(0.1,0.5)"], "search"),
     ],
 )
 def test_every_missing_extra_is_one_line_from_the_clone_and_exit_2(hidden, args, extra, tmp_path, capsys, monkeypatch):

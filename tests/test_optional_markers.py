@@ -31,6 +31,7 @@ NEEDS_EXTRA = [
     (MUJOCO_ENV, {"mujoco", "ars"}),
     (re.compile(r"\bhydra/launcher=(joblib|submitit_local|slurm|ray\w*)|\bevaluator=ray\b"), {"cluster"}),
     (re.compile(r"\blogger=tensorboard\b"), {"tensorboard"}),
+    (re.compile(r"\bhydra/sweeper=optuna\b"), {"search"}),
 ]
 #: tests that name such a word on purpose without the extra (the missing-extra message, a config check)
 NAMED_NOT_RUN = {

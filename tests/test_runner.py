@@ -200,7 +200,7 @@ def test_wheel_ships_the_configs(tmp_path):
     for conf in sorted((repo / "conf").rglob("*.yaml")) + [repo / "conf" / "__init__.py"]:
         assert f"imix_cli/conf/{conf.relative_to(repo / 'conf').as_posix()}" in names, conf
     # ... and every module of the source tree (a subpackage missing from pyproject's list is not installed)
-    for module in sorted((repo / "imix_cli").rglob("*.py")):
+    for module in sorted((repo / "imix_cli").rglob("*.py")) + sorted((repo / "hydra_plugins").rglob("*.py")):  # with the Optuna sweeper plugin
         assert module.relative_to(repo).as_posix() in names, module
 
 

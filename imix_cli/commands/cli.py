@@ -148,6 +148,7 @@ def run_command(args: list[str]) -> int:
     from imix_cli.running.run_folder import RunError
 
     info_only = any(a in _HYDRA_INFO_FLAGS or a.startswith("--cfg=") for a in args)
+    searching = False
     if not info_only:
         specs = []
         # Nothing is written before validation ends: a Ctrl-C then stops at once with one line, even
@@ -161,9 +162,12 @@ def run_command(args: list[str]) -> int:
         # this process hands Ctrl-C to it as a KeyboardInterrupt once validation is done.
         launcher = next((a.split("=", 1)[1] for a in reversed(args) if a.startswith("hydra/launcher=")), "basic")
         own_launcher = launcher == "basic"  # conf/config.yaml's default, also when named (_task: BasicLauncher)
+        searching = "hydra/sweeper=optuna" in args  # imix's Optuna search (imix_cli.commands.search)
         try:
             _VALIDATED.clear()
             specs = validate_run_args(args, _VALIDATED)
+            if searching:  # the points validated are probes of the search space (imix_cli.running.config.search), not trials
+                _VALIDATED.clear()
         except ConfigError as err:
             return _error(str(err), 2)
         except RunError as err:  # a missing extra: the same status whichever extra (MuJoCo's is a ConfigError: 2 too)
@@ -184,7 +188,7 @@ def run_command(args: list[str]) -> int:
         return _error(str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__, 2)
     finally:
         _VALIDATED.clear()
-    if not info_only and ("-m" in args or "--multirun" in args):  # a sweep: every point in one table at the end
+    if not info_only and ("-m" in args or "--multirun" in args) and not searching:  # a sweep: every point in one table at the end
         from imix_cli.running.summary import format_sweep_table
 
         table = format_sweep_table(specs)
@@ -209,6 +213,8 @@ def validate_run_args(args: list[str], validated: dict | None = None) -> list:
         value = dashed.split("=", 1)[1] if "=" in dashed else (args[args.index(dashed) + 1] if args.index(dashed) + 1 < len(args) else "...")
         raise ConfigError(f"unknown option {dashed!r}; keys are given as key=value, e.g. {key}={value} (see imix run --help)")
     hydra_args = _parse_hydra_args(args)
+    if "hydra/sweeper=optuna" in hydra_args.overrides and not any(a in ("-m", "--multirun") for a in args):
+        raise ConfigError("hydra/sweeper=optuna: a search runs with -m (imix run -m hydra/sweeper=optuna ...)")
     specs = validate_overrides(hydra_args.overrides, validated=validated, config_name=hydra_args.config_name, config_dirs=hydra_args.config_dirs)
     _check_run_folders(specs)
     return specs
@@ -316,8 +322,9 @@ def _point_done(spec):
     return echo
 
 
-def _task(cfg) -> None:
-    """The Hydra task: one config (one sweep point) -> its RunSpec (validated by :func:`run_command`) -> runner."""
+def _task(cfg) -> dict | None:
+    """The Hydra task: one config (one sweep point) -> its RunSpec (validated by :func:`run_command`) -> runner. In an
+    Optuna search (``hydra/sweeper=optuna``) it returns the trial's objective (:func:`imix_cli.commands.search.trial_result`)."""
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
@@ -337,9 +344,14 @@ def _task(cfg) -> None:
 
     _run_handles_signals()
     in_process_sweep = HydraConfig.get().mode == RunMode.MULTIRUN and str(launcher or "").endswith("BasicLauncher")
+    from imix_cli.commands.search import search_settings_of, trial_result
+
+    searching = search_settings_of(HydraConfig.get())
     try:
         # a sweep in this process prints one table of every point at the end (run_command): each point says one line
         run(spec, echo=_point_done(spec) if in_process_sweep else print)
+        if searching:
+            return trial_result(spec, searching)
     except RunError as err:
         if in_process_sweep:  # the sweep's other points still run; this one is reported at the end
             _SKIPPED_POINTS.append(str(err))

@@ -160,6 +160,23 @@ def _config_max_steps(run_dir) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) and value >= 1 else None
 
 
+def config_env_kwargs(run_dir) -> dict:
+    """``env.kwargs`` of ``<run_dir>/config.yaml`` (the env's constructor arguments the run was trained with), ``{}`` if
+    none or unreadable: the policy is evaluated (and rendered) in the env it was trained in."""
+    if run_dir is None:
+        return {}
+    path = Path(run_dir) / "config.yaml"
+    try:
+        if not path.is_file():
+            return {}
+        from imix_cli.running.files.safe_yaml import load_yaml_file
+
+        value = (load_yaml_file(path) or {}).get("env", {}).get("kwargs")  # bounded: size, nesting, aliases, tags
+    except Exception:  # an unreadable config.yaml: the seed checks refuse it elsewhere
+        return {}
+    return dict(value) if isinstance(value, dict) and all(isinstance(k, str) for k in value) else {}
+
+
 def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), run_dir=None, where: str = "policy file"):
     """The batched evaluator a policy was trained with (from its header, checked against the env)."""
     from imix_cli.core.evaluation import make_evaluator
@@ -175,7 +192,8 @@ def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), r
     if header["max_steps"] > cap:
         raise PolicyFileError(f"{where}: header field max_steps={header['max_steps']!r} is above the run's episode cap ({cap}); not evaluated")
     hidden = tuple(int(h) for h in header["hidden"])  # policy.hidden of the run
-    key = (env, header["max_steps"], hidden, header["output"])
+    env_kwargs = config_env_kwargs(run_dir)
+    key = (env, header["max_steps"], hidden, header["output"], repr(sorted(env_kwargs.items())))
     cache = {} if cache is None else cache
     if key not in cache:
         from imix_cli.core.evaluation import missing_extra_message
@@ -185,7 +203,7 @@ def evaluator_for(header: dict, cache: dict | None = None, allowed_modules=(), r
         if missing:
             raise MissingExtraError(f"{where}: {missing}")
         try:
-            cache[key] = make_evaluator(env, header["max_steps"], hidden=hidden, output=header["output"])
+            cache[key] = make_evaluator(env, header["max_steps"], hidden=hidden, output=header["output"], env_kwargs=env_kwargs)
         except ValueError as err:
             raise PolicyFileError(f"{where}: cannot evaluate on {env}: {str(err).splitlines()[0] if str(err) else type(err).__name__}") from None
     evaluator = cache[key]

@@ -86,7 +86,7 @@ def _is_mujoco(env_id: str) -> bool:
     return "mujoco" in str(entry).lower()
 
 
-def make_render_env(header: dict, env_id: str):
+def make_render_env(header: dict, env_id: str, env_kwargs: dict | None = None):
     """``gym.make`` of the policy's env ``env_id`` (a registered id, resolved from the header by
     :func:`imix_cli.commands.eval_command.policy_env`: never a ``module:`` one) with ``render_mode="rgb_array"``;
     UsageError naming what to install: status 2 for a missing dependency (every missing extra's), 1 for another failure."""
@@ -100,7 +100,7 @@ def make_render_env(header: dict, env_id: str):
     try:
         with warnings.catch_warnings():  # CartPole-v0 "out of date": imix reproduces v0 on purpose
             warnings.simplefilter("ignore", DeprecationWarning)
-            env = gym.make(env_id, render_mode="rgb_array", max_episode_steps=int(header["max_steps"]))
+            env = gym.make(env_id, render_mode="rgb_array", max_episode_steps=int(header["max_steps"]), **(env_kwargs or {}))
     except gym.error.DependencyNotInstalled as err:  # pygame, mujoco: a missing extra's one status
         raise UsageError(f"cannot render {env_id}: {_one_line(err)}", EXIT_MISSING_EXTRA) from None
     except Exception as err:  # noqa: BLE001 - GL and driver errors come in many types
@@ -120,7 +120,7 @@ def render_env_id(policy, allowed_modules=(), run_dir=None, where: str = "policy
     return BUILTIN_ENVS[name] if name in BUILTIN_ENVS else plain_env_id(policy.header["env_id"])
 
 
-def policy_frames(policy, frames: int | None = None, env_id: str | None = None):
+def policy_frames(policy, frames: int | None = None, env_id: str | None = None, env_kwargs: dict | None = None):
     """RGB frames (H, W, 3) uint8 of the policy's first evaluation episode: after reset, then after each step,
     yielded one at a time (a writer holds one or two at once: memory does not grow with the episode).
 
@@ -131,7 +131,7 @@ def policy_frames(policy, frames: int | None = None, env_id: str | None = None):
     if h.get("obs_normalizer") is not None:
         raise UsageError(f"policy of run {h.get('run')!r} seed {h.get('seed')} normalises observations; this imix render cannot apply a normaliser yet", 1)
     env_id = env_id or render_env_id(policy)
-    env = make_render_env(h, env_id)
+    env = make_render_env(h, env_id, env_kwargs)  # env_kwargs: the run's env.kwargs (its config.yaml)
     act = policy.batch_policy(1)
     try:
         seed = int(eval_episode_seeds(h["seed"], 1)[0])
@@ -308,7 +308,9 @@ def main(argv: list | None = None) -> int:
         path = policy_path(run_dir, s["seed"], s["which"])
         policy = read_policy(path)
         env_id = render_env_id(policy, s["import"], run_dir, str(path))
-        frames = policy_frames(policy, s["frames"], env_id)
+        from imix_cli.commands.eval_command import config_env_kwargs
+
+        frames = policy_frames(policy, s["frames"], env_id, config_env_kwargs(run_dir))
         first = next(frames)  # the env made and its first frame drawn before the output file is opened
         import gymnasium as gym
 

@@ -44,7 +44,7 @@ from pathlib import Path
 
 from imix_cli.commands.eval_command import run_folders
 from imix_cli.keyvalue import UsageError, folder_name, help_requested, parse_key_values
-from imix_cli.running.files.results import MAX_CONFIG_BYTES, ResultMismatchError, read_small_text, regular_file_size
+from imix_cli.running.files.results import MAX_CONFIG_BYTES, PRUNED_FILE, ResultMismatchError, read_small_text, regular_file_size
 from imix_cli.running.files.run_lock import lock_holder
 from imix_cli.running.files.safe_yaml import load_yaml_file
 from imix_cli.running.seed_checks import check_seed_csv, check_seed_scores
@@ -187,6 +187,7 @@ def run_status(run_dir: Path) -> dict:
         "first_generation": min(generations.values()) if generations else None, "target": target,
         "best_score": best if math.isfinite(best) else None,
         "current_score": sum(current) / len(current) if current else None,
+        "pruned": (run_dir / PRUNED_FILE).is_file(),  # an Optuna search's trial stopped early (imix_cli.commands.search)
     }  # fmt: skip
 
 
@@ -218,6 +219,8 @@ def format_status(experiment: str, statuses: list) -> str:
         best, current = _score(s["best_score"]), _score(s["current_score"])
         counts = f"{len(s['done']):>5} {len(s['running']):>8} {len(s['stopped']):>8} {len(s['not_started']):>12}"
         lines.append(f"  {s['run']:<{width}} {counts} {last:>14} {best:>9} {current:>9}")
+        if s.get("pruned"):
+            lines.append(f"  {'':<{width}}   pruned by an Optuna search: its seeds stopped early (file {PRUNED_FILE}); imix plot leaves it out")
         if s["running"]:
             lines.append(f"  {'':<{width}}   running seeds: {_seed_list(s['running'])} (imix run, pid {s['pid']})")
         if s["stopped"]:

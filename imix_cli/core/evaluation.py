@@ -278,7 +278,7 @@ class GymEvaluator(BatchEvaluator):
     of them), for :class:`imix_cli.core.policies.ObsNormalizer`.
     """
 
-    def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN, output: str = "tanh"):
+    def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN, output: str = "tanh", env_kwargs=None):
         self.env_name = env_id
         self.hidden, self.output = tuple(int(h) for h in hidden), output
         spec = gym.spec(env_id)
@@ -286,7 +286,8 @@ class GymEvaluator(BatchEvaluator):
         if limit is None:
             raise ValueError(f"gymnasium env {env_id!r} has no time limit: pass max_steps")
         self.max_steps = int(limit)
-        self._make_kwargs = {} if max_steps is None else {"max_episode_steps": self.max_steps}
+        # env_kwargs: the env's constructor arguments (gym.make(id, continuous=True)), checked by the caller
+        self._make_kwargs = {**dict(env_kwargs or {}), **({} if max_steps is None else {"max_episode_steps": self.max_steps})}
         message = missing_extra_message(env_id)
         if message:
             raise ValueError(message)
@@ -484,7 +485,9 @@ def mujoco_backend(backend: str | None = None) -> str:
     return value
 
 
-def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, backend: str | None = None, output: str = "tanh") -> BatchEvaluator:
+def make_evaluator(
+    env_name: str, max_steps: int | None = None, hidden=HIDDEN, backend: str | None = None, output: str = "tanh", env_kwargs=None
+) -> BatchEvaluator:
     """Evaluator for a built-in (``"cartpole"``, ``"acrobot"``, ``"continuous_cartpole"``,
     ``"continuous_cartpole_hard"``: :data:`imix_cli.core.registry.BUILTIN_ENVS`) or a gymnasium id
     (see the module docstring).
@@ -496,14 +499,20 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, b
     ``Hopper-v5``, ``HalfCheetah-v5``, ``Walker2d-v5`` and ``Ant-v5`` run -- ``"direct"``:
     :class:`MujocoDirectEvaluator` (the same episodes, bit for bit, without gymnasium's per-step
     overhead), ``"gymnasium"``: :class:`GymEvaluator`. Every other id runs on gymnasium.
+    ``env_kwargs``: the constructor arguments of a gymnasium env (a mapping or (key, value) pairs), given to ``gym.make``;
+    a MuJoCo id given some runs on gymnasium (the direct evaluator reproduces the default envs only); the built-in
+    envs take none.
     Raises ``ValueError`` for an unknown environment id or backend, or a MuJoCo id without mujoco installed.
     """
     hidden = tuple(int(h) for h in hidden)
+    env_kwargs = dict(env_kwargs or {})
     backend = mujoco_backend(backend)
     if output not in OUTPUTS:
         raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
     key = str(env_name).lower()
     if key in BUILTIN_ENVS:
+        if env_kwargs:
+            raise ValueError(f"{key}: the built-in env's compiled episodes take no constructor arguments, got {sorted(env_kwargs)}")
         if output != "tanh":
             raise ValueError(f"{key}: the built-in env's compiled episodes take output='tanh' only, got {output!r}")
         builtin = BUILTIN_EVALUATORS[key](max_steps)
@@ -520,6 +529,6 @@ def make_evaluator(env_name: str, max_steps: int | None = None, hidden=HIDDEN, b
     except (gym.error.UnregisteredEnv, gym.error.DeprecatedEnv, gym.error.RegistrationError) as err:
         msg = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ValueError(f"unknown environment {env_name!r}: not {', '.join(map(repr, BUILTIN_ENVS))} or a registered gymnasium id ({msg})") from None
-    if backend == "direct" and env_name in DIRECT_ENV_IDS:
+    if backend == "direct" and env_name in DIRECT_ENV_IDS and not env_kwargs:
         return MujocoDirectEvaluator(env_name, max_steps, hidden=hidden, output=output)
-    return GymEvaluator(env_name, max_steps, hidden=hidden, output=output)
+    return GymEvaluator(env_name, max_steps, hidden=hidden, output=output, env_kwargs=env_kwargs)

@@ -61,6 +61,8 @@ EVALUATORS = ("local", "pool", "ray")
 def build_evaluator(spec):
     """The evaluator of ``spec`` (a :class:`~imix_cli.running.config.run_spec.RunSpec`): local, pool or ray."""
     args, policy = (spec.evaluator_key, spec.env_max_steps), {"hidden": spec.hidden, "output": spec.policy_output}
+    if spec.env_kwargs:  # gym.make's constructor arguments (env.kwargs.*)
+        policy["env_kwargs"] = dict(spec.env_kwargs)
     if spec.evaluator == "pool":
         return PoolEvaluator(*args, **policy, workers=spec.evaluator_workers)
     if spec.evaluator == "ray":
@@ -74,9 +76,11 @@ class _Remote:
     #: Chunks per worker and call: more than 1 lets workers that drew short episodes take more.
     chunks_per_worker = 4
 
-    def __init__(self, env_key: str, max_steps: int | None, hidden, output: str):
+    def __init__(self, env_key: str, max_steps: int | None, hidden, output: str, env_kwargs=None):
         # make_evaluator's keyword arguments, which every worker process or actor gets too
         self._make_args = {"env_name": env_key, "max_steps": max_steps, "output": output, **({} if hidden is None else {"hidden": tuple(hidden)})}
+        if env_kwargs:
+            self._make_args["env_kwargs"] = dict(env_kwargs)
         self._local = make_evaluator(**self._make_args)
         self.last_obs_stats = None
 
@@ -143,8 +147,8 @@ def _evaluate_chunk(params: np.ndarray, seeds: np.ndarray):
 class PoolEvaluator(_Remote):
     """Evaluation over a persistent pool of ``workers`` spawned processes (module docstring)."""
 
-    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, output: str = "tanh"):
-        super().__init__(env_key, max_steps, hidden, output)
+    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, output: str = "tanh", env_kwargs=None):
+        super().__init__(env_key, max_steps, hidden, output, env_kwargs)
         self.workers = int(workers or default_workers())
         # One BLAS thread per worker process (the workers already use every core): one_blas_thread() around the
         # submits, which start them.
@@ -192,8 +196,11 @@ class RayEvaluator(_Remote):
     #: Restarts of a dead actor (and retries of the chunks it was running) before the run stops.
     max_restarts = 3
 
-    def __init__(self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, address: str | None = None, output: str = "tanh"):
-        super().__init__(env_key, max_steps, hidden, output)
+    def __init__(
+        self, env_key: str, max_steps: int | None = None, hidden=None, workers: int | None = None, address: str | None = None, output: str = "tanh",
+        env_kwargs=None,
+    ):  # fmt: skip
+        super().__init__(env_key, max_steps, hidden, output, env_kwargs)
         import ray
 
         from imix_cli.core.processes import children_of, start_reaper

@@ -67,7 +67,7 @@ import pandas as pd
 
 from imix_cli.core.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
 from imix_cli.core.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
-from imix_cli.running.files.results import CorruptResultError, ResultMismatchError, read_run_csv, run_dir_name, seed_csv_path
+from imix_cli.running.files.results import PRUNED_FILE, CorruptResultError, ResultMismatchError, read_run_csv, run_dir_name, seed_csv_path
 from imix_cli.running.files.safe_yaml import BadYamlError, load_yaml_file
 from imix_cli.running.seed_checks import check_seed_csv
 
@@ -341,14 +341,19 @@ def _load_group(run_dir: Path, warn) -> RunGroup | None:
 def load_experiment(results_dir, experiment: str, warn: Callable[[str], None] = _stderr_warn) -> Experiment:
     """Read every run folder of ``<results_dir>/<experiment>``; bad files are skipped with a warning."""
     exp_dir = Path(results_dir) / experiment
-    groups = []
+    groups, pruned = [], []
     if exp_dir.is_dir():
         for run_dir in sorted(p for p in exp_dir.iterdir() if p.is_dir()):
             if run_dir.name in _NOT_RUNS or run_dir.name.startswith((".", "_")):
                 continue
+            if (run_dir / PRUNED_FILE).is_file():  # an Optuna search's trial stopped early: partial results, not a run's
+                pruned.append(run_dir.name)
+                continue
             group = _load_group(run_dir, warn)
             if group is not None:
                 groups.append(group)
+    if pruned:
+        warn(f"{len(pruned)} run folder(s) of trials an Optuna search pruned are left out (their seeds stopped early; file {PRUNED_FILE}): {', '.join(pruned)}")
     _flag_uneven(groups, warn)
     return Experiment(Path(results_dir), experiment, groups)
 

@@ -672,6 +672,12 @@ class FigureSpec:
     on_request: bool = False  # drawn only when asked (only=<name> or <name>=true): not rewritten into every experiment
 
 
+def _study_figures(exp: Experiment, opts: PlotOptions) -> Iterator:
+    from .study import study_figures  # optuna is imported only where the experiment holds a study
+
+    yield from study_figures(exp, opts)
+
+
 #: Every figure `imix plot` draws, in order. Add new figures here.
 FIGURES = [
     FigureSpec("didactic", "Figs 1-3", didactic.didactic_figures, needs_data=False, on_request=True),
@@ -680,4 +686,5 @@ FIGURES = [
     FigureSpec("gridsearch", "Figs 9-11", gridsearch_figures),
     FigureSpec("ddpg", "Figs 12-13", ddpg_figures),
     FigureSpec("profile", "Agarwal et al. 2021", profile_figures),
+    FigureSpec("study", "an Optuna search (imix run -m hydra/sweeper=optuna)", _study_figures, needs_data=False),
 ]

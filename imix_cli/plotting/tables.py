@@ -481,6 +481,39 @@ def gridsearch_tables(exp: Experiment, opts: PlotOptions) -> Iterator[Table]:
     yield Table("gridsearch_ranking", frame, markdown_table(header, rows, notes), latex)
 
 
+def study_tables(exp, opts) -> Iterator:
+    """The table of an Optuna search's trials (imix_cli.plotting.study): every trial, its state, value, parameters, run folder."""
+    from .study import load_study
+
+    study = load_study(exp.path)
+    if study is None or not study.trials:
+        return
+    params = sorted({k for t in study.trials for k in t.params})
+    records = []
+    for t in study.trials:
+        records.append({"trial": t.number, "state": t.state.name, "value": t.value if t.value is not None else math.nan,
+                        **{p: t.params.get(p) for p in params}, "seeds_reached": t.user_attrs.get("seeds_reached"),
+                        "retry_of": t.user_attrs.get("imix_retry_of"), "run_dir": t.user_attrs.get("run_dir", "")})  # fmt: skip
+    frame = pd.DataFrame(records)
+    header = ["Trial", "State", "Value", *params, "Run folder"]
+    from imix_cli.running.objective import UNREACHED
+
+    def shown(t, r) -> str:  # objective=episodes: a value that ranks seeds that never reached the threshold, said so
+        if not math.isfinite(r["value"]):
+            return "–"
+        if r["seeds_reached"] is not None and r["value"] >= UNREACHED:
+            seeds = len(t.user_attrs.get("per_seed", ()))
+            return f"{seeds - r['seeds_reached']}/{seeds} seeds never reached it"
+        return f"{r['value']:.6g}"
+
+    rows = [[str(r["trial"]), r["state"], shown(t, r), *(str(r[p]) for p in params), Path(r["run_dir"]).name if r["run_dir"] else "–"]
+            for t, r in zip(study.trials, records)]  # fmt: skip
+    objective = study.user_attrs.get("imix", {}).get("objective", {})
+    notes = (f"Study {study.study_name!r}: objective {objective.get('objective')}, {study.direction.name.lower()}d. FAIL: a trial that did not "
+             "finish (one a killed search left running is re-run as a new trial, its retry_of).")  # fmt: skip
+    yield Table("study_trials", frame, markdown_table(header, rows, notes), latex_table(header, rows, "Trials of the Optuna study.", "table:study"))
+
+
 # --------------------------------------------------------------------------- registry
 
 
@@ -498,6 +531,7 @@ TABLES = [
     TableSpec("gridsearch", "section 4.3 grid search", gridsearch_tables),
     TableSpec("iqm", "Agarwal et al. 2021", iqm_tables),
     TableSpec("improvement", "Agarwal et al. 2021", improvement_tables),
+    TableSpec("study", "an Optuna search (imix run -m hydra/sweeper=optuna)", study_tables),
 ]
 
 

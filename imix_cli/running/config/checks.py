@@ -219,6 +219,69 @@ def env_of(env_cfg: dict):
     return plain, env_id, max_steps
 
 
+#: gym.make's own keywords, which env.kwargs does not set: imix sets the episode cap (env.max_steps) and renders itself.
+_MAKE_KEYWORDS = ("max_episode_steps", "render_mode", "autoreset", "apply_api_compatibility", "disable_env_checker")
+
+
+def env_kwargs_of(env_cfg: dict, env_name: str, env_id: str) -> tuple:
+    """``env.kwargs``: the gymnasium env's constructor arguments (``+env.kwargs.continuous=true``), checked against its
+    constructor's signature before anything runs; returned as (key, value) pairs sorted by key (``()`` if none).
+
+    ConfigError (one line naming the argument) for an argument the constructor does not take, one of gym.make's own
+    keywords, a value that is not plain data, or any argument to a built-in (compiled) env. A constructor that takes
+    ``**kwargs`` (the MuJoCo envs pass theirs on to MujocoEnv) is checked by making the env once (es_config)."""
+    kwargs = env_cfg.get("kwargs")
+    if kwargs is None:
+        return ()
+    if not isinstance(kwargs, dict):
+        raise ConfigError(f"env.kwargs={shown_value(kwargs)}: must be a mapping of constructor arguments, e.g. +env.kwargs.continuous=true")
+    if not kwargs:
+        return ()
+    if env_name in BUILTIN_ENVS:
+        raise ConfigError(f"env.kwargs: env={env_name} is imix's compiled episode and takes no constructor arguments; "
+                          f"give the gymnasium id instead (env=gym env.id={env_id} +env.kwargs.<name>=...)")  # fmt: skip
+    for key, value in kwargs.items():
+        if key in _MAKE_KEYWORDS:
+            hint = " (the episode cap is env.max_steps)" if key == "max_episode_steps" else ""
+            raise ConfigError(f"env.kwargs.{key}: gym.make's own keyword, not the env's constructor's{hint}")
+        if not _plain(value):
+            raise ConfigError(f"env.kwargs.{key}={shown_value(value)}: must be a number, string, bool, null or a list/mapping of them")
+    accepted, open_ended = _constructor_arguments(env_id)
+    if not open_ended:
+        unknown = sorted(k for k in kwargs if k not in accepted)
+        if unknown:
+            shown = ", ".join(sorted(a for a in accepted if a not in _MAKE_KEYWORDS)) or "none"
+            raise ConfigError(f"env.kwargs.{unknown[0]}: {env_id}'s constructor takes no argument {unknown[0]!r}; it takes: {shown}")
+    return tuple(sorted(kwargs.items()))
+
+
+def _plain(value) -> bool:
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return True
+    if isinstance(value, (list, tuple)):
+        return all(map(_plain, value))
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+    return False
+
+
+def _constructor_arguments(env_id: str) -> tuple[set, bool]:
+    """The keyword arguments ``env_id``'s constructor (its entry point) takes, and whether it takes any (``**kwargs``)."""
+    import inspect
+
+    import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
+
+    entry_point = gym.spec(env_id).entry_point
+    try:
+        creator = load_env_creator(entry_point) if isinstance(entry_point, str) else entry_point
+        parameters = inspect.signature(creator).parameters.values()
+    except (TypeError, ValueError, ImportError, AttributeError):  # a builtin or C constructor: no signature to read
+        return set(), True
+    names = {p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    return names, any(p.kind == p.VAR_KEYWORD for p in parameters)
+
+
 _WARNED: set = set()
 
 

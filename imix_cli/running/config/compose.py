@@ -28,12 +28,13 @@ import re
 from pathlib import Path
 
 from imix_cli.core.registry import ALGO_NAMES, ALGORITHM_SPECS, BUILTIN_ENVS
-from imix_cli.messages import shown_value
+from imix_cli.messages import MissingExtraError, shown_value
 from imix_cli.running.config.checks import ConfigError, as_choice, first_line
 from imix_cli.running.config.ddpg import ddpg_spec
 from imix_cli.running.config.es_config import es_spec
 from imix_cli.running.config.keys import PAPER_DEFAULTS, POLICY_DEFAULTS, TOP_LEVEL_KEYS, did_you_mean
 from imix_cli.running.config.run_spec import DDPG_DEFAULTS, RunSpec, algo_option_fields, differing_keys
+from imix_cli.running.config.search import SWEEPER_KEYS, check_search_settings, check_trial_config, is_search, probe_values
 from imix_cli.running.files.safe_yaml import MAX_YAML_BYTES, BadYamlError, check_yaml_file, check_yaml_text
 
 __all__ = [
@@ -72,8 +73,9 @@ def spec_from_config(cfg: dict, launcher: str | None = None) -> RunSpec:
     return spec
 
 
-#: The keys of the ``env`` group (conf/env/*.yaml): every env config has these and no other.
-ENV_KEYS = ("name", "id", "max_steps")
+#: The keys of the ``env`` group (conf/env/*.yaml): every env config has the first three; ``env.kwargs`` (the env's
+#: constructor arguments, ``+env.kwargs.continuous=true``) is added on the command line.
+ENV_KEYS = ("name", "id", "max_steps", "kwargs")
 
 
 def algo_keys(algo: str) -> tuple:
@@ -200,10 +202,14 @@ def validate_overrides(
     except Exception as err:
         raise _unparsable(err, overrides, parser) from None
     choices = []
+    search = uses_search_sweeper(parsed)
+    searched = [o.input_line for o in parsed if search and o.is_sweep_override()]
     for override in parsed:
         key = override.key_or_group
         if override.is_sweep_override():
-            if isinstance(override.value(), Glob):
+            if search and not isinstance(override.value(), Glob):  # hydra/sweeper=optuna: a search space, probed
+                choices.append([f"{override.get_key_element()}={_override_value(v)}" for v in probe_values(override)])
+            elif isinstance(override.value(), Glob):
                 if key not in ("algo", "env"):
                     raise ConfigError(f"{_shown(override.input_line)}: glob() selects options of the config groups algo and env only")
                 values = override.value().filter(group_options(key, config_dirs))
@@ -214,8 +220,9 @@ def validate_overrides(
                     values = list(override.sweep_string_iterator())
                 except Exception as err:  # interval(): a sweeper plugin's search space, which -m cannot enumerate
                     why = f"{_shown(override.input_line)}: {_shown(first_line(err), 200)}"
-                    raise ConfigError(f"{why}; imix run -m enumerates a,b,c, range() and glob() sweeps") from None
-            choices.append([f"{override.get_key_element()}={v}" for v in values])
+                    raise ConfigError(f"{why}; imix run -m enumerates a,b,c, range() and glob() sweeps (hydra/sweeper=optuna searches interval())") from None
+            if not search or isinstance(override.value(), Glob):
+                choices.append([f"{override.get_key_element()}={v}" for v in values])
         else:
             choices.append([override.input_line])
         if key in ("algo", "env"):
@@ -257,6 +264,8 @@ def validate_overrides(
                     full = compose(config_name, overrides=[*search, *base], return_hydra_config=True)
                     launcher = OmegaConf.select(full, "hydra.launcher._target_")
                     _refuse_hydra_settings(full)
+                    if is_search(OmegaConf.select(full, "hydra.sweeper._target_")):  # the search's own keys (hydra.sweeper.*)
+                        check_search_settings(OmegaConf.to_container(full.hydra.sweeper, resolve=True))
                     with_hydra = copy.deepcopy(full)
                     with open_dict(full):
                         del full["hydra"]
@@ -268,13 +277,19 @@ def validate_overrides(
                 _apply_values(point_values, cfg)
                 _set_values(set_values, cfg)
                 plain = _resolved(cfg, with_hydra)
-            except ConfigError:
+            except (ConfigError, MissingExtraError):
                 raise
             except BadYamlError as err:  # a config file refused by the bounded loader (bounded_config_reads): it names the file
                 raise ConfigError(str(err)) from None
             except Exception as err:
                 raise ConfigError(_explain_compose_error(err, point)) from None
-            specs.append(spec_from_config(plain, launcher))
+            try:
+                specs.append(spec_from_config(plain, launcher))
+            except ConfigError as err:  # a value the search space can take, refused: say which space it came from
+                space = next((line for line in searched if str(err).startswith(line.split("=", 1)[0].lstrip("+~") + "=")), None)
+                raise ConfigError(f"{err} (a value of the search space {_shown(space)})" if space else str(err)) from None
+            if is_search(OmegaConf.select(with_hydra, "hydra.sweeper._target_")):
+                check_trial_config(specs[-1], check_search_settings(OmegaConf.to_container(with_hydra.hydra.sweeper, resolve=True)))
             if validated is not None:
                 validated[point_key(plain, launcher)] = specs[-1]
     _refuse_shared_folders(specs)
@@ -507,6 +522,25 @@ def _unparsable(err: Exception, lines: list, parser) -> ConfigError:
     return ConfigError(f"{culprit}: cannot be read unquoted ({why}); quote the value, for the shell too: {whole}")
 
 
+def uses_search_sweeper(parsed) -> bool:
+    """Whether parsed overrides choose imix's Optuna sweeper (``hydra/sweeper=optuna``): their search spaces are then
+    probed (:func:`imix_cli.running.config.search.probe_values`), not enumerated."""
+    return any(o.key_or_group == "hydra/sweeper" and not o.is_sweep_override() and o.value() == "optuna" for o in parsed)
+
+
+def _override_value(value) -> str:
+    """A Python value back as an override's value text: ``true``, ``null``, ``0.25``, a plain word, else quoted."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "null"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str) and not re.fullmatch(r"[A-Za-z0-9_.+-]+", value):
+        return _quoted(value)
+    return str(value)
+
+
 def _is_value_override(override) -> bool:
     """A plain ``key=value`` of a config value (not a config group, not ``+``/``~``/``++``)."""
     key = override.key_or_group
@@ -533,6 +567,9 @@ def _refuse_shared_folders(specs: list[RunSpec]) -> None:
 
 def _explain_compose_error(err: Exception, point) -> str:
     text = str(err)
+    sweeper_key = re.search(r"(hydra\.sweeper\.[A-Za-z0-9_]+)", text) if "hydra/sweeper=optuna" in point else None
+    if sweeper_key and ("not in struct" in text or "Could not override" in text):
+        return f"unknown key {sweeper_key.group(1)}; valid keys of hydra/sweeper=optuna: {', '.join(SWEEPER_KEYS[1:])}"
     if "not in struct" in text or "Could not override" in text or "Key '" in text and "is not in struct" in text:
         return unknown_key_message(_unknown_key_of(text, point) or first_line(err))
     missing = re.search(r"Could not find '([^']+)/([^'/]+)'", text)

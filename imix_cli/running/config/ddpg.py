@@ -17,6 +17,8 @@ from imix_cli.running.config.run_spec import RunSpec
 def ddpg_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
     """algo=ddpg: ES keys are ignored; ``total_steps`` (null: the algo's per-env default) is the budget."""
     env_name, env_id, max_steps = env_of(env_cfg)
+    if env_cfg.get("kwargs"):  # stable-baselines3 makes its own env: the constructor arguments would not reach it
+        raise ConfigError("env.kwargs: an evolution strategy's key (algo=ddpg makes its env without constructor arguments)")
     episode_cap = _continuous_env_cap(env_name, env_id, max_steps)
     settings = _ddpg_settings(algo_cfg)
     total = cfg.get("total_steps")

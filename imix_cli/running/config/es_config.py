@@ -14,7 +14,17 @@ from imix_cli.core.mixing import config_variants, variant_spec
 from imix_cli.core.processes import default_workers
 from imix_cli.core.registry import ALGORITHM_SPECS, BUILTIN_ENVS, ENV_SPECS
 from imix_cli.messages import install_extra
-from imix_cli.running.config.checks import ConfigError, as_choice, check_memory, env_of, first_line, gym_env_bytes, parallel_launcher_name, workers_of
+from imix_cli.running.config.checks import (
+    ConfigError,
+    as_choice,
+    check_memory,
+    env_kwargs_of,
+    env_of,
+    first_line,
+    gym_env_bytes,
+    parallel_launcher_name,
+    workers_of,
+)
 from imix_cli.running.config.keys import KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS, read_keys
 from imix_cli.running.config.run_spec import RunSpec, algo_option_fields, run_default
 
@@ -39,6 +49,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         raise ConfigError("reeval_age/reeval_prob/reeval_count: only apply with im=true or eim=true (they re-evaluate reused members)")
 
     env_name, env_id, max_steps = env_of(env_cfg)
+    env_kwargs = env_kwargs_of(env_cfg, env_name, env_id)
     policy = _policy_and_evaluator(checked, env_name, launcher)
     # evaluator=ray: the seeds run in the main process, which alone drives the run's one Ray runtime
     # (seed processes each started a Ray of their own, each sized to every CPU).
@@ -59,8 +70,8 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     if not math.isfinite(checked["sigma"] * checked["sigma"]):
         raise ConfigError(f"sigma={checked['sigma']!r}: the initial variance sigma^2 overflows float64; must be < 1e154")
     _check_params_together(algo, popsize, algo_options)
-    _policy_size(env_name, env_id, max_steps)  # an env imix cannot evaluate: one line
-    num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"], policy["policy_bias"], policy["policy_output"])
+    _policy_size(env_name, env_id, max_steps, env_kwargs)  # an env imix cannot evaluate: one line
+    num_params = _policy_dim(env_name, env_id, max_steps, policy["hidden"], policy["policy_bias"], policy["policy_output"], env_kwargs)
     if algo == "cmaes" and num_params > cmaes.MAX_DIM:
         raise ConfigError(
             f"algo=cmaes: the {'x'.join(map(str, policy['hidden'])) or 'linear'} policy on {env_id} has {num_params} parameters, more than "
@@ -79,6 +90,7 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         env_name=env_name,
         env_id=env_id,
         env_max_steps=max_steps,
+        env_kwargs=env_kwargs,
         mixing=mixing,
         variant=variant,
         workers=workers,
@@ -113,10 +125,10 @@ def _check_params_together(algo: str, popsize: int, algo_options: dict) -> None:
         raise ConfigError(f"algo={algo}: {first_line(err)}") from None
 
 
-def _policy_size(env_name: str, env_id: str, max_steps: int | None) -> int:
+def _policy_size(env_name: str, env_id: str, max_steps: int | None, env_kwargs: tuple = ()) -> int:
     """The number of policy parameters d of an env; ConfigError for an env imix cannot evaluate."""
     try:
-        return _evaluator_shape(env_name if env_name in BUILTIN_ENVS else env_id, max_steps)
+        return _evaluator_shape(env_name if env_name in BUILTIN_ENVS else env_id, max_steps, env_kwargs)
     except ValueError as err:
         key = "env" if env_name in BUILTIN_ENVS else "env.id"
         value = env_name if env_name in BUILTIN_ENVS else env_id
@@ -126,16 +138,17 @@ def _policy_size(env_name: str, env_id: str, max_steps: int | None) -> int:
 _EVALUATOR_SHAPES: dict = {}
 
 
-def _evaluator_shape(key: str, max_steps: int | None) -> int:
+def _evaluator_shape(key: str, max_steps: int | None, env_kwargs: tuple = ()) -> int:
     """make_evaluator(key).num_params, cached per process (a sweep asks once per env, not per point)."""
-    if (key, max_steps) not in _EVALUATOR_SHAPES:
-        from imix_cli.core.evaluation import make_evaluator
+    cached = (key, max_steps, repr(env_kwargs))
+    if cached not in _EVALUATOR_SHAPES:
+        from imix_cli.core.evaluation import UserEnvError, make_evaluator
 
         try:
-            _EVALUATOR_SHAPES[key, max_steps] = make_evaluator(key, max_steps).num_params
-        except ValueError as err:
-            _EVALUATOR_SHAPES[key, max_steps] = err
-    shape = _EVALUATOR_SHAPES[key, max_steps]
+            _EVALUATOR_SHAPES[cached] = make_evaluator(key, max_steps, env_kwargs=dict(env_kwargs)).num_params
+        except (ValueError, UserEnvError) as err:
+            _EVALUATOR_SHAPES[cached] = ValueError(str(err))
+    shape = _EVALUATOR_SHAPES[cached]
     if isinstance(shape, Exception):
         raise shape
     return shape
@@ -188,7 +201,7 @@ def _policy_and_evaluator(checked: dict, env_name: str, launcher: str | None) ->
     }  # fmt: skip
 
 
-def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple, bias: bool = True, output: str = "tanh") -> int:
+def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple, bias: bool = True, output: str = "tanh", env_kwargs: tuple = ()) -> int:
     """Number of parameters the ES searches on this env: the policy's, or its weights' with
     ``policy.bias=false`` (a gymnasium env is made once to read its spaces)."""
     from imix_cli.core.policies import searched_params
@@ -198,9 +211,10 @@ def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple, bias: bool
     import gymnasium as gym
 
     try:
-        probe = gym.make(env_id, **({} if max_steps is None else {"max_episode_steps": max_steps}))
+        probe = gym.make(env_id, **dict(env_kwargs), **({} if max_steps is None else {"max_episode_steps": max_steps}))
     except Exception as err:
-        raise ConfigError(f"env.id={env_id!r}: cannot be made ({first_line(err)})") from None
+        given = f" with {', '.join(f'{k}={v!r}' for k, v in env_kwargs)}" if env_kwargs else ""
+        raise ConfigError(f"env.id={env_id!r}: cannot be made{given} ({first_line(err)})") from None
     try:
         obs_space, act_space = probe.observation_space, probe.action_space
     finally:

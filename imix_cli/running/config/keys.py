@@ -192,6 +192,11 @@ KEYS = (
            "in one line; `env=gym env.id=...` takes the id's own time limit", "what to run", shown="per env", es_only=False),
     RunKey("env.max_steps", GROUP, "episode cap (null: the environment's own limit)", "episode cap; `null` = the environment's own limit",
            "what to run", shown="per env", es_only=False),
+    RunKey("env.kwargs.<name>", GROUP, "a gymnasium env's constructor argument (+env.kwargs.continuous=true)",
+           "a constructor argument of a gymnasium env, given to `gym.make` (`env=gym env.id=LunarLander-v3 +env.kwargs.continuous=true`, "
+           "`+env.kwargs.ctrl_cost_weight=0.1` on a MuJoCo env, which then runs on gymnasium); checked against the env's constructor "
+           "before any seed runs, recorded in config.yaml and in the run folder's name (`-env.continuous=True`). Not for the built-in "
+           "compiled envs, nor algo=ddpg", "what to run", shown="none"),
     # ---------------------------------------------------------------- conf/config.yaml
     RunKey("im", False, "importance mixing with the previous generation",
            "importance mixing with the previous generation (variant `im_variant`)", "mixing", flag),

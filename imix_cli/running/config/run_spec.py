@@ -58,6 +58,7 @@ class RunSpec:
     env_name: str  # config name ("cartpole", "acrobot") or the gymnasium id of a generic env
     env_id: str
     env_max_steps: int | None
+    env_kwargs: tuple = ()  # env.kwargs.*: the gymnasium env's constructor arguments, (key, value) pairs sorted by key
     seeds: int
     workers: int
     progress: bool
@@ -119,6 +120,7 @@ class RunSpec:
         else:  # a gymnasium id (env=gym, or a config such as env=hopper): its own registered time limit
             default_caps = {None, _registered_cap(self.env_id)}
         cap = {} if self.env_max_steps in default_caps else {"env.max_steps": self.env_max_steps}
+        cap.update({f"env.{k}": v for k, v in self.env_kwargs})  # a constructor argument changes the env: it names the folder
         if not ALGORITHM_SPECS[self.algo].is_es:
             changed = {k: v for k, v in (self.ddpg or {}).items() if k in DDPG_DEFAULTS and v != DDPG_DEFAULTS[k]}
             return ",".join(f"{k}={_format(v)}" for k, v in sorted({**changed, **cap}.items()))

@@ -71,6 +71,12 @@ class ResultMismatchError(CorruptResultError):
     """A seed CSV follows the contract but contradicts the config of its run (:func:`imix_cli.running.seed_checks.check_seed_csv`)."""
 
 
+#: The file that marks a run folder as an Optuna search's pruned trial (:mod:`imix_cli.commands.search`): its seeds stopped
+#: early, at a stage of their generations; ``imix plot`` leaves the folder out. A later trial with the same parameters
+#: continues the seeds and removes it.
+PRUNED_FILE = "PRUNED"
+
+
 def seed_csv_path(run_dir, seed: int) -> Path:
     return Path(run_dir) / f"seed_{seed}.csv"
 
