@@ -79,8 +79,10 @@ def drift5(chains=2000, generations=200, popsize=20, dim=5, k=3, drift=0.05, bur
                 z = g.samples - mean
                 s1, s2, n = s1 + z.sum(axis=0), s2 + (z * z).sum(axis=0), n + popsize
         first[c], second[c] = s1 / n, s2 / n
-    print(f"{chains} chains x {generations} generations (first {burn_in} dropped), N={popsize}, d={dim}, K={k}, exact, min_fresh=1, "
-          f"mean drifting {drift} sigma/generation on coordinate 0")
+    print(
+        f"{chains} chains x {generations} generations (first {burn_in} dropped), N={popsize}, d={dim}, K={k}, exact, min_fresh=1, "
+        f"mean drifting {drift} sigma/generation on coordinate 0"
+    )
     print("| coordinate | E[z^2] ± s.e. (z-score) | E[z] ± s.e. (z-score) |")
     print("|---|---:|---:|")
     for j in range(dim):

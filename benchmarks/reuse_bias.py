@@ -143,7 +143,11 @@ def _one(job):
 
 
 def synthetic_table(objective: str, seeds: int, generations: int, workers: int, algos, rules, beta1=None) -> None:
-    jobs = [(objective, a, r, s, generations, DIM, POPSIZE, beta1) for a, r, s in itertools.product(algos, rules, range(seeds)) if a == "cmaes" or r not in CMAES_ONLY]
+    jobs = [
+        (objective, a, r, s, generations, DIM, POPSIZE, beta1)
+        for a, r, s in itertools.product(algos, rules, range(seeds))
+        if a == "cmaes" or r not in CMAES_ONLY
+    ]
     results = {}
     with ProcessPoolExecutor(workers) as pool:
         for job, out in pool.map(_one, jobs):

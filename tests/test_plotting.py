@@ -487,16 +487,16 @@ def test_headline_tables_and_figures_measure_theta_on_fresh_episodes_where_the_p
 
 def test_the_efficiency_figure_draws_theta_held_between_measurements_and_the_population_thin_beside_it(tmp_path):
     from imix_cli.plotting.data import PlotOptions, load_experiment
-    from imix_cli.plotting.figures import efficiency_figures, efficiency_curves, efficiency_groups
+    from imix_cli.plotting.figures import efficiency_curves, efficiency_figures, efficiency_groups
 
     _noisy_pair(tmp_path)
     exp = load_experiment(tmp_path, EXPERIMENT)
-    (stem, fig), = list(efficiency_figures(exp, PlotOptions()))
+    ((stem, fig),) = list(efficiency_figures(exp, PlotOptions()))
     ax = fig.axes[0]
     assert ax.get_ylabel() == "θ on fresh episodes"
     assert any("thin: population mean return" in t.get_text() for t in fig.legends[0].get_texts())
     _, curves = efficiency_curves(efficiency_groups(exp, "cartpole"), "mean_policy_score")
-    for group, x, matrix in curves:
+    for _group, _x, matrix in curves:
         assert np.isfinite(matrix).all()  # held from each measurement to the next, never a gap
         assert set(np.unique(matrix[0])) == {120.0, 196.0}  # seed 0: before and after θ's crossing
 

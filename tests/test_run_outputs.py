@@ -116,5 +116,8 @@ def test_a_sweep_table_says_whether_its_runs_with_mixing_differ_from_their_twins
         "with and without mixing: each pair of runs differs in the mixing alone"
     )
     mismatched = [*validate_overrides(["algo=cmaes", "eim=false"]), *validate_overrides(["algo=cmaes", "eim=true", "algo.step_size_control=csa"])]
-    assert mixing_pairs_note(mismatched) == "cmaes-cartpole-eim-algo.step_size_control=csa vs cmaes-cartpole-none: differ in algo.step_size_control besides the mixing"
+    assert (
+        mixing_pairs_note(mismatched)
+        == "cmaes-cartpole-eim-algo.step_size_control=csa vs cmaes-cartpole-none: differ in algo.step_size_control besides the mixing"
+    )
     assert mixing_pairs_note(validate_overrides(["algo=cmaes", "eim=true", "popsize=20,30"])) is None

@@ -119,8 +119,26 @@ def _dpi(key: str, value: str) -> int:
     return dpi
 
 
-_DEFAULTS = {"results_dir": "results", "experiment": "default", "ci": 0.68, "only": None, "formats": ("png", "pdf"), "dpi": 150, "didactic": False, "measure": "theta"}
-_CONVERT = {"results_dir": results_dir_value, "experiment": experiment_name, "ci": _ci, "only": _only, "formats": _formats, "dpi": _dpi, "didactic": flag, "measure": _measure}
+_DEFAULTS = {
+    "results_dir": "results",
+    "experiment": "default",
+    "ci": 0.68,
+    "only": None,
+    "formats": ("png", "pdf"),
+    "dpi": 150,
+    "didactic": False,
+    "measure": "theta",
+}
+_CONVERT = {
+    "results_dir": results_dir_value,
+    "experiment": experiment_name,
+    "ci": _ci,
+    "only": _only,
+    "formats": _formats,
+    "dpi": _dpi,
+    "didactic": flag,
+    "measure": _measure,
+}
 _KNOWN = "results_dir, experiment, measure, threshold.<env>, ci, only, formats, dpi, didactic"
 
 

@@ -48,9 +48,9 @@ from imix_cli.running.files.writing import atomic_write_bytes, write_figure
 from . import didactic
 from .data import (
     HYPERPARAMS,
+    MEASURES,
     Experiment,
     PlotOptions,
-    MEASURES,
     align_by_generation,
     align_on_grid,
     column_for,

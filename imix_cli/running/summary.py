@@ -91,7 +91,8 @@ def _score(mean: float, half: float) -> str:
 
 #: The footnote of every summary table: which score is free of reused returns.
 SCORES_NOTE = (
-    "θ fresh: distribution mean on fresh episodes (free of reused returns; the measure to compare runs by); population: last generation's mean return (reused members with stored returns); "
+    "θ fresh: distribution mean on fresh episodes (free of reused returns; the measure to compare runs by); "
+    "population: last generation's mean return (reused members with stored returns); "
     "no-fresh: generations in which every member was reused (all seeds)"
 )
 
