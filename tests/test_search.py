@@ -140,7 +140,7 @@ def test_episodes_rank_a_run_that_never_reaches_the_threshold_below_every_run_th
 
 
 def _search_command(results: Path, n_trials: int) -> list:
-    return [sys.executable, "-m", "imix_cli.commands.cli", "run", "-m", "hydra/sweeper=optuna", "algo=snes", "env=cartpole", "seeds=2", "generations=400",
+    return [sys.executable, "-m", "imix_cli.commands.cli", "run", "-m", "hydra/sweeper=optuna", "algo=snes", "env=cartpole", "seeds=2", "generations=2000",
             "eval_mean_every=100", "progress=false", "workers=1", "checkpoint_every=20", "checkpoint_seconds=0", *SPACE,
             f"hydra.sweeper.n_trials={n_trials}", "hydra.sweeper.seed=3", f"results_dir={results}", "experiment=k"]  # fmt: skip
 
@@ -173,18 +173,18 @@ def _rows(path: Path) -> int:
 
 def _stop_mid_trial(results: Path, n_trials: int, signum: int, env: dict) -> int:
     """Start the search, send ``signum`` once a trial runs (after one completed) and its seeds have a checkpoint in the
-    first half of their 400 generations (a poor trial runs them in about a second: not near its end); return the number
-    of the trial it stopped."""
+    first half of their 2,000 generations (a trial runs them in a few seconds: 400 took about a second, which a loaded
+    machine's poll could miss whole); return the number of the trial it stopped."""
     proc = subprocess.Popen(_search_command(results, n_trials), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     db = results / "k" / "optuna.db"
     stopped = None
     deadline = time.monotonic() + 240
     try:
         while time.monotonic() < deadline and proc.poll() is None:
-            time.sleep(0.3)
+            time.sleep(0.1)
             by_state = _states_read_only(db)
             running = by_state.get("RUNNING", [])
-            if by_state.get("COMPLETE") and running and any(_rows(p) < 200 for p in results.glob("k/snes-*/seed_0.partial.csv")):
+            if by_state.get("COMPLETE") and running and any(_rows(p) < 1000 for p in results.glob("k/snes-*/seed_0.partial.csv")):
                 stopped = running[0]  # the running trial has started its seeds: stop it mid-trial
                 proc.send_signal(signum)
                 break
