@@ -369,7 +369,7 @@ class FullGaussian:
         if rows is not None:
             x = x[np.asarray(rows)]
         # Solve L z = x - mean: z is the whitened sample, |z|^2 the squared Mahalanobis distance (one compiled call).
-        return self.log_norm - 0.5 * xp.whitened_sq_norms(self.chol[None], self.mean[None], x)[0]
+        return xp.gaussian_log_probs(self.chol[None], self.mean[None], np.array([self.log_norm]), x)[0]
 
     def to_state(self) -> dict:
         """Mean, covariance and sample dtype (the Cholesky factor is recomputed, bit for bit, on load)."""
@@ -393,10 +393,10 @@ class FullGaussianStack:
 
     def __init__(self, dists):
         self.dists = tuple(dists)
-        self.lows = np.stack([d.chol for d in self.dists])
-        self.means = np.stack([d.mean for d in self.dists])
-        self.log_norms = np.array([[d.log_norm] for d in self.dists])
+        self.lows = np.array([d.chol for d in self.dists])
+        self.means = np.array([d.mean for d in self.dists])
+        self.log_norms = np.array([d.log_norm for d in self.dists])
 
     def log_probs(self, x) -> np.ndarray:
         """(m, n): the log-density of each row of ``x`` (n, d) under each of the m distributions."""
-        return self.log_norms - 0.5 * xp.whitened_sq_norms(self.lows, self.means, x)
+        return xp.gaussian_log_probs(self.lows, self.means, self.log_norms, x)

@@ -52,7 +52,7 @@ __all__ = [
     "cholesky",
     "lower_times_rows",
     "lower_solve_rows",
-    "whitened_sq_norms",
+    "gaussian_log_probs",
     "eigh",
 ]
 
@@ -302,13 +302,14 @@ def _lower_solve_rows(low, y):
 
 
 @njit(cache=True)
-def _whitened_sq_norms(lows, means, x):
-    """out[j, r] = |z|^2 with lows[j] z = x[r] - means[j]: each row of x whitened by each of several Gaussians.
+def _gaussian_log_probs(lows, means, log_norms, x):
+    """out[j, r] = log_norms[j] - 0.5 |z|^2 with lows[j] z = x[r] - means[j]: the log-density of each row of x
+    under each of several Gaussians N(means[j], lows[j] lows[j]^T).
 
-    Bit for bit what ``row_sq_norms(lower_solve_rows(lows[j], x - means[j]))`` gives, row by row (the same
-    subtraction, forward substitution with k ascending, and sum of squares with j ascending from 0.0), in one
-    call: importance mixing with full covariances asks for the same rows under up to four distributions at once,
-    and at small d each separate call cost more in Python than the arithmetic (the pycma adapter, issue 45)."""
+    Bit for bit ``log_norms[j] - 0.5 * row_sq_norms(lower_solve_rows(lows[j], x - means[j]))``, row by row (the same
+    subtraction, forward substitution with k ascending, sum of squares with i ascending from 0.0), in one call:
+    importance mixing with full covariances asks for the same rows under up to four distributions at once, and at
+    small d each separate call cost more in Python than the arithmetic (the pycma adapter, issue 45)."""
     m, d = means.shape
     n = x.shape[0]
     out = np.empty((m, n))
@@ -323,7 +324,7 @@ def _whitened_sq_norms(lows, means, x):
                 zi = acc / lows[j, i, i]
                 z[i] = zi
                 sq += zi * zi
-            out[j, r] = sq
+            out[j, r] = log_norms[j] - 0.5 * sq
     return out
 
 
@@ -605,10 +606,11 @@ def lower_solve_rows(low, y) -> np.ndarray:
     return _lower_solve_rows(_f64(low), _f64(y))
 
 
-def whitened_sq_norms(lows, means, x) -> np.ndarray:
-    """(m, n) array: out[j, r] = |lows[j]^-1 (x[r] - means[j])|^2 for m lower-triangular factors ``lows`` (m, d, d),
-    means (m, d) and rows x (n, d); the same bits as ``row_sq_norms(lower_solve_rows(lows[j], x - means[j]))``."""
-    return _whitened_sq_norms(_f64(lows), _f64(means), _f64(x))
+def gaussian_log_probs(lows, means, log_norms, x) -> np.ndarray:
+    """(m, n) array: out[j, r] = log_norms[j] - 0.5 |lows[j]^-1 (x[r] - means[j])|^2 for m lower-triangular factors
+    ``lows`` (m, d, d), means (m, d), log-normalisers (m,) and rows x (n, d); the same bits as
+    ``log_norms[j] - 0.5 * row_sq_norms(lower_solve_rows(lows[j], x - means[j]))``."""
+    return _gaussian_log_probs(_f64(lows), _f64(means), _f64(log_norms), _f64(x))
 
 
 def eigh(a) -> tuple[np.ndarray, np.ndarray]:
