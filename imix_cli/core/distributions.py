@@ -19,6 +19,7 @@ summation order), not BLAS's, whose kernel -- and so whose last bits -- depends 
 
 from __future__ import annotations
 
+import functools
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -118,6 +119,12 @@ def _row_blocks(n_rows: int, dim: int):
     step = max(1, _BLOCK_ELEMENTS // max(dim, 1))
     for start in range(0, n_rows, step):
         yield slice(start, min(start + step, n_rows))
+
+
+@functools.cache
+def _strict_upper(dim: int) -> np.ndarray:
+    """Mask of the entries above the diagonal of a (dim, dim) matrix."""
+    return ~np.tri(dim, dtype=bool)
 
 
 def _float_dtype(name) -> np.dtype:
@@ -301,9 +308,9 @@ class FullGaussian:
         cov = np.array(cov, dtype=np.float64, copy=True)
         if cov.shape != (self.dim, self.dim):
             raise ValueError(f"FullGaussian: cov has shape {cov.shape}, expected {(self.dim, self.dim)}")
-        self.cov = 0.5 * (cov + cov.T)  # symmetrise round-off
+        self._cov = 0.5 * (cov + cov.T)  # symmetrise round-off
         try:
-            self.chol = xp.cholesky(self.cov)
+            self.chol = xp.cholesky(self._cov)
         except np.linalg.LinAlgError as err:
             raise ValueError("FullGaussian: cov is not positive definite") from err
         self.dtype = np.dtype(dtype)
@@ -324,11 +331,11 @@ class FullGaussian:
         if chol.shape != (dim, dim):
             raise ValueError(f"FullGaussian: the factor has shape {chol.shape}, expected {(dim, dim)}")
         diag = np.diag(chol)
-        if not np.all(np.isfinite(chol)) or not np.all(diag > 0) or np.any(np.triu(chol, 1)):
+        # in few numpy calls, and the covariance only when asked for: pycma's adapter makes one every generation (issue 45)
+        if not (np.isfinite(chol).all() and (diag > 0).all()) or chol[_strict_upper(dim)].any():
             raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)")
         self = cls.__new__(cls)
-        self.mean, self.chol = mean, chol
-        self.cov = xp.mat_mat(chol, np.ascontiguousarray(chol.T))
+        self.mean, self.chol, self._cov = mean, chol, None
         self.dtype = np.dtype(dtype)
         self.log_norm = -0.5 * dim * xp.LOG_2PI - float(np.sum(xp.log(diag)))
         return self
@@ -336,6 +343,13 @@ class FullGaussian:
     @property
     def dim(self) -> int:
         return self.mean.shape[0]
+
+    @property
+    def cov(self) -> np.ndarray:
+        """The covariance L L^T (made from L on first use where the distribution was made from its factor)."""
+        if self._cov is None:
+            self._cov = xp.mat_mat(self.chol, np.ascontiguousarray(self.chol.T))
+        return self._cov
 
     @property
     def std(self) -> np.ndarray:

@@ -431,10 +431,10 @@ def gaussian_from_factor(mean, factor) -> FullGaussian:
     is singular or not finite (the adapter then draws without reuse: :attr:`PycmaES.mixable`).
     """
     factor = np.asarray(factor, dtype=np.float64)
-    if not np.all(np.isfinite(factor)):
+    if not np.isfinite(factor).all():
         raise ValueError("the covariance factor is not finite")
     r = np.linalg.qr(factor.T, mode="r")
-    signs = np.where(np.diag(r) < 0, -1.0, 1.0)
+    signs = np.where(r.diagonal() < 0, -1.0, 1.0)
     return FullGaussian.from_cholesky(mean, np.tril((r * signs[:, None]).T))
 
 
