@@ -344,6 +344,14 @@ class _GenericLogRatio:
         return x, self.new.log_prob(x) - self.old.log_prob(x)
 
 
+def _archived_log_probs(dists, xs) -> list:
+    """``table[k][j]``: log p_j at the rows of archived array ``xs[k]``, for j <= k + 1 -- what a step of ``"exact"``
+    asks for (``dists[0]`` the new distribution, ``dists[k]`` archive entry k - 1; FullGaussians), kept on each
+    distribution between steps (:func:`_cached_log_probs`)."""
+    per_dist = [_cached_log_probs(d, xs[max(0, j - 1) :]) for j, d in enumerate(dists)]
+    return [[per_dist[j][k - max(0, j - 1)] for j in range(k + 2)] for k in range(len(xs))]
+
+
 class _StepRatios:
     """The log-ratios of one ``"exact"`` step between its distributions -- ``dists[0]`` the new one, ``dists[k]``
     archive entry k - 1 -- at the archived samples ``xs`` and at rule-2 draws.
@@ -360,9 +368,7 @@ class _StepRatios:
         self.stack = None
         if all(type(d) is FullGaussian for d in self.dists):
             self.stack = FullGaussianStack(self.dists)
-            # table[k][j]: log p_j at the rows of xs[k], for j <= k + 1
-            per_dist = [_cached_log_probs(d, xs[max(0, j - 1) :]) for j, d in enumerate(self.dists)]
-            self.table = [[per_dist[j][k - max(0, j - 1)] for j in range(k + 2)] for k in range(len(xs))]
+            self.table = _archived_log_probs(self.dists, xs)
 
     def archived(self, a: int, b: int, k: int, rows: np.ndarray) -> np.ndarray:
         """log(p_a / p_b) at the rows ``rows`` of archived array ``k`` (a, b <= k + 1)."""
@@ -796,6 +802,16 @@ def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool
     return archived <= COMPILED_MAX_ELEMENTS
 
 
+def _compiled_full_applies(new_dist, entries, popsize: int, variant: Variant) -> bool:
+    """Whether :func:`imix_cli.core.mixing_kernels.mix_full_exact` computes this step: ``"exact"`` between float64
+    FullGaussians (pycma's adapter, imix's CMA-ES), archived generations of at most ``popsize`` members."""
+    if variant.kernel != 3 or not entries:
+        return False
+    return all(type(g) is FullGaussian and g.dtype == np.float64 for g in (new_dist, *(d for d, _ in entries))) and all(
+        x.dtype == np.float64 and x.shape[0] <= popsize for _, x in entries
+    )
+
+
 def mix(
     new_dist,
     archive,
@@ -869,6 +885,20 @@ def mix(
         heights = [_heights(e, rng) for e in used] if spec.heights else None
         dists, samples = zip(*entries[:depth])
         x, source, index, trials = mix_diagonal(new_dist, dists, samples, heights, popsize, rng, spec.kernel, alpha, min_fresh)
+        return Generation(x, source, index, new_dist, trials)
+    if compiled is not False and _compiled_full_applies(new_dist, entries[:depth], popsize, spec):
+        # the whole step in one compiled call: at d = 10 the numpy step's few hundred small calls were most of the
+        # pycma adapter's overhead over pycma's own ask and tell (issue 45). The same numbers as the numpy step, bit for bit.
+        from imix_cli.core.mixing_kernels import mix_full_exact
+
+        used = list(archive[:depth])
+        heights = [_heights(e, rng) for e in used]
+        dists, samples = zip(*entries[:depth])
+        table = np.zeros((len(samples), len(samples) + 1, max(x.shape[0] for x in samples)))
+        for k, row in enumerate(_archived_log_probs([new_dist, *dists], samples)):
+            for j, values in enumerate(row):
+                table[k, j, : values.shape[0]] = values
+        x, source, index, trials = mix_full_exact(new_dist, dists, samples, heights, table, popsize, rng, min_fresh)
         return Generation(x, source, index, new_dist, trials)
     if compiled:
         raise ValueError(f"the compiled mixing step does not apply to variant {variant!r} with {type(new_dist).__name__} and this archive")
