@@ -283,6 +283,10 @@ def _row_keys(samples: np.ndarray) -> np.ndarray:
     return head.view(np.dtype((np.void, head.dtype.itemsize * head.shape[1]))).ravel()
 
 
+#: From this dimension on, the compiled ``"exact"`` step between FullGaussians is given the archived log-densities kept
+#: between steps (:func:`_cached_log_probs`); below, it computes them itself: at d = 10 the (K + 1) K N triangular
+#: solves cost less than looking the kept ones up in Python (pycma's adapter, issue 45).
+_KEEP_LOG_PROBS_FROM_DIM = 32
 #: Arrays whose log-densities one distribution keeps (:func:`_cached_log_probs`): the archived generations.
 _LOG_PROB_CACHE = 8
 
@@ -894,10 +898,12 @@ def mix(
         used = list(archive[:depth])
         heights = [_heights(e, rng) for e in used]
         dists, samples = zip(*entries[:depth])
-        table = np.zeros((len(samples), len(samples) + 1, max(x.shape[0] for x in samples)))
-        for k, row in enumerate(_archived_log_probs([new_dist, *dists], samples)):
-            for j, values in enumerate(row):
-                table[k, j, : values.shape[0]] = values
+        table = None  # small d: the archived log-densities computed in the compiled step, cheaper than keeping them
+        if dim >= _KEEP_LOG_PROBS_FROM_DIM:
+            table = np.zeros((len(samples), len(samples) + 1, max(x.shape[0] for x in samples)))
+            for k, row in enumerate(_archived_log_probs([new_dist, *dists], samples)):
+                for j, values in enumerate(row):
+                    table[k, j, : values.shape[0]] = values
         x, source, index, trials = mix_full_exact(new_dist, dists, samples, heights, table, popsize, rng, min_fresh)
         return Generation(x, source, index, new_dist, trials)
     if compiled:

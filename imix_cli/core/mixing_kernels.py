@@ -402,14 +402,17 @@ def _full_draws(rng, low, mean, n):
 
 
 @njit(cache=True)
-def _exact_full(rng, lows, means, log_norms, xs, heights, table, counts, popsize, min_fresh):
+def _exact_full(rng, lows, means, log_norms, xs, heights, table, known, counts, popsize, min_fresh):
     """The ``"exact"`` step between FullGaussians: :func:`imix_cli.core.mixing._multi_generation`, then the plain
     fill and :func:`imix_cli.core.mixing._refresh`, with the same numbers bit for bit (the same draws in the same
     order, and the log-densities of :func:`imix_cli.core.linalg_kernels.gaussian_log_probs`, which
     :meth:`FullGaussian.log_prob` computes too). ``lows``/``means``/``log_norms``: index 0 the new distribution, k
-    archive entry k - 1; ``table[k, j, i]``: log p_j at ``xs[k, i]`` for j <= k + 1 (computed, and kept between
-    generations, by the caller). Returns ``(samples, source, index, rule-2 draws)``."""
+    archive entry k - 1; ``table[k, j, i]``: log p_j at ``xs[k, i]`` for j <= k + 1, given by the caller (who keeps
+    them between generations) where ``known[k]``, else computed here. Returns ``(samples, source, index, rule-2 draws)``."""
     n_entries, rows, d = xs.shape
+    for k in range(n_entries):
+        if not known[k]:
+            table[k] = lk.gaussian_log_probs_kernel(lows, means, log_norms, xs[k])
     out = np.empty((popsize, d))
     source = np.zeros(popsize, np.int64)
     index = np.full(popsize, -1, np.int64)
@@ -482,12 +485,16 @@ def _exact_full(rng, lows, means, log_norms, xs, heights, table, counts, popsize
 def mix_full_exact(new_dist, dists, samples, heights, table, popsize: int, rng: np.random.Generator, min_fresh: int = 0):
     """One ``"exact"`` mixing step between float64 FullGaussians (:func:`_exact_full`), as :func:`imix_cli.core.mixing.mix`
     gives it: ``dists``/``samples``/``heights`` the archive entries used (newest first, n_k <= popsize rows each),
-    ``table`` their log-densities (:func:`_exact_full`). Returns ``(samples, source, index, trials)``."""
+    ``table`` their log-densities (:func:`_exact_full`), or None: computed in the compiled step, cheaper at small d than
+    keeping them. Returns ``(samples, source, index, trials)``."""
     rows = max(x.shape[0] for x in samples)
     every = (new_dist, *dists)
+    known = np.full(len(samples), table is not None)
+    if table is None:
+        table = np.empty((len(samples), len(every), rows))
     return _exact_full(
         rng, np.array([g.chol for g in every]), np.array([g.mean for g in every]), np.array([g.log_norm for g in every]),
-        _stacked(samples, rows), _stacked(heights, rows), table, np.array([x.shape[0] for x in samples], dtype=np.int64), popsize, int(min_fresh),
+        _stacked(samples, rows), _stacked(heights, rows), table, known, np.array([x.shape[0] for x in samples], dtype=np.int64), popsize, int(min_fresh),
     )  # fmt: skip
 
 
