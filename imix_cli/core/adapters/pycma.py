@@ -442,8 +442,11 @@ def gaussian_from_factor(mean, factor) -> FullGaussian:
     if not np.isfinite(factor).all():
         raise ValueError("the covariance factor is not finite")
     r = np.linalg.qr(factor.T, mode="r")
-    signs = np.where(r.diagonal() < 0, -1.0, 1.0)
-    return FullGaussian.from_cholesky(mean, np.tril((r * signs[:, None]).T))
+    diag = r.diagonal()
+    if not (np.isfinite(r).all() and diag.all()):  # what from_cholesky checks of L (a new lower-triangular array here)
+        raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)")
+    signs = np.where(diag < 0, -1.0, 1.0)
+    return FullGaussian.from_cholesky(mean, np.tril((r * signs[:, None]).T), checked=False)
 
 
 def _child_stream(rng: np.random.Generator) -> np.random.Generator:
