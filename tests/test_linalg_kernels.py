@@ -127,3 +127,19 @@ def test_many_rows_are_solved_with_the_same_operations_as_one_row_at_a_time():
     together = lk.lower_solve_rows(low, y)
     alone = np.vstack([lk.lower_solve_rows(low, y[r : r + 1]) for r in range(len(y))])
     assert np.array_equal(together.view(np.int64), alone.view(np.int64))
+
+
+@pytest.mark.parametrize("d,n", [(1, 3), (10, 5), (40, 2 * lk.SOLVE_ROWS_TOGETHER)])
+def test_gaussian_log_probs_are_log_prob_row_by_row_bit_for_bit(d, n):
+    """gaussian_log_probs (several Gaussians in one call: importance mixing with full covariances) gives, for each
+    factor, the bits of log_norm - 0.5 |L^-1 (x - m)|^2 computed with lower_solve_rows and row_sq_norms, whatever
+    rows and factors are computed with it. Made to fail by summing the squares of a row last index first."""
+    rng = np.random.default_rng(d)
+    lows = np.array([np.linalg.cholesky(a @ a.T / d + np.eye(d)) for a in rng.normal(size=(3, d, d))])
+    means, log_norms, x = rng.normal(size=(3, d)), rng.normal(size=3), 3 * rng.normal(size=(n, d))
+    together = lk.gaussian_log_probs(lows, means, log_norms, x)
+    for j in range(3):
+        alone = log_norms[j] - 0.5 * lk.row_sq_norms(lk.lower_solve_rows(lows[j], x - means[j]))
+        assert np.array_equal(together[j].view(np.int64), alone.view(np.int64))
+        first = lk.gaussian_log_probs(lows[j : j + 1], means[j : j + 1], log_norms[j : j + 1], x[:1])[0]
+        assert np.array_equal(first.view(np.int64), alone[:1].view(np.int64))

@@ -333,6 +333,40 @@ def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize, min_fresh):
         archive_compiled = [g_compiled, *archive_compiled][:3]
 
 
+def _full_walk_steps(rng, dim, generations):
+    """A random walk of FullGaussians made from their factor (as pycma's adapter makes them): mean and factor moving."""
+    mean, factor = np.zeros(dim), 0.3 * np.eye(dim)
+    for _ in range(generations):
+        mean = mean + 0.05 * factor @ rng.standard_normal(dim)
+        factor = factor @ (np.eye(dim) + 0.03 * rng.standard_normal((dim, dim)))
+        r = np.linalg.qr(factor.T, mode="r")
+        yield FullGaussian.from_cholesky(mean, np.tril((r * np.where(np.diag(r) < 0, -1.0, 1.0)[:, None]).T))
+
+
+@pytest.mark.parametrize("min_fresh", [0, 1])
+@pytest.mark.parametrize("dim,popsize", [(1, 6), (10, 10), (40, 15)])
+def test_the_compiled_full_step_is_the_numpy_step_bit_for_bit(dim, popsize, min_fresh):
+    """The compiled ``"exact"`` step between FullGaussians (mixing_kernels.mix_full_exact: pycma's adapter, imix's CMA-ES)
+    draws the same random numbers in the same order and computes the same log-densities as the numpy step: along
+    60-generation chains every generation is the same bit for bit (samples, source, index, trials, heights), and the
+    Generator is left in the same state -- at d = 40 with the archived log-densities kept between steps, below
+    computed in the step. Made to fail (d = 10, 40) by summing each draw's L eps in the other order in _full_draws."""
+    rng = np.random.default_rng(dim * 100 + popsize)
+    archive_numpy, archive_compiled = [], []
+    for t, dist in enumerate(_full_walk_steps(rng, dim, 60)):
+        r_numpy, r_compiled = np.random.default_rng(t), np.random.default_rng(t)
+        g_numpy = mix(dist, archive_numpy, popsize, r_numpy, variant="exact", compiled=False, min_fresh=min_fresh)
+        g_compiled = mix(dist, archive_compiled, popsize, r_compiled, variant="exact", compiled=None if t == 0 else True, min_fresh=min_fresh)
+        assert np.array_equal(g_numpy.source, g_compiled.source) and np.array_equal(g_numpy.index, g_compiled.index), t
+        assert np.array_equal(g_numpy.samples.view(np.int64), g_compiled.samples.view(np.int64)), t
+        assert g_numpy.trials == g_compiled.trials and r_numpy.random() == r_compiled.random(), t
+        for a, b in zip(archive_numpy, archive_compiled):
+            assert (a.log_u is None and b.log_u is None) or np.array_equal(a.log_u, b.log_u)
+        archive_numpy = [g_numpy, *archive_numpy][:3]
+        archive_compiled = [g_compiled, *archive_compiled][:3]
+    assert sum(g.reused for g in archive_compiled) > 0
+
+
 def test_the_compiled_step_takes_smaller_generations_and_refuses_what_it_does_not_compute():
     rng = np.random.default_rng(3)
     dist = DiagonalGaussian(np.zeros(4), np.ones(4))

@@ -212,6 +212,8 @@ def _numbers(returns) -> np.ndarray:
     """``returns`` as a float64 vector; None, strings and complex values refused in one line naming the first."""
     if isinstance(returns, np.ndarray) and returns.dtype.kind in "fiu":
         return returns.astype(np.float64, copy=False).reshape(-1)
+    if type(returns) is list and all(isinstance(value, float) for value in returns):  # pycma's loop: a list of floats
+        return np.array(returns, dtype=np.float64)
     values = np.asarray(returns, dtype=object).reshape(-1)
     for k, value in enumerate(values):
         if value is None or isinstance(value, (str, bytes, complex, np.complexfloating)) or not np.isscalar(value) and not isinstance(value, np.ndarray):

@@ -19,6 +19,7 @@ summation order), not BLAS's, whose kernel -- and so whose last bits -- depends 
 
 from __future__ import annotations
 
+import functools
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -118,6 +119,12 @@ def _row_blocks(n_rows: int, dim: int):
     step = max(1, _BLOCK_ELEMENTS // max(dim, 1))
     for start in range(0, n_rows, step):
         yield slice(start, min(start + step, n_rows))
+
+
+@functools.cache
+def _strict_upper(dim: int) -> np.ndarray:
+    """Mask of the entries above the diagonal of a (dim, dim) matrix."""
+    return ~np.tri(dim, dtype=bool)
 
 
 def _float_dtype(name) -> np.dtype:
@@ -301,34 +308,37 @@ class FullGaussian:
         cov = np.array(cov, dtype=np.float64, copy=True)
         if cov.shape != (self.dim, self.dim):
             raise ValueError(f"FullGaussian: cov has shape {cov.shape}, expected {(self.dim, self.dim)}")
-        self.cov = 0.5 * (cov + cov.T)  # symmetrise round-off
+        self._cov = 0.5 * (cov + cov.T)  # symmetrise round-off
         try:
-            self.chol = xp.cholesky(self.cov)
+            self.chol = xp.cholesky(self._cov)
         except np.linalg.LinAlgError as err:
             raise ValueError("FullGaussian: cov is not positive definite") from err
         self.dtype = np.dtype(dtype)
         self.log_norm = -0.5 * self.dim * xp.LOG_2PI - float(np.sum(xp.log(np.diag(self.chol))))
 
     @classmethod
-    def from_cholesky(cls, mean, chol, dtype=np.float64) -> FullGaussian:
+    def from_cholesky(cls, mean, chol, dtype=np.float64, checked: bool = True) -> FullGaussian:
         """N(mean, L L^T) from its lower-triangular factor L itself, never from L L^T factored again.
 
         Why: a Cholesky factorisation of C works at C's condition number, the square of its factor's; a library
         that keeps a square root of C (pycma's B D: :func:`imix_cli.core.adapters.pycma.gaussian_from_factor`
         turns it into L) gives the density at its own precision this way. ValueError (one line) if ``chol`` is
-        not lower triangular with a finite, positive diagonal: the density does not exist.
+        not lower triangular with a finite, positive diagonal: the density does not exist. ``checked=False``: the
+        caller has made ``chol`` a new float64 array and checked it (pycma's adapter, every generation: issue 45).
         """
         mean = np.array(mean, dtype=np.float64, copy=True).reshape(-1)
-        chol = np.array(chol, dtype=np.float64, copy=True)
         dim = mean.shape[0]
-        if chol.shape != (dim, dim):
-            raise ValueError(f"FullGaussian: the factor has shape {chol.shape}, expected {(dim, dim)}")
+        if checked:
+            chol = np.array(chol, dtype=np.float64, copy=True)
+            if chol.shape != (dim, dim):
+                raise ValueError(f"FullGaussian: the factor has shape {chol.shape}, expected {(dim, dim)}")
         diag = np.diag(chol)
-        if not np.all(np.isfinite(chol)) or not np.all(diag > 0) or np.any(np.triu(chol, 1)):
-            raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)")
+        # in few numpy calls, and the covariance only when asked for: pycma's adapter makes one every generation (issue 45)
+        if checked:
+            if not (np.isfinite(chol).all() and (diag > 0).all()) or chol[_strict_upper(dim)].any():
+                raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)")
         self = cls.__new__(cls)
-        self.mean, self.chol = mean, chol
-        self.cov = xp.mat_mat(chol, np.ascontiguousarray(chol.T))
+        self.mean, self.chol, self._cov = mean, chol, None
         self.dtype = np.dtype(dtype)
         self.log_norm = -0.5 * dim * xp.LOG_2PI - float(np.sum(xp.log(diag)))
         return self
@@ -336,6 +346,13 @@ class FullGaussian:
     @property
     def dim(self) -> int:
         return self.mean.shape[0]
+
+    @property
+    def cov(self) -> np.ndarray:
+        """The covariance L L^T (made from L on first use where the distribution was made from its factor)."""
+        if self._cov is None:
+            self._cov = xp.mat_mat(self.chol, np.ascontiguousarray(self.chol.T))
+        return self._cov
 
     @property
     def std(self) -> np.ndarray:
@@ -347,8 +364,9 @@ class FullGaussian:
         return float(np.mean(self.std))
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        """Draw ``n`` independent samples, shape ``(n, d)``."""
-        return self.sample_with_log_prob(n, rng)[0]
+        """Draw ``n`` independent samples, shape ``(n, d)`` (the draws of :meth:`sample_with_log_prob`)."""
+        eps = rng.standard_normal((n, self.dim))
+        return (self.mean + xp.lower_times_rows(self.chol, eps)).astype(self.dtype, copy=False)
 
     def sample_with_log_prob(self, n: int, rng: np.random.Generator, other=None, out=None):
         """Draw ``n`` samples; return ``(samples, log_prob(samples))``, plus ``other.log_prob(samples)`` if given."""
@@ -367,9 +385,8 @@ class FullGaussian:
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
         if rows is not None:
             x = x[np.asarray(rows)]
-        # Solve L z = x - mean: z is the whitened sample, |z|^2 the squared Mahalanobis distance.
-        z = xp.lower_solve_rows(self.chol, x - self.mean)
-        return self.log_norm - 0.5 * xp.row_sq_norms(z)
+        # Solve L z = x - mean: z is the whitened sample, |z|^2 the squared Mahalanobis distance (one compiled call).
+        return xp.gaussian_log_probs(self.chol[None], self.mean[None], np.array([self.log_norm]), x)[0]
 
     def to_state(self) -> dict:
         """Mean, covariance and sample dtype (the Cholesky factor is recomputed, bit for bit, on load)."""
@@ -381,3 +398,22 @@ class FullGaussian:
 
     def __repr__(self) -> str:
         return f"FullGaussian(dim={self.dim}, sigma_mean={self.sigma_mean:.4g})"
+
+
+class FullGaussianStack:
+    """The log-densities of the same rows under several FullGaussians, in one compiled call.
+
+    Why: importance mixing with full covariances (pycma's adapter, imix's CMA-ES) asks for each batch of rule-2
+    draws under the new distribution and every archived one; at small d a separate ``log_prob`` per distribution
+    cost more in Python than in arithmetic (issue 45). Row for row the same bits as :meth:`FullGaussian.log_prob`.
+    """
+
+    def __init__(self, dists):
+        self.dists = tuple(dists)
+        self.lows = np.array([d.chol for d in self.dists])
+        self.means = np.array([d.mean for d in self.dists])
+        self.log_norms = np.array([d.log_norm for d in self.dists])
+
+    def log_probs(self, x) -> np.ndarray:
+        """(m, n): the log-density of each row of ``x`` (n, d) under each of the m distributions."""
+        return xp.gaussian_log_probs(self.lows, self.means, self.log_norms, x)

@@ -195,12 +195,11 @@ class GenerationScheme:
                 eim_generations=settings.eim_generations,
                 min_fresh=settings.min_fresh,
             )
-        age = np.zeros(popsize, dtype=np.int64)
-        for k, ages in enumerate(archive.ages, start=1):
-            from_k = g.source == k
-            age[from_k] = ages[g.index[from_k]] + 1
         evaluate = g.source == 0
         reused = np.flatnonzero(~evaluate)
+        age = np.zeros(popsize, dtype=np.int64)
+        if reused.size:  # member by member: a few reused members cost less than a pass per archived generation
+            age[reused] = [archive.ages[k - 1][i] + 1 for k, i in zip(g.source[reused].tolist(), g.index[reused].tolist())]
         if settings.reeval_age is not None:
             evaluate[reused] |= age[reused] > settings.reeval_age
         if settings.reeval_prob > 0.0:
@@ -221,10 +220,10 @@ class GenerationScheme:
         probe = {} if plan.probes is None else {"probe_fitness": returns[plan.evaluate.size :]}
         returns = returns[: plan.evaluate.size]
         fitness = np.empty(g.samples.shape[0])
-        for k, stored in enumerate(archive.returns, start=1):  # reused members keep their stored return
-            from_k = g.source == k
-            fitness[from_k] = stored[g.index[from_k]]
         reused = g.source > 0
+        members = np.flatnonzero(reused)
+        if members.size:  # reused members keep their stored return
+            fitness[members] = [archive.returns[k - 1][i] for k, i in zip(g.source[members].tolist(), g.index[members].tolist())]
         again = plan.evaluate[reused[plan.evaluate]]  # reused members evaluated again: (stored, fresh) pairs
         stored_again = fitness[again]
         fitness[plan.evaluate] = returns  # ... unless evaluated again

@@ -52,6 +52,7 @@ __all__ = [
     "cholesky",
     "lower_times_rows",
     "lower_solve_rows",
+    "gaussian_log_probs",
     "eigh",
 ]
 
@@ -301,6 +302,33 @@ def _lower_solve_rows(low, y):
 
 
 @njit(cache=True)
+def _gaussian_log_probs(lows, means, log_norms, x):
+    """out[j, r] = log_norms[j] - 0.5 |z|^2 with lows[j] z = x[r] - means[j]: the log-density of each row of x
+    under each of several Gaussians N(means[j], lows[j] lows[j]^T).
+
+    Bit for bit ``log_norms[j] - 0.5 * row_sq_norms(lower_solve_rows(lows[j], x - means[j]))``, row by row (the same
+    subtraction, forward substitution with k ascending, sum of squares with i ascending from 0.0), in one call:
+    importance mixing with full covariances asks for the same rows under up to four distributions at once, and at
+    small d each separate call cost more in Python than the arithmetic (the pycma adapter, issue 45)."""
+    m, d = means.shape
+    n = x.shape[0]
+    out = np.empty((m, n))
+    z = np.empty(d)
+    for j in range(m):
+        for r in range(n):
+            sq = 0.0
+            for i in range(d):
+                acc = x[r, i] - means[j, i]
+                for k in range(i):
+                    acc -= lows[j, i, k] * z[k]
+                zi = acc / lows[j, i, i]
+                z[i] = zi
+                sq += zi * zi
+            out[j, r] = log_norms[j] - 0.5 * sq
+    return out
+
+
+@njit(cache=True)
 def _hypot(a, b):
     """sqrt(a^2 + b^2) without overflow, in basic IEEE operations only (libm's hypot may differ by CPU)."""
     a, b = abs(a), abs(b)
@@ -493,7 +521,7 @@ def _eigh(a):
 
 # ------------------------------------------------------------------------------------ wrappers
 #: The kernels themselves, for compiled callers and for the warm-up's cache check (:mod:`imix_cli.running.warmup`).
-eigh_kernel, cholesky_kernel, tanh_kernel = _eigh, _cholesky, _tanh_inplace
+eigh_kernel, cholesky_kernel, tanh_kernel, gaussian_log_probs_kernel = _eigh, _cholesky, _tanh_inplace, _gaussian_log_probs
 
 
 def _f64(a) -> np.ndarray:
@@ -576,6 +604,13 @@ def lower_times_rows(low, e) -> np.ndarray:
 def lower_solve_rows(low, y) -> np.ndarray:
     """Each row r of y (n, d) solved as low z = y[r] (``solve_triangular(low, y.T, lower=True).T``)."""
     return _lower_solve_rows(_f64(low), _f64(y))
+
+
+def gaussian_log_probs(lows, means, log_norms, x) -> np.ndarray:
+    """(m, n) array: out[j, r] = log_norms[j] - 0.5 |lows[j]^-1 (x[r] - means[j])|^2 for m lower-triangular factors
+    ``lows`` (m, d, d), means (m, d), log-normalisers (m,) and rows x (n, d); the same bits as
+    ``log_norms[j] - 0.5 * row_sq_norms(lower_solve_rows(lows[j], x - means[j]))``."""
+    return _gaussian_log_probs(_f64(lows), _f64(means), _f64(log_norms), _f64(x))
 
 
 def eigh(a) -> tuple[np.ndarray, np.ndarray]:

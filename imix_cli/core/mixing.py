@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imix_cli.core import numerics as xp
-from imix_cli.core.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian
+from imix_cli.core.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian, FullGaussianStack
 
 __all__ = [
     "DiagonalGaussian", "FullGaussian", "Generation", "MIXING_DEFAULTS", "MixingDefaults", "Variant", "VARIANT_SPECS", "VARIANTS",
@@ -118,30 +118,48 @@ def _row_keys(samples: np.ndarray) -> np.ndarray:
     return head.view(np.dtype((np.void, head.dtype.itemsize * head.shape[1]))).ravel()
 
 
-#: Arrays whose log-densities one distribution keeps (:func:`_cached_log_prob`): the archived generations and a few
-#: rule-2 candidate blocks.
+#: From this dimension on, the compiled ``"exact"`` step between FullGaussians is given the archived log-densities kept
+#: between steps (:func:`_cached_log_probs`); below, it computes them itself: at d = 10 the (K + 1) K N triangular
+#: solves cost less than looking the kept ones up in Python (pycma's adapter, issue 45).
+_KEEP_LOG_PROBS_FROM_DIM = 32
+#: Arrays whose log-densities one distribution keeps (:func:`_cached_log_probs`): the archived generations.
 _LOG_PROB_CACHE = 8
 
 
-def _cached_log_prob(dist, x: np.ndarray) -> np.ndarray:
-    """``dist.log_prob(x)`` of every row of ``x``, kept on ``dist`` for the next call with the same array.
+def _cached_log_probs(dist, arrays) -> list:
+    """``[dist.log_prob(x) for x in arrays]`` (a FullGaussian), each kept on ``dist`` for the next call with the same
+    array; those not kept yet are computed in one call, their rows stacked.
 
     Why: with full covariances (pycma, imix's CMA-ES) a log-density is a triangular solve per row, and a step of
     ``"exact"`` mixing asks for the same archived rows under the same archived distributions again and again
-    (every pair of archived generations, every generation): at d = 10 that was most of the mixing time.
+    (every pair of archived generations, every generation): at d = 10 that was most of the mixing time. What is
+    new in a step -- the archived rows under the new distribution -- is one call, not one per generation.
     Rows are independent in :meth:`FullGaussian.log_prob`, so ``log_prob(x)[rows]`` is ``log_prob(x[rows])`` bit
-    for bit. The array itself is kept beside its values, so an id is never mistaken for another array's.
+    for bit, whatever rows are stacked with it. The array itself is kept beside its values, so an id is never
+    mistaken for another array's.
     """
     cache = dist.__dict__.setdefault("_log_prob_cache", {})
-    hit = cache.pop(id(x), None)
-    if hit is not None and hit[0] is x:
-        cache[id(x)] = hit  # least recently used last: the archived arrays, asked for every generation, stay
-        return hit[1]
-    values = dist.log_prob(x)
-    if len(cache) >= _LOG_PROB_CACHE:
-        del cache[next(iter(cache))]
-    cache[id(x)] = (x, values)
-    return values
+    out, missing = [], []
+    for x in arrays:
+        hit = cache.pop(id(x), None)
+        if hit is not None and hit[0] is x:
+            cache[id(x)] = hit  # least recently used last: the archived arrays, asked for every generation, stay
+            out.append(hit[1])
+        else:
+            out.append(None)
+            missing.append(len(out) - 1)
+    if missing:
+        stacked = arrays[missing[0]] if len(missing) == 1 else np.concatenate([arrays[i] for i in missing])
+        values = dist.log_prob(stacked)
+        start = 0
+        for i in missing:
+            x = arrays[i]
+            out[i] = values[start : start + x.shape[0]]
+            start += x.shape[0]
+            if len(cache) >= _LOG_PROB_CACHE:
+                del cache[next(iter(cache))]
+            cache[id(x)] = (x, out[i])
+    return out
 
 
 class _GenericLogRatio:
@@ -149,16 +167,63 @@ class _GenericLogRatio:
 
     def __init__(self, new, old):
         self.new, self.old = new, old
+        self.full = type(new) is FullGaussian and type(old) is FullGaussian
 
     def of_rows(self, x, rows):
-        if type(self.new) is FullGaussian and type(self.old) is FullGaussian:  # rows independent: cached (_cached_log_prob)
-            return _cached_log_prob(self.new, x)[rows] - _cached_log_prob(self.old, x)[rows]
+        if self.full:  # rows independent: cached (_cached_log_probs)
+            return _cached_log_probs(self.new, [x])[0][rows] - _cached_log_probs(self.old, [x])[0][rows]
         block = x[rows]
         return self.new.log_prob(block) - self.old.log_prob(block)
 
     def sample(self, n, rng, out=None):
         x = self.new.sample(n, rng)
+        if self.full:  # both densities in one call; draws are not kept (never asked for again)
+            new, old = FullGaussianStack((self.new, self.old)).log_probs(x)
+            return x, new - old
         return x, self.new.log_prob(x) - self.old.log_prob(x)
+
+
+def _archived_log_probs(dists, xs) -> list:
+    """``table[k][j]``: log p_j at the rows of archived array ``xs[k]``, for j <= k + 1 -- what a step of ``"exact"``
+    asks for (``dists[0]`` the new distribution, ``dists[k]`` archive entry k - 1; FullGaussians), kept on each
+    distribution between steps (:func:`_cached_log_probs`)."""
+    per_dist = [_cached_log_probs(d, xs[max(0, j - 1) :]) for j, d in enumerate(dists)]
+    return [[per_dist[j][k - max(0, j - 1)] for j in range(k + 2)] for k in range(len(xs))]
+
+
+class _StepRatios:
+    """The log-ratios of one ``"exact"`` step between its distributions -- ``dists[0]`` the new one, ``dists[k]``
+    archive entry k - 1 -- at the archived samples ``xs`` and at rule-2 draws.
+
+    Between FullGaussians, the log-density of archived array k under every distribution that step asks for (the
+    new one and those of entries 0..k) is looked up once per step (:func:`_cached_log_probs`: kept on each
+    distribution, only the new distribution's computed, in one call); a batch of rule-2 draws is taken under every
+    distribution of the step in one compiled call (:class:`FullGaussianStack`: the region test needs the older ones
+    too), and not kept. Otherwise the ratio objects of :func:`_log_ratio`. The same numbers either way, bit for bit.
+    """
+
+    def __init__(self, dists, xs):
+        self.dists, self.xs = list(dists), xs
+        self.stack = None
+        if all(type(d) is FullGaussian for d in self.dists):
+            self.stack = FullGaussianStack(self.dists)
+            self.table = _archived_log_probs(self.dists, xs)
+
+    def archived(self, a: int, b: int, k: int, rows: np.ndarray) -> np.ndarray:
+        """log(p_a / p_b) at the rows ``rows`` of archived array ``k`` (a, b <= k + 1)."""
+        if self.stack is None:
+            return _log_ratio(self.dists[a], self.dists[b]).of_rows(self.xs[k], rows)
+        return self.table[k][a][rows] - self.table[k][b][rows]
+
+    def draw(self, n: int, rng: np.random.Generator):
+        """``n`` draws from the new distribution, their log(p_new / p_1), and ``to(k, rows)``: log(p_new / p_k) at
+        the draws ``rows``."""
+        if self.stack is None:
+            x, r_1 = _log_ratio(self.dists[0], self.dists[1]).sample(n, rng)
+            return x, r_1, lambda k, rows: _log_ratio(self.dists[0], self.dists[k]).of_rows(x, rows)
+        x = self.dists[0].sample(n, rng)
+        lp = self.stack.log_probs(x)
+        return x, lp[0] - lp[1], lambda k, rows: lp[0][rows] - lp[k][rows]
 
 
 def _log_ratio(new_dist, old_dist):
@@ -342,10 +407,10 @@ def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> 
     dists = [_unpack_entry(e)[0] for e in entries]
     xs = [_unpack_entry(e)[1] for e in entries]
     heights = [_heights(e, rng) for e in entries]
+    ratios = _StepRatios([new_dist, *dists], xs)  # log(p_a / p_b): 0 the new distribution, k >= 1 archive entry k - 1
 
     # The previous generation: every member below the new graph is kept (count ~ Binomial(N, lambda)).
-    ratio_1 = _log_ratio(new_dist, dists[0])
-    r_1 = ratio_1.of_rows(xs[0], np.arange(xs[0].shape[0]))
+    r_1 = ratios.archived(0, 1, 0, np.arange(xs[0].shape[0]))
     kept = np.flatnonzero(heights[0] < r_1)
     if kept.size > builder.popsize:  # only possible if the old generation was larger
         kept = np.sort(rng.choice(kept, builder.popsize, replace=False))
@@ -359,8 +424,8 @@ def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> 
     for k in range(1, len(entries)):
         rows = np.arange(xs[k].shape[0])
         for j in range(k):  # drop rows covered by newer generation j
-            rows = rows[heights[k][rows] >= _log_ratio(dists[j], dists[k]).of_rows(xs[k], rows)]
-        r_new = _log_ratio(new_dist, dists[k]).of_rows(xs[k], rows)
+            rows = rows[heights[k][rows] >= ratios.archived(j + 1, k + 1, k, rows)]
+        r_new = ratios.archived(0, k + 1, k, rows)
         below = heights[k][rows] < r_new
         order = rng.permutation(int(np.count_nonzero(below)))
         pools.append(list(rows[below][order]))
@@ -369,7 +434,7 @@ def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> 
     draws = 0
     while builder.missing > 0 and draws < max_draws:
         n = builder.missing
-        candidates, cand_r_1 = ratio_1.sample(n, rng)
+        candidates, cand_r_1, ratio_to = ratios.draw(n, rng)
         log_u = _log_uniform(rng, n)
         leftover = np.flatnonzero(log_u >= -cand_r_1)[: builder.missing]  # rule 2: above the previous graph
         draws += n
@@ -382,7 +447,7 @@ def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> 
             if open_rows.size == 0:
                 break
             rows = leftover[open_rows]
-            inside = log_u[rows] < -_log_ratio(new_dist, dists[k]).of_rows(candidates, rows)
+            inside = log_u[rows] < -ratio_to(k + 1, rows)
             region[open_rows[inside]] = k
         for pos, k in zip(leftover.tolist(), region.tolist()):
             if k > 0 and pools[k - 1]:
@@ -616,6 +681,16 @@ def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool
     return archived <= COMPILED_MAX_ELEMENTS
 
 
+def _compiled_full_applies(new_dist, entries, popsize: int, variant: Variant) -> bool:
+    """Whether :func:`imix_cli.core.mixing_kernels.mix_full_exact` computes this step: ``"exact"`` between float64
+    FullGaussians (pycma's adapter, imix's CMA-ES), archived generations of at most ``popsize`` members."""
+    if variant.kernel != 3 or not entries:
+        return False
+    return all(type(g) is FullGaussian and g.dtype == np.float64 for g in (new_dist, *(d for d, _ in entries))) and all(
+        x.dtype == np.float64 and x.shape[0] <= popsize for _, x in entries
+    )
+
+
 def mix(
     new_dist,
     archive,
@@ -691,6 +766,22 @@ def mix(
         heights = [_heights(e, rng) for e in used] if spec.heights else None
         dists, samples = zip(*entries[:depth])
         x, source, index, trials = mix_diagonal(new_dist, dists, samples, heights, popsize, rng, spec.kernel, alpha, min_fresh)
+        return Generation(x, source, index, new_dist, trials)
+    if compiled is not False and _compiled_full_applies(new_dist, entries[:depth], popsize, spec):
+        # the whole step in one compiled call: at d = 10 the numpy step's few hundred small calls were most of the
+        # pycma adapter's overhead over pycma's own ask and tell (issue 45). The same numbers as the numpy step, bit for bit.
+        from imix_cli.core.mixing_kernels import mix_full_exact
+
+        used = list(archive[:depth])
+        heights = [_heights(e, rng) for e in used]
+        dists, samples = zip(*entries[:depth])
+        table = None  # small d: the archived log-densities computed in the compiled step, cheaper than keeping them
+        if dim >= _KEEP_LOG_PROBS_FROM_DIM:
+            table = np.zeros((len(samples), len(samples) + 1, max(x.shape[0] for x in samples)))
+            for k, row in enumerate(_archived_log_probs([new_dist, *dists], samples)):
+                for j, values in enumerate(row):
+                    table[k, j, : values.shape[0]] = values
+        x, source, index, trials = mix_full_exact(new_dist, dists, samples, heights, table, popsize, rng, min_fresh)
         return Generation(x, source, index, new_dist, trials)
     if compiled:
         raise ValueError(f"the compiled mixing step does not apply to variant {variant!r} with {type(new_dist).__name__} and this archive")

@@ -46,7 +46,7 @@ try:
 except ImportError:  # pragma: no cover - exercised by tests/test_mixing.py with the import removed
     random_interval = None
 
-__all__ = ["mix_diagonal", "mix_step", "diagonal_log_norm", "fill_plain", "put_row"]
+__all__ = ["mix_diagonal", "mix_full_exact", "mix_step", "diagonal_log_norm", "fill_plain", "put_row"]
 
 # As imix_cli.core.mixing: rule-2 draws per missing member before the rest is filled plainly.
 _MAX_TRIALS_PER_MEMBER = 200
@@ -382,6 +382,122 @@ def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, co
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
 
 
+@njit(cache=True)
+def _full_draws(rng, low, mean, n):
+    """``FullGaussian.sample(n, rng)``: NumPy's standard_normal stream row by row, each row mean + L eps (the sums of
+    :func:`imix_cli.core.linalg_kernels.lower_times_rows`, k ascending)."""
+    d = mean.shape[0]
+    eps = np.empty((n, d))
+    for r in range(n):
+        for j in range(d):
+            eps[r, j] = rng.standard_normal()
+    out = np.empty((n, d))
+    for r in range(n):
+        for i in range(d):
+            acc = 0.0
+            for k in range(i + 1):
+                acc += low[i, k] * eps[r, k]
+            out[r, i] = mean[i] + acc
+    return out
+
+
+@njit(cache=True)
+def _exact_full(rng, lows, means, log_norms, xs, heights, table, known, counts, popsize, min_fresh):
+    """The ``"exact"`` step between FullGaussians: :func:`imix_cli.core.mixing._multi_generation`, then the plain
+    fill and :func:`imix_cli.core.mixing._refresh`, with the same numbers bit for bit (the same draws in the same
+    order, and the log-densities of :func:`imix_cli.core.linalg_kernels.gaussian_log_probs`, which
+    :meth:`FullGaussian.log_prob` computes too). ``lows``/``means``/``log_norms``: index 0 the new distribution, k
+    archive entry k - 1; ``table[k, j, i]``: log p_j at ``xs[k, i]`` for j <= k + 1, given by the caller (who keeps
+    them between generations) where ``known[k]``, else computed here. Returns ``(samples, source, index, rule-2 draws)``."""
+    n_entries, rows, d = xs.shape
+    for k in range(n_entries):
+        if not known[k]:
+            table[k] = lk.gaussian_log_probs_kernel(lows, means, log_norms, xs[k])
+    out = np.empty((popsize, d))
+    source = np.zeros(popsize, np.int64)
+    index = np.full(popsize, -1, np.int64)
+    size = 0
+    for i in range(counts[0]):  # the previous generation: every member below the new graph is kept
+        if heights[0, i] < table[0, 0, i] - table[0, 1, i]:
+            _put(out, size, xs[0, i])
+            source[size] = 1
+            index[size] = i
+            size += 1
+    draws = 0
+    if size < popsize:
+        # Older generations' substitutes: rows under no newer archived graph and under the new one.
+        pools = np.empty((n_entries, rows), np.int64)
+        pool_len = np.zeros(n_entries, np.int64)
+        for k in range(1, n_entries):
+            below = np.empty(counts[k], np.int64)
+            n_below = 0
+            for i in range(counts[k]):
+                open_row = True
+                for j in range(k):
+                    if not (heights[k, i] >= table[k, j + 1, i] - table[k, k + 1, i]):
+                        open_row = False
+                        break
+                if open_row and heights[k, i] < table[k, 0, i] - table[k, k + 1, i]:
+                    below[n_below] = i
+                    n_below += 1
+            order = _permutation(rng, n_below)
+            for m in range(n_below):
+                pools[k, m] = below[order[m]]
+            pool_len[k] = n_below
+        max_draws = _MAX_TRIALS_PER_MEMBER * (popsize - size)
+        while size < popsize and draws < max_draws:
+            n = popsize - size
+            cand = _full_draws(rng, lows[0], means[0], n)
+            lp = lk.gaussian_log_probs_kernel(lows, means, log_norms, cand)
+            log_u = _logs(rng.random(n))
+            draws += n
+            for i in range(n):
+                if not (log_u[i] >= -(lp[0, i] - lp[1, i])) or size >= popsize:  # rule 2: above the previous graph
+                    continue
+                region = -1  # the newest older generation whose region holds the draw
+                for k in range(1, n_entries):
+                    if log_u[i] < -(lp[0, i] - lp[k + 1, i]):
+                        region = k
+                        break
+                if region > 0 and pool_len[region] > 0:  # swapped for an unused old member of that region
+                    pool_len[region] -= 1
+                    row = pools[region, pool_len[region]]
+                    _put(out, size, xs[region, row])
+                    source[size] = region + 1
+                    index[size] = row
+                else:
+                    _put(out, size, cand[i])
+                size += 1
+    if size < popsize:  # the documented fallback: plain draws
+        plain = _full_draws(rng, lows[0], means[0], popsize - size)
+        for m in range(popsize - size):
+            _put(out, size + m, plain[m])
+    if min_fresh > 0:  # the minimal refresh: slots drawn at random, each member replaced by a fresh draw
+        slots = _permutation(rng, popsize)[:min_fresh]
+        fresh = _full_draws(rng, lows[0], means[0], slots.shape[0])
+        for m in range(slots.shape[0]):
+            _put(out, slots[m], fresh[m])
+            source[slots[m]] = 0
+            index[slots[m]] = -1
+    return out, source, index, draws
+
+
+def mix_full_exact(new_dist, dists, samples, heights, table, popsize: int, rng: np.random.Generator, min_fresh: int = 0):
+    """One ``"exact"`` mixing step between float64 FullGaussians (:func:`_exact_full`), as :func:`imix_cli.core.mixing.mix`
+    gives it: ``dists``/``samples``/``heights`` the archive entries used (newest first, n_k <= popsize rows each),
+    ``table`` their log-densities (:func:`_exact_full`), or None: computed in the compiled step, cheaper at small d than
+    keeping them. Returns ``(samples, source, index, trials)``."""
+    rows = max(x.shape[0] for x in samples)
+    every = (new_dist, *dists)
+    known = np.full(len(samples), table is not None)
+    if table is None:
+        table = np.empty((len(samples), len(every), rows))
+    return _exact_full(
+        rng, np.array([g.chol for g in every]), np.array([g.mean for g in every]), np.array([g.log_norm for g in every]),
+        _stacked(samples, rows), _stacked(heights, rows), table, known, np.array([x.shape[0] for x in samples], dtype=np.int64), popsize, int(min_fresh),
+    )  # fmt: skip
+
+
 #: Each compiled step by its number, which its :class:`imix_cli.core.mixing.Variant` carries (``kernel``); the
 #: compiled generation loop (:mod:`imix_cli.running.loop.compiled_loop`) branches on the same numbers.
 KERNELS = {1: _mix_paper, 2: _mix_sun2009, 3: _mix_exact}
@@ -435,7 +551,7 @@ def mix_step(kernel, rng, mean, std, log_norm, means, stds, log_norms, xs, heigh
 def _stacked(arrays, rows: int) -> np.ndarray:
     """The arrays (each ``rows`` long or shorter) as one array; shorter ones padded with zeros, never read."""
     if all(a.shape[0] == rows for a in arrays):
-        return np.stack(arrays)
+        return np.array(arrays)  # np.stack's result, in fewer Python steps
     out = np.zeros((len(arrays), rows, *arrays[0].shape[1:]))
     for k, a in enumerate(arrays):
         out[k, : a.shape[0]] = a

@@ -23,7 +23,20 @@ import numpy as np
 
 from imix_cli.core import elementary as _el
 from imix_cli.core import linalg_kernels as _lk
-from imix_cli.core.linalg_kernels import cholesky, dot, eigh, lower_solve_rows, lower_times_rows, mat_mat, mat_vec, row_sq_norms, tanh, vec_mat, weighted_gram
+from imix_cli.core.linalg_kernels import (
+    cholesky,
+    dot,
+    eigh,
+    gaussian_log_probs,
+    lower_solve_rows,
+    lower_times_rows,
+    mat_mat,
+    mat_vec,
+    row_sq_norms,
+    tanh,
+    vec_mat,
+    weighted_gram,
+)
 
 #: log(2 pi), a number (:data:`imix_cli.core.elementary.LOG_2PI`)
 LOG_2PI = _el.LOG_2PI
@@ -45,6 +58,7 @@ __all__ = [
     "cholesky",
     "lower_times_rows",
     "lower_solve_rows",
+    "gaussian_log_probs",
     "eigh",
 ]
 

@@ -150,6 +150,7 @@ class PycmaES:
         self._probes = None
         self._countevals = None
         self._tie_rng = None  # the order members are told in (ties: _tell_order)
+        self._rank_weights = None  # (key, pycma's weights, the weight of each rank): _mean_weights
         self._fresh = FreshRecord(es, self._pycma.stop)  # what pycma's termination criteria read (stop(): "Termination under reuse")
 
     # ------------------------------------------------------------------ the ES protocol
@@ -257,11 +258,16 @@ class PycmaES:
         recombination weight of its rank, 0 beyond mu -- what variant ``"conditional"`` conditions on
         (:mod:`imix_cli.core.mixing`, "Reuse inside the loop"). ``probes``: pycma's TPA points told first."""
         es = self.es
-        told = len(es.fit.idx)
+        idx = np.asarray(es.fit.idx)
+        told = idx.size
         ranks = np.empty(told, dtype=np.int64)
-        ranks[np.asarray(es.fit.idx)] = np.arange(told)
-        weights = np.asarray(es.sp.weights, dtype=np.float64)
-        c = np.where(ranks < es.sp.weights.mu, weights[np.minimum(ranks, weights.size - 1)], 0.0)[probes:]
+        ranks[idx] = np.arange(told)
+        key = (id(es.sp.weights), told)
+        if self._rank_weights is None or self._rank_weights[0] != key:  # the weight of each rank, made once
+            weights = np.asarray(es.sp.weights, dtype=np.float64)
+            by_rank = np.arange(told)
+            self._rank_weights = (key, es.sp.weights, np.where(by_rank < es.sp.weights.mu, weights[np.minimum(by_rank, weights.size - 1)], 0.0))
+        c = self._rank_weights[2][ranks][probes:]
         out = np.empty(c.size)
         out[order] = c
         return out
@@ -305,8 +311,10 @@ class PycmaES:
         mean = np.asarray(es.gp.pheno(mean_geno), dtype=np.float64)
         if not es.gp.isidentity:  # an affine phenotype map: the images of the columns
             rows = np.array([np.asarray(es.gp.pheno(mean_geno + r), dtype=np.float64) - mean for r in rows])
-        off = rows - np.diag(np.diag(rows))
-        if not np.any(off):  # a diagonal map (CMA_diagonal, or C still the identity): the std is the map itself
+        # a diagonal map (CMA_diagonal, or C still the identity): the std is the map itself. Read as a view of the
+        # off-diagonal entries (the flat array without every (d+1)-th entry); a non-finite diagonal is not one.
+        off = rows.reshape(-1)[1:].reshape(self.dim - 1, self.dim + 1)[:, :-1]
+        if not off.any() and np.isfinite(rows.diagonal()).all():
             return DiagonalGaussian(mean, np.abs(np.diag(rows)))
         # pycma's factor itself, never C = rows^T rows factored again (gaussian_from_factor: that squares the condition)
         try:
@@ -374,7 +382,7 @@ class FreshRecord:
         self.flat = False  # the newest fresh generation is flat (pycma's test)
 
     def add(self, values: np.ndarray) -> None:
-        self.queue.extend(float(v) for v in values)
+        self.queue.extend(values.tolist())
         lam = int(self.es.popsize)
         while len(self.queue) >= lam:
             block, self.queue = self.queue[:lam], self.queue[lam:]
@@ -431,11 +439,14 @@ def gaussian_from_factor(mean, factor) -> FullGaussian:
     is singular or not finite (the adapter then draws without reuse: :attr:`PycmaES.mixable`).
     """
     factor = np.asarray(factor, dtype=np.float64)
-    if not np.all(np.isfinite(factor)):
+    if not np.isfinite(factor).all():
         raise ValueError("the covariance factor is not finite")
     r = np.linalg.qr(factor.T, mode="r")
-    signs = np.where(np.diag(r) < 0, -1.0, 1.0)
-    return FullGaussian.from_cholesky(mean, np.tril((r * signs[:, None]).T))
+    diag = r.diagonal()
+    if not (np.isfinite(r).all() and diag.all()):  # what from_cholesky checks of L (a new lower-triangular array here)
+        raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)")
+    signs = np.where(diag < 0, -1.0, 1.0)
+    return FullGaussian.from_cholesky(mean, np.tril((r * signs[:, None]).T), checked=False)
 
 
 def _child_stream(rng: np.random.Generator) -> np.random.Generator:
