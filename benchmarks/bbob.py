@@ -324,7 +324,7 @@ DOC_PAIRS = (
     (("pycma-bipop", "mixing-bipop"), "pycma's BIPOP restarts (cma.fmin2(..., restarts=9, bipop=True)) against imix_cli.fmin2's"),
     (("pycma", "mixing-cond"), 'pycma alone against mixing with variant "conditional" (MixingES(es, "conditional"))'),
     (("pycma", "mixing-cond-pop2"), 'pycma alone at its default popsize against "conditional" mixing at twice that popsize'),
-    (("pycma", "mixing-tpa"), "pycma alone against mixing with imix's two-point step size (PycmaES(es, step_size=\"tpa\")): where the restarts come from"),
+    (("pycma", "mixing-tpa"), 'pycma alone against mixing with imix\'s two-point step size (PycmaES(es, step_size="tpa")): where the restarts come from'),
 )
 #: The arms cocopp draws (all in one figure per group).
 COCOPP_ARMS = ("pycma", "mixing", "mixing-pop2")

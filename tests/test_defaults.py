@@ -88,6 +88,7 @@ NOT_A_KEY = {
     "generations": "the key's default is the algorithm's (${algo.generations}); DDPG runs total_steps",
     "algo_options": "the algo.* options, from the ES's Params",
     "ddpg": "algo=ddpg's settings, from conf/algo/ddpg.yaml",
+    "env_kwargs": "the env.kwargs.<name> family: a gymnasium constructor's arguments, none by default",
 }
 
 
