@@ -146,7 +146,13 @@ def _evaluator_shape(key: str, max_steps: int | None, env_kwargs: tuple = ()) ->
 
         try:
             _EVALUATOR_SHAPES[cached] = make_evaluator(key, max_steps, env_kwargs=dict(env_kwargs)).num_params
-        except (ValueError, UserEnvError) as err:
+        except ValueError as err:
+            _EVALUATOR_SHAPES[cached] = ValueError(str(err))
+        except UserEnvError as err:
+            # the env's own code broke: with env.kwargs given, the arguments are the likely cause (bad input, exit 2);
+            # without, it is the env's failure (exit 1, as when it breaks in an episode)
+            if not env_kwargs:
+                raise
             _EVALUATOR_SHAPES[cached] = ValueError(str(err))
     shape = _EVALUATOR_SHAPES[cached]
     if isinstance(shape, Exception):
