@@ -118,15 +118,17 @@ def _frame(scores, evaluations, seed=0, thetas=None):
 
 
 def test_episodes_rank_a_run_that_never_reaches_the_threshold_below_every_run_that_does(tmp_path):
-    """Made to fail: with UNREACHED set to 0 (a seed that never reaches counts only the episodes it spent), the run that
-    never reached the threshold in 30 episodes ranked better than the one that reached it in 200."""
+    """Episodes and return_at read θ on fresh episodes, not the population (here stuck at -500 while θ progresses; and
+    a population at 0, above the threshold, whose θ never gets there). Made to fail: with UNREACHED set to 0 (a seed that
+    never reaches counts only the episodes it spent), the run that never reached the threshold in 30 episodes ranked
+    better than the one that reached it in 200; with episodes read from mean_score, no run reached it."""
     from imix_cli.running.objective import UNREACHED, objective_value
 
-    def run(name, seeds):
+    def run(name, seeds, population=-500.0):
         folder = tmp_path / name
         folder.mkdir()
-        for seed, (scores, spent) in enumerate(seeds):
-            write_run_csv(folder / f"seed_{seed}.csv", _frame(scores, spent, seed))
+        for seed, (thetas, spent) in enumerate(seeds):
+            write_run_csv(folder / f"seed_{seed}.csv", _frame([population] * len(thetas), spent, seed, thetas=list(thetas)))
         return objective_value(folder, len(seeds), "episodes", threshold=-100)
 
     slow, slow_details = run("slow", [([-200, -150, -90], [100, 200, 300]), ([-200, -99, -80], [100, 200, 300])])
@@ -137,6 +139,8 @@ def test_episodes_rank_a_run_that_never_reaches_the_threshold_below_every_run_th
     assert worse > never  # two seeds never reaching it rank below one
     budget, _ = objective_value(tmp_path / "slow", 2, "return_at", budget=250)
     assert budget == pytest.approx((-150 + -99) / 2)
+    flattered, details = run("flattered", [([-200, -150, -110], [10, 20, 30])], population=0.0)
+    assert details["seeds_reached"] == 0 and flattered >= UNREACHED  # the population's 0 is not θ reaching -100
 
 
 def _search_command(results: Path, n_trials: int) -> list:

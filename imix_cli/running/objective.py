@@ -9,15 +9,17 @@ Each objective is a measure every run already records (the CSV contract, :mod:`i
     the same per-seed values, their interquartile mean over seeds (:func:`imix_cli.core.stats.iqm`: ``int(0.25 n)``
     seeds cut at each end; with fewer than 4 seeds none is cut, so it is the mean).
 ``episodes`` (minimised)
-    per seed, the episodes (cumulative ``evaluations``) of the first generation whose population mean return
-    (``mean_score``) reaches ``threshold`` -- the definition of ``imix plot``'s episodes-to-threshold tables. A seed that
+    per seed, the episodes (cumulative ``evaluations``) of the first generation whose measurement of θ's return
+    (``mean_policy_score``, every ``eval_mean_every`` generations) reaches ``threshold`` -- the definition of ``imix
+    plot``'s episodes-to-threshold tables, free of reused returns (the population's mean would count a reused member's
+    lucky stored episode as progress: docs/outputs.md, "Which return each output measures"). A seed that
     never reaches it counts the episodes it spent, and each such seed adds :data:`UNREACHED` to the value: a run where
     k seeds never reach the threshold ranks below every run where fewer do, whatever their episodes (as long as a seed
     spends fewer than 10^12 episodes), and among runs with the same k, fewer episodes rank better.
 ``return_at`` (maximised)
-    per seed, the population mean return of its last generation whose cumulative episodes are at most ``budget``
-    (the zero-order hold of ``imix plot``'s curves against episodes), mean over seeds. A seed whose first generation
-    already spent more has no value there: the trial fails (raise ``generations`` or lower the budget).
+    per seed, θ's return at its last measurement whose cumulative episodes are at most ``budget`` (the zero-order hold
+    of ``imix plot``'s curves against episodes), mean over seeds. A seed that measured θ only after spending more has
+    no value there: the trial fails (raise the budget, or measure θ more often with ``eval_mean_every``).
 """
 
 from __future__ import annotations
@@ -55,8 +57,8 @@ def objective_value(run_dir, seeds: int, objective: str, threshold=None, budget=
     if objective == "episodes":
         episodes, reached = [], 0
         for frame in frames:
-            scores, spent = frame["mean_score"].to_numpy(dtype=float), frame["evaluations"].to_numpy(dtype=float)
-            hits = np.flatnonzero(scores >= threshold)
+            scores, spent = frame["mean_policy_score"].to_numpy(dtype=float), frame["evaluations"].to_numpy(dtype=float)
+            hits = np.flatnonzero(scores >= threshold)  # NaN (no measurement that generation) is never a hit
             reached += bool(hits.size)
             episodes.append(float(spent[hits[0]] if hits.size else spent[-1]))
         unreached = seeds - reached
@@ -64,12 +66,14 @@ def objective_value(run_dir, seeds: int, objective: str, threshold=None, budget=
     if objective == "return_at":
         values = []
         for seed, frame in enumerate(frames):
-            spent = frame["evaluations"].to_numpy(dtype=float)
-            within = np.flatnonzero(spent <= budget)
+            spent, theta = frame["evaluations"].to_numpy(dtype=float), frame["mean_policy_score"].to_numpy(dtype=float)
+            within = np.flatnonzero((spent <= budget) & np.isfinite(theta))
             if not within.size:
-                first = int(spent[0])
-                raise ObjectiveError(f"objective=return_at: seed {seed} of {run_dir} spent {first} episodes in its first generation, more than budget={budget}")
-            values.append(float(frame["mean_score"].to_numpy(dtype=float)[within[-1]]))
+                raise ObjectiveError(
+                    f"objective=return_at: seed {seed} of {run_dir} measured θ only after {budget} episodes (budget=): raise the budget "
+                    "or lower eval_mean_every"
+                )
+            values.append(float(theta[within[-1]]))
         short = sum(int(f["evaluations"].iloc[-1]) < budget for f in frames)  # seeds that ended before the budget: their last value
         return float(np.mean(values)), {"per_seed": values, "seeds_short_of_budget": short}
     raise ObjectiveError(f"unknown objective {objective!r}")

@@ -91,10 +91,10 @@ def check_search_settings(sweeper: dict) -> dict:
 
 
 def check_trial_config(spec, settings: dict) -> None:
-    """What a trial's run must measure for the objective: θ's return (``eval_mean_every`` > 0) for theta and iqm; an ES."""
+    """What a trial's run must measure for the objective: θ's return (``eval_mean_every`` > 0), which every objective reads; an ES."""
     if spec.algo == "ddpg":
         raise ConfigError("hydra/sweeper=optuna: algo=ddpg is not supported (the objectives are an evolution strategy's measures)")
-    if settings["objective"] in ("theta", "iqm") and not spec.eval_mean_every:
+    if not spec.eval_mean_every:  # every objective reads θ's return on fresh episodes
         raise ConfigError(f"hydra.sweeper.objective={settings['objective']} measures the distribution mean's return: eval_mean_every must be > 0")
 
 
