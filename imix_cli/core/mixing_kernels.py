@@ -118,6 +118,22 @@ def _noise_coefficients(mean_new, std_new, log_norm_new, mean_old, std_old, log_
 
 
 @njit(cache=True)
+def _place_rule2_draw(out, source, index, size, draw, region, pools, pool_len, xs):
+    """Member ``size`` of a multi-generation step from a rule-2 draw: swapped for an unused old member of the newest
+    older generation ``region`` whose region holds the draw (-1: none), else the draw itself (fresh)."""
+    if region > 0 and pool_len[region] > 0:
+        pool_len[region] -= 1
+        row = pools[region, pool_len[region]]
+        _put(out, size, xs[region, row])
+        source[size] = region + 1
+        index[size] = row
+    else:
+        _put(out, size, draw)
+        source[size] = 0
+        index[size] = -1
+
+
+@njit(cache=True)
 def _row_log_ratio(x, shift, q, lin, c):
     # Four running sums: one sum's chain of dependent additions (no fastmath, so no reordering by
     # the compiler) would bound this loop by the adder's latency; four keep the adders busy.
@@ -334,16 +350,7 @@ def _exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts
                 if log_u[i] < -_row_log_ratio(cand[i], means[k], new_q[k], new_l[k], new_c[k]):
                     region = k
                     break
-            if region > 0 and pool_len[region] > 0:  # swapped for an unused old member of that region
-                pool_len[region] -= 1
-                row = pools[region, pool_len[region]]
-                _put(out, size, xs[region, row])
-                source[size] = region + 1
-                index[size] = row
-            else:
-                _put(out, size, cand[i])
-                source[size] = 0
-                index[size] = -1
+            _place_rule2_draw(out, source, index, size, cand[i], region, pools, pool_len, xs)
             size += 1
     return size, draws
 
@@ -384,20 +391,17 @@ def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, co
 
 @njit(cache=True)
 def _full_draws(rng, low, mean, n):
-    """``FullGaussian.sample(n, rng)``: NumPy's standard_normal stream row by row, each row mean + L eps (the sums of
-    :func:`imix_cli.core.linalg_kernels.lower_times_rows`, k ascending)."""
+    """``FullGaussian.sample(n, rng)``: NumPy's standard_normal stream row by row, each row mean + L eps (L eps by
+    :func:`imix_cli.core.linalg_kernels.lower_times_rows`'s kernel, k ascending)."""
     d = mean.shape[0]
     eps = np.empty((n, d))
     for r in range(n):
         for j in range(d):
             eps[r, j] = rng.standard_normal()
-    out = np.empty((n, d))
+    out = lk._lower_times_rows(low, eps)
     for r in range(n):
         for i in range(d):
-            acc = 0.0
-            for k in range(i + 1):
-                acc += low[i, k] * eps[r, k]
-            out[r, i] = mean[i] + acc
+            out[r, i] = mean[i] + out[r, i]
     return out
 
 
@@ -459,14 +463,7 @@ def _exact_full(rng, lows, means, log_norms, xs, heights, table, known, counts, 
                     if log_u[i] < -(lp[0, i] - lp[k + 1, i]):
                         region = k
                         break
-                if region > 0 and pool_len[region] > 0:  # swapped for an unused old member of that region
-                    pool_len[region] -= 1
-                    row = pools[region, pool_len[region]]
-                    _put(out, size, xs[region, row])
-                    source[size] = region + 1
-                    index[size] = row
-                else:
-                    _put(out, size, cand[i])
+                _place_rule2_draw(out, source, index, size, cand[i], region, pools, pool_len, xs)
                 size += 1
     if size < popsize:  # the documented fallback: plain draws
         plain = _full_draws(rng, lows[0], means[0], popsize - size)
