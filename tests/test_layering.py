@@ -195,22 +195,30 @@ def test_at_most_twelve_modules_at_the_top_of_the_package():
     assert len(list(PACKAGE.glob("*.py"))) <= 12
 
 
+def _write_package(pkg, files: dict):
+    """A toy package written to ``pkg``: relative path -> source; returns ``pkg``."""
+    for rel, text in files.items():
+        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
+        (pkg / rel).write_text(text)
+    return pkg
+
+
 def test_the_checker_finds_a_planted_upward_import_and_a_planted_circle(tmp_path):
     """A package written to a temporary folder, with one import that climbs (inside a function, relative) and one
     circle (through a deferred import): both found; the same package without them: nothing found."""
-    pkg = tmp_path / "toy"
-    for rel, text in {
-        "__init__.py": "",
-        "base/__init__.py": "",
-        "base/a.py": "from toy.base import b\n",
-        "base/b.py": "def f():\n    from ..top import cli  # climbs\n",
-        "base/c.py": "import toy.base.d\n",
-        "base/d.py": "def g():\n    from toy.base.c import h  # closes the circle c -> d -> c\n",
-        "top/__init__.py": "",
-        "top/cli.py": "from toy.base import c\n",
-    }.items():
-        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
-        (pkg / rel).write_text(text)
+    pkg = _write_package(
+        tmp_path / "toy",
+        {
+            "__init__.py": "",
+            "base/__init__.py": "",
+            "base/a.py": "from toy.base import b\n",
+            "base/b.py": "def f():\n    from ..top import cli  # climbs\n",
+            "base/c.py": "import toy.base.d\n",
+            "base/d.py": "def g():\n    from toy.base.c import h  # closes the circle c -> d -> c\n",
+            "top/__init__.py": "",
+            "top/cli.py": "from toy.base import c\n",
+        },
+    )
     layers = [["base"], ["top"]]
     graph = import_graph(pkg)
     assert graph["toy.base.b"] == {"toy.top", "toy.top.cli"} and graph["toy.top.cli"] == {"toy.base", "toy.base.c"}
@@ -225,16 +233,16 @@ def test_the_checker_finds_a_planted_upward_import_and_a_planted_circle(tmp_path
 def test_the_checker_sees_the_packages_an_import_runs(tmp_path):
     """A registry whose deferred loader imports a module of a package whose ``__init__`` imports the registry: a loop
     through the package's ``__init__``, found; a module of a package importing its sibling is none."""
-    pkg = tmp_path / "toy"
-    for rel, text in {
-        "__init__.py": "",
-        "registry.py": "def load():\n    from toy.algos.one import One  # runs toy/algos/__init__ first\n",
-        "algos/__init__.py": "from toy.algos.one import One\nfrom toy.registry import load\n",
-        "algos/one.py": "from toy.algos import two\n",
-        "algos/two.py": "",
-    }.items():
-        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
-        (pkg / rel).write_text(text)
+    pkg = _write_package(
+        tmp_path / "toy",
+        {
+            "__init__.py": "",
+            "registry.py": "def load():\n    from toy.algos.one import One  # runs toy/algos/__init__ first\n",
+            "algos/__init__.py": "from toy.algos.one import One\nfrom toy.registry import load\n",
+            "algos/one.py": "from toy.algos import two\n",
+            "algos/two.py": "",
+        },
+    )
     graph = import_graph(pkg)
     assert graph["toy.registry"] == {"toy.algos", "toy.algos.one"} and graph["toy.algos.one"] == {"toy.algos.two"}
     assert circles(graph) == [["toy.algos", "toy.registry"]]

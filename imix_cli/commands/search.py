@@ -40,6 +40,7 @@ import threading
 from pathlib import Path
 
 from imix_cli.messages import bounded_line
+from imix_cli.running.config.compose import override_value_text
 from imix_cli.running.config.search import OBJECTIVES, SWEEPER_TARGET, is_search
 
 #: An Optuna trial's heartbeat period and the silence after which another machine's RUNNING trial is stale.
@@ -139,19 +140,6 @@ def split_arguments(arguments: list[str], config_loader=None) -> tuple[list[str]
     if not space:
         raise SearchError("hydra/sweeper=optuna: no search space; give one, e.g. sigma=interval(0.01,0.5) popsize=choice(10,20,50)")
     return fixed, space
-
-
-def value_text(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if value is None:
-        return "null"
-    if isinstance(value, float):
-        return repr(value)
-    text = str(value)
-    if isinstance(value, str) and not text.replace("_", "").replace("-", "").replace(".", "").isalnum():
-        return "'" + text.replace("\\", "\\\\").replace("'", "\\'") + "'"
-    return text
 
 
 def study_identity(fixed: list[str], space: dict, settings: dict) -> dict:
@@ -343,7 +331,7 @@ class Search:
                 if not now:
                     continue
                 base = fixed if generations is None else [*(f for f in fixed if f.split("=", 1)[0] != "generations"), f"generations={generations}"]
-                batch = [[*base, *(f"{k}={value_text(v)}" for k, v in trial.params.items())] for trial in now]
+                batch = [[*base, *(f"{k}={override_value_text(v)}" for k, v in trial.params.items())] for trial in now]
                 with _Heartbeat(storage, [t._trial_id for t in trials]):
                     try:
                         results = self.launcher.launch(batch, initial_job_idx=job)
@@ -385,16 +373,9 @@ class Search:
         pruned (told PRUNED, its run folder marked), None if it goes on, False if it failed."""
         from optuna.trial import TrialState
 
-        try:
-            returned = result.return_value
-        except BaseException:
-            _tell_failed(study, trial, "the run raised an error")
-            raise
-        if not isinstance(returned, dict) or "value" not in returned:
-            why = returned.get("error") if isinstance(returned, dict) else "the run did not finish (see the lines above)"
-            _tell_failed(study, trial, why)
-            say(f"trial {trial.number} failed: {why}")
-            return False
+        returned, why = _returned(study, trial, result)
+        if why is not None:
+            return _failed(study, trial, why)
         trial.report(returned["value"], step=generations)
         if not trial.should_prune():
             return None
@@ -411,24 +392,17 @@ class Search:
         return f"{s['objective']}{extra} ({OBJECTIVES[s['objective']]}d)"
 
     def _tell(self, study, trial, result) -> bool:
-        try:
-            returned = result.return_value
-        except BaseException:
-            _tell_failed(study, trial, "the run raised an error")
-            raise
-        if not isinstance(returned, dict) or "value" not in returned:
-            why = returned.get("error") if isinstance(returned, dict) else "the run did not finish (see the lines above)"
+        returned, why = _returned(study, trial, result)
+        if why is not None:
             if isinstance(returned, dict) and returned.get("run_dir"):
                 trial.set_user_attr("run_dir", returned["run_dir"])
-            _tell_failed(study, trial, why)
-            say(f"trial {trial.number} failed: {why}")
-            return False
+            return _failed(study, trial, why)
         for key, value in returned.items():
             if key != "value":
                 trial.set_user_attr(key, value)
         unmark_pruned(Path(returned["run_dir"]))  # a completed run in a folder an earlier trial with these parameters left pruned
         study.tell(trial, returned["value"])
-        params = ", ".join(f"{k}={value_text(v)}" for k, v in trial.params.items())
+        params = ", ".join(f"{k}={override_value_text(v)}" for k, v in trial.params.items())
         say(f"trial {trial.number}: {self._value_text(returned)}  ({params})")
         return True
 
@@ -453,6 +427,25 @@ class Search:
         say(f"re-run it with more seeds: {best_command(study, best)}")
 
 
+def _returned(study, trial, result) -> tuple:
+    """``(what the trial's run returned, why it has no value or None)``; a run that raised is told FAIL and re-raised."""
+    try:
+        returned = result.return_value
+    except BaseException:
+        _tell_failed(study, trial, "the run raised an error")
+        raise
+    if isinstance(returned, dict) and "value" in returned:
+        return returned, None
+    return returned, (returned.get("error") if isinstance(returned, dict) else "the run did not finish (see the lines above)")
+
+
+def _failed(study, trial, why: str) -> bool:
+    """Tell ``trial`` FAIL and say why; False (the trial gave no value)."""
+    _tell_failed(study, trial, why)
+    say(f"trial {trial.number} failed: {why}")
+    return False
+
+
 def _tell_failed(study, trial, why: str, retry: bool = False) -> None:
     """Tell ``trial`` FAIL (``why`` in its user attribute ``imix_failed``); ``retry``: a search stopped during it (Ctrl-C,
     SIGTERM), so its parameters are enqueued to run again (``imix_retry_of``), as a killed search's are on resuming."""
@@ -471,5 +464,5 @@ def best_command(study, trial) -> str:
     """``imix run ...`` of a trial: the study's fixed overrides (those that change results) and the trial's parameters."""
     fixed = study.user_attrs.get("imix", {}).get("fixed", [])
     fixed = [line for line in fixed if line.split("=", 1)[0] not in ("seeds", "experiment")]
-    params = [f"{k}={value_text(v)}" for k, v in trial.params.items()]
+    params = [f"{k}={override_value_text(v)}" for k, v in trial.params.items()]
     return " ".join(["imix run", *fixed, *params, "seeds=10", f"experiment={study.study_name}-best"])

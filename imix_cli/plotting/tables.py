@@ -38,6 +38,7 @@ from imix_cli.running.files.writing import atomic_write_text, csv_text, one_line
 
 from .data import (
     HYPERPARAMS,
+    THETA,
     Experiment,
     PlotOptions,
     column_for,
@@ -316,7 +317,7 @@ _MEASURES_NOTE_THETA = (
     "the first measurement after it; those episodes are not counted, the same for every run; imix plot measure=population "
     "gives the paper's measure)"
 )
-_MEASURE_NOTES = {"mean_policy_score": _MEASURES_NOTE_THETA, "mean_score": " (reused members counted with their stored returns: the paper's measure)"}
+_MEASURE_NOTES = {THETA: _MEASURES_NOTE_THETA, "mean_score": " (reused members counted with their stored returns: the paper's measure)"}
 
 
 def _flag(n: int) -> str:

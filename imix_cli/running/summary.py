@@ -10,6 +10,7 @@ from imix_cli.core.stats import mean_ci
 from imix_cli.running.config.run_spec import differing_keys, identity_of
 from imix_cli.running.files.results import CorruptResultError, read_run_csv, seed_csv_path, seed_summary
 from imix_cli.running.files.safe_yaml import load_yaml_file
+from imix_cli.running.files.tracking import flat_keys
 from imix_cli.running.trainers import trainer_for
 
 #: Config keys that only say how (and whether) mixing is done: runs that differ in these alone are
@@ -171,19 +172,8 @@ def _value(v) -> str:
     return str(list(v)) if isinstance(v, tuple) else str(v)
 
 
-def _flat(config: dict, prefix: str = "") -> dict:
-    """``{"algo": {"name": "cmaes"}}`` -> ``{"algo.name": "cmaes"}``: a setting named as its key is written."""
-    out = {}
-    for k, v in config.items():
-        if isinstance(v, dict):
-            out.update(_flat(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
 def _without_mixing(spec) -> dict:
-    return {k: v for k, v in _flat(spec.identity()).items() if k.split(".")[0] not in MIXING_KEYS}
+    return {k: v for k, v in flat_keys(spec.identity()).items() if k.split(".")[0] not in MIXING_KEYS}
 
 
 def mixing_pairs_note(specs) -> str | None:

@@ -208,7 +208,7 @@ def validate_overrides(
         key = override.key_or_group
         if override.is_sweep_override():
             if search and not isinstance(override.value(), Glob):  # hydra/sweeper=optuna: a search space, probed
-                choices.append([f"{override.get_key_element()}={_override_value(v)}" for v in probe_values(override)])
+                choices.append([f"{override.get_key_element()}={override_value_text(v)}" for v in probe_values(override)])
             elif isinstance(override.value(), Glob):
                 if key not in ("algo", "env"):
                     raise ConfigError(f"{_shown(override.input_line)}: glob() selects options of the config groups algo and env only")
@@ -528,7 +528,7 @@ def uses_search_sweeper(parsed) -> bool:
     return any(o.key_or_group == "hydra/sweeper" and not o.is_sweep_override() and o.value() == "optuna" for o in parsed)
 
 
-def _override_value(value) -> str:
+def override_value_text(value) -> str:
     """A Python value back as an override's value text: ``true``, ``null``, ``0.25``, a plain word, else quoted."""
     if isinstance(value, bool):
         return "true" if value else "false"

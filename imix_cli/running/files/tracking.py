@@ -132,7 +132,7 @@ class MLflowTracker(Tracker):
 
         if seed not in self.runs:
             run = self.client.create_run(self.experiment_id, run_name=f"{self.spec.run_name}/seed_{seed}", tags={"imix.run": self.spec.run_name})
-            for key, value in _flat(self.spec.config).items():
+            for key, value in flat_keys(self.spec.config).items():
                 self.client.log_param(run.info.run_id, key, value)
             self.runs[seed] = run.info.run_id
         now, step = int(time.time() * 1000), int(row["generation"])
@@ -173,11 +173,12 @@ def make_tracker(spec) -> Tracker | None:
     return {"none": lambda s: None, "tensorboard": TensorBoardTracker, "mlflow": MLflowTracker, "wandb": WandbTracker}[kind](spec)
 
 
-def _flat(config: dict, prefix: str = "") -> dict:
+def flat_keys(config: dict, prefix: str = "") -> dict:
+    """``{"algo": {"name": "cmaes"}}`` -> ``{"algo.name": "cmaes"}``: each setting named as its key is written."""
     out = {}
     for key, value in config.items():
         if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
+            out.update(flat_keys(value, f"{prefix}{key}."))
         else:
             out[f"{prefix}{key}"] = value
     return out
