@@ -36,7 +36,9 @@ Usage::
 
 d = 130 (the CartPole policy's size), N = 50, sigma0 0.25, lr 0.01, no weight decay in the
 synthetic sections. Rows: ``none`` (no mixing), ``exact`` (``eim=true eim_variant=exact``),
-``conditional`` (``eim=true eim_variant=conditional``), ``exact + reeval 2`` (``eim=true
+``conditional`` (``eim=true eim_variant=conditional``), ``weighted`` (``eim=true eim_variant=weighted``: the
+archive weighted into the update, OpenES and SNES only; E[z^2], the offset and the echo's gradient weighted as
+the update weights them), ``exact + reeval 2`` (``eim=true
 reeval_count=2``); CMA-ES with mixing uses two-point step-size adaptation and ``exact + CSA`` is
 CMA-ES with mixing and pycma's CSA; CMA-ES's ``none`` row is pycma's CSA, as the published tables
 were made (``imix run`` now runs TPA without mixing too, so that ``eim=false,true`` changes the
@@ -58,6 +60,7 @@ import numpy as np
 from imix_cli.core.algorithms import make_es
 from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.core.mixing import _whitened
+from imix_cli.core.weighted_reuse import weighted_centered_ranks
 
 ALGOS = ("openes", "snes", "cem", "cmaes")
 RULES = {
@@ -67,6 +70,7 @@ RULES = {
     "conditional": MixingSettings("conditional"),
     "exact + reeval 2": MixingSettings("exact", reeval_count=2),
     "exact + CSA": MixingSettings("exact"),  # CMA-ES only: mixing with pycma's step-size control
+    "weighted": MixingSettings("weighted"),  # OpenES, SNES only: the archive weighted into the update (imix_cli.core.weighted_reuse)
 }
 #: Rows that only apply to CMA-ES.
 CMAES_ONLY = ("exact + CSA",)
@@ -100,13 +104,16 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
         dist = es.distribution
         plan = plan_generation(es, archive, settings, rng)
         x = plan.generation.samples
+        # each member's weight in the update: equal, or eim_variant=weighted's importance weights
+        weights = getattr(plan.generation, "weights", None)
+        weights = np.full(x.shape[0], 1.0 / x.shape[0]) if weights is None else weights
         if g >= WARMUP:
             z = _whitened(dist, x)
-            z2.append(float(np.mean(z * z)))
+            z2.append(float(weights @ np.mean(z * z, axis=1)))
             move = -_whitened(dist, previous_mean[None, :])[0]  # m_t - m_t-1, whitened by p_t
             norm = float(np.linalg.norm(move))
             if norm > 0:
-                offset.append(float(np.mean(z @ (move / norm))))
+                offset.append(float(weights @ (z @ (move / norm))))
         previous_mean = dist.mean.copy()
         todo = plan.points  # the members to evaluate, then CMA-ES's two TPA points
         if objective == "constant":
@@ -119,8 +126,11 @@ def synthetic(objective: str, algo: str, rule: str, seed: int, generations: int,
             returns = -np.sum(todo * todo, axis=1) + SIGMA0**2 * np.sqrt(2 * dim) * noise_rng.standard_normal(todo.shape[0])
         fitness = finish_generation(es, archive, settings, plan, returns)
         # the rank-utility gradient estimate of this generation, and its cosine with the previous one's
-        utilities = np.argsort(np.argsort(fitness, kind="stable"), kind="stable") / (popsize - 1) - 0.5
-        gradient = utilities @ _whitened(dist, x) / popsize
+        if getattr(plan.generation, "weights", None) is None:
+            utilities = np.argsort(np.argsort(fitness, kind="stable"), kind="stable") / (x.shape[0] - 1) - 0.5
+        else:
+            utilities = weighted_centered_ranks(fitness, weights, np.arange(x.shape[0], dtype=np.uint64))
+        gradient = (weights * utilities) @ _whitened(dist, x)
         if g >= WARMUP and previous_gradient is not None:
             echo.append(float(gradient @ previous_gradient / (np.linalg.norm(gradient) * np.linalg.norm(previous_gradient))))
         previous_gradient = gradient
@@ -146,7 +156,7 @@ def synthetic_table(objective: str, seeds: int, generations: int, workers: int, 
     jobs = [
         (objective, a, r, s, generations, DIM, POPSIZE, beta1)
         for a, r, s in itertools.product(algos, rules, range(seeds))
-        if a == "cmaes" or r not in CMAES_ONLY
+        if (a == "cmaes" or r not in CMAES_ONLY) and (a in ("openes", "snes") or not RULES[r].weighted)
     ]
     results = {}
     with ProcessPoolExecutor(workers) as pool:

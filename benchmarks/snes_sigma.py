@@ -11,7 +11,9 @@ row changes one thing against the default (``exact``, ``min_fresh`` 1):
 * ``momentum-0``: Adam's beta1 = 0 for log sigma, with and without mixing;
 * ``min_fresh=k``: k random slots per generation drawn fresh -- members live shorter, reuse drops;
 * ``conditional``: each reused member taken for what it is given the move it took part in (exact
-  for the loop under neutral ranks; :mod:`imix_cli.core.mixing`, "Reuse inside the loop").
+  for the loop under neutral ranks; :mod:`imix_cli.core.mixing`, "Reuse inside the loop");
+* ``weighted``: the archive weighted into the update instead of mixed (``eim_variant=weighted``,
+  :mod:`imix_cli.core.weighted_reuse`); the told gradient is the weighted one SNES takes.
 
 Next to the final sigma, each generation's sigma gradient (SNES's grad log sigma, averaged over the
 coordinates) is compared with the gradient of a *shadow* generation: ``popsize`` fresh draws from the
@@ -57,6 +59,7 @@ RULES = {
     "exact min_fresh=3": ("exact", 3, False, None),
     "exact min_fresh=5": ("exact", 5, False, None),
     "conditional": ("conditional", 1, False, None),
+    "weighted": ("weighted", 1, False, None),
 }
 
 

@@ -99,7 +99,7 @@ def test_the_config_selects_variants_by_what_the_variant_objects_say():
     choices = {scheme: {value: v.name for value, v in config_variants(scheme).items()} for scheme in ("im", "eim")}
     assert choices == {
         "im": {"paper": "paper", "sun2009": "sun2009", "conditional": "conditional"},
-        "eim": {"exact": "exact", "conditional": "conditional", "paper": "eim_paper"},
+        "eim": {"exact": "exact", "conditional": "conditional", "paper": "eim_paper", "weighted": "weighted"},
     }
     assert {v.name for c in ("im", "eim") for v in config_variants(c).values()} == set(VARIANT_SPECS)
     assert all(set(v.selected_by) <= set(MIXING_SPECS) - {"none"} for v in VARIANT_SPECS.values())

@@ -44,6 +44,7 @@ import numpy as np
 from imix_cli.core import numerics as xp
 from imix_cli.core.bounds import Bound
 from imix_cli.core.mixing import MIXING_DEFAULTS, Generation, mix, variant_spec
+from imix_cli.core.weighted_reuse import WeightedGeneration, archived_part, plan_weighted
 
 #: The range of each numeric :class:`MixingSettings` field, checked when one is made and by ``imix run``'s config (its
 #: keys ``eim_generations``, ``im_alpha``, ``reeval_*``, ``min_fresh``: :mod:`imix_cli.running.config.keys`): one copy of the numbers.
@@ -64,9 +65,9 @@ class MixingSettings:
 
     Attributes
     ----------
-    variant : {None, "paper", "sun2009", "exact", "conditional", "eim_paper"}
-        The :func:`~imix_cli.core.mixing.mix` variant (:data:`~imix_cli.core.mixing.VARIANT_SPECS`); None draws
-        every generation fresh.
+    variant : {None, "paper", "sun2009", "exact", "conditional", "eim_paper", "weighted"}
+        The :func:`~imix_cli.core.mixing.mix` variant (:data:`~imix_cli.core.mixing.VARIANT_SPECS`), or ``"weighted"``:
+        the archive weighted into the update (:mod:`imix_cli.core.weighted_reuse`); None draws every generation fresh.
     eim_generations : int
         K, the archived generations ``"exact"``/``"eim_paper"`` reuse from.
     alpha : float
@@ -104,6 +105,13 @@ class MixingSettings:
                 bound.check(name, value)
         if self.alpha and not (self.variant is not None and variant_spec(self.variant).uses_alpha):
             raise ValueError(f"alpha={self.alpha!r} applies to a variant with a minimal refresh rate (sun2009) only, not variant={self.variant!r}")
+        if self.weighted and (self.reeval_age is not None or self.reeval_prob or self.reeval_count):
+            raise ValueError("variant='weighted' re-evaluates no reused member: reeval_age, reeval_prob and reeval_count apply to mixing variants only")
+
+    @property
+    def weighted(self) -> bool:
+        """Whether the variant weights the archive into the update (:mod:`imix_cli.core.weighted_reuse`) instead of mixing."""
+        return self.variant is not None and variant_spec(self.variant).weights
 
     @property
     def depth(self) -> int:
@@ -256,22 +264,56 @@ class GenerationScheme:
         return es.popsize
 
 
+class WeightedScheme(GenerationScheme):
+    """``variant="weighted"`` (:mod:`imix_cli.core.weighted_reuse`): fresh members are evaluated, the archived ones
+    are pooled with them and weighted into the update; only the fresh members are archived."""
+
+    def plan(self, es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> Plan:
+        if getattr(es, "generation_scheme", None) is not None:
+            raise ValueError(f"eim_variant=weighted cannot weight {es.name}'s generations (built by its own scheme), only independent members")
+        g = plan_weighted(es, archive, settings, rng)
+        evaluate = np.flatnonzero(g.source == 0)
+        return Plan(g, evaluate, np.zeros(g.samples.shape[0], dtype=np.int64), probes=es.probes(rng))
+
+    def finish(self, es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:
+        g = plan.generation
+        returns = np.asarray(returns, dtype=np.float64).reshape(-1)
+        fitness = np.empty(g.samples.shape[0])
+        fitness[plan.evaluate] = returns[: plan.evaluate.size]
+        old = np.flatnonzero(g.source > 0)
+        fitness[old] = [archive.returns[k - 1][i] for k, i in zip(g.source[old].tolist(), g.index[old].tolist())]
+        if isinstance(g, WeightedGeneration):
+            es.tell(g.samples, fitness, weights=g.weights)
+        else:
+            es.tell(g.samples, fitness)
+        fresh = g.source == 0
+        archive.generations = [archived_part(g), *archive.generations][: settings.depth]
+        archive.returns = [fitness[fresh], *archive.returns][: settings.depth]
+        archive.ages = [np.zeros(int(np.count_nonzero(fresh)), dtype=np.int64), *archive.ages][: settings.depth]
+        return fitness
+
+
 #: The scheme of an ES of independent members, the default of every ES that names none.
 INDEPENDENT = GenerationScheme()
+#: The scheme of ``variant="weighted"``, whatever the ES.
+WEIGHTED = WeightedScheme()
 
 
-def scheme_of(es) -> GenerationScheme:
-    """The generation scheme of ``es``: its ``generation_scheme`` (a class attribute of imix's ES, None for
-    independent members; an adapted library ES may set it per instance), else :data:`INDEPENDENT`."""
+def scheme_of(es, settings: MixingSettings | None = None) -> GenerationScheme:
+    """The generation scheme of ``es`` under ``settings``: :data:`WEIGHTED` for a weighted variant, else the ES's
+    ``generation_scheme`` (a class attribute of imix's ES, None for independent members; an adapted library ES
+    may set it per instance), else :data:`INDEPENDENT`."""
+    if settings is not None and settings.weighted:
+        return WEIGHTED
     return getattr(es, "generation_scheme", None) or INDEPENDENT
 
 
 def plan_generation(es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> Plan:
     """Draw (or mix) the next generation of ``es`` and decide which members to evaluate (by its scheme)."""
-    return scheme_of(es).plan(es, archive, settings, rng)
+    return scheme_of(es, settings).plan(es, archive, settings, rng)
 
 
 def finish_generation(es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:
     """Tell ``es`` its generation's fitness (stored returns + ``returns`` of ``plan.points``) and archive the
     generation, by its scheme; return the fitness (one per member)."""
-    return scheme_of(es).finish(es, archive, settings, plan, returns)
+    return scheme_of(es, settings).finish(es, archive, settings, plan, returns)

@@ -565,6 +565,10 @@ class Variant:
         ``<scheme>_variant`` offers it (:func:`config_variants`).
     config_name : str
         Its value there; its ``name`` unless given (only ``"eim_paper"`` differs: ``eim_variant=paper``).
+    weights : bool
+        Not a mixing rule: the archive is weighted into the ES's update (:mod:`imix_cli.core.weighted_reuse`, the
+        generation scheme :class:`~imix_cli.core.generation.WeightedScheme`); its ``step`` is None and :func:`mix`
+        refuses it.
     """
 
     name: str
@@ -572,9 +576,10 @@ class Variant:
     kernel: int
     heights: bool
     uses_alpha: bool
-    step: Callable[..., int]
+    step: Callable[..., int] | None
     selected_by: tuple[str, ...] = ()
     config_name: str = ""
+    weights: bool = False
 
     def __post_init__(self):
         if not self.config_name:
@@ -597,10 +602,12 @@ VARIANT_SPECS: dict[str, Variant] = {
         # Algorithm 3; "paper" is Algorithm 2's name, so eim_variant=paper selects it under another name
         Variant("eim_paper", looks_back=True, kernel=0, heights=False, uses_alpha=False, step=_step_alternate,
                 selected_by=("eim",), config_name="paper"),
+        # not a rule of mix(): the archive weighted into the update (imix_cli.core.weighted_reuse)
+        Variant("weighted", looks_back=True, kernel=0, heights=False, uses_alpha=False, step=None, selected_by=("eim",), weights=True),
     )
 }  # fmt: skip
-#: The variants' names.
-VARIANTS = tuple(VARIANT_SPECS)
+#: The names of the variants :func:`mix` runs (every one but the weighted ones).
+VARIANTS = tuple(name for name, v in VARIANT_SPECS.items() if not v.weights)
 
 
 @dataclass(frozen=True)
@@ -744,6 +751,10 @@ def mix(
         ``.samples``, ``.source`` (0 fresh, k >= 1 from ``archive[k-1]``), ``.index``.
     """
     spec = variant_spec(variant)
+    if spec.weights:
+        raise ValueError(
+            f"variant {variant!r} builds no generation: it weights the archive into the update (imix_cli.core.weighted_reuse; use MixingES)"
+        )
     if popsize < 1:
         raise ValueError(f"popsize must be >= 1, got {popsize}")
     if not 0.0 <= alpha < 1.0:

@@ -411,6 +411,10 @@ class EvolutionStrategy(ABC):
     #: how its generations are mixed and archived (:class:`imix_cli.core.generation.GenerationScheme`): None, the
     #: default, for members that are independent draws of :attr:`distribution`; ARS names its mirrored pairs'
     generation_scheme = None
+    #: whether :meth:`_update` is linear in the utilities (a sum over members of u_k times a function of the member),
+    #: so that ``tell(..., weights=)`` can weight members into it (:mod:`imix_cli.core.weighted_reuse`): None, no;
+    #: "sum" if it sums over the members told (SNES), "mean" if it divides that sum by their number (OpenES)
+    weights_utilities: str | None = None
 
     def __init__(self, dim: int, params: Params | None = None, *, mean=None, **fields):
         if dim < 1:
@@ -467,11 +471,12 @@ class EvolutionStrategy(ABC):
         offset). Measurements of the distribution mean always report the env's own return."""
         return returns
 
-    def tell(self, samples, fitness) -> None:
+    def tell(self, samples, fitness, weights=None) -> None:
         """Update the search distribution from a generation's samples and their raw fitness (maximised).
 
         ``samples`` may mix fresh draws and members reused from earlier generations; the
-        ES treats them alike. Its number of rows may differ from ``popsize``.
+        ES treats them alike. Its number of rows may differ from ``popsize``. ``weights``: one
+        importance weight >= 0 per row (an ES with :attr:`weights_utilities` only; :meth:`weighted_utilities`).
         """
         samples = np.asarray(samples, dtype=np.float64)
         fitness = np.asarray(fitness, dtype=np.float64).reshape(-1)
@@ -481,10 +486,34 @@ class EvolutionStrategy(ABC):
             raise ValueError(f"got {samples.shape[0]} samples but {fitness.shape[0]} fitness values")
         if samples.shape[0] < 2:
             raise ValueError("tell needs at least 2 samples")
-        utilities = self.utilities(samples, fitness)
+        utilities = self.utilities(samples, fitness) if weights is None else self.weighted_utilities(samples, fitness, weights)
         self._update(samples, utilities)
         self.mean_weights = self._mean_weights(utilities)
         self.generation += 1
+
+    def weighted_utilities(self, samples: np.ndarray, fitness: np.ndarray, weights) -> np.ndarray:
+        """The utilities of a weighted pool (:mod:`imix_cli.core.weighted_reuse`): centred ranks under the
+        self-normalised ``weights`` (:func:`~imix_cli.core.weighted_reuse.weighted_centered_ranks`), weight decay as
+        :meth:`utilities`, each times ``popsize * weight`` (an update that sums, :attr:`weights_utilities` "sum") or
+        ``rows * weight`` (one that averages over the rows told, "mean"): the update then estimates the one of a
+        generation of ``popsize`` members drawn from the current distribution, and equal weights over ``popsize`` rows
+        give :meth:`utilities`."""
+        from imix_cli.core.weighted_reuse import weighted_centered_ranks
+
+        if not self.weights_utilities:
+            raise ValueError(f"{self.name or type(self).__name__}'s update is not a weighted sum over its members: tell it no weights")
+        if self.params.fitness_shaping != "centered_ranks":
+            raise ValueError(f"weights need fitness_shaping='centered_ranks', not {self.params.fitness_shaping!r}")
+        w = np.asarray(weights, dtype=np.float64).reshape(-1)
+        if w.shape != fitness.shape or not np.all(np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
+            raise ValueError(f"weights must be {fitness.shape[0]} finite numbers >= 0, not all 0")
+        w = w / w.sum()
+        finite = np.isfinite(fitness)
+        self.nonfinite_fitness_count += int(np.count_nonzero(~finite))
+        fitness = np.where(finite, fitness, -np.inf)
+        keys = member_keys(samples, salt=self.generation + 1)
+        u = self._weight_decay.apply(samples, fitness, self.weight_decay, lambda values: weighted_centered_ranks(values, w, keys))
+        return (self.popsize if self.weights_utilities == "sum" else w.shape[0]) * w * u
 
     def utilities(self, samples: np.ndarray, fitness: np.ndarray) -> np.ndarray:
         """Weight decay + fitness shaping (``params.weight_decay_form``, ``params.fitness_shaping``);

@@ -67,6 +67,7 @@ class OpenES(EvolutionStrategy):
     """
 
     name = "openes"
+    weights_utilities = "mean"  # its move is a mean over members of u_k times a function of x_k: weighted reuse applies
     Params = OpenESParams
 
     def _setup(self) -> None:

@@ -98,6 +98,7 @@ class SNES(EvolutionStrategy):
     """
 
     name = "snes"
+    weights_utilities = "sum"  # its move is a sum over members of u_k times a function of x_k: weighted reuse applies
     Params = SNESParams
 
     def _setup(self) -> None:

@@ -29,6 +29,18 @@ from imix_cli.running.config.keys import KEYS, PAPER_DEFAULTS, POLICY_DEFAULTS, 
 from imix_cli.running.config.run_spec import RunSpec, algo_option_fields, run_default
 
 
+def _check_weighted(algo: str, checked: dict) -> None:
+    """``eim_variant=weighted`` weights members into an update that is a sum over them (imix_cli.core.weighted_reuse)."""
+    from imix_cli.core.algorithms import ALGORITHMS, MIRRORED_ALGORITHMS
+
+    cls = {**ALGORITHMS, **MIRRORED_ALGORITHMS}.get(algo)
+    if cls is None or not cls.weights_utilities or cls.generation_scheme is not None:
+        able = ",".join(name for name, c in ALGORITHMS.items() if c.weights_utilities)
+        raise ConfigError(f"eim_variant=weighted: algo={algo}'s update does not take weighted members; use algo={able}, or eim_variant=exact")
+    if checked["reeval_age"] is not None or checked["reeval_prob"] or checked["reeval_count"]:
+        raise ConfigError("reeval_age/reeval_prob/reeval_count: apply to mixing variants only, not eim_variant=weighted (it re-evaluates nothing)")
+
+
 def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str | None) -> RunSpec:
     """The RunSpec of an evolution strategy: every key checked by its own check (:func:`read_keys`), then together
     (mixing, the ES's hyper-parameters, its policy and evaluator, the machine's limits)."""
@@ -47,6 +59,8 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
         raise ConfigError(f"min_fresh={checked['min_fresh']}: only applies with im=true or eim=true (fresh members of a mixed generation)")
     if mixing == "none" and (checked["reeval_age"] is not None or checked["reeval_prob"] or checked["reeval_count"]):
         raise ConfigError("reeval_age/reeval_prob/reeval_count: only apply with im=true or eim=true (they re-evaluate reused members)")
+    if variant is not None and variant_spec(variant).weights:
+        _check_weighted(algo, checked)
 
     env_name, env_id, max_steps = env_of(env_cfg)
     env_kwargs = env_kwargs_of(env_cfg, env_name, env_id)

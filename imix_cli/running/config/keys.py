@@ -212,10 +212,14 @@ KEYS = (
            "with `im=true`: `paper` (Algorithm 2), `sun2009` (Sun et al. 2009) or `conditional` (Sun et al.'s rule with each "
            "member taken given the ES's move it took part in: the research notes, \"Reused returns and the search\")", "mixing",
            choice(lambda: config_variants("im")), names_folder="im"),
-    RunKey("eim_variant", variant_spec(MIXING_DEFAULTS.variant).config_name, "exact (unbiased over chains) | conditional | paper (Algorithm 3), with eim=true",
+    RunKey("eim_variant", variant_spec(MIXING_DEFAULTS.variant).config_name,
+           "exact (unbiased over chains) | conditional | paper (Algorithm 3) | weighted (snes, openes), with eim=true",
            "with `eim=true`: `exact` (imix's rule, unbiased over chains of generations), `conditional` (each member of the "
            "previous generation taken given the ES's move: unbiased inside the loop under neutral fitness, worse for CMA-ES "
-           "on CartPole) or `paper` (the paper's Algorithm 3, biased over chains: for reproduction). `exact` and `conditional` "
+           "on CartPole), `paper` (the paper's Algorithm 3, biased over chains: for reproduction) or `weighted` (not mixing: "
+           "the fresh members of the last `eim_generations` generations weighted into the update by importance weights, "
+           "self-normalised, fewer fresh draws as their effective sample size allows; SNES and OpenES only; it reuses less "
+           "than `exact` where consecutive distributions overlap little: docs/research/reuse_modes.md). `exact` and `conditional` "
            "are the library's variants of the same names (`imix_cli.core.mixing.VARIANT_SPECS`); `paper` is its `eim_paper`, "
            "because its `paper` is Algorithm 2 (`im_variant=paper`)", "mixing",
            choice(lambda: config_variants("eim")), names_folder="eim", absent=variant_spec(MIXING_DEFAULTS.variant).config_name),

@@ -206,10 +206,13 @@ def _validate_archive(st, spec, dim: int, score_ok) -> None:
         _fail("archive is not three lists")
     if not len(gens) == len(returns) == len(ages) <= min(depth, st.generation):
         _fail(f"archive of {len(gens)}/{len(returns)}/{len(ages)} generations, the run keeps {depth}")
+    weighted = spec.variant is not None and variant_spec(spec.variant).weights
     for k, (g, ret, age) in enumerate(zip(gens, returns, ages, strict=True)):
+        # eim_variant=weighted archives each generation's fresh members only: 2 to popsize rows
+        rows = g.samples.shape[0] if weighted and getattr(g.samples, "ndim", 0) == 2 and 2 <= g.samples.shape[0] <= popsize else popsize
         for name, value, shape, kind in (
-            ("samples", g.samples, (popsize, dim), "f"), ("source", g.source, (popsize,), "i"), ("index", g.index, (popsize,), "i"),
-            ("returns", ret, (popsize,), "f"), ("ages", age, (popsize,), "i"),
+            ("samples", g.samples, (rows, dim), "f"), ("source", g.source, (rows,), "i"), ("index", g.index, (rows,), "i"),
+            ("returns", ret, (rows,), "f"), ("ages", age, (rows,), "i"),
         ):  # fmt: skip
             if not isinstance(value, np.ndarray) or value.shape != shape or value.dtype.kind != kind:
                 _fail(f"archive generation {k}: {name} is not {shape} of kind {kind}")
@@ -226,11 +229,11 @@ def _validate_archive(st, spec, dim: int, score_ok) -> None:
         if mean.shape != (dim,) or not np.all(np.isfinite(mean)) or type(g.dist) is not type(st.es.distribution):
             _fail(f"archive generation {k}: its distribution is not one of {dim} finite parameters")
         log_u = getattr(g, "log_u", None)
-        if log_u is not None and (not isinstance(log_u, np.ndarray) or log_u.shape != (popsize,) or np.any(log_u > 0)):
+        if log_u is not None and (not isinstance(log_u, np.ndarray) or log_u.shape != (rows,) or np.any(log_u > 0)):
             _fail(f"archive generation {k}: log_u out of range")
         weights = getattr(g, "mean_weights", None)
-        if weights is not None and (not isinstance(weights, np.ndarray) or weights.shape != (popsize,) or not np.all(np.isfinite(weights))):
-            _fail(f"archive generation {k}: mean_weights are not {popsize} finite numbers")
+        if weights is not None and (not isinstance(weights, np.ndarray) or weights.shape != (rows,) or not np.all(np.isfinite(weights))):
+            _fail(f"archive generation {k}: mean_weights are not {rows} finite numbers")
     pairs = getattr(archive, "pairs", None)
     if not isinstance(pairs, np.ndarray) or pairs.shape != (5,) or not np.all(np.isfinite(pairs)) or pairs[0] < 0 or pairs[3] < 0:
         _fail("archive pairs are not 5 finite sums (count and sum of squares >= 0)")

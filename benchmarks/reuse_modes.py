@@ -1,0 +1,179 @@
+"""Reuse modes on MuJoCo: no reuse, exact mixing, importance-weighted reuse -- the table of docs/research/reuse_modes.md.
+
+Every number here is read from the run CSVs of ``make reproduce-reuse-modes`` (SNES, popsize 20, sigma 0.1, lr 0.02,
+observations normalised after a 3-generation warm-up, 100 generations, 10 seeds per run; HalfCheetah-v5 and Hopper-v5
+with a linear policy, HalfCheetah-v5 with a 64x64 MLP). Everything is measured on theta, the distribution mean, on
+fresh episodes (``mean_policy_score``: 5 episodes every 10 generations), never on stored returns. Per run:
+
+* episodes per seed and reuse (the share of a generation's members not evaluated: the episodes saved);
+* final theta (generation 100), mean over seeds with a 95 % percentile-bootstrap interval, and the two-sided
+  permutation p-value of the difference of means with the run without reuse at the same settings;
+* the theta of the run without reuse when it had run as many episodes as this run did in all (return at equal
+  episodes: its last measurement at or before that budget);
+* per threshold: seeds whose theta reached it, median episodes (and wall seconds) to the first measurement that
+  did, among those, and the ratio to the run without reuse (its median over this one's: > 1, fewer episodes).
+  theta is measured every 10 generations, so episodes to a threshold are rounded up to the next measurement:
+  by up to 200 episodes without reuse and 10 generations' fresh episodes with it (fewer), which favours reuse by
+  at most that much.
+
+    python benchmarks/reuse_modes.py [--experiment results/reuse_mujoco] [--out docs/research/reuse_modes_table.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+#: Return thresholds by env: ones the study's budget reaches, then the ARS paper's (Mania et al. 2018, Table 1).
+THRESHOLDS = {"HalfCheetah-v5": (500, 1000, 2000, 3430), "Hopper-v5": (500, 800, 1000, 3120)}
+
+
+def _mode(name: str) -> str:
+    if "-none-" in name or name.endswith("-none"):
+        return "none"
+    found = re.search(r"eim_variant=(\w+)", name)
+    return found.group(1) if found else "exact"
+
+
+def _settings(name: str) -> str:
+    """The settings of a run other than its reuse mode: the policy and anything else in its name (lr)."""
+    rest = name.split("-", 3)[3] if name.count("-") >= 3 else ""
+    tokens = [t for t in re.split(r"[-,]", rest) if "=" in t and not t.startswith(("eim_variant", "obs_norm", "popsize", "sigma"))]
+    return ",".join(sorted(tokens))
+
+
+def load(experiment: Path) -> list[dict]:
+    from imix_cli.running.files.results import read_run_csv
+
+    runs = []
+    for folder in sorted(p for p in experiment.iterdir() if p.is_dir()):
+        frames = [read_run_csv(p) for p in sorted(folder.glob("seed_*.csv")) if re.fullmatch(r"seed_\d+\.csv", p.name)]  # not .partial
+        frames = [f for f in frames if len(f)]
+        if not frames:
+            continue
+        runs.append(
+            {"name": folder.name, "env": str(frames[0]["env"].iloc[0]), "mode": _mode(folder.name), "settings": _settings(folder.name), "frames": frames}
+        )
+    return runs
+
+
+def _theta(frame):
+    rows = frame[np.isfinite(frame["mean_policy_score"].to_numpy(float))]
+    return rows["evaluations"].to_numpy(float), rows["mean_policy_score"].to_numpy(float), rows["wall_time"].to_numpy(float)
+
+
+def bootstrap(values: np.ndarray, resamples: int = 4000, seed: int = 0) -> tuple[float, float, float]:
+    values = np.asarray(values, dtype=float)
+    idx = np.random.default_rng(seed).integers(0, values.size, size=(resamples, values.size))
+    means = values[idx].mean(axis=1)
+    return float(values.mean()), float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))
+
+
+def permutation_p(a: np.ndarray, b: np.ndarray, resamples: int = 20000, seed: int = 0) -> float:
+    rng = np.random.default_rng(seed)
+    both, observed = np.concatenate([a, b]), abs(a.mean() - b.mean())
+    hits = 0
+    for _ in range(resamples):
+        p = rng.permutation(both)
+        hits += abs(p[: a.size].mean() - p[a.size :].mean()) >= observed - 1e-12
+    return (hits + 1) / (resamples + 1)
+
+
+def summarise(run: dict) -> dict:
+    frames = run["frames"]
+    out = {
+        "episodes": float(np.mean([f["evaluations"].iloc[-1] for f in frames])),
+        "reuse": float(sum(f["reused"].sum() for f in frames) / sum(f["popsize"].sum() for f in frames)),
+        "final": np.array([_theta(f)[1][-1] for f in frames]),
+        "wall": float(np.mean([f["wall_time"].iloc[-1] for f in frames])),
+        "hits": {},
+    }
+    for threshold in THRESHOLDS.get(run["env"], ()):
+        firsts = []
+        for f in frames:
+            episodes, theta, wall = _theta(f)
+            hit = np.flatnonzero(theta >= threshold)
+            if hit.size:
+                firsts.append((episodes[hit[0]], wall[hit[0]]))
+        out["hits"][threshold] = firsts
+    return out
+
+
+def theta_at(frames, budget: float) -> np.ndarray:
+    """Each seed's theta at its last measurement with at most ``budget`` episodes run (NaN before the first)."""
+    values = []
+    for f in frames:
+        episodes, theta, _ = _theta(f)
+        k = np.flatnonzero(episodes <= budget)
+        values.append(theta[k[-1]] if k.size else np.nan)
+    return np.array(values)
+
+
+def table(runs: list[dict]) -> str:
+    lines = [
+        "| env | policy, settings | reuse mode | seeds | episodes/seed | reuse | final θ (95 % CI) | p vs none | none's θ at these episodes | wall s/run |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    hits = [
+        "| env | policy, settings | reuse mode | threshold | reached | median episodes to it | fewer episodes than none | median wall s to it |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+    ]
+    order = {"none": 0, "exact": 1, "weighted": 2}
+    groups: dict = {}
+    for run in runs:
+        groups.setdefault((run["env"], run["settings"]), []).append(run)
+    for (env, settings), members in sorted(groups.items()):
+        members.sort(key=lambda r: order.get(r["mode"], 9))
+        stats = {r["mode"]: summarise(r) for r in members}
+        base_run = next((r for r in members if r["mode"] == "none"), None)
+        base = stats.get("none")
+        for run in members:
+            s = stats[run["mode"]]
+            mean, lo, hi = bootstrap(s["final"])
+            p = f"{permutation_p(s['final'], base['final']):.2f}" if base is not None and run["mode"] != "none" else ""
+            if base_run is not None and run["mode"] != "none":
+                m, lo2, hi2 = bootstrap(theta_at(base_run["frames"], s["episodes"]))
+                at = f"{m:.1f} [{lo2:.1f}, {hi2:.1f}]"
+            else:
+                at = ""
+            lines.append(
+                f"| {env} | {settings} | {run['mode']} | {len(run['frames'])} | {s['episodes']:,.0f} | {100 * s['reuse']:.1f} % | "
+                f"{mean:.1f} [{lo:.1f}, {hi:.1f}] | {p} | {at} | {s['wall']:.0f} |"
+            )
+            for threshold, firsts in s["hits"].items():
+                n = len(run["frames"])
+                if firsts:
+                    med, wall = float(np.median([e for e, _ in firsts])), float(np.median([w for _, w in firsts]))
+                    ref = base["hits"].get(threshold) if base is not None else None
+                    ratio = f"{float(np.median([e for e, _ in ref])) / med:.2f}×" if ref and run["mode"] != "none" else ""
+                    hits.append(f"| {env} | {settings} | {run['mode']} | {threshold} | {len(firsts)}/{n} | {med:,.0f} | {ratio} | {wall:.0f} |")
+                else:
+                    hits.append(f"| {env} | {settings} | {run['mode']} | {threshold} | 0/{n} | – | | – |")
+    return "\n".join(lines) + "\n\n" + "\n".join(hits) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--experiment", default="results/reuse_mujoco", type=Path)
+    parser.add_argument("--out", default=None, type=Path, help="also write the tables to this markdown file")
+    args = parser.parse_args(argv)
+    if not args.experiment.is_dir():
+        parser.error(f"--experiment {args.experiment}: no such folder (make reproduce-reuse-modes makes it)")
+    runs = load(args.experiment)
+    if not runs:
+        parser.error(f"--experiment {args.experiment}: no run CSVs in it")
+    text = table(runs)
+    print(text)
+    if args.out is not None:
+        from imix_cli.running.files.writing import atomic_write_text
+
+        atomic_write_text(args.out, text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
