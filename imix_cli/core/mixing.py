@@ -752,9 +752,7 @@ def mix(
     """
     spec = variant_spec(variant)
     if spec.weights:
-        raise ValueError(
-            f"variant {variant!r} builds no generation: it weights the archive into the update (imix_cli.core.weighted_reuse; use MixingES)"
-        )
+        raise ValueError(f"variant {variant!r} builds no generation: it weights the archive into the update (imix_cli.core.weighted_reuse; use MixingES)")
     if popsize < 1:
         raise ValueError(f"popsize must be >= 1, got {popsize}")
     if not 0.0 <= alpha < 1.0:
