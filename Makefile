@@ -142,7 +142,7 @@ reproduce-mujoco:  ## MuJoCo study (SNES/OpenES x EIM x Swimmer/Hopper/HalfCheet
 # Reuse where overlap is small (docs/research/reuse_modes.md): SNES on MuJoCo without reuse, with exact mixing and
 # with importance-weighted reuse (eim_variant=weighted), linear policies on HalfCheetah and Hopper, a 64x64 MLP on
 # HalfCheetah (and, without reuse, at twice the learning rate), 10 seeds each; then the tables, into
-# docs/research/reuse_modes_table.md. About 75 min on a quiet 2-core machine; finished runs are skipped.
+# docs/research/reuse_modes.md. About 75 min on a quiet 2-core machine; finished runs are skipped.
 REUSE_MODES_SEEDS       ?= 10
 REUSE_MODES_GENERATIONS ?= 100
 REUSE_MODES_EXPERIMENT  ?= reuse_mujoco
@@ -155,7 +155,7 @@ reproduce-reuse-modes:  ## reuse modes on MuJoCo (none / exact / weighted; linea
 	$(IMIX) run -m env=halfcheetah 'policy.hidden=[64,64]' eim=false,true $(REUSE_MODES)
 	$(IMIX) run -m env=halfcheetah 'policy.hidden=[64,64]' eim=true eim_variant=weighted $(REUSE_MODES)
 	$(IMIX) run env=halfcheetah 'policy.hidden=[64,64]' eim=false $(REUSE_MODES) lr=0.04
-	$(PY) benchmarks/reuse_modes.py --experiment results/$(REUSE_MODES_EXPERIMENT) --out docs/research/reuse_modes_table.md
+	$(PY) benchmarks/reuse_modes.py --experiment results/$(REUSE_MODES_EXPERIMENT) --page docs/research/reuse_modes.md
 
 # Does reuse bend the search? (docs/research/bias.md) One table: every ES without mixing and with
 # each rule (exact, conditional, exact + reeval_count=2), from constant fitness and pure noise to

@@ -16,7 +16,10 @@ fresh episodes (``mean_policy_score``: 5 episodes every 10 generations), never o
   by up to 200 episodes without reuse and 10 generations' fresh episodes with it (fewer), which favours reuse by
   at most that much.
 
-    python benchmarks/reuse_modes.py [--experiment results/reuse_mujoco] [--out docs/research/reuse_modes_table.md]
+    python benchmarks/reuse_modes.py [--experiment results/reuse_mujoco] [--page docs/research/reuse_modes.md]
+
+``--page`` replaces the text between the page's ``<!-- reuse-modes-table -->`` and ``<!-- /reuse-modes-table -->``
+marks with the tables (what ``make reproduce-reuse-modes`` does).
 """
 
 from __future__ import annotations
@@ -159,7 +162,7 @@ def table(runs: list[dict]) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--experiment", default="results/reuse_mujoco", type=Path)
-    parser.add_argument("--out", default=None, type=Path, help="also write the tables to this markdown file")
+    parser.add_argument("--page", default=None, type=Path, help="write the tables into this page, between its reuse-modes-table marks")
     args = parser.parse_args(argv)
     if not args.experiment.is_dir():
         parser.error(f"--experiment {args.experiment}: no such folder (make reproduce-reuse-modes makes it)")
@@ -168,10 +171,15 @@ def main(argv=None) -> int:
         parser.error(f"--experiment {args.experiment}: no run CSVs in it")
     text = table(runs)
     print(text)
-    if args.out is not None:
+    if args.page is not None:
         from imix_cli.running.files.writing import atomic_write_text
 
-        atomic_write_text(args.out, text)
+        page = args.page.read_text(encoding="utf-8")
+        start, end = "<!-- reuse-modes-table -->", "<!-- /reuse-modes-table -->"
+        if start not in page or end not in page:
+            parser.error(f"--page {args.page}: no {start} ... {end} marks in it")
+        head, rest = page.split(start, 1)
+        atomic_write_text(args.page, head + start + "\n" + text + rest[rest.index(end) :])
     return 0
 
 
