@@ -15,7 +15,7 @@ import pytest
 from imix_cli.commands.cli import main
 from imix_cli.core.distributions import AffinePushforward, DiagonalGaussian, FullGaussian
 from imix_cli.core.generation import Archive
-from imix_cli.core.mixing import _whitened, mix, variant_spec
+from imix_cli.core.mixing import Generation, _whitened, mix, variant_spec
 from imix_cli.core.policies import BatchPolicy, NormalizerChange, ObsNormalizer, fold_normalizer, num_params
 from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.files.results import read_run_csv
@@ -218,7 +218,7 @@ def test_without_reexpression_reused_returns_belong_to_other_policies(monkeypatc
 
 
 # ------------------------------------------------------------------------------ checkpoints
-def test_a_checkpoint_with_reexpressed_generations_resumes_to_the_uninterrupted_csv(tmp_path):
+def test_a_checkpoint_with_reexpressed_generations_resumes_to_the_uninterrupted_csv(tmp_path, capfd):
     import pandas as pd
 
     from imix_cli.running.files.checkpoints import checkpoint_path
@@ -244,12 +244,32 @@ def test_a_checkpoint_with_reexpressed_generations_resumes_to_the_uninterrupted_
     with np.load(path) as npz:
         header = json.loads(npz["header"].tobytes())
     assert header["generation"] == 6 and "AffinePushforward" in json.dumps(header["state"])  # the archive holds re-expressed generations
+    capfd.readouterr()
     assert main(["run", *common, f"results_dir={tmp_path / 'stop'}"]) == 0
+    err = capfd.readouterr().err
+    assert "checkpoint ignored" not in err, err  # resumed from generation 6, not recomputed from scratch
     name = spec.run_dir.relative_to(tmp_path / "stop")
     expected = read_run_csv(tmp_path / "ref" / name / "seed_0.csv").drop(columns="wall_time")
     got = read_run_csv(spec.run_dir / "seed_0.csv").drop(columns="wall_time")
     pd.testing.assert_frame_equal(got, expected)
     assert got["reused"].iloc[3:].sum() > 0
+
+
+def test_a_pushforward_is_checkpointed_as_data_and_read_back_exactly(tmp_path):
+    from imix_cli.running.files.checkpoints import read_checkpoint, write_checkpoint
+
+    rng = np.random.default_rng(5)
+    first, then = random_change(rng, 3, 2, ()), random_change(rng, 3, 2, ())
+    second = NormalizerChange(3, 2, (), first.mean1, first.std1, then.mean1, then.std1)
+    base = DiagonalGaussian(rng.normal(size=8), rng.uniform(0.5, 1.5, 8))
+    push = AffinePushforward(AffinePushforward(base, first), second)
+    archive = Archive(generations=[Generation(push.sample(5, rng), np.zeros(5, np.int64), np.full(5, -1, np.int64), push)])
+    write_checkpoint(tmp_path / "c.npz", archive, identity={}, seed=0, generation=0)
+    back = read_checkpoint(tmp_path / "c.npz", Archive(), identity={}, seed=0).generations[0]
+    assert type(back.dist) is AffinePushforward and type(back.dist.base) is DiagonalGaussian and type(back.dist.transform) is NormalizerChange
+    x = archive.generations[0].samples
+    assert np.array_equal(back.samples, x) and np.array_equal(back.dist.log_prob(x), push.log_prob(x))
+    assert back.dist.transform.log_det == push.transform.log_det
 
 
 def test_a_normaliser_keeps_updating_after_the_warm_up_unless_frozen():
