@@ -40,32 +40,51 @@ member's actions never depend on which other members share its batch (BLAS-backe
 ``matmul`` would be no faster and gives no such guarantee). :func:`unpack` gives the
 per-layer weights in the natural ``(B, in, out)`` layout, for inspection and tests.
 
-Observation normalisation, and why it is frozen (``policy.obs_norm``)
---------------------------------------------------------------------
-ES on MuJoCo needs normalised observations (Salimans et al. 2017; Mania et al. 2018): the
+Observation normalisation, and how reuse stays honest (``policy.obs_norm``, ``policy.obs_norm_freeze``)
+----------------------------------------------------------------------------------------------------
+Why. ES on MuJoCo needs normalised observations (Salimans et al. 2017; Mania et al. 2018): the
 raw coordinates differ in scale by orders of magnitude, and one sigma cannot fit them all.
 The policy then sees ``(obs - mean) / std`` with running statistics of the observations
 seen so far. That makes the policy *function* of a parameter vector depend on the
 statistics -- and importance mixing reuses a member's stored return as if it had been
-measured under the current policy function. A normaliser that keeps changing (as in ARS)
-silently turns every reused return into the return of another policy.
+measured under the current policy function. A normaliser that keeps changing (as in ARS) under an
+archive left as it was silently turns every reused return into the return of another policy.
 
-imix keeps reuse honest by freezing the statistics (:class:`ObsNormalizer`): during a
-warm-up of ``policy.obs_norm_warmup`` generations the statistics absorb the observations of
-every episode and the runner does not mix (every member is fresh, nothing is archived);
-after the warm-up they never change again, and only generations evaluated entirely under
-the frozen statistics enter the archive. Every reused return was therefore measured under
-the very policy function the member has now. The alternatives were weighed: re-measuring
-archived members after every change defeats the purpose of reuse; clearing the archive at
-each change (say every K generations) only delays the same trade-off, costs a full
-generation per change, and makes reuse rates depend on K; a frozen normaliser costs
-nothing after the warm-up. Its price is that the statistics describe the early, clumsy
-policies' states. With ARS V2-t on Hopper that price came from the variance floor, not from
-freezing: a coordinate that barely moves while the early hoppers fall is scaled by the floor's
-1/0.1 instead of its own 1/std (OBS_VAR_FLOOR below, ``policy.obs_var_floor``); with ARS's
-floor of ~1e-8, statistics frozen after 5 generations did as well as statistics updated every
-generation (docs/ars.md, "Hopper"). (tests/test_mujoco.py checks that every reused
-member's policy function equals the one its return was measured under.)
+How: two ways, each exact where it applies. During a warm-up of ``policy.obs_norm_warmup``
+generations the statistics absorb the observations of every episode and the runner does not mix
+(every member is fresh, nothing is archived); after it:
+
+* frozen (``policy.obs_norm_freeze=true``, the default; :class:`ObsNormalizer`): the statistics
+  never change again, and only generations evaluated entirely under the frozen statistics enter
+  the archive. Every reused return was measured under the very policy function the member has now;
+  exact for every policy, with or without biases, and free after the warm-up. Its price is that the
+  statistics describe the early, clumsy policies' states. With ARS V2-t on Hopper that price came
+  from the variance floor, not from freezing: a coordinate that barely moves while the early hoppers
+  fall is scaled by the floor's 1/0.1 instead of its own 1/std (OBS_VAR_FLOOR below,
+  ``policy.obs_var_floor``); with ARS's floor of ~1e-8, statistics frozen after 5 generations did as
+  well as statistics updated every generation (docs/ars.md, "Hopper"). (tests/test_mujoco.py checks
+  that every reused member's policy function equals the one its return was measured under.)
+* updated (``policy.obs_norm_freeze=false``, as ARS V2 and sb3-contrib's VecNormalize): the statistics
+  keep absorbing every generation's observations, and after each change every archived member is
+  *re-expressed* as the same policy under the new statistics. The first layer's pre-activation
+  ``((obs - m) / s) @ W1 + b1`` is the same function under ``(m', s')`` with ``W1' = diag(s'/s) W1`` and
+  ``b1' = b1 + ((m' - m) / s) @ W1`` (:class:`NormalizerChange`, an affine map T of the flat parameter
+  vector); each archived member becomes T(theta) -- the same policy, so the same return from the same
+  episode -- and its generation's distribution the pushforward of the one it was drawn from
+  (:class:`imix_cli.core.distributions.AffinePushforward`: ``log p'(x) = log p(T^-1 x) - log|det T|``),
+  so the archived generations are still samples of their (re-expressed) distributions and mixing stays
+  exact for every variant (the heights ``log(y / p(x))`` of ``"exact"`` are ratios to the density and do
+  not change; ``"conditional"`` whitens through T^-1). The ES's own state is not re-expressed: it moves in
+  the coordinates the statistics of the moment give (what ARS does). Exact only for a policy with
+  biases: without one (``policy.bias=false``, ARS's ``a = M s``), a change of the mean is an offset the
+  policy cannot express, so ``imix run`` refuses this key with mixing and ``policy.bias=false``; without
+  mixing nothing is reused and any policy may keep updating. (tests/test_obs_norm_reexpress.py checks
+  that every reused member's stored return is the return of its re-expressed parameters under the
+  current statistics.)
+
+Alternatives weighed: re-measuring archived members after every change defeats the purpose of reuse;
+clearing the archive at each change (say every K generations) only delays the same trade-off, costs a
+full generation per change, and makes reuse rates depend on K.
 
 The normalisation is folded into the first layer (:func:`fold_normalizer`):
 ``((obs - m) / s) @ W1 + b1 == obs @ (W1 / s) + (b1 - (m / s) @ W1)``, so rollouts --

@@ -294,7 +294,8 @@ KEYS = (
            "normalise observations (gymnasium envs), statistics frozen after the warm-up (honest reuse) unless "
            "`policy.obs_norm_freeze=false`", "the policy", flag, absent=False),
     RunKey("policy.obs_norm_warmup", 5, "warm-up generations, without mixing, that gather the statistics",
-           "generations that gather the statistics, without mixing, before they freeze", "the policy", integer(1), absent=5),
+           "generations that gather the statistics, without mixing, before they freeze (or, with `policy.obs_norm_freeze=false`, "
+           "before mixing starts)", "the policy", integer(1), absent=5),
     RunKey("policy.obs_norm_freeze", True, "false: the statistics keep updating after the warm-up",
            "`true`: the normaliser's statistics freeze after the warm-up; `false`: they keep absorbing every generation's "
            "observations (as ARS V2), and with mixing every archived member is re-expressed as the same policy under the new "
