@@ -165,11 +165,13 @@ PENDULUM = ["env=gym", "env.id=Pendulum-v1", "algo=snes", "eim=true", "popsize=1
             "policy.obs_norm=true", "policy.obs_norm_warmup=3", "policy.obs_norm_freeze=false", "seeds=1"]  # fmt: skip
 
 
-def reused_members_not_measured_as_they_are(generations: int = 12) -> tuple[list, int]:
-    """Run PENDULUM; for every reused member, its parameters now (the current statistics folded in) must be those of an
-    episode evaluated earlier, and a fresh episode of them with that episode's seed must return its stored return.
+def reused_members_not_measured_as_they_are(generations: int = 12, variant: tuple = ()) -> tuple[list, int]:
+    """Run PENDULUM (its algo and mixing replaced by ``variant``'s, if given); for every reused member, its parameters now
+    (the current statistics folded in) must be those of an episode evaluated earlier, and a fresh episode of them with
+    that episode's seed must return its stored return.
     Returns the members where that fails and the number of reused members."""
-    (spec,) = validate_overrides(PENDULUM)
+    args = [a for a in PENDULUM if not (variant and a in ("algo=snes", "eim=true"))]
+    (spec,) = validate_overrides([*args, *variant])
     ev = RecordingEvaluator(lockstep_evaluator(spec))
     settings = loop_settings(spec, ev)
     st = new_seed_state(settings, 0)
@@ -204,8 +206,18 @@ def lockstep_evaluator(spec):
     return make_evaluator(spec.evaluator_key, spec.env_max_steps, hidden=spec.hidden)
 
 
-def test_every_reused_return_is_the_return_of_the_members_reexpressed_parameters():
-    wrong, reused = reused_members_not_measured_as_they_are()
+VARIANTS = {
+    "eim-exact": ("algo=snes", "eim=true"),
+    "eim-conditional": ("algo=snes", "eim=true", "eim_variant=conditional"),
+    "im-paper": ("algo=snes", "im=true"),
+    "im-sun2009": ("algo=openes", "im=true", "im_variant=sun2009"),
+    "ars-eim": ("algo=ars", "eim=true", "policy.hidden=[]", "popsize=16", "sigma=0.02"),
+}
+
+
+@pytest.mark.parametrize("variant", list(VARIANTS), ids=list(VARIANTS))
+def test_every_reused_return_is_the_return_of_the_members_reexpressed_parameters(variant):
+    wrong, reused = reused_members_not_measured_as_they_are(variant=VARIANTS[variant])
     assert reused > 20  # the check was exercised
     assert not wrong, wrong[:5]
 
