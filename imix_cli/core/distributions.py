@@ -417,3 +417,63 @@ class FullGaussianStack:
     def log_probs(self, x) -> np.ndarray:
         """(m, n): the log-density of each row of ``x`` (n, d) under each of the m distributions."""
         return xp.gaussian_log_probs(self.lows, self.means, self.log_norms, x)
+
+
+class AffinePushforward:
+    """The law of ``T(theta)`` for ``theta ~ base``, T an invertible affine map ``theta' = A theta + c``.
+
+    Why: a search whose parameters change meaning (observation statistics that keep updating:
+    :class:`imix_cli.core.policies.NormalizerChange`) re-expresses every archived member as ``T(theta)``, the same
+    policy in today's coordinates; its generation is then distributed as this pushforward, whose density is
+    ``log p'(x) = log p(T^-1 x) - log|det A|``. Importance mixing reads it through ``log_prob`` like any
+    :class:`SearchDistribution` (it is neither a DiagonalGaussian nor a FullGaussian, so mixing takes its generic
+    path); heights ``log(y / p(x))`` are ratios to the density and stay what they were.
+
+    ``transform``: an object with ``forward(x)``, ``inverse(x)`` (rows (n, d) -> new rows), a number ``log_det``
+    (log|det A|), ``then(later)`` (the composition, for :meth:`then`) and ``to_state``/``from_state`` (checkpoints).
+    """
+
+    def __init__(self, base, transform):
+        if isinstance(base, AffinePushforward):  # one map from the base's coordinates, never a tower of them
+            base, transform = base.base, base.transform.then(transform)
+        self.base, self.transform = base, transform
+        self.dtype = np.dtype(getattr(base, "dtype", np.float64))
+
+    @property
+    def dim(self) -> int:
+        return self.base.dim
+
+    @property
+    def mean(self) -> np.ndarray:
+        """The mean ``A m + c`` (an affine map of the base's mean)."""
+        return self.transform.forward(np.asarray(self.base.mean, dtype=np.float64)[None, :])[0]
+
+    @property
+    def sigma_mean(self) -> float:
+        return float(self.base.sigma_mean)
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` draws: the base's, mapped."""
+        return self.transform.forward(self.base.sample(n, rng)).astype(self.dtype, copy=False)
+
+    def log_prob(self, x, rows=None) -> np.ndarray:
+        """Log-density of each row of ``x`` (or of ``x[rows]``): the base's at ``T^-1 x``, minus log|det A|."""
+        x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        if rows is not None:
+            x = x[np.asarray(rows)]
+        return self.base.log_prob(self.transform.inverse(x)) - self.transform.log_det
+
+    def pulled_back(self, x) -> np.ndarray:
+        """``T^-1 x``: rows in the base's coordinates (mixing's whitening, variant ``"conditional"``)."""
+        return self.transform.inverse(np.atleast_2d(np.asarray(x, dtype=np.float64)))
+
+    def to_state(self) -> dict:
+        """The base and the map, each saved as the value it is (checkpoints: data, not pickles)."""
+        return {"base": self.base, "transform": self.transform}
+
+    @classmethod
+    def from_state(cls, state: dict) -> AffinePushforward:
+        return cls(state["base"], state["transform"])
+
+    def __repr__(self) -> str:
+        return f"AffinePushforward({self.base!r}, {self.transform!r})"

@@ -43,6 +43,7 @@ import numpy as np
 
 from imix_cli.core import numerics as xp
 from imix_cli.core.bounds import Bound
+from imix_cli.core.distributions import AffinePushforward
 from imix_cli.core.mixing import MIXING_DEFAULTS, Generation, mix, variant_spec
 from imix_cli.core.weighted_reuse import WeightedGeneration, archived_part, plan_weighted
 
@@ -131,6 +132,16 @@ class Archive:
     # (stored, fresh) pairs of re-evaluated reused members, as exponentially forgotten sums:
     # count, sum stored, sum fresh, sum stored^2, sum stored * fresh (module docstring)
     pairs: np.ndarray = field(default_factory=lambda: np.zeros(5))
+
+    def reexpress(self, transform) -> None:
+        """Re-express every archived generation through the affine map ``transform`` (``forward``, ``inverse``,
+        ``log_det``, ``then``): each member becomes ``transform.forward(theta)`` -- the same policy, the same return --
+        and its generation's distribution the pushforward (:class:`~imix_cli.core.distributions.AffinePushforward`),
+        so that mixing stays exact. Heights (``log_u``, ratios to the density) and ``mean_weights`` stay; so do the
+        returns, ages and pairs. Why and when: :mod:`imix_cli.core.policies` ("Observation normalisation")."""
+        for g in self.generations:
+            g.samples = transform.forward(g.samples).astype(g.samples.dtype, copy=False)
+            g.dist = AffinePushforward(g.dist, transform)
 
 
 #: Weight per generation of the (stored, fresh) pairs of earlier generations: ~20 generations of memory.

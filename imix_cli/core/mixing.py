@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imix_cli.core import numerics as xp
-from imix_cli.core.distributions import DiagonalGaussian, DiagonalLogRatio, FullGaussian, FullGaussianStack
+from imix_cli.core.distributions import AffinePushforward, DiagonalGaussian, DiagonalLogRatio, FullGaussian, FullGaussianStack
 
 __all__ = [
     "DiagonalGaussian", "FullGaussian", "Generation", "MIXING_DEFAULTS", "MixingDefaults", "Variant", "VARIANT_SPECS", "VARIANTS",
@@ -459,7 +459,9 @@ def _multi_generation(builder: _Builder, new_dist, archive, depth: int, rng) -> 
 
 
 def _whitened(dist, x: np.ndarray) -> np.ndarray:
-    """``x`` in the coordinates in which ``dist`` is N(0, I)."""
+    """``x`` in the coordinates in which ``dist`` is N(0, I) (a pushforward's: its base's, at ``T^-1 x``)."""
+    if type(dist) is AffinePushforward:
+        return _whitened(dist.base, dist.pulled_back(x))
     if type(dist) is DiagonalGaussian:
         return (x - dist.mean) / dist.std
     if type(dist) is FullGaussian:

@@ -40,32 +40,51 @@ member's actions never depend on which other members share its batch (BLAS-backe
 ``matmul`` would be no faster and gives no such guarantee). :func:`unpack` gives the
 per-layer weights in the natural ``(B, in, out)`` layout, for inspection and tests.
 
-Observation normalisation, and why it is frozen (``policy.obs_norm``)
---------------------------------------------------------------------
-ES on MuJoCo needs normalised observations (Salimans et al. 2017; Mania et al. 2018): the
+Observation normalisation, and how reuse stays honest (``policy.obs_norm``, ``policy.obs_norm_freeze``)
+----------------------------------------------------------------------------------------------------
+Why. ES on MuJoCo needs normalised observations (Salimans et al. 2017; Mania et al. 2018): the
 raw coordinates differ in scale by orders of magnitude, and one sigma cannot fit them all.
 The policy then sees ``(obs - mean) / std`` with running statistics of the observations
 seen so far. That makes the policy *function* of a parameter vector depend on the
 statistics -- and importance mixing reuses a member's stored return as if it had been
-measured under the current policy function. A normaliser that keeps changing (as in ARS)
-silently turns every reused return into the return of another policy.
+measured under the current policy function. A normaliser that keeps changing (as in ARS) under an
+archive left as it was silently turns every reused return into the return of another policy.
 
-imix keeps reuse honest by freezing the statistics (:class:`ObsNormalizer`): during a
-warm-up of ``policy.obs_norm_warmup`` generations the statistics absorb the observations of
-every episode and the runner does not mix (every member is fresh, nothing is archived);
-after the warm-up they never change again, and only generations evaluated entirely under
-the frozen statistics enter the archive. Every reused return was therefore measured under
-the very policy function the member has now. The alternatives were weighed: re-measuring
-archived members after every change defeats the purpose of reuse; clearing the archive at
-each change (say every K generations) only delays the same trade-off, costs a full
-generation per change, and makes reuse rates depend on K; a frozen normaliser costs
-nothing after the warm-up. Its price is that the statistics describe the early, clumsy
-policies' states. With ARS V2-t on Hopper that price came from the variance floor, not from
-freezing: a coordinate that barely moves while the early hoppers fall is scaled by the floor's
-1/0.1 instead of its own 1/std (OBS_VAR_FLOOR below, ``policy.obs_var_floor``); with ARS's
-floor of ~1e-8, statistics frozen after 5 generations did as well as statistics updated every
-generation (docs/ars.md, "Hopper"). (tests/test_mujoco.py checks that every reused
-member's policy function equals the one its return was measured under.)
+How: two ways, each exact where it applies. During a warm-up of ``policy.obs_norm_warmup``
+generations the statistics absorb the observations of every episode and the runner does not mix
+(every member is fresh, nothing is archived); after it:
+
+* frozen (``policy.obs_norm_freeze=true``, the default; :class:`ObsNormalizer`): the statistics
+  never change again, and only generations evaluated entirely under the frozen statistics enter
+  the archive. Every reused return was measured under the very policy function the member has now;
+  exact for every policy, with or without biases, and free after the warm-up. Its price is that the
+  statistics describe the early, clumsy policies' states. With ARS V2-t on Hopper that price came
+  from the variance floor, not from freezing: a coordinate that barely moves while the early hoppers
+  fall is scaled by the floor's 1/0.1 instead of its own 1/std (OBS_VAR_FLOOR below,
+  ``policy.obs_var_floor``); with ARS's floor of ~1e-8, statistics frozen after 5 generations did as
+  well as statistics updated every generation (docs/ars.md, "Hopper"). (tests/test_mujoco.py checks
+  that every reused member's policy function equals the one its return was measured under.)
+* updated (``policy.obs_norm_freeze=false``, as ARS V2 and sb3-contrib's VecNormalize): the statistics
+  keep absorbing every generation's observations, and after each change every archived member is
+  *re-expressed* as the same policy under the new statistics. The first layer's pre-activation
+  ``((obs - m) / s) @ W1 + b1`` is the same function under ``(m', s')`` with ``W1' = diag(s'/s) W1`` and
+  ``b1' = b1 + ((m' - m) / s) @ W1`` (:class:`NormalizerChange`, an affine map T of the flat parameter
+  vector); each archived member becomes T(theta) -- the same policy, so the same return from the same
+  episode -- and its generation's distribution the pushforward of the one it was drawn from
+  (:class:`imix_cli.core.distributions.AffinePushforward`: ``log p'(x) = log p(T^-1 x) - log|det T|``),
+  so the archived generations are still samples of their (re-expressed) distributions and mixing stays
+  exact for every variant (the heights ``log(y / p(x))`` of ``"exact"`` are ratios to the density and do
+  not change; ``"conditional"`` whitens through T^-1). The ES's own state is not re-expressed: it moves in
+  the coordinates the statistics of the moment give (what ARS does). Exact only for a policy with
+  biases: without one (``policy.bias=false``, ARS's ``a = M s``), a change of the mean is an offset the
+  policy cannot express, so ``imix run`` refuses this key with mixing and ``policy.bias=false``; without
+  mixing nothing is reused and any policy may keep updating. (tests/test_obs_norm_reexpress.py checks
+  that every reused member's stored return is the return of its re-expressed parameters under the
+  current statistics.)
+
+Alternatives weighed: re-measuring archived members after every change defeats the purpose of reuse;
+clearing the archive at each change (say every K generations) only delays the same trade-off, costs a
+full generation per change, and makes reuse rates depend on K.
 
 The normalisation is folded into the first layer (:func:`fold_normalizer`):
 ``((obs - m) / s) @ W1 + b1 == obs @ (W1 / s) + (b1 - (m / s) @ W1)``, so rollouts --
@@ -87,7 +106,7 @@ OUTPUTS = ("tanh", "clip")
 
 __all__ = [
     "HIDDEN", "OUTPUTS", "num_params", "weight_columns", "searched_params", "with_zero_biases", "unpack", "BatchPolicy", "forward", "act",
-    "policy_output", "policy_action", "ObsNormalizer", "fold_normalizer",
+    "policy_output", "policy_action", "ObsNormalizer", "fold_normalizer", "NormalizerChange",
 ]  # fmt: skip
 
 
@@ -331,21 +350,104 @@ def fold_normalizer(params: np.ndarray, obs_dim: int, out_dim: int, hidden: Sequ
     return params
 
 
+class NormalizerChange:
+    """The affine map T of flat parameter vectors that keeps a policy's function across a change of statistics.
+
+    A policy's first layer sees ``(obs - mean0) / std0``: pre-activation ``((obs - mean0) / std0) @ W1 + b1``.
+    Under ``(mean1, std1)`` the same function has ``W1' = diag(std1 / std0) W1`` (row ``i`` of W1, the
+    weights of input ``i``, times ``std1_i / std0_i``) and ``b1' = b1 + ((mean1 - mean0) / std0) @ W1``; every
+    other parameter stays. T is affine, ``theta' = A theta + c``, with A block-triangular (b1' depends on b1
+    with coefficient 1 and on W1): ``log|det A| = h1 * sum_i log(std1_i / std0_i)`` (:attr:`log_det`).
+
+    Exact only for the full parameter vector of :func:`num_params`' layout (``policy.bias=true``): without a
+    bias to take it, the offset of a change of mean cannot be re-expressed. Every row is mapped on its own, by
+    elementwise operations in a fixed order, so a row's image never depends on the rows mapped with it (an
+    archive holding the same member twice maps it to the same bits twice). ``then`` composes two changes into
+    the one from the first's statistics to the second's (what an archived distribution keeps: its own
+    statistics and today's, :class:`imix_cli.core.distributions.AffinePushforward`).
+    """
+
+    def __init__(self, obs_dim: int, out_dim: int, hidden: Sequence[int], mean0, std0, mean1, std1):
+        self.obs_dim, self.out_dim, self.hidden = int(obs_dim), int(out_dim), tuple(int(h) for h in hidden)
+        self.h1 = self.hidden[0] if self.hidden else self.out_dim
+        self.dim = num_params(self.obs_dim, self.out_dim, self.hidden)
+        shape = (self.obs_dim,)
+        self.mean0, self.std0, self.mean1, self.std1 = (np.array(v, dtype=np.float64).reshape(shape) for v in (mean0, std0, mean1, std1))
+        if not (np.all(np.isfinite(self.mean0)) and np.all(np.isfinite(self.mean1)) and np.all(self.std0 > 0) and np.all(self.std1 > 0)
+                and np.all(np.isfinite(self.std0)) and np.all(np.isfinite(self.std1))):  # fmt: skip
+            raise ValueError("NormalizerChange: statistics must be finite, standard deviations > 0")
+        self.ratio = self.std1 / self.std0  # row i of W1 scales by this
+        self.shift = (self.mean1 - self.mean0) / self.std0  # b1 moves by shift @ W1 (the old W1)
+        self.log_det = float(self.h1 * xp.dot(np.ones(self.obs_dim), xp.log(self.ratio)))
+
+    def _checked(self, x) -> np.ndarray:
+        x = np.array(x, dtype=np.float64, ndmin=2)  # a copy: the caller's array is never changed
+        if x.ndim != 2 or x.shape[1] != self.dim:
+            raise ValueError(f"NormalizerChange: parameters of shape {x.shape}, expected (n, {self.dim})")
+        return x
+
+    def _bias_move(self, W1: np.ndarray) -> np.ndarray:
+        """``shift @ W1`` for each row's W1 (n, obs_dim, h1), summed over inputs in order."""
+        move = np.zeros((W1.shape[0], self.h1))
+        for i in range(self.obs_dim):
+            move += self.shift[i] * W1[:, i, :]
+        return move
+
+    def forward(self, x) -> np.ndarray:
+        """T(x): parameter rows (n, d) under the old statistics -> the same policies under the new (a new array)."""
+        x = self._checked(x)
+        n, k = x.shape[0], self.obs_dim * self.h1
+        W1 = x[:, :k].reshape(n, self.obs_dim, self.h1)
+        x[:, k : k + self.h1] += self._bias_move(W1)  # with the old W1
+        x[:, :k] = (W1 * self.ratio[None, :, None]).reshape(n, k)
+        return x
+
+    def inverse(self, y) -> np.ndarray:
+        """T^-1(y): parameter rows under the new statistics -> the same policies under the old (a new array)."""
+        y = self._checked(y)
+        n, k = y.shape[0], self.obs_dim * self.h1
+        W1 = y[:, :k].reshape(n, self.obs_dim, self.h1) / self.ratio[None, :, None]  # the old W1
+        y[:, :k] = W1.reshape(n, k)
+        y[:, k : k + self.h1] -= self._bias_move(W1)
+        return y
+
+    def then(self, later: NormalizerChange) -> NormalizerChange:
+        """The change from this one's old statistics to ``later``'s new ones (``later`` starts where this one ends)."""
+        return NormalizerChange(self.obs_dim, self.out_dim, self.hidden, self.mean0, self.std0, later.mean1, later.std1)
+
+    def to_state(self) -> dict:
+        """The layout and the two statistics (checkpoints: data, not pickles)."""
+        return {
+            "obs_dim": self.obs_dim, "out_dim": self.out_dim, "hidden": list(self.hidden),
+            "mean0": self.mean0.copy(), "std0": self.std0.copy(), "mean1": self.mean1.copy(), "std1": self.std1.copy(),
+        }  # fmt: skip
+
+    @classmethod
+    def from_state(cls, state: dict) -> NormalizerChange:
+        return cls(int(state["obs_dim"]), int(state["out_dim"]), [int(h) for h in state["hidden"]], state["mean0"], state["std0"], state["mean1"],
+                   state["std1"])  # fmt: skip
+
+    def __repr__(self) -> str:
+        return f"NormalizerChange(obs_dim={self.obs_dim}, hidden={self.hidden}, out_dim={self.out_dim}, log_det={self.log_det:.4g})"
+
+
 class ObsNormalizer:
-    """Running mean and std of observations, frozen after ``warmup`` generations (module docstring).
+    """Running mean and std of observations: frozen after ``warmup`` generations, or (``freeze=False``) updated
+    for the whole run (module docstring).
 
     ``add(sums, sumsqs, counts)`` takes per-member sums over each episode's observations (in
     member order, so the statistics do not depend on how the episodes were split over
-    processes); ``end_generation()`` closes a generation and freezes the statistics after the
-    ``warmup``-th. A frozen normaliser ignores ``add``: nothing can change it any more.
+    processes); ``end_generation()`` closes a generation and, with ``freeze``, freezes the statistics after the
+    ``warmup``-th. A frozen normaliser ignores ``add``: nothing can change it any more. :attr:`warming`: the
+    warm-up is not over (the runner does not mix).
     """
 
-    def __init__(self, obs_dim: int, warmup: int, var_floor: float = OBS_VAR_FLOOR):
+    def __init__(self, obs_dim: int, warmup: int, var_floor: float = OBS_VAR_FLOOR, freeze: bool = True):
         if warmup < 1:
             raise ValueError(f"warmup must be >= 1 generation, got {warmup}")
         if not (np.isfinite(var_floor) and var_floor > 0):
             raise ValueError(f"var_floor must be a finite number > 0, got {var_floor}")
-        self.obs_dim, self.warmup, self.var_floor = int(obs_dim), int(warmup), float(var_floor)
+        self.obs_dim, self.warmup, self.var_floor, self.freeze = int(obs_dim), int(warmup), float(var_floor), bool(freeze)
         self.count = 0
         self.sum = np.zeros(self.obs_dim)
         self.sumsq = np.zeros(self.obs_dim)
@@ -357,6 +459,7 @@ class ObsNormalizer:
             "obs_dim": self.obs_dim,
             "warmup": self.warmup,
             "var_floor": self.var_floor,
+            "freeze": self.freeze,
             "count": self.count,
             "sum": self.sum.copy(),
             "sumsq": self.sumsq.copy(),
@@ -365,7 +468,8 @@ class ObsNormalizer:
 
     @classmethod
     def from_state(cls, state: dict) -> ObsNormalizer:
-        norm = cls(int(state["obs_dim"]), int(state["warmup"]), float(state.get("var_floor", OBS_VAR_FLOOR)))  # older checkpoints: the default
+        norm = cls(int(state["obs_dim"]), int(state["warmup"]), float(state.get("var_floor", OBS_VAR_FLOOR)),  # older checkpoints: the defaults
+                   bool(state.get("freeze", True)))  # fmt: skip
         norm.count, norm.generations = int(state["count"]), int(state["generations"])
         norm.sum, norm.sumsq = np.asarray(state["sum"], dtype=np.float64), np.asarray(state["sumsq"], dtype=np.float64)
         if norm.sum.shape != (norm.obs_dim,) or norm.sumsq.shape != (norm.obs_dim,):
@@ -373,8 +477,13 @@ class ObsNormalizer:
         return norm
 
     @property
+    def warming(self) -> bool:
+        """The warm-up is not over: no mixing, nothing archived."""
+        return self.generations < self.warmup
+
+    @property
     def frozen(self) -> bool:
-        return self.generations >= self.warmup
+        return self.freeze and not self.warming
 
     def add(self, sums: np.ndarray, sumsqs: np.ndarray, counts: np.ndarray) -> None:
         if self.frozen:
@@ -403,6 +512,10 @@ class ObsNormalizer:
     def fold(self, params: np.ndarray, out_dim: int, hidden: Sequence[int]) -> np.ndarray:
         """``params`` with the current statistics folded in (:func:`fold_normalizer`)."""
         return fold_normalizer(params, self.obs_dim, out_dim, hidden, self.mean, self.std)
+
+    def change(self, mean0: np.ndarray, std0: np.ndarray, out_dim: int, hidden: Sequence[int]) -> NormalizerChange:
+        """The :class:`NormalizerChange` from statistics ``(mean0, std0)`` to the current ones."""
+        return NormalizerChange(self.obs_dim, out_dim, hidden, mean0, std0, self.mean, self.std)
 
 
 # ------------------------------------------------------------------ one policy

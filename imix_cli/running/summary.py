@@ -148,7 +148,7 @@ _SHOWN_KEYS = {
     "weight_decay": "weight_decay", "weight_decay_form": "weight_decay_form", "im_alpha": "im_alpha", "eim_generations": "eim_generations",
     "reeval_age": "reeval_age", "reeval_prob": "reeval_prob", "reeval_count": "reeval_count", "env_max_steps": "env.max_steps",
     "hidden": "policy.hidden", "obs_norm": "policy.obs_norm", "obs_var_floor": "policy.obs_var_floor", "policy_bias": "policy.bias",
-    "policy_output": "policy.output",
+    "policy_output": "policy.output", "obs_norm_freeze": "policy.obs_norm_freeze",
 }  # fmt: skip
 _NAMED_AS = {"env_max_steps": "env.max_steps", "policy_bias": "bias", "policy_output": "output"}
 

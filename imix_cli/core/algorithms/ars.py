@@ -15,8 +15,10 @@ One generation (an ARS *iteration*) with N directions, step size alpha and noise
     m <- m + alpha / (b sigma_R) sum_kept (r_k+ - r_k-) delta_k
 
 V2 (state normalisation) is the policy's observation normaliser (``policy.obs_norm``), with
-statistics frozen after a warm-up rather than updated forever: a stored return is only the
-return of the policy function it was measured with (docs/ars.md).
+statistics frozen after a warm-up by default: a stored return is only the return of the policy
+function it was measured with (docs/ars.md). ``policy.obs_norm_freeze=false`` updates them forever,
+as ARS does, and re-expresses the archived anchors under each new statistics (with mixing, this
+needs ``policy.bias=true``: imix_cli.core.policies, "Observation normalisation").
 
 In imix's terms: ``popsize`` is the number of *members* 2N (episodes of a generation without
 mixing, as for the other ES), ``sigma`` is nu, ``lr`` is alpha (no Adam), ``algo.top`` is b.

@@ -65,6 +65,11 @@ def es_spec(cfg: dict, algo: str, algo_cfg: dict, env_cfg: dict, launcher: str |
     env_name, env_id, max_steps = env_of(env_cfg)
     env_kwargs = env_kwargs_of(env_cfg, env_name, env_id)
     policy = _policy_and_evaluator(checked, env_name, launcher)
+    if mixing != "none" and not policy["obs_norm_freeze"] and not policy["policy_bias"]:
+        raise ConfigError(
+            f"policy.obs_norm_freeze=false with {mixing}=true and policy.bias=false: a change of the observation mean cannot be re-expressed "
+            "in a policy without biases, so reuse would not be exact; use policy.bias=true (or policy.obs_norm_freeze=true)"
+        )
     # evaluator=ray: the seeds run in the main process, which alone drives the run's one Ray runtime
     # (seed processes each started a Ray of their own, each sized to every CPU).
     spreading = checked["evaluator"] if checked["evaluator"] in ("pool", "ray") else None
@@ -213,10 +218,15 @@ def _policy_and_evaluator(checked: dict, env_name: str, launcher: str | None) ->
     extra = {k: v for k, v in (("bias", bias), ("output", output)) if v != POLICY_DEFAULTS[k]}
     if obs_norm and var_floor != POLICY_DEFAULTS["obs_var_floor"]:
         extra["obs_var_floor"] = var_floor
+    freeze = checked["policy.obs_norm_freeze"]
+    if freeze != POLICY_DEFAULTS["obs_norm_freeze"]:
+        if not obs_norm:
+            raise ConfigError(f"policy.obs_norm_freeze={str(freeze).lower()}: applies with policy.obs_norm=true only (the normaliser's statistics)")
+        extra["obs_norm_freeze"] = freeze
     default = hidden == POLICY_DEFAULTS["hidden"] and not obs_norm and not extra
     stored = None if default else {"hidden": list(hidden), "obs_norm": obs_norm, "obs_norm_warmup": warmup if obs_norm else None, **extra}
     return {
-        "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup, "policy_bias": bias, "policy_output": output,
+        "hidden": hidden, "obs_norm": obs_norm, "obs_norm_warmup": warmup, "obs_norm_freeze": freeze, "policy_bias": bias, "policy_output": output,
         "obs_var_floor": var_floor if obs_norm else POLICY_DEFAULTS["obs_var_floor"], "evaluator_workers": n_workers, "stored": stored,
     }  # fmt: skip
 

@@ -295,9 +295,16 @@ KEYS = (
     RunKey("policy.hidden", (8, 8), "tanh hidden layer sizes ([] = linear policy)", "tanh hidden layer sizes; `[]` = linear policy",
            "the policy", _hidden, absent=(8, 8), shown="[8,8]"),
     RunKey("policy.obs_norm", False, "observation normalisation (gymnasium envs), frozen after the warm-up",
-           "normalise observations (gymnasium envs), statistics frozen after the warm-up (honest reuse)", "the policy", flag, absent=False),
+           "normalise observations (gymnasium envs), statistics frozen after the warm-up (honest reuse) unless "
+           "`policy.obs_norm_freeze=false`", "the policy", flag, absent=False),
     RunKey("policy.obs_norm_warmup", 5, "warm-up generations, without mixing, that gather the statistics",
-           "generations that gather the statistics, without mixing, before they freeze", "the policy", integer(1), absent=5),
+           "generations that gather the statistics, without mixing, before they freeze (or, with `policy.obs_norm_freeze=false`, "
+           "before mixing starts)", "the policy", integer(1), absent=5),
+    RunKey("policy.obs_norm_freeze", True, "false: the statistics keep updating after the warm-up",
+           "`true`: the normaliser's statistics freeze after the warm-up; `false`: they keep absorbing every generation's "
+           "observations (as ARS V2), and with mixing every archived member is re-expressed as the same policy under the new "
+           "statistics and its generation's distribution as the pushforward, so reuse stays exact; with `im`/`eim` this needs "
+           "`policy.bias=true` (policies.py, \"Observation normalisation\")", "the policy", flag, absent=True),
     RunKey("policy.obs_var_floor", 0.01, "lower bound of each observation coordinate's variance (ARS: 1e-8)",
            "lower bound (> 0) of each observation coordinate's variance in the normaliser: 0.01 (Salimans et al. 2017) "
            "keeps a coordinate that barely moved during the warm-up from being blown up; the ARS presets set 1e-8, ARS's "

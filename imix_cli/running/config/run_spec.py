@@ -91,6 +91,7 @@ class RunSpec:
     hidden: tuple = _key("policy.hidden")  # tanh hidden layer sizes, () = linear
     obs_norm: bool = _key("policy.obs_norm")  # observation normalisation, frozen after the warm-up
     obs_norm_warmup: int = _key("policy.obs_norm_warmup")  # generations of statistics (mixing off) before it freezes; with obs_norm only
+    obs_norm_freeze: bool = _key("policy.obs_norm_freeze")  # false: the statistics keep updating, the archive is re-expressed
     obs_var_floor: float = _key("policy.obs_var_floor")  # lower bound of each observation coordinate's variance
     policy_bias: bool = _key("policy.bias")  # false = the ES searches the weights only, biases stay 0 (ARS's a = M s)
     policy_output: str = _key("policy.output")  # continuous actions tanh-squashed or clipped (imix_cli.core.policies)
@@ -134,6 +135,8 @@ class RunSpec:
             changed["obs_norm"] = self.obs_norm_warmup  # the warm-up in generations
             if self.obs_var_floor != POLICY_DEFAULTS["obs_var_floor"]:
                 changed["obs_var_floor"] = self.obs_var_floor
+            if self.obs_norm_freeze != POLICY_DEFAULTS["obs_norm_freeze"]:
+                changed["obs_norm_freeze"] = self.obs_norm_freeze
         if not self.policy_bias:
             changed["bias"] = False
         if self.policy_output != POLICY_DEFAULTS["output"]:

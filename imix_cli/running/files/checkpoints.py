@@ -32,7 +32,9 @@ so new fields need no change here: JSON scalars stay as they are (floats round-t
 NaN included); an ndarray becomes ``{"array": name}``; a list ``{"list": [...]}``; a dict
 ``{"dict": {...}}``; a numpy Generator ``{"rng": bit_generator.state}`` (PCG64 only); an ES
 ``{"es": state_dict}`` (loaded into a freshly built ES of the same config); a search
-distribution ``{"dist": class name, "state": to_state()}``; an archived
+distribution ``{"dist": class name, "state": to_state()}`` (a re-expressed generation's
+:class:`~imix_cli.core.distributions.AffinePushforward` too: its base distribution and its
+:class:`~imix_cli.core.policies.NormalizerChange`, each such a node, rebuilt exactly on load); an archived
 :class:`~imix_cli.core.mixing.Generation` ``{"generation": {field: ...}}`` over all its dataclass
 fields, whatever they are.
 """
@@ -48,9 +50,9 @@ from pathlib import Path
 import numpy as np
 
 from imix_cli import messages
-from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
+from imix_cli.core.distributions import AffinePushforward, DiagonalGaussian, FullGaussian
 from imix_cli.core.mixing import Generation
-from imix_cli.core.policies import ObsNormalizer
+from imix_cli.core.policies import NormalizerChange, ObsNormalizer
 from imix_cli.running.files.results import regular_file_size
 from imix_cli.running.files.writing import atomic_write_bytes
 
@@ -58,7 +60,7 @@ FORMAT = "imix-checkpoint"
 FORMAT_VERSION = 1
 _HEADER = "header"
 #: Value classes saved through their ``to_state()`` and rebuilt by ``cls.from_state(state)``.
-_DISTRIBUTIONS = {cls.__name__: cls for cls in (DiagonalGaussian, FullGaussian, ObsNormalizer)}
+_DISTRIBUTIONS = {cls.__name__: cls for cls in (DiagonalGaussian, FullGaussian, ObsNormalizer, AffinePushforward, NormalizerChange)}
 
 
 #: The most a checkpoint may hold when the caller gives no bound derived from its run's config.

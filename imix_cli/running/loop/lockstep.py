@@ -77,6 +77,7 @@ class LoopSettings:
     eval_mean_every: int
     eval_mean_episodes: int
     checkpoint_every: int  # 0: no checkpoints (as for an ES that has no state dict)
+    obs_norm_freeze: bool = True  # policy.obs_norm_freeze: false, the statistics keep updating and the archive is re-expressed
 
 
 def loop_settings(spec, evaluator) -> LoopSettings:
@@ -89,7 +90,7 @@ def loop_settings(spec, evaluator) -> LoopSettings:
     return LoopSettings(
         spec.algo, spec.env_name, spec.mixing, spec.popsize, spec.generations, search_dim(spec, evaluator), evaluator.obs_dim, es_options, mixing,
         spec.obs_norm_warmup if spec.obs_norm else None, spec.obs_var_floor, spec.policy_bias, spec.eval_mean_every, spec.eval_mean_episodes,
-        spec.checkpoint_every,
+        spec.checkpoint_every, spec.obs_norm_freeze,
     )  # fmt: skip
 
 
@@ -125,7 +126,9 @@ def new_seed_state(settings: LoopSettings, seed: int) -> SeedState:
     """Seed ``seed`` of a run at generation 0."""
     sample_seq, episode_seq = np.random.SeedSequence(seed).spawn(2)
     es = GuardedES(make_es(settings.algo, settings.dim, **settings.es_options))
-    obs_norm = None if settings.obs_norm_warmup is None else ObsNormalizer(settings.obs_dim, settings.obs_norm_warmup, settings.obs_var_floor)
+    obs_norm = None
+    if settings.obs_norm_warmup is not None:
+        obs_norm = ObsNormalizer(settings.obs_dim, settings.obs_norm_warmup, settings.obs_var_floor, freeze=settings.obs_norm_freeze)
     mean_eval_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(MEAN_EVAL_STREAM,)))
     return SeedState(
         seed, es, np.random.default_rng(sample_seq), np.random.default_rng(episode_seq), obs_norm=obs_norm, mean_eval_rng=mean_eval_rng
@@ -162,9 +165,10 @@ def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator,
     ``plan``: the planning half of the generation step (:func:`imix_cli.core.generation.plan_generation`,
     which mixes); a benchmark passes a timed one instead of patching a module.
     """
-    # policy.obs_norm: while a seed's statistics still change (its warm-up), stored returns would
-    # belong to another policy function, so its generation neither mixes nor enters the archive.
-    warming = [st.obs_norm is not None and not st.obs_norm.frozen for st in states]
+    # policy.obs_norm: during a seed's warm-up, its generations neither mix nor enter the archive (the statistics
+    # change a lot and there is nothing to reuse yet); after it, the statistics are frozen, or they keep updating
+    # (policy.obs_norm_freeze=false) and the archive is re-expressed under every new statistics (reexpress_archive).
+    warming = [st.obs_norm is not None and st.obs_norm.warming for st in states]
     mixing = [dataclasses.replace(settings.mixing, variant=None) if w else settings.mixing for w in warming]
     plans = [plan(st.es, st.archive, m, st.sample_rng) for st, m in zip(states, mixing)]
     points = [p.points for p in plans]  # the members to evaluate, then any probes (CMA-ES's TPA): all are episodes
@@ -178,7 +182,8 @@ def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator,
         g, n = p.generation, len(x)
         dist = st.es.distribution  # the distribution g was drawn from, before tell moves it
         fitness = finish_generation(st.es, st.archive, m, p, st.es.training_fitness(returns[offset : offset + n], steps[offset : offset + n]))
-        if warm:  # the warm-up: the statistics absorb this generation's observations (after its best is kept)
+        updating = st.obs_norm is not None and not st.obs_norm.frozen
+        if updating:  # the statistics absorb this generation's observations (after its best is kept)
             sums, sumsqs = evaluator.last_obs_stats
             observed = (sums[offset : offset + n], sumsqs[offset : offset + n], steps[offset : offset + n])
         st.evaluations += n
@@ -195,10 +200,28 @@ def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator,
             top = np.flatnonzero(finite)[np.argmax(fitness[finite])]
             # with policy.obs_norm, as the policy on raw observations it was evaluated as
             st.best_params, st.best_return = policy_params(settings, st, g.samples[top : top + 1], evaluator)[0], float(fitness[top])
-        if warm:
+        if updating:
+            before = (st.obs_norm.mean, st.obs_norm.std)
             st.obs_norm.add(*observed)
             st.obs_norm.end_generation()
+            if not warm:
+                reexpress_archive(settings, st, before, evaluator)
     measure_distribution_means(states, settings, evaluator)
+
+
+def reexpress_archive(settings: LoopSettings, st: SeedState, before: tuple, evaluator) -> None:
+    """``policy.obs_norm_freeze=false``: the seed's statistics moved from ``before`` (mean, std) to its normaliser's
+    current ones; every archived member becomes the same policy under the new statistics, its generation's
+    distribution the pushforward (:meth:`imix_cli.core.generation.Archive.reexpress`, :class:`imix_cli.core.policies.NormalizerChange`).
+    Exact with biases only: ``imix run`` refuses mixing with ``policy.bias=false`` here."""
+    if not st.archive.generations:
+        return
+    if not settings.policy_bias:
+        raise ValueError("policy.obs_norm_freeze=false with mixing needs policy.bias=true (a change of mean needs a bias to re-express it)")
+    change = st.obs_norm.change(*before, evaluator.out_dim, evaluator.hidden)
+    if np.array_equal(change.mean0, change.mean1) and np.array_equal(change.std0, change.std1):
+        return  # no observation this generation (every member reused): nothing changed
+    st.archive.reexpress(change)
 
 
 def measure_distribution_means(states: list[SeedState], settings: LoopSettings, evaluator) -> None:

@@ -14,8 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from imix_cli.core.distributions import AffinePushforward
 from imix_cli.core.generation import scheme_of
 from imix_cli.core.mixing import variant_spec
+from imix_cli.core.policies import NormalizerChange
 from imix_cli.messages import warn as _warn
 from imix_cli.running.files.checkpoints import DEFAULT_MAX_BYTES, CheckpointError, checkpoint_path, load_or_warn
 from imix_cli.running.files.results import COLUMNS
@@ -177,6 +179,8 @@ def validate_seed_state(st, spec, dim: int, max_steps: int | None = None, policy
         _fail("observation normaliser does not match policy.obs_norm")
     if st.obs_norm is not None and st.obs_norm.var_floor != spec.obs_var_floor:
         _fail(f"observation normaliser's variance floor {st.obs_norm.var_floor!r} is not policy.obs_var_floor={spec.obs_var_floor!r}")
+    if st.obs_norm is not None and st.obs_norm.freeze != spec.obs_norm_freeze:
+        _fail(f"observation normaliser's freeze={st.obs_norm.freeze!r} is not policy.obs_norm_freeze={spec.obs_norm_freeze!r}")
 
 
 def _validate_es(st, spec, dim: int) -> None:
@@ -225,8 +229,13 @@ def _validate_archive(st, spec, dim: int, score_ok) -> None:
         finite = ret[np.isfinite(ret)]
         if finite.size and not (score_ok(float(finite.min())) and score_ok(float(finite.max()))):
             _fail(f"archive generation {k}: returns outside {spec.env_name}'s")
+        base = g.dist
+        if type(g.dist) is AffinePushforward:  # policy.obs_norm_freeze=false: re-expressed under newer statistics
+            if not (spec.obs_norm and not spec.obs_norm_freeze) or type(g.dist.transform) is not NormalizerChange or g.dist.transform.dim != dim:
+                _fail(f"archive generation {k}: a re-expressed distribution where the run re-expresses none")
+            base = g.dist.base
         mean = np.asarray(getattr(g.dist, "mean", None))
-        if mean.shape != (dim,) or not np.all(np.isfinite(mean)) or type(g.dist) is not type(st.es.distribution):
+        if mean.shape != (dim,) or not np.all(np.isfinite(mean)) or type(base) is not type(st.es.distribution):
             _fail(f"archive generation {k}: its distribution is not one of {dim} finite parameters")
         log_u = getattr(g, "log_u", None)
         if log_u is not None and (not isinstance(log_u, np.ndarray) or log_u.shape != (rows,) or np.any(log_u > 0)):
