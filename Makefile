@@ -141,11 +141,13 @@ reproduce-mujoco:  ## MuJoCo study (SNES/OpenES x EIM x Swimmer/Hopper/HalfCheet
 
 # Reuse where overlap is small (docs/research/reuse_modes.md): SNES on MuJoCo without reuse, with exact mixing and
 # with importance-weighted reuse (eim_variant=weighted), linear policies on HalfCheetah and Hopper, a 64x64 MLP on
-# HalfCheetah (and, without reuse, at twice the learning rate), 10 seeds each; then the tables, into
-# docs/research/reuse_modes.md. About 75 min on a quiet 2-core machine; finished runs are skipped.
+# HalfCheetah (and, without reuse, at twice the learning rate), and ARS V2-t on Hopper with frozen and with updated
+# observation statistics (policy.obs_norm_freeze), 10 seeds each; then the tables, into docs/research/reuse_modes.md.
+# About 80 min on a 2-core machine; finished runs are skipped.
 REUSE_MODES_SEEDS       ?= 10
 REUSE_MODES_GENERATIONS ?= 100
 REUSE_MODES_EXPERIMENT  ?= reuse_mujoco
+REUSE_MODES_ARS = algo=ars env=hopper +ars=hopper policy.bias=true generations=100 eval_mean_every=5 eval_mean_episodes=3 seeds=$(REUSE_MODES_SEEDS) evaluator=pool progress=false experiment=ars_obsnorm
 REUSE_MODES = algo=snes policy.obs_norm=true policy.obs_norm_warmup=3 sigma=0.1 lr=0.02 popsize=20 evaluator=pool seeds=$(REUSE_MODES_SEEDS) generations=$(REUSE_MODES_GENERATIONS) progress=false experiment=$(REUSE_MODES_EXPERIMENT)
 
 .PHONY: reproduce-reuse-modes
@@ -155,7 +157,8 @@ reproduce-reuse-modes:  ## reuse modes on MuJoCo (none / exact / weighted; linea
 	$(IMIX) run -m env=halfcheetah 'policy.hidden=[64,64]' eim=false,true $(REUSE_MODES)
 	$(IMIX) run -m env=halfcheetah 'policy.hidden=[64,64]' eim=true eim_variant=weighted $(REUSE_MODES)
 	$(IMIX) run env=halfcheetah 'policy.hidden=[64,64]' eim=false $(REUSE_MODES) lr=0.04
-	$(PY) benchmarks/reuse_modes.py --experiment results/$(REUSE_MODES_EXPERIMENT) --page docs/research/reuse_modes.md
+	$(IMIX) run -m eim=false,true policy.obs_norm_freeze=true,false $(REUSE_MODES_ARS)
+	$(PY) benchmarks/reuse_modes.py --experiment results/$(REUSE_MODES_EXPERIMENT) --experiment results/ars_obsnorm --page docs/research/reuse_modes.md
 
 # Does reuse bend the search? (docs/research/bias.md) One table: every ES without mixing and with
 # each rule (exact, conditional, exact + reeval_count=2), from constant fitness and pure noise to

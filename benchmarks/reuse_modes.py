@@ -2,8 +2,10 @@
 
 Every number here is read from the run CSVs of ``make reproduce-reuse-modes`` (SNES, popsize 20, sigma 0.1, lr 0.02,
 observations normalised after a 3-generation warm-up, 100 generations, 10 seeds per run; HalfCheetah-v5 and Hopper-v5
-with a linear policy, HalfCheetah-v5 with a 64x64 MLP). Everything is measured on theta, the distribution mean, on
-fresh episodes (``mean_policy_score``: 5 episodes every 10 generations), never on stored returns. Per run:
+with a linear policy, HalfCheetah-v5 with a 64x64 MLP; and ARS V2-t on Hopper-v5, ``+ars=hopper policy.bias=true``,
+frozen or updated observation statistics). Everything is measured on theta, the distribution mean, on fresh episodes
+(``mean_policy_score``: 5 episodes every 10 generations, ARS 3 every 5), never on stored returns. A run is compared
+with the run without reuse of the same ES and settings. Per run:
 
 * episodes per seed and reuse (the share of a generation's members not evaluated: the episodes saved);
 * final theta (generation 100), mean over seeds with a 95 % percentile-bootstrap interval, and the two-sided
@@ -16,7 +18,7 @@ fresh episodes (``mean_policy_score``: 5 episodes every 10 generations), never o
   by up to 200 episodes without reuse and 10 generations' fresh episodes with it (fewer), which favours reuse by
   at most that much.
 
-    python benchmarks/reuse_modes.py [--experiment results/reuse_mujoco] [--page docs/research/reuse_modes.md]
+    python benchmarks/reuse_modes.py [--experiment results/reuse_mujoco --experiment results/ars_obsnorm] [--page docs/research/reuse_modes.md]
 
 ``--page`` replaces the text between the page's ``<!-- reuse-modes-table -->`` and ``<!-- /reuse-modes-table -->``
 marks with the tables (what ``make reproduce-reuse-modes`` does).
@@ -32,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 #: Return thresholds by env: ones the study's budget reaches, then the ARS paper's (Mania et al. 2018, Table 1).
-THRESHOLDS = {"HalfCheetah-v5": (500, 1000, 2000, 3430), "Hopper-v5": (500, 1000, 3120)}
+THRESHOLDS = {"HalfCheetah-v5": (500, 1000, 2000, 3430), "Hopper-v5": (500, 1000, 2000, 3120)}
 
 
 def _mode(name: str) -> str:
@@ -45,7 +47,8 @@ def _mode(name: str) -> str:
 def _settings(name: str) -> str:
     """The settings of a run other than its reuse mode: the policy and anything else in its name (lr)."""
     rest = name.split("-", 3)[3] if name.count("-") >= 3 else ""
-    tokens = [t for t in re.split(r"[-,]", rest) if "=" in t and not t.startswith(("eim_variant", "obs_norm", "popsize", "sigma"))]
+    shared = ("eim_variant", "obs_norm=", "popsize", "sigma", "algo.", "obs_var", "output", "weight_decay")  # the same in every run compared
+    tokens = [t for t in re.split(r"[-,]", rest) if "=" in t and not t.startswith(shared)]
     return ",".join(sorted(tokens))
 
 
@@ -161,14 +164,17 @@ def table(runs: list[dict]) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--experiment", default="results/reuse_mujoco", type=Path)
+    parser.add_argument("--experiment", action="append", type=Path, help="a folder of runs (repeat for several); default results/reuse_mujoco")
     parser.add_argument("--page", default=None, type=Path, help="write the tables into this page, between its reuse-modes-table marks")
     args = parser.parse_args(argv)
-    if not args.experiment.is_dir():
-        parser.error(f"--experiment {args.experiment}: no such folder (make reproduce-reuse-modes makes it)")
-    runs = load(args.experiment)
-    if not runs:
-        parser.error(f"--experiment {args.experiment}: no run CSVs in it")
+    runs = []
+    for folder in args.experiment or [Path("results/reuse_mujoco")]:
+        if not folder.is_dir():
+            parser.error(f"--experiment {folder}: no such folder (make reproduce-reuse-modes makes it)")
+        found = load(folder)
+        if not found:
+            parser.error(f"--experiment {folder}: no run CSVs in it")
+        runs += [{**run, "settings": f"{run['name'].split('-')[0]} {run['settings']}"} for run in found]
     text = table(runs)
     print(text)
     if args.page is not None:
