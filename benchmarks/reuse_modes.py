@@ -13,7 +13,9 @@ with the run without reuse of the same ES and settings. Per run:
 * the theta of the run without reuse when it had run as many episodes as this run did in all (return at equal
   episodes: its last measurement at or before that budget);
 * per threshold: seeds whose theta reached it, median episodes (and wall seconds) to the first measurement that
-  did, among those, and the ratio to the run without reuse (its median over this one's: > 1, fewer episodes).
+  did, among those, and the ratio to the run without reuse (its median over this one's: > 1, fewer episodes); then
+  the median over all seeds, a seed that never reached it counted as infinite (infinite when half the seeds or more
+  did not), and the same ratio on those medians: the one that does not flatter a run whose weaker seeds drop out.
   theta is measured every 10 generations, so episodes to a threshold are rounded up to the next measurement:
   by up to 200 episodes without reuse and 10 generations' fresh episodes with it (fewer), which favours reuse by
   at most that much.
@@ -109,6 +111,11 @@ def summarise(run: dict) -> dict:
     return out
 
 
+def _median_all(firsts, seeds: int) -> float:
+    """The median over all ``seeds`` of the episodes to a threshold, a seed that never reached it counted as infinite."""
+    return float(np.median([e for e, _ in firsts] + [np.inf] * (seeds - len(firsts))))
+
+
 def theta_at(frames, budget: float) -> np.ndarray:
     """Each seed's theta at its last measurement with at most ``budget`` episodes run (NaN before the first)."""
     values = []
@@ -125,8 +132,9 @@ def table(runs: list[dict]) -> str:
         "|---|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     hits = [
-        "| env | policy, settings | reuse mode | threshold | reached | median episodes to it | fewer episodes than none | median wall s to it |",
-        "|---|---|---|---:|---:|---:|---:|---:|",
+        "| env | policy, settings | reuse mode | threshold | reached | median episodes to it (seeds that reached it) | fewer than none |"
+        " median episodes, all seeds (never: ∞) | fewer than none, all seeds | median wall s to it |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     order = {"none": 0, "exact": 1, "weighted": 2}
     groups: dict = {}
@@ -152,13 +160,21 @@ def table(runs: list[dict]) -> str:
             )
             for threshold, firsts in s["hits"].items():
                 n = len(run["frames"])
+                ref = base["hits"].get(threshold) if base is not None and run["mode"] != "none" else None
+                every = _median_all(firsts, n)
+                ratio_all = (
+                    f"{_median_all(ref, len(base_run['frames'])) / every:.2f}×"
+                    if ref and np.isfinite(every) and np.isfinite(_median_all(ref, len(base_run["frames"])))
+                    else ""
+                )
+                every_text = f"{every:,.0f}" if np.isfinite(every) else "∞"
                 if firsts:
                     med, wall = float(np.median([e for e, _ in firsts])), float(np.median([w for _, w in firsts]))
-                    ref = base["hits"].get(threshold) if base is not None else None
-                    ratio = f"{float(np.median([e for e, _ in ref])) / med:.2f}×" if ref and run["mode"] != "none" else ""
-                    hits.append(f"| {env} | {settings} | {run['mode']} | {threshold} | {len(firsts)}/{n} | {med:,.0f} | {ratio} | {wall:.0f} |")
+                    ratio = f"{float(np.median([e for e, _ in ref])) / med:.2f}×" if ref else ""
+                    cells = f"{len(firsts)}/{n} | {med:,.0f} | {ratio} | {every_text} | {ratio_all} | {wall:.0f}"
+                    hits.append(f"| {env} | {settings} | {run['mode']} | {threshold} | {cells} |")
                 else:
-                    hits.append(f"| {env} | {settings} | {run['mode']} | {threshold} | 0/{n} | – | | – |")
+                    hits.append(f"| {env} | {settings} | {run['mode']} | {threshold} | 0/{n} | – | | ∞ | | – |")
     return "\n".join(lines) + "\n\n" + "\n".join(hits) + "\n"
 
 
