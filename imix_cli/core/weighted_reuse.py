@@ -54,20 +54,23 @@ from imix_cli.core.mixing import Generation
 def log_mixture(dists, sizes, x: np.ndarray) -> np.ndarray:
     """log q(x), q = sum_g n_g p_g / sum_g n_g: the balance heuristic's proposal of a pool drawn from ``dists``."""
     sizes = np.asarray(sizes, dtype=np.float64)
-    logs = np.stack([d.log_prob(x) + xp.log(float(n)) for d, n in zip(dists, sizes) if n > 0])
-    top = logs.max(axis=0)
-    return top + np.log(np.exp(logs - top).sum(axis=0)) - xp.log(float(sizes.sum()))
+    logs = [np.asarray(d.log_prob(x), dtype=np.float64) + xp.log(float(n)) for d, n in zip(dists, sizes) if n > 0]
+    top = np.max(logs, axis=0)
+    total = np.zeros_like(top)
+    for row in logs:  # one fixed order of the sum (numerics' exp and log: the same bits on every CPU)
+        total += xp.exp(row - top)
+    return top + xp.log(total) - xp.log(float(sizes.sum()))
 
 
 def normalised_weights(log_w: np.ndarray) -> np.ndarray:
     """Self-normalised weights (summing to 1) from log-weights."""
-    w = np.exp(log_w - np.max(log_w))
-    return w / w.sum()
+    w = xp.exp(np.ascontiguousarray(log_w - np.max(log_w), dtype=np.float64))
+    return w / xp.dot(np.ones(w.shape[0]), w)
 
 
 def effective_size(weights: np.ndarray) -> float:
     """Kish's effective sample size (sum w)^2 / sum w^2."""
-    return float(weights.sum() ** 2 / np.dot(weights, weights))
+    return float(xp.dot(np.ones(weights.shape[0]), weights) ** 2 / xp.dot(weights, weights))
 
 
 def weighted_centered_ranks(values: np.ndarray, weights: np.ndarray, tie_break: np.ndarray) -> np.ndarray:
@@ -138,7 +141,7 @@ def plan_weighted(es, archive, settings, rng: np.random.Generator) -> WeightedGe
     index = np.concatenate([np.full(n_fresh, -1, np.int64), *[np.arange(n, dtype=np.int64) for n in sizes]])
     saved = popsize - n_fresh
     # the saving split by where the archive's effective members come from (the CSV's reused_im / reused_eim)
-    previous = float(archive_w[: sizes[0]].sum() ** 2 / max(np.dot(archive_w[: sizes[0]], archive_w[: sizes[0]]), 1e-300))
+    previous = effective_size(archive_w[: sizes[0]]) if archive_w[: sizes[0]].sum() > 0 else 0.0
     share = min(1.0, previous / ess_archive) if ess_archive > 0 else 0.0
     return WeightedGeneration(x, source, index, dist, weights=weights, fresh_count=n_fresh, saved=saved,
                               ess=effective_size(weights), saved_from_previous=int(round(saved * share)))  # fmt: skip
