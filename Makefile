@@ -158,6 +158,7 @@ reproduce-reuse-modes:  ## reuse modes on MuJoCo (none / exact / weighted; linea
 	$(IMIX) run -m env=halfcheetah 'policy.hidden=[64,64]' eim=true eim_variant=weighted $(REUSE_MODES)
 	$(IMIX) run env=halfcheetah 'policy.hidden=[64,64]' eim=false $(REUSE_MODES) lr=0.04
 	$(IMIX) run -m eim=false,true policy.obs_norm_freeze=true,false $(REUSE_MODES_ARS)
+	$(IMIX) run -m eim=false policy.obs_norm_freeze=true,false $(REUSE_MODES_ARS) policy.bias=false
 	$(PY) benchmarks/reuse_modes.py --experiment results/$(REUSE_MODES_EXPERIMENT) --experiment results/ars_obsnorm --page docs/research/reuse_modes.md
 
 # Does reuse bend the search? (docs/research/bias.md) One table: every ES without mixing and with
