@@ -16,6 +16,27 @@ from imix_cli.core.processes import set_one_blas_thread
 set_one_blas_thread()
 
 
+def interrupted_run(common: list[str], results_dir: Path, after: int):
+    """Start ``imix run common`` in-process and stop it after ``after`` generations (the progress counts of the
+    run's seeds, summed: with one seed, its generations); return its spec."""
+    from imix_cli.running.config.compose import validate_overrides
+    from imix_cli.running.run_folder import prepare_run_dir
+    from imix_cli.running.runner import run_seeds
+
+    (spec,) = validate_overrides([*common, f"results_dir={results_dir}"])
+    todo = prepare_run_dir(spec)
+    done = {"n": 0}
+
+    def interrupt(n):
+        done["n"] += n
+        if done["n"] >= after:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_seeds(spec, todo, progress=interrupt)
+    return spec
+
+
 @pytest.fixture
 def csv_disk_full(monkeypatch):
     """Every fsync of a seed CSV being written (its ``.seed_*.csv.*`` temporary; not a checkpoint's) fails with ENOSPC, as on a full disk."""

@@ -13,6 +13,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import interrupted_run
 
 from imix_cli.commands.cli import main
 from imix_cli.core.algorithms.cmaes import MAX_DIM as CMAES_MAX_DIM
@@ -293,22 +294,11 @@ def test_resume_mid_warm_up_equals_not_stopping(tmp_path):
     import pandas as pd
 
     from imix_cli.running.files.checkpoints import checkpoint_path
-    from imix_cli.running.run_folder import prepare_run_dir
-    from imix_cli.running.runner import run_seeds
 
     common = ["env=gym", "env.id=Pendulum-v1", "algo=snes", "eim=true", "seeds=1", "generations=8", "popsize=6", "policy.hidden=[]",
               "policy.obs_norm=true", "policy.obs_norm_warmup=3", "checkpoint_every=2", "checkpoint_seconds=0", "workers=1", "progress=false"]  # fmt: skip
     assert main(["run", *common, f"results_dir={tmp_path / 'ref'}"]) == 0
-    (spec,) = validate_overrides([*common, f"results_dir={tmp_path / 'stop'}"])
-    done = {"n": 0}
-
-    def interrupt_after_three_generations(n):
-        done["n"] += 1
-        if done["n"] == 3:
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_seeds(spec, prepare_run_dir(spec), progress=interrupt_after_three_generations)
+    spec = interrupted_run(common, tmp_path / "stop", after=3)
     assert checkpoint_path(spec.run_dir, 0).exists()
     assert main(["run", *common, f"results_dir={tmp_path / 'stop'}"]) == 0
     name = spec.run_dir.relative_to(tmp_path / "stop")

@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import interrupted_run
 
 from imix_cli.commands.cli import main
 from imix_cli.core.distributions import AffinePushforward, DiagonalGaussian, FullGaussian
@@ -234,24 +235,13 @@ def test_a_checkpoint_with_reexpressed_generations_resumes_to_the_uninterrupted_
     import pandas as pd
 
     from imix_cli.running.files.checkpoints import checkpoint_path
-    from imix_cli.running.run_folder import prepare_run_dir
-    from imix_cli.running.runner import run_seeds
 
     common = ["env=gym", "env.id=Pendulum-v1", "algo=snes", "eim=true", "seeds=1", "generations=10", "popsize=6", "policy.hidden=[]",
               "policy.obs_norm=true", "policy.obs_norm_warmup=2", "policy.obs_norm_freeze=false", "checkpoint_every=2", "checkpoint_seconds=0",
               "workers=1", "progress=false"]  # fmt: skip
     assert main(["run", *common, f"results_dir={tmp_path / 'ref'}"]) == 0
-    (spec,) = validate_overrides([*common, f"results_dir={tmp_path / 'stop'}"])
+    spec = interrupted_run(common, tmp_path / "stop", after=7)
     assert "obs_norm_freeze=False" in spec.run_dir.name
-    done = {"n": 0}
-
-    def interrupt_after_seven_generations(n):
-        done["n"] += 1
-        if done["n"] == 7:
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_seeds(spec, prepare_run_dir(spec), progress=interrupt_after_seven_generations)
     path = checkpoint_path(spec.run_dir, 0)
     with np.load(path) as npz:
         header = json.loads(npz["header"].tobytes())

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import interrupted_run
 
 from imix_cli.commands.cli import main
 from imix_cli.running.config.compose import validate_overrides
@@ -161,22 +162,6 @@ def test_resume_from_checkpoint_equals_not_stopping(tmp_path, algo, capfd):
     assert len(got) == 2
     for name in expected:
         pd.testing.assert_frame_equal(got[name], expected[name])
-
-
-def interrupted_run(common: list[str], results_dir: Path, after: int):
-    """Start ``imix run common`` in-process and stop it after ``after`` generations; return its spec."""
-    (spec,) = validate_overrides([*common, f"results_dir={results_dir}"])
-    todo = prepare_run_dir(spec)
-    done = {"n": 0}
-
-    def interrupt(n):
-        done["n"] += n
-        if done["n"] >= after:
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_seeds(spec, todo, progress=interrupt)
-    return spec
 
 
 def test_a_real_checkpoint_of_another_config_is_refused(tmp_path, capfd):
