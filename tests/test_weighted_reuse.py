@@ -3,6 +3,9 @@ update they feed, and what the ES and the runner refuse."""
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -11,43 +14,18 @@ from imix_cli.core import weighted_reuse as wr
 from imix_cli.core.algorithms import make_es
 from imix_cli.core.algorithms.base import centered_ranks, member_keys
 from imix_cli.core.distributions import DiagonalGaussian
-from imix_cli.core.generation import Archive, MixingSettings
+from imix_cli.core.generation import MixingSettings
 from imix_cli.core.mixing import mix
 
-
-class _Chain:
-    """The ES's side of a chain of distributions moved from outside (not by the members): what plan_weighted reads."""
-
-    weights_utilities = "sum"
-
-    def __init__(self, dist, popsize):
-        self.distribution, self.popsize = dist, popsize
-
-    def ask(self, rng):
-        return self.distribution.sample(self.popsize, rng)
+# the chain of benchmarks/weighted_chains.py (which the page quotes at 40 chains x 300 generations), run smaller here
+_spec = importlib.util.spec_from_file_location("weighted_chains", Path(__file__).parent.parent / "benchmarks" / "weighted_chains.py")
+weighted_chains = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(weighted_chains)
 
 
-def _weighted_moments(seed, generations=300, dim=3, popsize=20, walk=0.25, drift=0.0, weights="right"):
-    """One chain: the mean random-walks (``walk`` sigma per generation) and drifts (``drift`` sigma), each sigma takes
-    a log-normal step; every generation's pool is standardised by the current distribution and its weighted
-    E[z] and E[z^2] kept. Returns their averages over the generations after the 10th, and fresh draws per generation."""
-    rng = np.random.default_rng(seed)
-    mean, sigma = np.zeros(dim), np.ones(dim)
-    settings, archive = MixingSettings("weighted"), Archive()
-    sums = np.zeros(3)
-    for t in range(generations):
-        g = wr.plan_weighted(_Chain(DiagonalGaussian(mean.copy(), sigma.copy()), popsize), archive, settings, rng)
-        z = (g.samples - mean) / sigma
-        w = getattr(g, "weights", None)
-        if w is None or weights == "uniform":
-            w = np.full(z.shape[0], 1.0 / z.shape[0])
-        if t >= 10:
-            sums += [w @ z.mean(axis=1), w @ (z**2).mean(axis=1), np.count_nonzero(g.source == 0)]
-        archive.generations = [wr.archived_part(g), *archive.generations][: settings.depth]
-        archive.returns = [np.zeros(int(np.count_nonzero(g.source == 0))), *archive.returns][: settings.depth]
-        mean = mean + walk * sigma * rng.standard_normal(dim) + drift * sigma
-        sigma = sigma * np.exp(0.05 * rng.standard_normal(dim))
-    return sums / (generations - 10)
+def _weighted_moments(seed, generations, walk, drift, weights="right"):
+    """One chain's weighted E[z], E[z^2] and fresh draws per generation (:func:`weighted_chains.chain`)."""
+    return weighted_chains.chain(seed, gens=generations, step=walk, drift=drift, mode=weights)[:3]
 
 
 @pytest.mark.parametrize("walk,drift", [(0.25, 0.0), (0.0, 0.2)])
