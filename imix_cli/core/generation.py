@@ -184,6 +184,11 @@ class Plan:
         return int(np.count_nonzero(self.generation.source[self.evaluate] > 0))
 
 
+def stored_returns(archive: Archive, g: Generation, rows: np.ndarray) -> list:
+    """The stored returns of members ``rows`` of ``g``, each reused from ``archive`` (its ``source`` and ``index``)."""
+    return [archive.returns[k - 1][i] for k, i in zip(g.source[rows].tolist(), g.index[rows].tolist())]
+
+
 class GenerationScheme:
     """How the generations of an ES are drawn (or mixed), evaluated, told and archived: the polymorphic hook
     behind :func:`plan_generation` and :func:`finish_generation`.
@@ -242,7 +247,7 @@ class GenerationScheme:
         reused = g.source > 0
         members = np.flatnonzero(reused)
         if members.size:  # reused members keep their stored return
-            fitness[members] = [archive.returns[k - 1][i] for k, i in zip(g.source[members].tolist(), g.index[members].tolist())]
+            fitness[members] = stored_returns(archive, g, members)
         again = plan.evaluate[reused[plan.evaluate]]  # reused members evaluated again: (stored, fresh) pairs
         stored_again = fitness[again]
         fitness[plan.evaluate] = returns  # ... unless evaluated again
@@ -292,7 +297,7 @@ class WeightedScheme(GenerationScheme):
         fitness = np.empty(g.samples.shape[0])
         fitness[plan.evaluate] = returns[: plan.evaluate.size]
         old = np.flatnonzero(g.source > 0)
-        fitness[old] = [archive.returns[k - 1][i] for k, i in zip(g.source[old].tolist(), g.index[old].tolist())]
+        fitness[old] = stored_returns(archive, g, old)
         if isinstance(g, WeightedGeneration):
             es.tell(g.samples, fitness, weights=g.weights)
         else:

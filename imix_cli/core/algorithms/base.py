@@ -508,22 +508,23 @@ class EvolutionStrategy(ABC):
         if w.shape != fitness.shape or not np.all(np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
             raise ValueError(f"weights must be {fitness.shape[0]} finite numbers >= 0, not all 0")
         w = w / w.sum()
-        finite = np.isfinite(fitness)
-        self.nonfinite_fitness_count += int(np.count_nonzero(~finite))
-        fitness = np.where(finite, fitness, -np.inf)
-        keys = member_keys(samples, salt=self.generation + 1)
-        u = self._weight_decay.apply(samples, fitness, self.weight_decay, lambda values: weighted_centered_ranks(values, w, keys))
+        u = self._shaped(samples, fitness, lambda values, keys: weighted_centered_ranks(values, w, keys))
         return (self.popsize if self.weights_utilities == "sum" else w.shape[0]) * w * u
 
     def utilities(self, samples: np.ndarray, fitness: np.ndarray) -> np.ndarray:
         """Weight decay + fitness shaping (``params.weight_decay_form``, ``params.fitness_shaping``);
         non-finite fitness ranks last. Higher is better."""
+        return self._shaped(samples, fitness, self._shaping)
+
+    def _shaped(self, samples: np.ndarray, fitness: np.ndarray, shaping) -> np.ndarray:
+        """:meth:`utilities` with the fitness shaping ``shaping(values, tie_keys)``: non-finite fitness counted and
+        ranked last, ties keyed on the members (salted by generation), the weight-decay form applied."""
         finite = np.isfinite(fitness)
         self.nonfinite_fitness_count += int(np.count_nonzero(~finite))
         fitness = np.where(finite, fitness, -np.inf)
         # ties: a random order that the population's order cannot change, drawn anew each generation
         keys = member_keys(samples, salt=self.generation + 1)
-        return self._weight_decay.apply(samples, fitness, self.weight_decay, lambda values: self._shaping(values, keys))
+        return self._weight_decay.apply(samples, fitness, self.weight_decay, lambda values: shaping(values, keys))
 
     # ------------------------------------------------------------ checkpoints
     # A state dict is flat: numpy arrays and JSON scalars under string keys (nested parts use
