@@ -46,7 +46,7 @@ install:  ## create .venv and install imix (non-editable; make dev: editable): r
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install $(PIN) $(EDITABLE) ".[test,render]"
 	# compile the numba kernels now, once: the first run then compiles nothing, nor does `make test` (the
-	# source tree shares the installed copy's kernels: imix_cli/core/numba_cache.py). How long it takes depends on
+	# source tree shares the installed copy's kernels: imix_cli/core/numerics/numba_cache.py). How long it takes depends on
 	# the CPU's speed, its core count (the kernel groups compile in parallel processes, one per core: fewer cores,
 	# longer) and how loaded the machine is (other jobs take those cores): measured 47 s on a fresh install on
 	# a 2-core VM, 202 s on a 2-core VM at load 10. From inside the venv

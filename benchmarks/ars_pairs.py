@@ -1,7 +1,7 @@
 """Are mixed ARS pairs distributed as ARS pairs along a run, and how much do they reuse? (docs/ars.md)
 
-Chains of generations as a run builds them (imix_cli.core.generation's plan/finish with
-imix_cli.core.mirrored), d = 2, N = 10 directions, nu = 1, 300 generations, K = 3. Every member is
+Chains of generations as a run builds them (imix_cli.core.mixing.generation's plan/finish with
+imix_cli.core.mixing.mirrored), d = 2, N = 10 directions, nu = 1, 300 generations, K = 3. Every member is
 standardised by the mean and nu of its generation; per chain E[z^2] after a burn-in of 20; across
 independent chains its mean and the z-score of (E[z^2] - 1) with the standard error from the
 spread between chains (tests/test_ars.py's statistic).
@@ -24,7 +24,7 @@ import numpy as np
 
 from imix_cli.core.algorithms import ARS, make_es
 from imix_cli.core.distributions import DiagonalGaussian
-from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core.mixing.generation import Archive, MixingSettings, finish_generation, plan_generation
 
 
 def chains(make_es_fn, variant: str, motion: str, chains: int, generations: int = 300, burn_in: int = 20, seed: int = 0) -> dict:

@@ -19,7 +19,7 @@ import sys
 import numpy as np
 import pandas as pd
 
-from imix_cli.core.parallel_evaluation import build_evaluator
+from imix_cli.core.evaluation.parallel import build_evaluator
 from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.config.run_spec import resume_identity
 from imix_cli.running.loop.lockstep import loop_settings, new_seed_state

@@ -58,7 +58,7 @@ def _imix_evaluator():
 
 def _as_imix(weights) -> np.ndarray:
     """sb3-contrib's LinearPolicy weights (nn.Linear(8, 2).weight, (2, 8), flattened) as imix parameters."""
-    from imix_cli.core.policies import with_zero_biases
+    from imix_cli.core.evaluation.policies import with_zero_biases
 
     w = np.asarray(weights, dtype=np.float64).reshape(-1, ACT, OBS).transpose(0, 2, 1).reshape(-1, OBS * ACT)
     return with_zero_biases(w, OBS, ACT, ())
@@ -237,7 +237,7 @@ def _imix_lockstep(seed: int, lr: float):
     """One seed of ``imix run env=swimmer +ars=swimmer algo=ars lr=<lr>``, a generation per call of the
     returned function (:func:`imix_cli.running.loop.lockstep.advance_lockstep`: plan the mirrored pairs, roll
     them out, tell); returns ``(generation, feed)``, the generation giving the pair's returns [r+, r-]."""
-    from imix_cli.core.generation import MixingSettings
+    from imix_cli.core.mixing.generation import MixingSettings
     from imix_cli.running.loop.lockstep import LoopSettings, advance_lockstep, new_seed_state
 
     es_options = dict(popsize=2, sigma=0.01, lr=lr, weight_decay=0.0, weight_decay_form="estool", top=1)

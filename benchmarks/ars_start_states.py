@@ -43,7 +43,7 @@ import sys
 import numpy as np
 from ars_sb3_gap import ACT, OBS, THRESHOLD, _as_imix, _driven_ars, _imix_evaluator, _one_iteration, _sb3_model
 
-from imix_cli.core.policies import with_zero_biases
+from imix_cli.core.evaluation.policies import with_zero_biases
 
 NOISE = 0.1  # Swimmer-v5's reset_noise_scale
 EVAL_SEEDS = np.arange(10) + 10**6  # the mean policy's final measurement, as ``ars_sb3_gap.py resets``

@@ -44,9 +44,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from imix_cli.core import linalg_kernels as lk
 from imix_cli.core.algorithms.cmaes import CMAES
-from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core.mixing.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core.numerics import linalg_kernels as lk
 
 DIM, POPSIZE, SIGMA0 = 130, 50, 0.25
 CONTROLS = ("csa", "permutation", "tpa")

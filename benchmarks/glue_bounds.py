@@ -69,9 +69,9 @@ def bench_update(seeds: int = 13, dim: int = 130, popsize: int = 50) -> None:
 
 
 def bench_mixing() -> None:
-    from imix_cli.core import mixing_kernels
     from imix_cli.core.distributions import DiagonalGaussian
     from imix_cli.core.mixing import Generation, mix
+    from imix_cli.core.mixing import kernels as mixing_kernels
 
     rng = np.random.default_rng(0)
 
@@ -79,7 +79,7 @@ def bench_mixing() -> None:
         return [Generation(dist.sample(n, rng), np.zeros(n, np.int64), np.full(n, -1, np.int64), dist) for _ in range(k)]
 
     z, o = np.zeros(1), np.ones(1)
-    raw = (rng, z, o, 0.0, np.zeros((1, 1)), np.ones((1, 1)), np.zeros(1), np.zeros((1, 2, 1)), np.full((1, 2), -50.0), np.array([2]), 2, 0.0, 0.0)
+    raw = (rng, (z, o, 0.0), (np.zeros((1, 1)), np.ones((1, 1)), np.zeros(1), np.zeros((1, 2, 1)), np.full((1, 2), -50.0), np.array([2])), 2, 0.0, 0.0, 0)
     tiny = DiagonalGaussian(z, o)
     tiny_archive = archive(tiny, 2, 1)
     big, big_new = DiagonalGaussian(np.zeros(130), np.ones(130)), DiagonalGaussian(np.full(130, 0.01), np.ones(130))

@@ -1,4 +1,4 @@
-"""How often glibc's two builds of its math functions disagree: the reason for imix_cli.core.elementary.
+"""How often glibc's two builds of its math functions disagree: the reason for imix_cli.core.numerics.elementary.
 
 glibc's x86-64 libm picks, when a program starts, an FMA-compiled build of several functions on CPUs
 with FMA and AVX2 and a plain SSE2 build on the others (``GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA``

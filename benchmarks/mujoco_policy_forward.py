@@ -3,7 +3,7 @@
     python benchmarks/mujoco_policy_forward.py [--sizes 1 12 50]
 
 Why: the direct MuJoCo path (docs/mujoco-episodes.md) computes each env step's actions for the
-whole batch with :class:`imix_cli.core.policies.BatchPolicy` (one einsum per layer, numpy's tanh).
+whole batch with :class:`imix_cli.core.evaluation.policies.BatchPolicy` (one einsum per layer, numpy's tanh).
 A numba loop calls less numpy per step; this measures what that would save per member-step
 (HalfCheetah's linear policy: 17 observations, 6 actions, bounds [-1, 1]) and whether its
 actions are the same bits. They are not: numba's tanh is libm's, numpy's is its own SIMD one,
@@ -22,7 +22,7 @@ import timeit
 import numba
 import numpy as np
 
-from imix_cli.core.policies import BatchPolicy
+from imix_cli.core.evaluation.policies import BatchPolicy
 
 OBS, ACT = 17, 6
 

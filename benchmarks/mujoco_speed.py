@@ -38,7 +38,7 @@ def raw_rate(env_id: str, seconds: float = 1.0) -> float:
 
 def main() -> None:
     from imix_cli.core.evaluation import make_evaluator
-    from imix_cli.core.parallel_evaluation import PoolEvaluator
+    from imix_cli.core.evaluation.parallel import PoolEvaluator
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("envs", nargs="?", default=",".join(ENVS))

@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from imix_cli.core.algorithms import make_es
-from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core.mixing.generation import Archive, MixingSettings, finish_generation, plan_generation
 
 ALGOS = ("openes", "snes", "cem", "cmaes")
 VARIANTS = (None, "paper", "sun2009", "exact", "eim_paper")

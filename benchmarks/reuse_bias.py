@@ -58,9 +58,9 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from imix_cli.core.algorithms import make_es
-from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
 from imix_cli.core.mixing import _whitened
-from imix_cli.core.weighted_reuse import weighted_centered_ranks
+from imix_cli.core.mixing.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core.mixing.weighted_reuse import weighted_centered_ranks
 
 ALGOS = ("openes", "snes", "cem", "cmaes")
 RULES = {
@@ -70,7 +70,7 @@ RULES = {
     "conditional": MixingSettings("conditional"),
     "exact + reeval 2": MixingSettings("exact", reeval_count=2),
     "exact + CSA": MixingSettings("exact"),  # CMA-ES only: mixing with pycma's step-size control
-    "weighted": MixingSettings("weighted"),  # OpenES, SNES only: the archive weighted into the update (imix_cli.core.weighted_reuse)
+    "weighted": MixingSettings("weighted"),  # OpenES, SNES only: the archive weighted into the update (imix_cli.core.mixing.weighted_reuse)
 }
 #: Rows that only apply to CMA-ES.
 CMAES_ONLY = ("exact + CSA",)

@@ -13,7 +13,7 @@ row changes one thing against the default (``exact``, ``min_fresh`` 1):
 * ``conditional``: each reused member taken for what it is given the move it took part in (exact
   for the loop under neutral ranks; :mod:`imix_cli.core.mixing`, "Reuse inside the loop");
 * ``weighted``: the archive weighted into the update instead of mixed (``eim_variant=weighted``,
-  :mod:`imix_cli.core.weighted_reuse`); the told gradient is the weighted one SNES takes.
+  :mod:`imix_cli.core.mixing.weighted_reuse`); the told gradient is the weighted one SNES takes.
 
 Next to the final sigma, each generation's sigma gradient (SNES's grad log sigma, averaged over the
 coordinates) is compared with the gradient of a *shadow* generation: ``popsize`` fresh draws from the

@@ -1,6 +1,6 @@
 """Importance-weighted reuse over chains of distributions moved from outside: the weighted moments of the pool.
 
-``eim_variant=weighted`` (:mod:`imix_cli.core.weighted_reuse`) tells the ES a pool of fresh and archived members
+``eim_variant=weighted`` (:mod:`imix_cli.core.mixing.weighted_reuse`) tells the ES a pool of fresh and archived members
 with self-normalised weights; under the current distribution the weighted pool should have the moments of N(0, 1)
 in every standardised coordinate. Self-normalised weights are consistent, not unbiased (a bias of order 1/ESS).
 This measures it, and the same pools told unweighted (what wrong weights would give), over 40 chains x 300
@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from imix_cli.core.distributions import DiagonalGaussian
-from imix_cli.core.generation import Archive, MixingSettings
-from imix_cli.core.weighted_reuse import archived_part, plan_weighted
+from imix_cli.core.mixing.generation import Archive, MixingSettings
+from imix_cli.core.mixing.weighted_reuse import archived_part, plan_weighted
 
 
 class _Chain:

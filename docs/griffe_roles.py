@@ -1,7 +1,7 @@
 """Griffe extensions for the API page (mkdocs.yml: mkdocstrings' ``extensions``).
 
 :class:`SphinxRoles`: imix's docstrings name other objects with Sphinx roles
-(``:class:`~imix_cli.core.generation.MixingSettings```), as its numerical core is written; mkdocstrings renders
+(``:class:`~imix_cli.core.mixing.generation.MixingSettings```), as its numerical core is written; mkdocstrings renders
 Markdown, where a role would show raw. Each role becomes inline code with the name as Sphinx would print it (``~``
 keeps the last component), before the docstring is parsed.
 

@@ -47,7 +47,7 @@ __version__ = "0.1.0"
 
 #: name -> module of the public API; ``imix_cli.<name>`` imports the module when first read.
 _API = {
-    "MixingES": "imix_cli.core.ask_tell",
+    "MixingES": "imix_cli.core.mixing.ask_tell",
     "fmin2": "imix_cli.core.adapters.pycma_fmin",
     "run": "imix_cli.experiment",
     "Experiment": "imix_cli.experiment",
@@ -61,8 +61,8 @@ _API = {
     "DiagonalGaussian": "imix_cli.core.mixing",
     "FullGaussian": "imix_cli.core.mixing",
     "make_evaluator": "imix_cli.core.evaluation",
-    "policy_action": "imix_cli.core.policies",
-    "policy_output": "imix_cli.core.policies",
+    "policy_action": "imix_cli.core.evaluation.policies",
+    "policy_output": "imix_cli.core.evaluation.policies",
     "ConfigError": "imix_cli.running.config.checks",
     "RunError": "imix_cli.messages",
 }

@@ -1,6 +1,6 @@
 """ARS (algo=ars): the step is the paper's, and mixing keeps its mirrored pairs exactly ARS's pairs.
 
-Mixing for pairs (imix_cli.core.mirrored): the anchors are mixed from earlier anchors, each mirror is
+Mixing for pairs (imix_cli.core.mixing.mirrored): the anchors are mixed from earlier anchors, each mirror is
 drawn fresh around the new mean. The statistical tests check what must then hold: every pair is
 (m + nu delta, m - nu delta) with the N directions delta independent N(0, I) -- in one step (KS,
 pooled over many independent steps) and along chains of hundreds of generations whose mean moves
@@ -23,8 +23,8 @@ from scipy import stats
 
 from imix_cli.core.algorithms import ARS, make_es
 from imix_cli.core.distributions import DiagonalGaussian
-from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
-from imix_cli.core.mirrored import mix_pairs
+from imix_cli.core.mixing.generation import Archive, MixingSettings, finish_generation, plan_generation
+from imix_cli.core.mixing.mirrored import mix_pairs
 
 KS_P_MIN = 1e-3
 IMIX = str(Path(sys.executable).parent / "imix")
@@ -262,7 +262,7 @@ def test_algo_top_is_checked_against_the_runs_own_popsize():
 def test_clip_output_is_the_outputs_clipped_to_the_action_bounds():
     """policy.output=clip: the action is the network's output itself, cut at the bounds (ARS,
     sb3-contrib's ARSLinearPolicy) -- not tanh of it, which bends even small outputs."""
-    from imix_cli.core.policies import BatchPolicy, forward, num_params
+    from imix_cli.core.evaluation.policies import BatchPolicy, forward, num_params
 
     rng = np.random.default_rng(0)
     obs = rng.normal(size=(7, 5))
@@ -280,7 +280,7 @@ def test_clip_output_is_the_outputs_clipped_to_the_action_bounds():
 def test_a_bias_free_policy_is_its_weights_with_zero_biases():
     """policy.bias=false: the ES's point is the weights alone, in layout order; the policy they make
     has every bias 0 (a linear one is obs @ W, a hidden layer tanh(obs @ W1) @ W2)."""
-    from imix_cli.core.policies import forward, num_params, weight_columns, with_zero_biases
+    from imix_cli.core.evaluation.policies import forward, num_params, weight_columns, with_zero_biases
 
     rng = np.random.default_rng(1)
     obs = rng.normal(size=(4, 6))
@@ -305,7 +305,7 @@ def test_with_obs_norm_the_bias_free_weights_act_on_normalised_observations():
     before the normaliser is folded in (the fold gives the layer the bias -M mu / sd)."""
     from types import SimpleNamespace
 
-    from imix_cli.core.policies import ObsNormalizer, forward
+    from imix_cli.core.evaluation.policies import ObsNormalizer, forward
     from imix_cli.running.loop.lockstep import policy_params, search_dim
 
     rng = np.random.default_rng(2)
@@ -329,7 +329,7 @@ def test_the_variance_floor_is_the_configs_and_survives_a_checkpoint():
     without it, had 0.01)."""
     import yaml
 
-    from imix_cli.core.policies import OBS_VAR_FLOOR, ObsNormalizer
+    from imix_cli.core.evaluation.policies import OBS_VAR_FLOOR, ObsNormalizer
     from imix_cli.running.config.keys import POLICY_DEFAULTS
 
     states = np.stack([np.linspace(-1.0, 1.0, 101) * 0.01 * np.sqrt(3.0), np.linspace(-3.0, 3.0, 101)], axis=1)

@@ -9,8 +9,8 @@ import pytest
 
 import imix_cli
 from imix_cli.core.algorithms import make_es
-from imix_cli.core.ask_tell import MixingES
 from imix_cli.core.evaluation import make_evaluator
+from imix_cli.core.mixing.ask_tell import MixingES
 
 GENERATIONS = 6
 
@@ -107,7 +107,7 @@ def test_run_refuses_a_bad_key_with_the_cli_message(tmp_path):
 
 
 def test_single_policy_helpers_match_the_batched_forward():
-    from imix_cli.core.policies import forward, num_params
+    from imix_cli.core.evaluation.policies import forward, num_params
 
     rng = np.random.default_rng(0)
     params = rng.normal(size=num_params(4, 2))

@@ -20,8 +20,8 @@ from numba import njit
 from imix_cli.core.algorithms.base import CompiledStep, EvolutionStrategy
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.divergence import GuardedES
-from imix_cli.core.linalg_kernels import numpy_sum
-from imix_cli.core.parallel_evaluation import build_evaluator
+from imix_cli.core.evaluation.parallel import build_evaluator
+from imix_cli.core.numerics.linalg_kernels import numpy_sum
 from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.files.checkpoints import _encode, _read_npz
 from imix_cli.running.loop import compiled_loop

@@ -17,7 +17,7 @@ import imix_cli.core.envs  # noqa: F401  (registers the ids)
 from imix_cli.commands.cli import main
 from imix_cli.core.envs import CONTINUOUS_CARTPOLE_HARD_ID, CONTINUOUS_CARTPOLE_ID
 from imix_cli.core.evaluation import make_evaluator
-from imix_cli.core.policies import BatchPolicy
+from imix_cli.core.evaluation.policies import BatchPolicy
 from imix_cli.running.config.compose import BUILTIN_ENVS, ConfigError, config_dir, validate_overrides
 from imix_cli.running.files.results import read_run_csv
 

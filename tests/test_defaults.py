@@ -8,9 +8,9 @@ import inspect
 
 import numpy as np
 
-from imix_cli.core.ask_tell import MixingES
-from imix_cli.core.generation import MixingSettings
 from imix_cli.core.mixing import MIXING_DEFAULTS, DiagonalGaussian, config_variants, mix
+from imix_cli.core.mixing.ask_tell import MixingES
+from imix_cli.core.mixing.generation import MixingSettings
 from imix_cli.running.config.keys import BY_NAME
 
 #: The numeric mixing keys of `imix run` -> the name the library gives the same setting.

@@ -36,7 +36,7 @@ def test_the_site_builds_strictly(site):
 
 
 def _api_sections(api: str) -> dict[str, str]:
-    """The API page's HTML by documented object: ``{"imix_cli.core.ask_tell.MixingES": "<h2 ...> ... ", ...}`` (up to the next heading)."""
+    """The API page's HTML by documented object: ``{"imix_cli.core.mixing.ask_tell.MixingES": "<h2 ...> ... ", ...}`` (up to the next heading)."""
     parts = re.split(r'(?=<h[2-4] id="imix_cli\.)', api)
     return {re.match(r'<h[2-4] id="([^"]+)"', part).group(1): part for part in parts if part.startswith("<h")}
 

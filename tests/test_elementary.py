@@ -1,4 +1,4 @@
-"""imix's own elementary functions (imix_cli.core.elementary) give glibc 2.36's FMA results, bit for bit.
+"""imix's own elementary functions (imix_cli.core.numerics.elementary) give glibc 2.36's FMA results, bit for bit.
 
 Why it matters: a run's numbers must not depend on the machine, and the C library's do (glibc runs an
 FMA build of exp, expm1, log1p, pow, sin, cos on CPUs with FMA and an SSE2 build elsewhere; they
@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from imix_cli.core import elementary as el
+from imix_cli.core.numerics import elementary as el
 
 
 def _glibc_236_fma() -> str | None:

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from imix_cli.commands.cli import main
-from imix_cli.core.parallel_evaluation import build_evaluator
+from imix_cli.core.evaluation.parallel import build_evaluator
 from imix_cli.running.config.compose import validate_overrides
 
 TINY = ["env=gym", "env.id=Pendulum-v1", "seeds=1", "generations=2", "popsize=4", "progress=false", "workers=1", "eval_mean_every=0"]

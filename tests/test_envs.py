@@ -11,7 +11,7 @@ import pytest
 
 from imix_cli.core.envs import kernels, seeded_uniform
 from imix_cli.core.evaluation import make_evaluator
-from imix_cli.core.policies import BatchPolicy, act, forward, num_params
+from imix_cli.core.evaluation.policies import BatchPolicy, act, forward, num_params
 
 MAX_VEL = np.array([4 * np.pi, 9 * np.pi])
 
@@ -129,7 +129,7 @@ def test_seeded_uniform_matches_numpy():
 # ---------------------------------------------------------------------------------- policy (compiled)
 @pytest.mark.parametrize("sizes", [(4, 8, 8, 2), (6, 8, 8, 3), (4, 8, 8, 1), (3, 5, 2), (4, 16, 7, 9, 2)])
 def test_compiled_mlp_is_the_documented_layout(sizes):
-    """kernels.mlp_forward == the flat layout of imix_cli.core.policies, evaluated in plain Python,
+    """kernels.mlp_forward == the flat layout of imix_cli.core.evaluation.policies, evaluated in plain Python,
     bit for bit (any layer sizes); and to round-off the numpy BatchPolicy of the generic path."""
     rng = np.random.default_rng(9)
     sizes_arr = np.array(sizes, dtype=np.int64)

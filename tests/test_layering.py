@@ -13,9 +13,9 @@ reported.
 
 Made to fail: by a package written to a temporary folder with a planted upward import and a planted circle
 (:func:`test_the_checker_finds_a_planted_upward_import_and_a_planted_circle`), and in the real tree by
-``from imix_cli.running.files.results import COLUMNS`` appended to ``core/mixing.py`` (an import that climbs,
+``from imix_cli.running.files.results import COLUMNS`` appended to ``core/mixing/__init__.py`` (an import that climbs,
 and out of the numerical library) and ``from imix_cli.core import evaluation`` inside a function appended to
-``core/policies.py`` (a circle: evaluation imports policies): three tests failed, naming both. The packages an import
+``core/evaluation/policies.py`` (a circle: evaluation imports policies): three tests failed, naming both. The packages an import
 runs: with ``core/algorithms/__init__`` importing the registry again (as it did), whose loaders import the ES modules,
 :func:`test_no_modules_import_each_other_in_a_circle` failed naming ``imix_cli.core.algorithms`` and
 ``imix_cli.core.registry``, a loop the graph of modules alone did not show.
@@ -193,6 +193,27 @@ def test_the_numerical_library_imports_nothing_of_running_commands_or_plotting()
 
 def test_at_most_twelve_modules_at_the_top_of_the_package():
     assert len(list(PACKAGE.glob("*.py"))) <= 12
+
+
+def parameter_counts(package: Path, limit: int) -> list[str]:
+    """Every function or method of ``package`` that takes more than ``limit`` parameters (``self``/``cls`` not
+    counted; ``*args``/``**kwargs`` count one each), as ``path:line name (n)``."""
+    found = []
+    for path in sorted(package.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                a = node.args
+                names = [*a.posonlyargs, *a.args, *a.kwonlyargs, *(x for x in (a.vararg, a.kwarg) if x)]
+                n = len(names) - (1 if names and names[0].arg in ("self", "cls") else 0)
+                if n > limit:
+                    found.append(f"{path.relative_to(package.parent)}:{node.lineno} {node.name} ({n})")
+    return found
+
+
+def test_no_function_takes_more_than_twelve_parameters():
+    """A function of more parameters is a record in pieces (the compiled loop's chunk took 44, by position): the
+    pieces that travel together go as one tuple or record. Compiled kernels too: numba types a tuple's fields."""
+    assert parameter_counts(PACKAGE, 12) == []
 
 
 def _write_package(pkg, files: dict):

@@ -1,4 +1,4 @@
-"""imix_cli.core.linalg_kernels: the products sum in the documented order, and the eigensolver agrees with LAPACK's.
+"""imix_cli.core.numerics.linalg_kernels: the products sum in the documented order, and the eigensolver agrees with LAPACK's.
 
 Order: every product must equal, bit for bit, a pure-Python loop adding its terms in ascending
 index order (Python floats are IEEE doubles with no fused multiply-add), i.e. the order cannot
@@ -10,7 +10,7 @@ shaped like CMA-ES's (random SPD, condition up to 1e14, repeated eigenvalues, di
 import numpy as np
 import pytest
 
-from imix_cli.core import linalg_kernels as lk
+from imix_cli.core.numerics import linalg_kernels as lk
 
 
 def _seq_sum(terms):

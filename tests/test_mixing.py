@@ -311,7 +311,7 @@ def _walk_steps(rng, dim, generations):
 @pytest.mark.parametrize("variant", ["paper", "sun2009", "exact"])
 @pytest.mark.parametrize("dim,popsize", [(1, 50), (130, 50), (2, 3)])
 def test_the_compiled_step_is_the_numpy_step(variant, dim, popsize, min_fresh):
-    """imix_cli.core.mixing_kernels draws the same random numbers in the same order as the numpy step:
+    """imix_cli.core.mixing.kernels draws the same random numbers in the same order as the numpy step:
     along 100-generation chains, every generation has the same members (source, index, samples to
     1e-12), the same trial count, the same heights, and leaves the Generator in the same state.
     This equality is what lets the statistical tests above, which run on the compiled step (the
@@ -346,7 +346,7 @@ def _full_walk_steps(rng, dim, generations):
 @pytest.mark.parametrize("min_fresh", [0, 1])
 @pytest.mark.parametrize("dim,popsize", [(1, 6), (10, 10), (40, 15)])
 def test_the_compiled_full_step_is_the_numpy_step_bit_for_bit(dim, popsize, min_fresh):
-    """The compiled ``"exact"`` step between FullGaussians (mixing_kernels.mix_full_exact: pycma's adapter, imix's CMA-ES)
+    """The compiled ``"exact"`` step between FullGaussians (mixing.kernels.mix_full_exact: pycma's adapter, imix's CMA-ES)
     draws the same random numbers in the same order and computes the same log-densities as the numpy step: along
     60-generation chains every generation is the same bit for bit (samples, source, index, trials, heights), and the
     Generator is left in the same state -- at d = 40 with the archived log-densities kept between steps, below
@@ -384,11 +384,11 @@ def test_the_compiled_step_takes_smaller_generations_and_refuses_what_it_does_no
 
 
 def _kernels_without_random_interval(tmp_path):
-    """A copy of imix_cli.core.mixing_kernels whose import of numba's ``random_interval`` fails, as it
+    """A copy of imix_cli.core.mixing.kernels whose import of numba's ``random_interval`` fails, as it
     would with a numba release that moved it."""
     import importlib.util
 
-    import imix_cli.core.mixing_kernels as kernels
+    import imix_cli.core.mixing.kernels as kernels
 
     line = "from numba.np.random.random_methods import random_interval"
     source = Path(kernels.__file__).read_text()
@@ -404,13 +404,13 @@ def _kernels_without_random_interval(tmp_path):
 
 @pytest.mark.parametrize("fallback", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_the_compiled_permutation_is_numpys(fallback, tmp_path):
-    """mixing_kernels._permutation (its own 1-d loop, for compile time; numba's permutation if numba
+    """mixing.kernels._permutation (its own 1-d loop, for compile time; numba's permutation if numba
     moved the draw it uses) gives ``Generator.permutation(n)``'s array and leaves the Generator in
     the same state, for sizes around the 32-bit draws' masks."""
     if fallback:
         _permutation = _kernels_without_random_interval(tmp_path)._permutation
     else:
-        from imix_cli.core.mixing_kernels import _permutation
+        from imix_cli.core.mixing.kernels import _permutation
 
     for seed in range(40):
         for n in (0, 1, 2, 3, 7, 8, 9, 50, 150, 1025):
@@ -456,7 +456,7 @@ def test_a_registered_variant_is_what_mix_and_the_settings_read(monkeypatch):
     """A variant is one object (imix_cli.core.mixing.VARIANT_SPECS): mix() runs its own step over the generations
     its look-back rule allows, and MixingSettings keeps that many in the archive."""
     from imix_cli.core import mixing
-    from imix_cli.core.generation import MixingSettings
+    from imix_cli.core.mixing.generation import MixingSettings
 
     depths = []
 

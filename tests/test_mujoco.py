@@ -18,7 +18,7 @@ from conftest import interrupted_run
 from imix_cli.commands.cli import main
 from imix_cli.core.algorithms.cmaes import MAX_DIM as CMAES_MAX_DIM
 from imix_cli.core.evaluation import MUJOCO_EXTRA_HINT, make_evaluator
-from imix_cli.core.policies import BatchPolicy, ObsNormalizer, fold_normalizer, num_params
+from imix_cli.core.evaluation.policies import BatchPolicy, ObsNormalizer, fold_normalizer, num_params
 from imix_cli.core.registry import MUJOCO_ENVS
 from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.files.results import read_run_csv

@@ -1,4 +1,4 @@
-"""imix's numba cache stamp (imix_cli.core.numba_cache): computed from every compiled source, used by every cached kernel.
+"""imix's numba cache stamp (imix_cli.core.numerics.numba_cache): computed from every compiled source, used by every cached kernel.
 
 What must hold: editing a function recompiles its callers in other files (numba alone keeps their stale
 machine code); every cached kernel of the package carries the computed stamp; no stamp is written by hand.
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from imix_cli.core import numba_cache
+from imix_cli.core.numerics import numba_cache
 
 _CALLEE = "from numba import njit\n\n\n@njit(cache=True)\ndef f(x):\n    return x + {}\n"
 _CALLER = textwrap.dedent(
@@ -58,7 +58,7 @@ import importlib, sys
 modules = [importlib.import_module(name) for name in sys.argv[1:]]  # the package's own imports, in a fresh process
 from numba.core.caching import FunctionCache
 from numba.core.registry import CPUDispatcher
-from imix_cli.core import numba_cache
+from imix_cli.core.numerics import numba_cache
 assert numba_cache.SOURCE_DIGEST == numba_cache.source_digest()
 cached = 0
 for module in modules:
@@ -75,7 +75,7 @@ assert cached > 50, cached  # the elementary functions, the linear algebra, mixi
 def test_every_cached_kernel_of_the_package_carries_the_computed_stamp():
     package = numba_cache.PACKAGE
     names = [".".join(("imix_cli", *p.relative_to(package).with_suffix("").parts)).removesuffix(".__init__") for p in numba_cache.compiled_sources()]
-    assert "imix_cli.core.elementary" in names and "imix_cli.core.algorithms.snes" in names and "imix_cli.running.loop.compiled_loop" in names
+    assert "imix_cli.core.numerics.elementary" in names and "imix_cli.core.algorithms.snes" in names and "imix_cli.running.loop.compiled_loop" in names
     done = subprocess.run([sys.executable, "-c", _CHECK, *sorted(names, key=lambda n: "numba_cache" in n)], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
 

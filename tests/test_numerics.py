@@ -12,13 +12,13 @@ import numpy as np
 from numba.core.registry import CPUDispatcher
 
 import imix_cli
-from imix_cli.core import elementary, linalg_kernels
 from imix_cli.core import numerics as xp
+from imix_cli.core.numerics import elementary, linalg_kernels
 
 PACKAGE = Path(imix_cli.__file__).parent
 #: The numerical library itself: the kernels and the facade (they define what the others call).
-LIBRARY = {f"core/{name}" for name in ("elementary.py", "elementary_tables.py", "linalg_kernels.py", "numerics.py", "numba_cache.py")}
-LIBRARY |= {"core/mixing_kernels.py", "core/envs/kernels.py", "core/envs/mujoco_kernels.py"}
+LIBRARY = {f"core/numerics/{name}" for name in ("__init__.py", "elementary.py", "elementary_tables.py", "linalg_kernels.py", "numba_cache.py")}
+LIBRARY |= {"core/mixing/kernels.py", "core/envs/kernels.py", "core/envs/mujoco_kernels.py"}
 #: Code outside a run's numbers: commands, benchmarks, figures, adapters to other libraries, DDPG (torch).
 OUTSIDE = ("commands/", "bench/", "plotting/", "core/adapters/", "core/ddpg/")
 #: What the facade replaces: numpy's and math's functions of these names (and ``@``, np.linalg's solvers).
@@ -44,7 +44,7 @@ def _violations(name: str, tree: ast.AST) -> list[str]:
     # compiled code (@njit functions) calls the kernels themselves: the numba functions of the two modules
     compiled_only = {alias: {n for n, v in vars(m).items() if isinstance(v, CPUDispatcher)} for alias, m in (("lk", linalg_kernels), ("el", elementary))}
     for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module in ("imix_cli.core.elementary", "imix_cli.core.linalg_kernels"):
+        if isinstance(node, ast.ImportFrom) and node.module in ("imix_cli.core.numerics.elementary", "imix_cli.core.numerics.linalg_kernels"):
             found.append(f"from {node.module} import ...")
         elif isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult):
             found.append("@")
@@ -62,7 +62,7 @@ def _violations(name: str, tree: ast.AST) -> list[str]:
 
 def test_python_code_takes_its_math_from_the_facade():
     modules = dict(_modules())
-    assert "core/algorithms/snes.py" in modules and "core/mixing.py" in modules and len(modules) > 40
+    assert "core/algorithms/snes.py" in modules and "core/mixing/__init__.py" in modules and len(modules) > 40
     bad = [v for name, tree in modules.items() for v in _violations(name, tree)]
     assert not bad, bad
 

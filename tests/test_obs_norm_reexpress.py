@@ -2,7 +2,7 @@
 
 The policy function, the density of a re-expressed generation, chains of mixed generations whose archive is
 re-expressed every generation, a run whose every reused return is the return of its member's current parameters,
-checkpoints, and the keys' refusals (imix_cli.core.policies, "Observation normalisation").
+checkpoints, and the keys' refusals (imix_cli.core.evaluation.policies, "Observation normalisation").
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from conftest import interrupted_run
 
 from imix_cli.commands.cli import main
 from imix_cli.core.distributions import AffinePushforward, DiagonalGaussian, FullGaussian
-from imix_cli.core.generation import Archive
+from imix_cli.core.evaluation.policies import BatchPolicy, NormalizerChange, ObsNormalizer, fold_normalizer, num_params
 from imix_cli.core.mixing import Generation, _whitened, mix, variant_spec
-from imix_cli.core.policies import BatchPolicy, NormalizerChange, ObsNormalizer, fold_normalizer, num_params
+from imix_cli.core.mixing.generation import Archive
 from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.files.results import read_run_csv
 from imix_cli.running.loop import lockstep

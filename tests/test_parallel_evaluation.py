@@ -7,7 +7,7 @@ import pytest
 
 from imix_cli.commands.cli import main
 from imix_cli.core.evaluation import make_evaluator
-from imix_cli.core.parallel_evaluation import PoolEvaluator, RayEvaluator
+from imix_cli.core.evaluation.parallel import PoolEvaluator, RayEvaluator
 from imix_cli.running.config.compose import validate_overrides
 from imix_cli.running.files.results import read_run_csv
 

@@ -37,7 +37,7 @@ def _actor_pid(evaluator, k: int) -> int:
 def test_a_local_ray_is_sized_to_the_run_and_a_killed_actor_is_restarted():
     import ray
 
-    from imix_cli.core.parallel_evaluation import RayEvaluator
+    from imix_cli.core.evaluation.parallel import RayEvaluator
 
     evaluator = RayEvaluator("cartpole", hidden=(4,), workers=1)
     try:
@@ -53,7 +53,7 @@ def test_a_local_ray_is_sized_to_the_run_and_a_killed_actor_is_restarted():
 
 
 def test_an_actor_lost_for_good_is_one_line(monkeypatch):
-    from imix_cli.core.parallel_evaluation import EvaluatorError, RayEvaluator
+    from imix_cli.core.evaluation.parallel import EvaluatorError, RayEvaluator
 
     monkeypatch.setattr(RayEvaluator, "max_restarts", 0)
     evaluator = RayEvaluator("cartpole", hidden=(4,), workers=1)

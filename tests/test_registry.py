@@ -30,12 +30,12 @@ def conf(*parts):
 def test_the_registry_and_the_trainers_hold_objects_not_names():
     """An ES class, a built-in's evaluator and a trainer's functions are reached through function objects a
     reader can follow, not "module:attribute" strings given to import_module (only the public API's lazy names,
-    imix_cli/__init__.py, and the user's own env module, core/env_ids.py, are imported by name)."""
+    imix_cli/__init__.py, and the user's own env module, core/envs/ids.py, are imported by name)."""
     from imix_cli.running.trainers import DDPG, EVOLUTION_STRATEGY
 
     package = Path(__file__).resolve().parents[1] / "imix_cli"
     by_name = sorted(str(p.relative_to(package)) for p in package.rglob("*.py") if "import_module" in p.read_text())
-    assert by_name == ["__init__.py", "core/env_ids.py"]
+    assert by_name == ["__init__.py", "core/envs/ids.py"]
     for name in ES_NAMES:
         assert ALGORITHM_SPECS[name].es_class() is {**ALGORITHMS, **MIRRORED_ALGORITHMS}[name]
         assert issubclass(ALGORITHM_SPECS[name].es_class(), EvolutionStrategy) and ALGORITHM_SPECS[name].es_class().name == name

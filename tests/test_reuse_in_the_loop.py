@@ -2,8 +2,8 @@
 
 Importance mixing draws a generation exactly from its distribution along a path that does not
 depend on the members (tests/test_mixing.py). Inside an ES the path is made from the members,
-and three things can bend the search (imix_cli/core/mixing.py, "Reuse inside the loop";
-imix_cli/core/generation.py, "Calibrating stored returns"):
+and three things can bend the search (imix_cli/core/mixing/__init__.py, "Reuse inside the loop";
+imix_cli/core/mixing/generation.py, "Calibrating stored returns"):
 
 * tie ranks that follow a reused member (fixed by per-generation tie keys, the default),
 * the members' own pull on the move they are then reused after (``variant="conditional"``),
@@ -25,8 +25,8 @@ import pytest
 import imix_cli.core.algorithms.base as base
 from imix_cli.core.algorithms import make_es
 from imix_cli.core.algorithms.base import member_keys
-from imix_cli.core.generation import PAIR_MIN, Archive, MixingSettings, calibration, finish_generation, plan_generation
 from imix_cli.core.mixing import DiagonalGaussian, FullGaussian, Generation, _whitened, mix
+from imix_cli.core.mixing.generation import PAIR_MIN, Archive, MixingSettings, calibration, finish_generation, plan_generation
 from imix_cli.running.config.compose import ConfigError, validate_overrides
 
 _spec = importlib.util.spec_from_file_location("reuse_bias", Path(__file__).parent.parent / "benchmarks" / "reuse_bias.py")

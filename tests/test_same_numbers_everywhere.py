@@ -5,12 +5,12 @@ the CPU at start-up (``OPENBLAS_CORETYPE`` forces one). Kernels sum in different
 results computed through BLAS differ in the last bits from one CPU to the next, and an ES
 amplifies those bits into different runs (the main job's final mean was 192.46 / 194.24 /
 193.27 under Prescott / Haswell / SkylakeX before imix computed its linear algebra in compiled
-loops with one fixed order: :mod:`imix_cli.core.linalg_kernels`). Each test here runs a small job
+loops with one fixed order: :mod:`imix_cli.core.numerics.linalg_kernels`). Each test here runs a small job
 in fresh processes under each kernel and requires every CSV to be identical (but for
 ``wall_time``); a last run also switches off numpy's AVX-512/AVX2 code paths
 (``NPY_DISABLE_CPU_FEATURES``), as on a CPU without them, and another makes glibc run the SSE2 build
 of its math functions instead of the FMA one (``GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA``), as on a
-CPU without FMA: before imix computed exp, log, pow, tanh, sin and cos itself (:mod:`imix_cli.core.elementary`),
+CPU without FMA: before imix computed exp, log, pow, tanh, sin and cos itself (:mod:`imix_cli.core.numerics.elementary`),
 every SNES seed of the main job ran a different search from generation 6-15 on under it.
 
 The whole-run tests (the main job, CMA-ES: five fresh processes each, ~40 s of CPU together) check a

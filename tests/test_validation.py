@@ -294,7 +294,7 @@ def test_a_finished_run_is_still_summarised_under_another_schedule(run_dir, tmp_
 )
 def test_mixing_es_refuses_a_bad_argument_at_construction(kwargs, error, named):
     from imix_cli.core.algorithms import make_es
-    from imix_cli.core.ask_tell import MixingES
+    from imix_cli.core.mixing.ask_tell import MixingES
 
     with pytest.raises(error, match=named):
         MixingES(make_es("snes", 3, popsize=6), **kwargs)
@@ -328,13 +328,13 @@ SHARED_BOUNDS = [
 @pytest.mark.parametrize("key, argument, good, bad", SHARED_BOUNDS, ids=[c[0] for c in SHARED_BOUNDS])
 def test_the_library_and_the_cli_refuse_the_same_values(key, argument, good, bad):
     from imix_cli.core.algorithms import make_es
-    from imix_cli.core.ask_tell import MixingES
+    from imix_cli.core.mixing.ask_tell import MixingES
 
     def library(value):
         if argument in ("popsize", "sigma", "lr", "weight_decay"):
             return make_es("snes", 3, **{argument: value})
         if argument == "reeval_count":  # MixingES does not take it; the runner's MixingSettings does
-            from imix_cli.core.generation import MixingSettings
+            from imix_cli.core.mixing.generation import MixingSettings
 
             return MixingSettings("exact", reeval_count=value)
         return MixingES(make_es("snes", 3, popsize=6), "exact", **{argument: value})

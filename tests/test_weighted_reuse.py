@@ -1,4 +1,4 @@
-"""Importance-weighted reuse (``eim_variant=weighted``, imix_cli.core.weighted_reuse): the weights, the ranks, the
+"""Importance-weighted reuse (``eim_variant=weighted``, imix_cli.core.mixing.weighted_reuse): the weights, the ranks, the
 update they feed, and what the ES and the runner refuse."""
 
 from __future__ import annotations
@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from imix_cli import MixingES
-from imix_cli.core import weighted_reuse as wr
 from imix_cli.core.algorithms import make_es
 from imix_cli.core.algorithms.base import centered_ranks, member_keys
 from imix_cli.core.distributions import DiagonalGaussian
-from imix_cli.core.generation import MixingSettings
 from imix_cli.core.mixing import mix
+from imix_cli.core.mixing import weighted_reuse as wr
+from imix_cli.core.mixing.generation import MixingSettings
 
 # the chain of benchmarks/weighted_chains.py (which the page quotes at 40 chains x 300 generations), run smaller here
 _spec = importlib.util.spec_from_file_location("weighted_chains", Path(__file__).parent.parent / "benchmarks" / "weighted_chains.py")

@@ -1,7 +1,7 @@
-"""The tables of imix_cli.core.elementary, computed from their mathematical definitions: writes
-imix_cli/core/elementary_tables.py (``--check``: recompute and compare, exit 1 on any difference).
+"""The tables of imix_cli.core.numerics.elementary, computed from their mathematical definitions: writes
+imix_cli/core/numerics/elementary_tables.py (``--check``: recompute and compare, exit 1 on any difference).
 
-    python tools/elementary_tables.py            # (re)write imix_cli/core/elementary_tables.py
+    python tools/elementary_tables.py            # (re)write imix_cli/core/numerics/elementary_tables.py
     python tools/elementary_tables.py --check    # what tests/test_elementary.py runs
 
 Why a generated file: the log table takes a search (~10 s), too long for every import. Every entry
@@ -32,11 +32,11 @@ import numpy as np
 from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from imix_cli.core.elementary import fma  # noqa: E402
+from imix_cli.core.numerics.elementary import fma  # noqa: E402
 
 getcontext().prec = 70
 N = 128
-OUT = Path(__file__).resolve().parents[1] / "imix_cli" / "core" / "elementary_tables.py"
+OUT = Path(__file__).resolve().parents[1] / "imix_cli" / "core" / "numerics" / "elementary_tables.py"
 
 
 def asdouble(u):

@@ -38,7 +38,7 @@ class _TimedEvaluator:
 def breakdown_rows(configs, seeds: int, generations: int | None) -> list[dict]:
     """Lockstep runs in this process: seconds in evaluation, mixing/sampling and ES update."""
     from imix_cli.core.evaluation import make_evaluator
-    from imix_cli.core.generation import plan_generation
+    from imix_cli.core.mixing.generation import plan_generation
     from imix_cli.running.config.compose import validate_overrides
     from imix_cli.running.loop.lockstep import advance_lockstep, loop_settings, new_seed_state
 

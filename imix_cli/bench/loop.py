@@ -26,7 +26,7 @@ def _rows_without_times(states) -> str:
 
 
 def loop_rows(configs, seeds: int, generations: int) -> list[dict]:
-    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.core.evaluation.parallel import build_evaluator
     from imix_cli.running.config.compose import validate_overrides
     from imix_cli.running.loop import compiled_loop
     from imix_cli.running.loop.es_seeds import CHUNK

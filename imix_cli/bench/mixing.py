@@ -27,7 +27,7 @@ def mixing_times(dim: int, popsize: int = 50, generations: int = 3, repeats: int
         archive.insert(0, mix(dist, archive, popsize, rng, variant="exact", min_fresh=0))
     new = dists[-1]
     # Small steps (tens of microseconds at d = 130) are timed over batches of calls; the compiled
-    # steps (imix_cli.core.mixing_kernels) are loaded or compiled by a first, untimed call.
+    # steps (imix_cli.core.mixing.kernels) are loaded or compiled by a first, untimed call.
     calls = max(1, 200_000 // (popsize * dim))
 
     def per_call(fn):

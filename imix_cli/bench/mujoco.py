@@ -12,7 +12,7 @@ state; the ratio is the median of the repeats' ratios), for a linear policy with
   physics: this is the floor, up to the binding calls (imix's compiled step calls MuJoCo's C
   functions directly, so it can land a little below it);
 * ``imix evaluator``: the same parameters and episode seeds through imix's pool evaluator with
-  one worker (:class:`imix_cli.core.parallel_evaluation.PoolEvaluator`, the direct MuJoCo path;
+  one worker (:class:`imix_cli.core.evaluation.parallel.PoolEvaluator`, the direct MuJoCo path;
   the episodes are the loop's, bit for bit: the step counts are checked equal), and the same
   pool evaluator on gymnasium's env (``IMIX_MUJOCO_BACKEND=gymnasium``: imix before the direct path);
 * ``imix run``: ``imix run algo=snes env=<env> policy.hidden=[] evaluator=pool
@@ -102,7 +102,7 @@ def _gymnasium_backend_pool(env_id: str):
     import os
 
     from imix_cli.core.evaluation import MUJOCO_BACKEND_VARIABLE
-    from imix_cli.core.parallel_evaluation import PoolEvaluator
+    from imix_cli.core.evaluation.parallel import PoolEvaluator
 
     saved = os.environ.get(MUJOCO_BACKEND_VARIABLE)
     os.environ[MUJOCO_BACKEND_VARIABLE] = "gymnasium"
@@ -119,7 +119,7 @@ def _gymnasium_backend_pool(env_id: str):
 
 def mujoco_rows(envs=MUJOCO_BENCH_ENVS, popsize: int = 50, repeats: int = 3, run_generations: int = 5, echo=None) -> list[dict]:
     """One dict per env: per-step costs (seconds) and the pairwise ratios' medians."""
-    from imix_cli.core.parallel_evaluation import PoolEvaluator
+    from imix_cli.core.evaluation.parallel import PoolEvaluator
     from imix_cli.core.registry import ENV_SPECS
 
     rows = []

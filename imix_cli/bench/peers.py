@@ -36,14 +36,14 @@ def peers_available(echo) -> bool:
 
 def gymnax_episode(env: str):
     """``(episode, dim)`` for gymnax ``env`` (a key of :data:`PEER_IDS`): ``episode(flat, key)`` plays one
-    episode of at most EPISODE_CAP steps with imix's policy (:mod:`imix_cli.core.policies`: two tanh layers of 8,
+    episode of at most EPISODE_CAP steps with imix's policy (:mod:`imix_cli.core.evaluation.policies`: two tanh layers of 8,
     argmax over actions) of parameters ``flat`` and returns ``(return, steps)``; ``dim`` is the parameter count.
     Pure JAX, to be vmapped and jitted by the caller (``imix bench peers``, ``benchmarks/adapters.py``)."""
     import gymnax
     import jax
     import jax.numpy as jnp
 
-    from imix_cli.core.policies import num_params
+    from imix_cli.core.evaluation.policies import num_params
 
     environment, env_params = gymnax.make(PEER_IDS[env])
     env_params = env_params.replace(max_steps_in_episode=EPISODE_CAP)
@@ -51,7 +51,7 @@ def gymnax_episode(env: str):
     n_act = environment.action_space(env_params).n
     sizes = [obs_dim, 8, 8, n_act]
 
-    def policy(flat, obs):  # imix_cli.core.policies' layout: W1 (in x 8), b1, W2, b2, W3, b3
+    def policy(flat, obs):  # imix_cli.core.evaluation.policies' layout: W1 (in x 8), b1, W2, b2, W3, b3
         k, x = 0, obs
         for layer, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
             W, bias = flat[k : k + a * b].reshape(a, b), flat[k + a * b : k + a * b + b]

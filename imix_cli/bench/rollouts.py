@@ -30,7 +30,7 @@ def _naive_rollouts(env: str, params: np.ndarray, seeds: np.ndarray) -> tuple[in
     """One episode at a time: gymnasium.make + a numpy MLP forward pass per step. (Env steps, None)."""
     import gymnasium as gym
 
-    from imix_cli.core.policies import unpack
+    from imix_cli.core.evaluation.policies import unpack
 
     e = gym.make(ROLLOUT_ENVS[env], max_episode_steps=EPISODE_CAP)
     obs_dim, n_act = e.observation_space.shape[0], e.action_space.n
@@ -69,7 +69,7 @@ def _make_sync_vector_env(env: str, batch: int):
 
 def _sync_vector_rollouts(venv, params: np.ndarray, seeds: np.ndarray):
     """gymnasium's SyncVectorEnv stepping the same batched policy until every episode ended."""
-    from imix_cli.core.policies import BatchPolicy
+    from imix_cli.core.evaluation.policies import BatchPolicy
 
     obs_dim, n_act = venv.single_observation_space.shape[0], venv.single_action_space.n
     policy = BatchPolicy(params, obs_dim, n_act)

@@ -339,7 +339,7 @@ def _task(cfg) -> dict | None:
     from hydra.types import RunMode
 
     from imix_cli.commands.boundary import broken_pipe
-    from imix_cli.core.parallel_evaluation import EvaluatorError
+    from imix_cli.core.evaluation.parallel import EvaluatorError
     from imix_cli.running.runner import RunError, run
 
     _run_handles_signals()

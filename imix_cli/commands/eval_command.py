@@ -55,7 +55,7 @@ _NOT_RUNS = {"figures"}
 
 
 def _modules(key: str, value: str) -> tuple:
-    from imix_cli.core.env_ids import EnvIdError, user_modules
+    from imix_cli.core.envs.ids import EnvIdError, user_modules
 
     try:
         return user_modules(value)
@@ -64,7 +64,7 @@ def _modules(key: str, value: str) -> tuple:
 
 
 #: The keys that choose policy files, shared by ``imix eval`` and ``imix render``: defaults and checks.
-#: ``import``: the modules the user allows a policy's ``module:Id`` env id to name (imix_cli.core.env_ids).
+#: ``import``: the modules the user allows a policy's ``module:Id`` env id to name (imix_cli.core.envs.ids).
 POLICY_KEYS = {"results_dir": "results", "experiment": "default", "run": None, "which": "mean", "import": ()}
 POLICY_KEY_CHECKS = {"experiment": folder_name, "run": folder_name, "which": one_of("mean", "best"), "import": _modules}
 
@@ -110,7 +110,7 @@ def policy_env(header: dict, allowed_modules=(), where: str = "policy file") -> 
     """The env a policy acts in, as :func:`imix_cli.core.evaluation.make_evaluator` takes it: a built-in's
     name, or a registered gymnasium id (plain, without ``module:``). A ``module:Id`` in the file is
     refused unless the user named that module (``import=``): files never import code."""
-    from imix_cli.core.env_ids import EnvIdError, file_env_id
+    from imix_cli.core.envs.ids import EnvIdError, file_env_id
     from imix_cli.core.registry import BUILTIN_ENVS
     from imix_cli.running.files.policy_files import PolicyFileError
 

@@ -112,7 +112,7 @@ def make_render_env(header: dict, env_id: str, env_kwargs: dict | None = None):
 def render_env_id(policy, allowed_modules=(), run_dir=None, where: str = "policy file") -> str:
     """The registered gymnasium id to render the policy in, its header checked as ``imix eval`` checks it."""
     from imix_cli.commands.eval_command import evaluator_for
-    from imix_cli.core.env_ids import plain_env_id
+    from imix_cli.core.envs.ids import plain_env_id
     from imix_cli.core.registry import BUILTIN_ENVS
 
     evaluator_for(policy.header, None, allowed_modules, run_dir, where)  # the same checks as eval: env, cap, shapes

@@ -3,7 +3,7 @@
 Why one record: the bounds used to be written twice -- ``imix run``'s config checks refused ``eim_generations=0`` or
 ``sigma=1e300`` while ``MixingES`` and ``make_es`` accepted them and failed later, deep inside, or truncated
 ``popsize=2.5`` to 2. Now :class:`~imix_cli.core.algorithms.base.Params` (:data:`~imix_cli.core.algorithms.base.PARAM_BOUNDS`)
-and :class:`~imix_cli.core.generation.MixingSettings` (:data:`~imix_cli.core.generation.MIXING_BOUNDS`) check their fields with a
+and :class:`~imix_cli.core.mixing.generation.MixingSettings` (:data:`~imix_cli.core.mixing.generation.MIXING_BOUNDS`) check their fields with a
 :class:`Bound` at construction, and ``imix run``'s key declarations (:data:`imix_cli.running.config.keys.KEYS`) check
 the config keys with the very same ones (:func:`imix_cli.running.config.checks.as_bounded`).
 """

@@ -13,7 +13,7 @@ processed in blocks so that temporaries stay small and cache-resident even at
 d = 10^6, and sums are accumulated in float64 whatever the storage dtype.
 ``FullGaussian`` (CMA-ES) works through the Cholesky factor of the covariance.
 
-Every dot product and matrix product here is :mod:`imix_cli.core.linalg_kernels`' (one fixed
+Every dot product and matrix product here is :mod:`imix_cli.core.numerics.linalg_kernels`' (one fixed
 summation order), not BLAS's, whose kernel -- and so whose last bits -- depends on the CPU.
 """
 
@@ -423,7 +423,7 @@ class AffinePushforward:
     """The law of ``T(theta)`` for ``theta ~ base``, T an invertible affine map ``theta' = A theta + c``.
 
     Why: a search whose parameters change meaning (observation statistics that keep updating:
-    :class:`imix_cli.core.policies.NormalizerChange`) re-expresses every archived member as ``T(theta)``, the same
+    :class:`imix_cli.core.evaluation.policies.NormalizerChange`) re-expresses every archived member as ``T(theta)``, the same
     policy in today's coordinates; its generation is then distributed as this pushforward, whose density is
     ``log p'(x) = log p(T^-1 x) - log|det A|``. Importance mixing reads it through ``log_prob`` like any
     :class:`SearchDistribution` (it is neither a DiagonalGaussian nor a FullGaussian, so mixing takes its generic

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imix_cli.core.env_ids import plain_env_id
+from imix_cli.core.envs.ids import plain_env_id
 from imix_cli.core.registry import BUILTIN_ENVS, env_return_bounds
 from imix_cli.messages import shown_value
 from imix_cli.running.files.results import COLUMNS, ResultMismatchError

@@ -63,7 +63,7 @@ def _run_es_seeds(spec, seeds: list[int], progress, resumed=None) -> dict:
     """The run's evaluator, then its seeds on it: the evaluator's processes (pool, Ray) end with the
     seeds, a Ctrl-C or SIGTERM included. A Ctrl-C or SIGTERM stops the seeds between two generations,
     checkpointed, and acts once the evaluator is closed (:mod:`imix_cli.running.loop.stopping`)."""
-    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.core.evaluation.parallel import build_evaluator
     from imix_cli.running.loop.es_seeds import run_es_seeds
     from imix_cli.running.loop.stopping import stops_between_generations
 

@@ -50,8 +50,8 @@ INSTALL_CONFIGS = [
 def _mixing_group(spec) -> None:
     """A few generations of the run's ES with the run's mixing, on made-up returns: compiles the ES
     update and the mixing step (the run's variant), with the run's dimension and population."""
-    from imix_cli.core.generation import Archive, finish_generation, plan_generation
-    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.core.evaluation.parallel import build_evaluator
+    from imix_cli.core.mixing.generation import Archive, finish_generation, plan_generation
     from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
 
     settings = loop_settings(spec, build_evaluator(spec))
@@ -64,7 +64,7 @@ def _mixing_group(spec) -> None:
 
 
 def _policy_group(spec) -> None:
-    """The elementary functions (imix_cli.core.elementary) of the gymnasium policies, of the numpy mixing path
+    """The elementary functions (imix_cli.core.numerics.elementary) of the gymnasium policies, of the numpy mixing path
     (CMA-ES) and of the ES's Python side (CMA-ES's constants, Adam's bias correction)."""
     from imix_cli.core import numerics as xp
 
@@ -75,7 +75,7 @@ def _policy_group(spec) -> None:
 
 def _episodes_group(spec) -> None:
     """One episode of one member through the run's evaluator: compiles its episode kernel."""
-    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.core.evaluation.parallel import build_evaluator
 
     evaluator = build_evaluator(spec)
     evaluator.evaluate(np.zeros((1, evaluator.num_params)), np.zeros(1, dtype=np.int64))
@@ -84,7 +84,7 @@ def _episodes_group(spec) -> None:
 def _compiled_loop_group(spec) -> None:
     """One generation of one seed through the compiled loop (:mod:`imix_cli.running.loop.compiled_loop`): compiles
     its entry point, which holds its own copy of the mixing, episode and update kernels."""
-    from imix_cli.core.parallel_evaluation import build_evaluator
+    from imix_cli.core.evaluation.parallel import build_evaluator
     from imix_cli.running.loop import compiled_loop
     from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
 
@@ -96,9 +96,10 @@ def _compiled_loop_group(spec) -> None:
 def compile_groups(spec) -> list:
     """The groups of kernels (functions of ``spec``) whose compile the run can spread over cores, and
     the compiled entry points whose presence in the cache says a group is already compiled."""
-    from imix_cli.core import linalg_kernels, mixing_kernels
     from imix_cli.core.algorithms import make_es
+    from imix_cli.core.mixing import kernels as mixing_kernels
     from imix_cli.core.mixing import variant_spec
+    from imix_cli.core.numerics import linalg_kernels
 
     groups = []
     es = make_es(spec.algo, 1)
@@ -114,7 +115,7 @@ def compile_groups(spec) -> list:
     if spec.evaluator == "local":
         from imix_cli.core.envs import kernels
         from imix_cli.core.evaluation import AcrobotEvaluator, CartPoleEvaluator, ContinuousCartPoleEvaluator
-        from imix_cli.core.parallel_evaluation import build_evaluator
+        from imix_cli.core.evaluation.parallel import build_evaluator
 
         evaluator = build_evaluator(spec)
         if isinstance(evaluator, (CartPoleEvaluator, ContinuousCartPoleEvaluator)):
@@ -172,7 +173,7 @@ def _run_groups(jobs, workers: int) -> None:
 def warm_all(workers: int | None = None) -> int:
     """Compile every kernel of :data:`INSTALL_CONFIGS` not yet in numba's cache, over ``workers``
     processes (default: all cores); return the number of groups compiled."""
-    from imix_cli.core import elementary, linalg_kernels
+    from imix_cli.core.numerics import elementary, linalg_kernels
     from imix_cli.running.config.compose import validate_overrides
 
     policy_entries = [linalg_kernels.tanh_kernel, elementary.math_exp, elementary.math_log, elementary.math_log1p, elementary.math_pow]

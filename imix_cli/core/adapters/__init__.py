@@ -2,7 +2,7 @@
 
 :class:`~imix_cli.MixingES` needs of an ES what imix's own give: ``ask(rng)``, ``tell(samples,
 fitness)``, ``distribution`` (the density the next generation is drawn from) and ``popsize``
-(:mod:`imix_cli.core.ask_tell`). An adapter gives those for a library's ES, leaving its update alone:
+(:mod:`imix_cli.core.mixing.ask_tell`). An adapter gives those for a library's ES, leaving its update alone:
 
 * :mod:`imix_cli.core.adapters.pycma`: ``cma.CMAEvolutionStrategy``, wrapped by MixingES itself
   (``MixingES(cma.CMAEvolutionStrategy(...), "exact")``), or as :class:`~imix_cli.core.adapters.pycma.PycmaES`

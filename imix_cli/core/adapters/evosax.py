@@ -23,7 +23,7 @@ default): mixing and the archive are float64, evosax sees its own precision.
 
 ``Open_ES`` samples antithetic pairs by default (``use_antithetic_sampling=True``): a pair's
 halves are not independent draws, so the adapter mixes the pairs' anchors and evaluates every
-mirror afresh, as imix does for ARS (:mod:`imix_cli.core.mirrored`); mixing then saves at most half
+mirror afresh, as imix does for ARS (:mod:`imix_cli.core.mixing.mirrored`); mixing then saves at most half
 of the evaluations.
 
 State is data. :meth:`EvosaxES.state_dict` is the evosax state and key as flat arrays under
@@ -40,7 +40,7 @@ import functools
 import numpy as np
 
 from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
-from imix_cli.core.mirrored import MIRRORED_PAIRS
+from imix_cli.core.mixing.mirrored import MIRRORED_PAIRS
 
 __all__ = ["DISTRIBUTIONS", "SNES_FOR_MIXING", "EvosaxES", "from_evosax", "snes_for_mixing"]
 

@@ -175,7 +175,7 @@ class PycmaES:
     def mixable(self) -> bool:
         """Whether the current distribution has a density to mix with: False where pycma's own factor is
         singular (its state degenerate), and the generation is then drawn without reuse, as pycma would go on
-        drawing (:func:`imix_cli.core.generation.plan_generation` reads it)."""
+        drawing (:func:`imix_cli.core.mixing.generation.plan_generation` reads it)."""
         self.distribution  # noqa: B018 (reads the factor)
         return not self._degenerate
 

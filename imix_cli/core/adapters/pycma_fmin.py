@@ -7,7 +7,7 @@ and compare against; a copy would drift from it. pycma's ``fmin`` makes every ru
 :func:`fmin2` calls pycma's own ``fmin2`` with that name bound, for the duration of the call, to
 :class:`MixingCMAEvolutionStrategy`: a pycma ES whose ``ask_and_eval`` evaluates only the points importance
 mixing asks for, whose ``tell`` takes their values and tells pycma the whole mixed generation, and whose ``stop``
-judges pycma's criteria on fresh evaluations (all through :class:`~imix_cli.core.ask_tell.MixingES` and
+judges pycma's criteria on fresh evaluations (all through :class:`~imix_cli.core.mixing.ask_tell.MixingES` and
 :class:`~imix_cli.core.adapters.pycma.PycmaES`). Every other line of the restart loop is pycma's::
 
     import cma, imix_cli
@@ -44,7 +44,7 @@ def _subclass():
     base = cma.CMAEvolutionStrategy
 
     class MixingCMAEvolutionStrategy(base):
-        """A pycma ES that mixes: ``ask_and_eval``, ``tell`` and ``stop`` through :class:`~imix_cli.core.ask_tell.MixingES`."""
+        """A pycma ES that mixes: ``ask_and_eval``, ``tell`` and ``stop`` through :class:`~imix_cli.core.mixing.ask_tell.MixingES`."""
 
         _mixing_options: dict = {}  # MixingES's keywords (fmin2's mixing=); those left out: its defaults
 
@@ -52,7 +52,7 @@ def _subclass():
             m = self.__dict__.get("_mixing_es")
             if m is None:
                 from imix_cli.core.adapters.pycma import PycmaES
-                from imix_cli.core.ask_tell import MixingES
+                from imix_cli.core.mixing.ask_tell import MixingES
 
                 options = dict(self._mixing_options)
                 step_size = options.pop("step_size", "pycma")
@@ -113,7 +113,7 @@ def fmin2(objective_function, x0, sigma0, options=None, *, mixing=None, **kwargs
         pycma's (``restarts=``, ``bipop=``, ``incpopsize=``, ``parallel_objective=``, ``callback=``, ...); x0 may
         be a callable, as in pycma. Refused with one line (ValueError): ``noise_handler``, ``gradf``, an ES as x0.
     mixing : dict or None
-        :class:`~imix_cli.core.ask_tell.MixingES`'s keywords for every run (``variant``, ``eim_generations``,
+        :class:`~imix_cli.core.mixing.ask_tell.MixingES`'s keywords for every run (``variant``, ``eim_generations``,
         ``min_fresh``, ...) and the adapter's ``step_size``; each left out takes MixingES's default
         (:data:`imix_cli.core.mixing.MIXING_DEFAULTS`: ``"exact"``, as ``imix run eim=true``).
 

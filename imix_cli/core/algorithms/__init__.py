@@ -32,7 +32,7 @@ _CLASSES = (OpenES, SNES, CEM, CMAES, ARS)
 #: ES name -> class, for every evolution strategy whose ``tell`` takes any population
 #: (any rows, in any order); ARS's members come in mirrored pairs (:data:`MIRRORED_ALGORITHMS`).
 ALGORITHMS = {cls.name: cls for cls in _CLASSES if cls.generation_scheme is None}
-#: ES name -> class, for the ES whose ``tell`` takes N mirrored pairs ``[plus; minus]`` (imix_cli.core.mirrored).
+#: ES name -> class, for the ES whose ``tell`` takes N mirrored pairs ``[plus; minus]`` (imix_cli.core.mixing.mirrored).
 MIRRORED_ALGORITHMS = {cls.name: cls for cls in _CLASSES if cls.generation_scheme is not None}
 
 

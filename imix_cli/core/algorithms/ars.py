@@ -4,7 +4,7 @@ Why ARS in imix: on MuJoCo's locomotion tasks it is the sample-efficiency refere
 evolution strategies -- linear policies, mirrored directions, the top-b directions and a step
 scaled by the spread of the returns. This module is the ES alone; how its mirrored pairs are
 built with importance mixing (exactly, and why whole pairs cannot be reused) is
-:mod:`imix_cli.core.mirrored` and docs/ars.md.
+:mod:`imix_cli.core.mixing.mirrored` and docs/ars.md.
 
 One generation (an ARS *iteration*) with N directions, step size alpha and noise nu::
 
@@ -18,7 +18,7 @@ V2 (state normalisation) is the policy's observation normaliser (``policy.obs_no
 statistics frozen after a warm-up by default: a stored return is only the return of the policy
 function it was measured with (docs/ars.md). ``policy.obs_norm_freeze=false`` updates them forever,
 as ARS does, and re-expresses the archived anchors under each new statistics (with mixing, this
-needs ``policy.bias=true``: imix_cli.core.policies, "Observation normalisation").
+needs ``policy.bias=true``: imix_cli.core.evaluation.policies, "Observation normalisation").
 
 In imix's terms: ``popsize`` is the number of *members* 2N (episodes of a generation without
 mixing, as for the other ES), ``sigma`` is nu, ``lr`` is alpha (no Adam), ``algo.top`` is b.
@@ -39,7 +39,7 @@ import numpy as np
 
 from imix_cli.core.algorithms.base import EvolutionStrategy, Params, _array_like
 from imix_cli.core.distributions import DiagonalGaussian
-from imix_cli.core.mirrored import MIRRORED_PAIRS, mirror
+from imix_cli.core.mixing.mirrored import MIRRORED_PAIRS, mirror
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ class ARS(EvolutionStrategy):
     name = "ars"
     Params = ARSParams
     #: Members come in mirrored pairs: their generations are mixed, evaluated and archived by the pairs'
-    #: scheme (:mod:`imix_cli.core.mirrored`), which :mod:`imix_cli.core.generation` calls through this hook.
+    #: scheme (:mod:`imix_cli.core.mixing.mirrored`), which :mod:`imix_cli.core.mixing.generation` calls through this hook.
     generation_scheme = MIRRORED_PAIRS
 
     def _setup(self) -> None:

@@ -42,9 +42,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from imix_cli.core import elementary as el
-from imix_cli.core import linalg_kernels as lk
 from imix_cli.core.bounds import Bound
+from imix_cli.core.numerics import elementary as el
+from imix_cli.core.numerics import linalg_kernels as lk
 
 
 def _tie_groups(values: np.ndarray):
@@ -161,7 +161,7 @@ def estool_centered_ranks_kernel(samples, fitness, generation, weight_decay, mul
     """:meth:`EvolutionStrategy.utilities` compiled, for ``fitness_shaping="centered_ranks"`` and
     ``weight_decay_form="estool"`` and finite ``fitness``: centred ranks (ties ordered by :func:`member_keys`
     salted with ``generation + 1``) minus ``weight_decay * mean(x_i^2)``, with numpy's own summation order
-    in the mean (:func:`imix_cli.core.linalg_kernels.numpy_sum`): the same bits as the Python method."""
+    in the mean (:func:`imix_cli.core.numerics.linalg_kernels.numpy_sum`): the same bits as the Python method."""
     n, d = samples.shape
     keys = member_keys_kernel(samples, mult, np.uint64(generation + 1) * np.uint64(0x9E3779B97F4A7C15))
     # np.lexsort((keys, fitness)): ascending fitness, ties by ascending key, stable (insertion sort)
@@ -408,11 +408,11 @@ class EvolutionStrategy(ABC):
     name: str = ""
     #: this ES's parameter record (a subclass of :class:`Params` with its own options)
     Params: type[Params] = Params
-    #: how its generations are mixed and archived (:class:`imix_cli.core.generation.GenerationScheme`): None, the
+    #: how its generations are mixed and archived (:class:`imix_cli.core.mixing.generation.GenerationScheme`): None, the
     #: default, for members that are independent draws of :attr:`distribution`; ARS names its mirrored pairs'
     generation_scheme = None
     #: whether :meth:`_update` is linear in the utilities (a sum over members of u_k times a function of the member),
-    #: so that ``tell(..., weights=)`` can weight members into it (:mod:`imix_cli.core.weighted_reuse`): None, no;
+    #: so that ``tell(..., weights=)`` can weight members into it (:mod:`imix_cli.core.mixing.weighted_reuse`): None, no;
     #: "sum" if it sums over the members told (SNES), "mean" if it divides that sum by their number (OpenES)
     weights_utilities: str | None = None
 
@@ -492,13 +492,13 @@ class EvolutionStrategy(ABC):
         self.generation += 1
 
     def weighted_utilities(self, samples: np.ndarray, fitness: np.ndarray, weights) -> np.ndarray:
-        """The utilities of a weighted pool (:mod:`imix_cli.core.weighted_reuse`): centred ranks under the
-        self-normalised ``weights`` (:func:`~imix_cli.core.weighted_reuse.weighted_centered_ranks`), weight decay as
+        """The utilities of a weighted pool (:mod:`imix_cli.core.mixing.weighted_reuse`): centred ranks under the
+        self-normalised ``weights`` (:func:`~imix_cli.core.mixing.weighted_reuse.weighted_centered_ranks`), weight decay as
         :meth:`utilities`, each times ``popsize * weight`` (an update that sums, :attr:`weights_utilities` "sum") or
         ``rows * weight`` (one that averages over the rows told, "mean"): the update then estimates the one of a
         generation of ``popsize`` members drawn from the current distribution, and equal weights over ``popsize`` rows
         give :meth:`utilities`."""
-        from imix_cli.core.weighted_reuse import weighted_centered_ranks
+        from imix_cli.core.mixing.weighted_reuse import weighted_centered_ranks
 
         if not self.weights_utilities:
             raise ValueError(f"{self.name or type(self).__name__}'s update is not a weighted sum over its members: tell it no weights")

@@ -62,7 +62,7 @@ Where we differ from pycma, on purpose:
   utilities, whose decay term the points do not have.
 * No termination criteria, no logging, no bounds, no integer variables, no elitism.
 * Linear algebra: products, the eigendecomposition (EISPACK's tred2 + tql2 instead of LAPACK's
-  dsyevd) and the sampler's Cholesky factor are :mod:`imix_cli.core.linalg_kernels`' compiled loops,
+  dsyevd) and the sampler's Cholesky factor are :mod:`imix_cli.core.numerics.linalg_kernels`' compiled loops,
   whose order of summation does not depend on the BLAS kernel the CPU selects (so neither do a
   run's bits); they differ from pycma's numpy/LAPACK results by round-off only.
 """
@@ -81,7 +81,7 @@ from imix_cli.core.distributions import FullGaussian
 
 def _pow(x, y) -> float:
     """``x ** y`` of Python or numpy scalars as Python and numpy compute it (the C library's pow), but with
-    :func:`imix_cli.core.elementary.pow`: the same bits on every CPU (pycma's formulas are kept as they are)."""
+    :func:`imix_cli.core.numerics.elementary.pow`: the same bits on every CPU (pycma's formulas are kept as they are)."""
     return xp.power(float(x), float(y))
 
 
@@ -137,7 +137,7 @@ def expected_norm(dim: int) -> float:
 
 
 # Python's math.gamma for 0 < x <= 200 (CPython's m_tgamma: exact factorials for integers up to 23, else
-# Lanczos' approximation with g = 6.0247, N = 13), with exp and pow from imix_cli.core.elementary instead of the
+# Lanczos' approximation with g = 6.0247, N = 13), with exp and pow from imix_cli.core.numerics.elementary instead of the
 # C library's: the same values here, the same bits on every CPU.
 _LANCZOS_G = 6.024680040776729583740234375
 _LANCZOS_G_MINUS_HALF = 5.524680040776729583740234375

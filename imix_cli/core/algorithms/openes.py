@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from imix_cli.core import linalg_kernels as lk
 from imix_cli.core.algorithms.base import Adam, CompiledStep, EvolutionStrategy, Params, _array_like, adam_step, prefixed, unprefixed
 from imix_cli.core.distributions import DiagonalGaussian
+from imix_cli.core.numerics import linalg_kernels as lk
 
 
 @njit(cache=True)

@@ -15,7 +15,7 @@ and ``tests/test_continuous.py`` test it against gymnasium directly):
   (uint32 hashes whose multiplier sequence does not depend on the data, so it is precomputed),
   PCG64 seeding and XSL-RR output with the 128-bit state held as two uint64 words, and
   ``next_double = (x >> 11) * 2**-53``. Bit-identical to numpy for seeds in [0, 2**64).
-* **MLP** (:func:`mlp_forward`): ``imix_cli.core.policies``' layout (``W1`` (in x h1, row-major),
+* **MLP** (:func:`mlp_forward`): ``imix_cli.core.evaluation.policies``' layout (``W1`` (in x h1, row-major),
   ``b1``, ``W2``, ``b2``, ..., ``W_out``, ``b_out``; tanh hidden units; layer sizes given at
   run time), each output summed as ``((0 + w_0 x_0) + w_1 x_1) + ... + b``. Discrete actions:
   argmax by strict comparisons (ties to the lowest index, a NaN output never takes over);
@@ -29,19 +29,19 @@ and ``tests/test_continuous.py`` test it against gymnasium directly):
   that gymnasium squares with numpy's scalar ``x**2`` (libm ``pow``, not always correctly
   rounded) where this uses ``x * x``: next states differ by a few ulps on ~1 step in 400.
 
-Math functions (``tanh``, ``cos``, ``sin``) are :mod:`imix_cli.core.elementary`'s, not the C library's,
+Math functions (``tanh``, ``cos``, ``sin``) are :mod:`imix_cli.core.numerics.elementary`'s, not the C library's,
 whose last bits depend on the CPU (glibc runs an FMA build on CPUs that have FMA and an SSE2 build
 on the others); they give what glibc's FMA build gives, bit for bit. A hidden layer's ``tanh`` runs
 as a loop of its own over the layer's units, which compiles to vector instructions. No
 ``fastmath``: IEEE semantics, no reassociation, no FMA contraction beyond the fused
-multiply-adds written out in :mod:`imix_cli.core.elementary`.
+multiply-adds written out in :mod:`imix_cli.core.numerics.elementary`.
 
 Compilation: ``@njit(cache=True)``: the machine code is written to numba's on-disk cache on
-first use (in the Python environment, :func:`imix_cli.core.numba_cache.shared_cache_root`; numba's
+first use (in the Python environment, :func:`imix_cli.core.numerics.numba_cache.shared_cache_root`; numba's
 ``__pycache__`` or the user's cache directory when that is not writable) and loaded from there by every later process,
 spawned workers included. numba invalidates a cached function when *its* file changes, not when
-a callee in another file does (:mod:`imix_cli.core.elementary`'s functions are compiled in): imix's
-cache locator (:mod:`imix_cli.core.numba_cache`) stamps these kernels with every compiled source of the package.
+a callee in another file does (:mod:`imix_cli.core.numerics.elementary`'s functions are compiled in): imix's
+cache locator (:mod:`imix_cli.core.numerics.numba_cache`) stamps these kernels with every compiled source of the package.
 """
 
 from __future__ import annotations
@@ -53,8 +53,8 @@ from gymnasium.envs.classic_control.acrobot import AcrobotEnv
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from numba import njit
 
-from imix_cli.core import elementary as el
 from imix_cli.core.envs.continuous_cartpole import FORCE_MAG
+from imix_cli.core.numerics import elementary as el
 
 __all__ = [
     "uniform_row",

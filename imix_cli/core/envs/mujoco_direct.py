@@ -148,8 +148,8 @@ class DirectEpisodes:
         health = 0 if task.healthy_reward is None else (1 if task.healthy_state_range is not None else 2)
         ranges = [np.array(r if r is not None else (-np.inf, np.inf), dtype=np.float64)
                   for r in (task.healthy_z_range, task.healthy_angle_range, task.healthy_state_range)]  # fmt: skip
-        settings = (float(self.dt), float(task.forward_reward_weight), np.float32(task.ctrl_cost_weight), task.skipped_qpos,
-                    float(task.qvel_clip or 0.0), health, float(task.healthy_reward or 0.0), *ranges)  # fmt: skip
+        settings = (float(self.dt), float(task.forward_reward_weight), np.float32(task.ctrl_cost_weight), int(task.skipped_qpos),
+                    float(task.qvel_clip or 0.0), int(health), float(task.healthy_reward or 0.0), *ranges)  # fmt: skip
         return mujoco_kernels.advance, functions, settings
 
     def _views_of(self, data):
@@ -231,7 +231,7 @@ class DirectEpisodes:
             # the kernel reads raw addresses: a wrong index or shape would read other memory, not raise
             if actions.shape != (len(rows), self.nu) or (rows.size and (rows.min() < 0 or rows.max() >= len(self._addresses[0]))):
                 raise ValueError(f"{self.env_id}: step needs rows among the {len(self._addresses[0])} reset members and actions ({len(rows)}, {self.nu})")
-            kernel(mj_step, mj_rne, model._address, *self._addresses, self.nq, self.nv, frame_skip, rows, actions, *settings, obs, rewards, terminated)
+            kernel((mj_step, mj_rne), model._address, self._addresses, (self.nq, self.nv, frame_skip), rows, actions, settings, (obs, rewards, terminated))
             return obs, rewards, terminated
         if self._contacts:  # Ant: the torso body's position, before and after
             before = self._xy[rows, 0].copy()

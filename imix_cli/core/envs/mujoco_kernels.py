@@ -81,13 +81,22 @@ def _inside(value, low, high):
 
 
 @numba.njit(cache=True)
-def advance(mj_step, mj_rne, model, data, qpos_at, qvel_at, ctrl_at, nq, nv, frame_skip, rows, actions, dt, forward_weight, ctrl_weight,
-            skipped_qpos, qvel_clip, health, healthy_reward, z_range, angle_range, state_range, obs, rewards, terminated):  # fmt: skip
-    """Step members ``rows`` with float32 ``actions`` (k, nu); fill ``obs`` (k, obs_dim), ``rewards`` and ``terminated`` (k,).
+def advance(functions, model, buffers, sizes, rows, actions, task, out):
+    """Step members ``rows`` with float32 ``actions`` (k, nu); fill ``out``: ``obs`` (k, obs_dim), ``rewards`` and
+    ``terminated`` (k,).
 
+    Grouped as the caller holds them (tuples; numba types each field): ``functions`` libmujoco's ``(mj_step,
+    mj_rnePostConstraint)`` addresses; ``buffers`` the reset members' ``(MjData, qpos, qvel, ctrl)`` addresses (int64
+    arrays); ``sizes`` ``(nq, nv, frame_skip)``; ``task`` the reward's settings ``(dt, forward_weight, ctrl_weight
+    (float32), skipped_qpos, qvel_clip, health, healthy_reward, z_range, angle_range, state_range)``.
     ``health``: 0 none (Swimmer, HalfCheetah), 1 Hopper (state, z and angle ranges), 2 Walker2d
     (z and angle). ``qvel_clip`` <= 0: no clipping. Ranges are (low, high) float64 arrays, strict bounds.
     """
+    mj_step, mj_rne = functions
+    data, qpos_at, qvel_at, ctrl_at = buffers
+    nq, nv, frame_skip = sizes
+    dt, forward_weight, ctrl_weight, skipped_qpos, qvel_clip, health, healthy_reward, z_range, angle_range, state_range = task
+    obs, rewards, terminated = out
     nu = actions.shape[1]
     for k in range(rows.shape[0]):
         i = rows[k]

@@ -66,7 +66,7 @@ def as_float(cfg: dict, key: str, low: float, low_inclusive: bool, high: float =
 
 def as_bounded(cfg: dict, key: str, bound):
     """``cfg[key]`` checked against a :class:`~imix_cli.core.bounds.Bound` of the library's (:data:`imix_cli.core.algorithms.base.PARAM_BOUNDS`,
-    :data:`imix_cli.core.generation.MIXING_BOUNDS`): the CLI and the library's constructors check the same numbers."""
+    :data:`imix_cli.core.mixing.generation.MIXING_BOUNDS`): the CLI and the library's constructors check the same numbers."""
     if bound.integer:
         value = as_int(cfg, key, bound.low)
         if not bound.contains(value):
@@ -196,7 +196,7 @@ def env_of(env_cfg: dict):
     import gymnasium as gym
 
     import imix_cli.core.envs  # noqa: F401  (registers the imix/ environments)
-    from imix_cli.core.env_ids import EnvIdError, import_user_env
+    from imix_cli.core.envs.ids import EnvIdError, import_user_env
 
     try:  # the user's own env as module:Id (gymnasium's convention): the user typed it, so its module is imported
         plain = import_user_env(env_id)

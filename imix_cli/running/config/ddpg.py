@@ -6,7 +6,7 @@ and left out of its config.yaml; the RunSpec's ES fields keep their defaults.
 
 from __future__ import annotations
 
-from imix_cli.core.env_ids import plain_env_id
+from imix_cli.core.envs.ids import plain_env_id
 from imix_cli.core.registry import BUILTIN_ENVS, CONTINUOUS_BUILTIN_ENVS, ENV_SPECS
 from imix_cli.running.config.checks import ConfigError, as_float, as_int, env_of, first_line, is_number, workers_of
 from imix_cli.running.config.keys import ES_ONLY_KEYS, read_keys

@@ -30,7 +30,7 @@ from imix_cli.running.config.run_spec import RunSpec, algo_option_fields, run_de
 
 
 def _check_weighted(algo: str, checked: dict) -> None:
-    """``eim_variant=weighted`` weights members into an update that is a sum over them (imix_cli.core.weighted_reuse)."""
+    """``eim_variant=weighted`` weights members into an update that is a sum over them (imix_cli.core.mixing.weighted_reuse)."""
     from imix_cli.core.algorithms import ALGORITHMS, MIRRORED_ALGORITHMS
 
     cls = {**ALGORITHMS, **MIRRORED_ALGORITHMS}.get(algo)
@@ -234,7 +234,7 @@ def _policy_and_evaluator(checked: dict, env_name: str, launcher: str | None) ->
 def _policy_dim(env_name: str, env_id: str, max_steps, hidden: tuple, bias: bool = True, output: str = "tanh", env_kwargs: tuple = ()) -> int:
     """Number of parameters the ES searches on this env: the policy's, or its weights' with
     ``policy.bias=false`` (a gymnasium env is made once to read its spaces)."""
-    from imix_cli.core.policies import searched_params
+    from imix_cli.core.evaluation.policies import searched_params
 
     if env_name in BUILTIN_ENVS:  # their observation and output sizes are known without making the env
         return searched_params(*ENV_SPECS[env_name].policy_dims, hidden, bias)

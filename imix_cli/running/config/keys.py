@@ -9,7 +9,7 @@ one :class:`RunKey` record, as pycma declares each option once in ``CMAOptions``
   and the configuration reference ``docs/configuration.md``; tests/test_config_keys.py fails when one of them drifts);
 - the checks: :func:`read_keys` checks every key that has a ``check`` (:mod:`imix_cli.running.config.es_config` then checks
   the keys together); the numeric bounds are the library's own (:data:`imix_cli.core.algorithms.base.PARAM_BOUNDS`,
-  :data:`imix_cli.core.generation.MIXING_BOUNDS`), so ``imix run`` and the constructors refuse the same values; the
+  :data:`imix_cli.core.mixing.generation.MIXING_BOUNDS`), so ``imix run`` and the constructors refuse the same values; the
   mixing keys' defaults are the library's one declaration of them (:data:`imix_cli.core.mixing.MIXING_DEFAULTS`), so
   ``imix_cli.mix`` and ``MixingES`` run the rule ``imix run`` runs;
 - the RunSpec's fields (``spec``), a run's folder name (``names_folder``), what a resume must match (``identity``)
@@ -31,8 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from imix_cli.core.algorithms.base import PARAM_BOUNDS, WEIGHT_DECAY_FORMS, Params
-from imix_cli.core.generation import MIXING_BOUNDS
 from imix_cli.core.mixing import MIXING_DEFAULTS, config_variants, variant_spec
+from imix_cli.core.mixing.generation import MIXING_BOUNDS
 from imix_cli.running.config.checks import ConfigError, as_bool, as_bounded, as_choice, as_float, as_int, as_name, experiment_of, seeds_of
 
 
@@ -108,13 +108,13 @@ def _logger(cfg: dict, key: str) -> str:
 
 
 def _evaluators() -> tuple:
-    from imix_cli.core.parallel_evaluation import EVALUATORS
+    from imix_cli.core.evaluation.parallel import EVALUATORS
 
     return EVALUATORS
 
 
 def _outputs() -> tuple:
-    from imix_cli.core.policies import OUTPUTS
+    from imix_cli.core.evaluation.policies import OUTPUTS
 
     return OUTPUTS
 

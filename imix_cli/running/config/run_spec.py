@@ -94,8 +94,8 @@ class RunSpec:
     obs_norm_freeze: bool = _key("policy.obs_norm_freeze")  # false: the statistics keep updating, the archive is re-expressed
     obs_var_floor: float = _key("policy.obs_var_floor")  # lower bound of each observation coordinate's variance
     policy_bias: bool = _key("policy.bias")  # false = the ES searches the weights only, biases stay 0 (ARS's a = M s)
-    policy_output: str = _key("policy.output")  # continuous actions tanh-squashed or clipped (imix_cli.core.policies)
-    evaluator: str = _key("evaluator")  # local | pool | ray (imix_cli.core.parallel_evaluation)
+    policy_output: str = _key("policy.output")  # continuous actions tanh-squashed or clipped (imix_cli.core.evaluation.policies)
+    evaluator: str = _key("evaluator")  # local | pool | ray (imix_cli.core.evaluation.parallel)
     evaluator_workers: int | None = _key("evaluator_workers")  # processes (pool) or actors (ray); None: every core / CPU
     ray_address: str | None = _key("ray_address")  # ray.init(address=...) for evaluator=ray
     # The return of the distribution mean theta (the policy one deploys), measured on
@@ -193,7 +193,7 @@ def _format(value) -> str:
 def _registered_cap(env_id: str) -> int | None:
     import gymnasium as gym
 
-    from imix_cli.core.env_ids import plain_env_id
+    from imix_cli.core.envs.ids import plain_env_id
 
     try:
         return gym.spec(plain_env_id(env_id)).max_episode_steps

@@ -34,7 +34,7 @@ NaN included); an ndarray becomes ``{"array": name}``; a list ``{"list": [...]}`
 ``{"es": state_dict}`` (loaded into a freshly built ES of the same config); a search
 distribution ``{"dist": class name, "state": to_state()}`` (a re-expressed generation's
 :class:`~imix_cli.core.distributions.AffinePushforward` too: its base distribution and its
-:class:`~imix_cli.core.policies.NormalizerChange`, each such a node, rebuilt exactly on load); an archived
+:class:`~imix_cli.core.evaluation.policies.NormalizerChange`, each such a node, rebuilt exactly on load); an archived
 :class:`~imix_cli.core.mixing.Generation` ``{"generation": {field: ...}}`` over all its dataclass
 fields, whatever they are.
 """
@@ -51,8 +51,8 @@ import numpy as np
 
 from imix_cli import messages
 from imix_cli.core.distributions import AffinePushforward, DiagonalGaussian, FullGaussian
+from imix_cli.core.evaluation.policies import NormalizerChange, ObsNormalizer
 from imix_cli.core.mixing import Generation
-from imix_cli.core.policies import NormalizerChange, ObsNormalizer
 from imix_cli.running.files.results import regular_file_size
 from imix_cli.running.files.writing import atomic_write_bytes
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imix_cli.core.generation import Archive
+from imix_cli.core.mixing.generation import Archive
 from imix_cli.running.files.checkpoints import read_checkpoint, write_checkpoint
 
 __all__ = ["load_mixing", "save_mixing"]

@@ -11,7 +11,7 @@ Each ES seed ``k`` of a run writes, beside ``seed_<k>.csv`` (see :func:`write_se
 
 File layout (``np.load(path, allow_pickle=False)`` reads it)::
 
-    params   float64 (d,)   the flat MLP parameter vector (layout: imix_cli.core.policies)
+    params   float64 (d,)   the flat MLP parameter vector (layout: imix_cli.core.evaluation.policies)
     header   str scalar     JSON, the fields of HEADER_FIELDS below
 
 A file is written atomically (temporary file + rename, :func:`imix_cli.running.files.writing.atomic_write_bytes`),
@@ -75,9 +75,9 @@ class PolicyFile:
     header: dict
 
     def batch_policy(self, n: int = 1):
-        """A :class:`imix_cli.core.policies.BatchPolicy` of ``n`` copies of this policy (actions before
+        """A :class:`imix_cli.core.evaluation.policies.BatchPolicy` of ``n`` copies of this policy (actions before
         ``action_start`` is added)."""
-        from imix_cli.core.policies import BatchPolicy
+        from imix_cli.core.evaluation.policies import BatchPolicy
 
         h = self.header
         return BatchPolicy(
@@ -158,7 +158,7 @@ def validate_header(header, where: str = "policy file") -> dict:
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         found = header.get("format") if isinstance(header, dict) else None
         raise PolicyFileError(f"{where}: not an {FORMAT} file (format={found!r})")
-    from imix_cli.core.policies import OUTPUTS
+    from imix_cli.core.evaluation.policies import OUTPUTS
 
     header = {**header, **{k: v for k, v in HEADER_DEFAULTS.items() if k not in header}}
     missing = [k for k in HEADER_FIELDS if k not in header]
@@ -208,7 +208,7 @@ def validate_header(header, where: str = "policy file") -> dict:
 
 
 def num_params_of(header: dict) -> int:
-    from imix_cli.core.policies import num_params
+    from imix_cli.core.evaluation.policies import num_params
 
     return num_params(header["obs_dim"], header["out_dim"], header["hidden"])
 

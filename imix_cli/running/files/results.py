@@ -134,7 +134,7 @@ def seed_summary(frame) -> dict:
 
     ``theta``: the distribution mean's return on fresh episodes where it was last measured (NaN if never).
     ``stalled``: generations in which no member was evaluated (every one reused: ``reused == popsize``),
-    what ``min_fresh`` >= 1 rules out (imix_cli/core/mixing.py, "A minimal refresh")."""
+    what ``min_fresh`` >= 1 rules out (imix_cli/core/mixing/__init__.py, "A minimal refresh")."""
 
     def column(name):
         return np.asarray(frame[name])

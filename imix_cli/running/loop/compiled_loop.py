@@ -1,7 +1,7 @@
 """The generation loop compiled: mixing, episodes and ES update of one seed, many generations per call.
 
 Why. On the main job (SNES + EIM, CartPole) the Python loop -- :func:`imix_cli.running.loop.lockstep.advance_lockstep`
--> :mod:`imix_cli.core.generation` -> mixing, evaluator, ES -- spends ~0.8 ms per seed-generation, while
+-> :mod:`imix_cli.core.mixing.generation` -> mixing, evaluator, ES -- spends ~0.8 ms per seed-generation, while
 the numbers themselves (a mixing step, two or three episodes, one update over 50 x 130 numbers) need
 about a tenth of that: the rest is some sixty small numpy calls and Python dispatch per generation
 (``imix bench breakdown``). Here one compiled call runs a chunk of generations of one seed: mix,
@@ -12,9 +12,9 @@ policies. The same random numbers in the same order (numba draws from the seed's
 Generators with NumPy's algorithms and advances them in place) and the same code: the ES's update
 is the ES's own compiled step (:class:`imix_cli.core.algorithms.base.CompiledStep`, which its Python
 ``tell`` runs too), its utilities :meth:`~imix_cli.core.algorithms.base.EvolutionStrategy.compiled_utilities`,
-the mixing step :func:`imix_cli.core.mixing_kernels.mix_step`, the episodes those of
+the mixing step :func:`imix_cli.core.mixing.kernels.mix_step`, the episodes those of
 :mod:`imix_cli.core.envs.kernels`; numpy's own summation order where the Python path calls
-``np.sum``/``np.mean`` (:func:`imix_cli.core.linalg_kernels.numpy_sum`). This module holds only the loop:
+``np.sum``/``np.mean`` (:func:`imix_cli.core.numerics.linalg_kernels.numpy_sum`). This module holds only the loop:
 the order of those calls, the archive, and the numbers of the CSV row.
 The Python path stays the reference: ``IMIX_COMPILED_LOOP=0`` takes it, and
 ``tests/test_compiled_loop.py`` runs both and compares CSVs, checkpoints and policy files.
@@ -26,7 +26,7 @@ normalisation, a built-in CartPole environment (CartPole, ContinuousCartPole, it
 evaluated in the process. Anything else takes the Python path, unchanged. Acrobot is not taken yet only
 because the loop calls CartPole's episode kernel alone: its first observation (numpy's float32 ``cos``/``sin``)
 is computed bit for bit in compiled code (:func:`imix_cli.core.envs.kernels.acrobot_first_observations`, with
-:mod:`imix_cli.core.elementary`'s ``cos32``/``sin32``), as :class:`imix_cli.core.evaluation.AcrobotEvaluator` does.
+:mod:`imix_cli.core.numerics.elementary`'s ``cos32``/``sin32``), as :class:`imix_cli.core.evaluation.AcrobotEvaluator` does.
 
 When a chunk meets what the Python path treats specially -- a non-finite return, or an update that
 leaves the distribution non-finite (divergence) -- the chunk is dropped (the random generators are
@@ -34,7 +34,7 @@ put back) and the seed continues on the Python path, which records it exactly as
 
 Compilation: one entry point per (update, utilities) pair, made from :func:`_make_chunk`'s code with
 the two functions as its globals (numba resolves them when it compiles), cached on disk like every
-imix kernel (stamped with every compiled source of the package: :mod:`imix_cli.core.numba_cache`). numba
+imix kernel (stamped with every compiled source of the package: :mod:`imix_cli.core.numerics.numba_cache`). numba
 keys a cached function by its closure's contents: the entry's closure holds a digest of the two
 functions it runs, so each ES gets its own cached entry.
 """
@@ -51,13 +51,13 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from imix_cli.core import linalg_kernels as lk
-from imix_cli.core import mixing_kernels as mk
 from imix_cli.core import numerics as xp
 from imix_cli.core.algorithms.base import hash_multipliers
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.envs import kernels as ek
 from imix_cli.core.mixing import COMPILED_MAX_ELEMENTS, Generation, variant_spec
+from imix_cli.core.mixing import kernels as mk
+from imix_cli.core.numerics import linalg_kernels as lk
 from imix_cli.running.loop.lockstep import generation_row
 
 __all__ = ["applies", "applies_to_run", "advance", "entry", "entry_for", "ENV_VARIABLE"]
@@ -73,7 +73,7 @@ _UPDATE = _UTILITIES = None
 def _functions_digest(*functions) -> int:
     """A 63-bit digest of ``functions`` (their names and their files' contents): the entry's closure holds it
     (module docstring). imix's own sources are in every imix kernel's cache stamp already
-    (:mod:`imix_cli.core.numba_cache`); the files here cover an ES defined outside the package."""
+    (:mod:`imix_cli.core.numerics.numba_cache`); the files here cover an ES defined outside the package."""
     h = hashlib.sha256()
     for f in functions:
         py_func = getattr(f, "py_func", f)
@@ -89,22 +89,31 @@ def _draw_seeds(rng, n):
 
 
 def _make_chunk(digest: int):
-    def _run_chunk(
-        generations, kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult, es_generation,
-        state, counts, constants,
-        a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
-        sample_rng, episode_rng, mean_rng, sizes, continuous, sparse, max_steps, eval_every, eval_episodes, generation0,
-        best, best_return, last_u,
-        out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
-    ):  # fmt: skip
+    def _run_chunk(generations, rule, es, archive, rngs, env, measure, seed, out):
         """Run ``generations`` generations of one seed (module docstring); ``_UPDATE`` and ``_UTILITIES``
-        are the ES's compiled step and utilities (:func:`entry`), ``state``/``counts``/``constants`` its
-        :class:`~imix_cli.core.algorithms.base.CompiledStep` arrays (row 0 the mean, row 1 the standard
-        deviations). Every state array is updated in place; returns the number of generations done --
-        fewer when a generation met what only the Python path handles (its state is then unusable: the
-        caller restores a snapshot)."""
+        are the ES's compiled step and utilities (:func:`entry`). The arguments are tuples (numba types each
+        field), built by :func:`advance`, which names every field:
+
+        - ``rule``: the mixing rule and the ES's utilities' settings;
+        - ``es``: the ES's generation count and its :class:`~imix_cli.core.algorithms.base.CompiledStep` arrays
+          ``state``/``counts``/``constants`` (row 0 of ``state`` the mean, row 1 the standard deviations);
+        - ``archive``: the archived generations, newest first, as arrays of ``slots`` rows;
+        - ``rngs``: the seed's generators (members, episodes, the mean's episodes);
+        - ``env``: the episode kernel's settings; ``measure``: when and how the mean is evaluated;
+        - ``seed``: the best member so far and the last utilities; ``out``: the rows' numbers, one row per generation.
+
+        Every state array is updated in place; returns the number of generations done -- fewer when a generation
+        met what only the Python path handles (its state is then unusable: the caller restores a snapshot)."""
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
+        kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult = rule
+        es_generation, state, counts, constants = es
+        a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
+        sample_rng, episode_rng, mean_rng = rngs
+        sizes, continuous, sparse, max_steps = env
+        eval_every, eval_episodes, generation0 = measure
+        best, best_return, last_u = seed
+        out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
         popsize, d = a_x.shape[1], a_x.shape[2]
         trace = np.empty((0, 0, 0))
         mu, std = state[0], state[1]
@@ -112,8 +121,8 @@ def _make_chunk(digest: int):
             # ---- plan: mix (or draw) the generation from the distribution N(mu, std^2)
             log_norm = mk.diagonal_log_norm(std)
             x, source, index, trials = mk.mix_step(
-                kernel, sample_rng, mu, std, log_norm, a_mean, a_std, a_lognorm, a_x, a_h, a_hset, min(a_n[0], depth),
-                popsize, log_keep, alpha, min_fresh,
+                kernel, sample_rng, (mu, std, log_norm), (a_mean, a_std, a_lognorm, a_x, a_h), a_hset, min(a_n[0], depth),
+                (popsize, log_keep, alpha, min_fresh),
             )  # fmt: skip
             age = np.zeros(popsize, dtype=np.int64)
             fitness = np.empty(popsize)
@@ -249,7 +258,7 @@ def enabled() -> bool:
 
 
 def _kernel(variant: str | None) -> int | None:
-    """The number of mixing ``variant``'s compiled step (:func:`imix_cli.core.mixing_kernels.mix_step`): 0 without
+    """The number of mixing ``variant``'s compiled step (:func:`imix_cli.core.mixing.kernels.mix_step`): 0 without
     mixing, the variant's ``kernel`` (:class:`imix_cli.core.mixing.Variant`), None if it has none (the loop cannot take it)."""
     if variant is None:
         return 0
@@ -341,14 +350,14 @@ def advance(st, settings, evaluator, generations: int) -> bool:
     snapshot = [r.bit_generator.state for r in rngs]
     with np.errstate(divide="ignore"):
         log_keep = xp.log1p(-mixing.alpha)
+    rule = (_kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh), float(es.weight_decay), hash_multipliers(d))
+    archive_arrays = (a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials)
+    env = (evaluator.layer_sizes(), type(evaluator).__name__ != "CartPoleEvaluator", bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps))
+    measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
+    out = (out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
     done = entry_for(es)(
-        generations, _kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh),
-        float(es.weight_decay), hash_multipliers(d), es_generation, step.state, step.counts, step.constants,
-        a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
-        st.sample_rng, st.episode_rng, st.mean_eval_rng, evaluator.layer_sizes(), type(evaluator).__name__ != "CartPoleEvaluator",
-        bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps), int(settings.eval_mean_every), int(settings.eval_mean_episodes),
-        st.generation, best, best_return, last_u,
-        out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
+        generations, rule, (es_generation, step.state, step.counts, step.constants), archive_arrays,
+        (st.sample_rng, st.episode_rng, st.mean_eval_rng), env, measure, (best, best_return, last_u), out,
     )  # fmt: skip
     if done < generations:  # put the generators back: the Python path takes this chunk
         for r, state in zip(rngs, snapshot):
@@ -376,11 +385,7 @@ def advance(st, settings, evaluator, generations: int) -> bool:
         st.env_steps += steps
         if every and (st.generation + 1) % every == 0:
             st.mean_policy_episodes += episodes
-        row = generation_row(
-            algo=settings.algo, env=settings.env, mixing=settings.mixing_name, seed=st.seed, generation=st.generation,
-            evaluations=st.evaluations, env_steps=st.env_steps, fitness=fitness, reused=counts[0], reused_im=counts[1],
-            reused_eim=counts[2], reevaluated=0, popsize=settings.popsize, sigma_mean=sigma_mean,
-        )  # fmt: skip
+        row = generation_row(settings, st, fitness, (*counts, 0), sigma_mean)
         row["mean_policy_score"], row["mean_policy_episodes"] = theta, st.mean_policy_episodes  # as measure_distribution_means
         st.rows.append(row)
     return True

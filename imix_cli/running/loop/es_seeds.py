@@ -30,7 +30,7 @@ from imix_cli.running.loop.resume import can_checkpoint, load_checkpoint
 
 def run_es_seeds(spec, seeds: list[int], progress, evaluator, resumed=None) -> dict:
     """Run ``seeds`` of ``spec`` to completion in this process, in lockstep groups of :data:`SEED_GROUP`, on the run's
-    ``evaluator`` (:func:`imix_cli.core.parallel_evaluation.build_evaluator`, built and closed by the caller);
+    ``evaluator`` (:func:`imix_cli.core.evaluation.parallel.build_evaluator`, built and closed by the caller);
     ``progress(n)`` gets the number of seed-generations just completed, ``resumed({seed: generation})`` the generation
     each seed of a group starts from (0: from scratch) as the group is set up, for the runner's one line about them.
     Returns seed -> :func:`imix_cli.running.files.results.seed_summary`.

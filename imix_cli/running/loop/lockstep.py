@@ -8,7 +8,7 @@ a step changes the seeds' states (:class:`SeedState`) and each seed's step ends 
 Every seed advances one generation at a time *in lockstep*, and the members that need an
 episode -- of all the seeds given -- are rolled out as one batch: with mixing on, only a few
 members per seed are fresh, and sharing one rollout is what keeps the per-step overhead low.
-Each seed's generation itself is :mod:`imix_cli.core.generation`'s (plan, evaluate, finish).
+Each seed's generation itself is :mod:`imix_cli.core.mixing.generation`'s (plan, evaluate, finish).
 
 Reproducibility: seed ``k`` owns two random streams derived from ``SeedSequence(k)`` -- one for
 sampling and mixing, one for episode seeds -- and every episode's initial state comes from its
@@ -25,8 +25,8 @@ import numpy as np
 
 from imix_cli.core.algorithms import make_es
 from imix_cli.core.divergence import GuardedES
-from imix_cli.core.generation import Archive, MixingSettings, finish_generation, plan_generation
-from imix_cli.core.policies import ObsNormalizer, searched_params, with_zero_biases
+from imix_cli.core.evaluation.policies import ObsNormalizer, searched_params, with_zero_biases
+from imix_cli.core.mixing.generation import Archive, MixingSettings, finish_generation, plan_generation
 
 
 @dataclass
@@ -47,7 +47,7 @@ class SeedState:
     # a plain (d,) float64 array and a float so that checkpoints stay data. None / -inf until one exists.
     best_params: np.ndarray | None = None
     best_return: float = -np.inf
-    obs_norm: object = None  # policy.obs_norm: this seed's ObsNormalizer (imix_cli.core.policies)
+    obs_norm: object = None  # policy.obs_norm: this seed's ObsNormalizer (imix_cli.core.evaluation.policies)
     # eval_mean_every: episode seeds for measuring the distribution mean, a stream of its own so the
     # measurement never changes training; and the episodes spent on it so far.
     mean_eval_rng: np.random.Generator | None = None
@@ -140,29 +140,29 @@ def mixing_settings(spec) -> MixingSettings:
                           reeval_prob=spec.reeval_prob, reeval_count=spec.reeval_count, min_fresh=spec.min_fresh)  # fmt: skip
 
 
-def generation_row(*, algo: str, env: str, mixing: str, seed: int, generation: int, evaluations: int, env_steps: int,
-                   fitness: np.ndarray, reused: int, reused_im: int, reused_eim: int, reevaluated: int, popsize: int,
-                   sigma_mean: float) -> dict:  # fmt: skip
-    """The CSV row of one ES generation (its columns: :data:`imix_cli.running.files.results.COLUMNS`).
-    ``fitness``: one return per member, stored or new; non-finite returns (a user's env may produce them)
-    are left out of the mean and best, and counted.
+def generation_row(settings: LoopSettings, st: SeedState, fitness: np.ndarray, reused: tuple, sigma_mean: float) -> dict:
+    """The CSV row of seed ``st``'s generation ``st.generation`` (its columns: :data:`imix_cli.running.files.results.COLUMNS`),
+    with the seed's totals (``evaluations``, ``env_steps``) counted up to it. ``fitness``: one return per member,
+    stored or new; non-finite returns (a user's env may produce them) are left out of the mean and best, and counted.
+    ``reused``: (reused, from the previous generation, from older ones, re-evaluated).
     ``wall_time`` is 0.0, for the caller, which owns the clock, to fill in; the ``mean_policy_*``
     columns are added by whoever measures the distribution mean."""
     finite = np.isfinite(fitness)
+    reused_all, reused_im, reused_eim, reevaluated = reused
     return {
-        "algo": algo, "env": env, "mixing": mixing, "seed": seed, "generation": generation,
-        "evaluations": evaluations, "env_steps": env_steps,
+        "algo": settings.algo, "env": settings.env, "mixing": settings.mixing_name, "seed": st.seed, "generation": st.generation,
+        "evaluations": st.evaluations, "env_steps": st.env_steps,
         "mean_score": float(np.mean(fitness[finite])) if finite.any() else float("nan"),
         "best_score": float(np.max(fitness[finite])) if finite.any() else float("nan"),
-        "reused": reused, "reused_im": reused_im, "reused_eim": reused_eim, "reevaluated": reevaluated,
-        "popsize": popsize, "sigma_mean": sigma_mean, "nonfinite": int(np.count_nonzero(~finite)), "wall_time": 0.0,
+        "reused": reused_all, "reused_im": reused_im, "reused_eim": reused_eim, "reevaluated": reevaluated,
+        "popsize": settings.popsize, "sigma_mean": sigma_mean, "nonfinite": int(np.count_nonzero(~finite)), "wall_time": 0.0,
     }  # fmt: skip
 
 
 def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator, plan=plan_generation) -> None:
     """Run one generation of every seed in ``states``, with one batched rollout for all members to evaluate.
 
-    ``plan``: the planning half of the generation step (:func:`imix_cli.core.generation.plan_generation`,
+    ``plan``: the planning half of the generation step (:func:`imix_cli.core.mixing.generation.plan_generation`,
     which mixes); a benchmark passes a timed one instead of patching a module.
     """
     # policy.obs_norm: during a seed's warm-up, its generations neither mix nor enter the archive (the statistics
@@ -189,12 +189,8 @@ def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator,
         st.evaluations += n
         st.env_steps += int(steps[offset : offset + n].sum())
         offset += n
-        st.rows.append(generation_row(
-            algo=settings.algo, env=settings.env, mixing=settings.mixing_name, seed=st.seed, generation=st.generation,
-            evaluations=st.evaluations, env_steps=st.env_steps, fitness=fitness, reused=g.reused,
-            reused_im=g.reused_from_previous, reused_eim=g.reused_from_older, reevaluated=p.reevaluated,
-            popsize=settings.popsize, sigma_mean=dist.sigma_mean,
-        ))  # fmt: skip
+        reused = (g.reused, g.reused_from_previous, g.reused_from_older, p.reevaluated)
+        st.rows.append(generation_row(settings, st, fitness, reused, dist.sigma_mean))
         finite = np.isfinite(fitness)
         if finite.any() and np.max(fitness[finite]) > st.best_return:  # strictly better: the first best is kept
             top = np.flatnonzero(finite)[np.argmax(fitness[finite])]
@@ -212,7 +208,7 @@ def advance_lockstep(states: list[SeedState], settings: LoopSettings, evaluator,
 def reexpress_archive(settings: LoopSettings, st: SeedState, before: tuple, evaluator) -> None:
     """``policy.obs_norm_freeze=false``: the seed's statistics moved from ``before`` (mean, std) to its normaliser's
     current ones; every archived member becomes the same policy under the new statistics, its generation's
-    distribution the pushforward (:meth:`imix_cli.core.generation.Archive.reexpress`, :class:`imix_cli.core.policies.NormalizerChange`).
+    distribution the pushforward (:meth:`imix_cli.core.mixing.generation.Archive.reexpress`, :class:`imix_cli.core.evaluation.policies.NormalizerChange`).
     Exact with biases only: ``imix run`` refuses mixing with ``policy.bias=false`` here."""
     if not st.archive.generations:
         return

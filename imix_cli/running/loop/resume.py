@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from imix_cli.core.distributions import AffinePushforward
-from imix_cli.core.generation import scheme_of
+from imix_cli.core.evaluation.policies import NormalizerChange
 from imix_cli.core.mixing import variant_spec
-from imix_cli.core.policies import NormalizerChange
+from imix_cli.core.mixing.generation import scheme_of
 from imix_cli.messages import warn as _warn
 from imix_cli.running.files.checkpoints import DEFAULT_MAX_BYTES, CheckpointError, checkpoint_path, load_or_warn
 from imix_cli.running.files.results import COLUMNS

@@ -3,7 +3,7 @@
 The rule. A run's numbers must not depend on the machine (``tests/test_same_numbers_everywhere.py``):
 numpy hands products to OpenBLAS, whose kernels sum in a CPU-dependent order, and numpy's and the C
 library's ``exp``/``log``/``tanh``/``pow``/... have CPU-specific variants that differ in the last bit
-(:mod:`imix_cli.core.linalg_kernels` and :mod:`imix_cli.core.elementary` say where and by how much). So Python code
+(:mod:`imix_cli.core.numerics.linalg_kernels` and :mod:`imix_cli.core.numerics.elementary` say where and by how much). So Python code
 on a run's path computes them with the numpy-like names below, never numpy's, ``math``'s or ``@``::
 
     from imix_cli.core import numerics as xp
@@ -12,7 +12,7 @@ on a run's path computes them with the numpy-like names below, never numpy's, ``
 Each name takes what its numpy namesake takes here: a number (Python or numpy scalar: a float comes back;
 passed on as it is, so its type picks the compiled version as before) or, where the function has an
 array form, a float64 vector or matrix. Compiled code (``@njit``) calls the
-kernels themselves (:mod:`imix_cli.core.elementary`'s scalar functions, :mod:`imix_cli.core.linalg_kernels`'s
+kernels themselves (:mod:`imix_cli.core.numerics.elementary`'s scalar functions, :mod:`imix_cli.core.numerics.linalg_kernels`'s
 ``*_kernel`` and ``numpy_sum``), which are what these names run. ``tests/test_numerics.py`` checks that
 every Python module takes them from here.
 """
@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from imix_cli.core import elementary as _el
-from imix_cli.core import linalg_kernels as _lk
-from imix_cli.core.linalg_kernels import (
+from imix_cli.core.numerics import elementary as _el
+from imix_cli.core.numerics import linalg_kernels as _lk
+from imix_cli.core.numerics.linalg_kernels import (
     cholesky,
     dot,
     eigh,
@@ -38,7 +38,7 @@ from imix_cli.core.linalg_kernels import (
     weighted_gram,
 )
 
-#: log(2 pi), a number (:data:`imix_cli.core.elementary.LOG_2PI`)
+#: log(2 pi), a number (:data:`imix_cli.core.numerics.elementary.LOG_2PI`)
 LOG_2PI = _el.LOG_2PI
 
 __all__ = [

@@ -4,8 +4,8 @@ Why a wrapper: with importance mixing, part of every generation is taken from ea
 generations whose returns are already known, so a user's loop would have to keep the archive,
 the heights and ages of its members, and put the stored and the new returns back together in
 the generation's order before telling the ES. :class:`MixingES` does that bookkeeping with the
-very functions the runner uses for every seed (:func:`imix_cli.core.generation.plan_generation` and
-:func:`imix_cli.core.generation.finish_generation`), and shows the user only what costs an episode:
+very functions the runner uses for every seed (:func:`imix_cli.core.mixing.generation.plan_generation` and
+:func:`imix_cli.core.mixing.generation.finish_generation`), and shows the user only what costs an episode:
 ``ask()`` returns the members to evaluate, ``tell()`` takes their returns. A plain ask/tell loop
 becomes a mixing one by wrapping the ES::
 
@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from imix_cli.core.generation import Archive, MixingSettings, Plan, finish_generation, plan_generation
 from imix_cli.core.mixing import MIXING_DEFAULTS
+from imix_cli.core.mixing.generation import Archive, MixingSettings, Plan, finish_generation, plan_generation
 
 __all__ = ["MixingES"]
 
@@ -47,7 +47,7 @@ class MixingES:
         The stream that draws and mixes the generations (an int seeds a new Generator).
     eim_generations : int
         K, the archived generations ``"exact"`` and ``"eim_paper"`` reuse from (default 3; the config key of the same
-        name; :class:`~imix_cli.core.generation.MixingSettings`).
+        name; :class:`~imix_cli.core.mixing.generation.MixingSettings`).
     alpha : float
         ``"sun2009"``'s minimal refresh rate in [0, 1) (the config key ``im_alpha``).
     reeval_age : int or None
@@ -68,7 +68,7 @@ class MixingES:
                  min_fresh: int = MIXING_DEFAULTS.min_fresh):  # fmt: skip
         from imix_cli.core.adapters import adapt
 
-        # Every argument is checked here, with imix run's bounds (MixingSettings: imix_cli.core.generation.MIXING_BOUNDS):
+        # Every argument is checked here, with imix run's bounds (MixingSettings: imix_cli.core.mixing.generation.MIXING_BOUNDS):
         # a bad one is one error naming it now, not at the first ask() or deep inside it.
         es = adapt(es)
         missing = [name for name in ("ask", "tell", "distribution", "popsize") if not hasattr(es, name)]

@@ -38,7 +38,7 @@ Environments (``env_name``):
   same episodes, bit for bit, without gymnasium (:class:`MujocoDirectEvaluator`, on the
   ``mujoco`` bindings directly), unless ``backend="gymnasium"`` or ``IMIX_MUJOCO_BACKEND=gymnasium``.
 
-Policies (:mod:`imix_cli.core.policies`): MLP obs -> 8 -> 8 -> out with tanh hidden units by
+Policies (:mod:`imix_cli.core.evaluation.policies`): MLP obs -> 8 -> 8 -> out with tanh hidden units by
 default; ``make_evaluator(..., hidden=(64, 64))`` or ``hidden=()`` (linear) for others.
 Discrete actions: ``start + argmax`` of the outputs. Box actions: ``tanh`` of the outputs
 mapped affinely onto ``[low, high]`` (``high * tanh`` for symmetric bounds, so ``[-1, 1]``
@@ -59,7 +59,7 @@ from gymnasium import spaces
 
 import imix_cli.core.envs  # noqa: F401  (registers the imix/ gymnasium ids, in spawned workers too)
 from imix_cli.core.envs.mujoco_direct import DIRECT_ENV_IDS  # imports no mujoco
-from imix_cli.core.policies import HIDDEN, OUTPUTS, BatchPolicy, num_params
+from imix_cli.core.evaluation.policies import HIDDEN, OUTPUTS, BatchPolicy, num_params
 from imix_cli.core.registry import BUILTIN_ENVS, ENV_SPECS
 
 __all__ = [
@@ -76,7 +76,7 @@ class BatchEvaluator:
 
     Attributes: ``env_name``, ``obs_dim``, ``out_dim`` (policy outputs), ``num_params``,
     ``discrete``, ``max_steps``, ``hidden``, ``output`` (continuous actions: ``"tanh"`` or ``"clip"``,
-    :mod:`imix_cli.core.policies`).
+    :mod:`imix_cli.core.evaluation.policies`).
     """
 
     env_name: str
@@ -219,7 +219,7 @@ class AcrobotEvaluator(_CompiledEvaluator):
 
     def _episodes(self, params, seeds, returns, steps, trace):
         # gymnasium's reset(seed=s): a float32 state and its observation computed in float32 (the
-        # float32 cos/sin of numpy's vector kernel, which numpy runs on CPUs with FMA3 only: imix_cli.core.elementary)
+        # float32 cos/sin of numpy's vector kernel, which numpy runs on CPUs with FMA3 only: imix_cli.core.numerics.elementary)
         s32 = self._kernels.seeded_uniform_rows(seeds, -0.1, 0.1, 4).astype(np.float32)
         obs0 = self._kernels.acrobot_first_observations(s32)
         self._kernels.acrobot_episodes(params, s32.astype(np.float64), obs0, self.layer_sizes(), self.max_steps, returns, steps, trace)
@@ -275,7 +275,7 @@ class GymEvaluator(BatchEvaluator):
 
     After every :meth:`evaluate`, :attr:`last_obs_stats` holds ``(sums, sumsqs)`` (B, obs_dim):
     per member, the sum and sum of squares of the observations its policy acted on (``steps[i]``
-    of them), for :class:`imix_cli.core.policies.ObsNormalizer`.
+    of them), for :class:`imix_cli.core.evaluation.policies.ObsNormalizer`.
     """
 
     def __init__(self, env_id: str, max_steps: int | None = None, hidden=HIDDEN, output: str = "tanh", env_kwargs=None):
@@ -494,7 +494,7 @@ def make_evaluator(
 
     ``hidden``: the policy's hidden layer sizes (``()``: linear), default the paper's (8, 8).
     ``output``: how continuous actions are made from the outputs, ``"tanh"`` or ``"clip"``
-    (:mod:`imix_cli.core.policies`); the built-in envs' compiled episodes squash with tanh only.
+    (:mod:`imix_cli.core.evaluation.policies`); the built-in envs' compiled episodes squash with tanh only.
     ``backend`` (default ``$IMIX_MUJOCO_BACKEND``, else ``"direct"``): how ``Swimmer-v5``,
     ``Hopper-v5``, ``HalfCheetah-v5``, ``Walker2d-v5`` and ``Ant-v5`` run -- ``"direct"``:
     :class:`MujocoDirectEvaluator` (the same episodes, bit for bit, without gymnasium's per-step
@@ -519,7 +519,7 @@ def make_evaluator(
         if hidden != HIDDEN:
             builtin.hidden = hidden  # the compiled kernels read the layer sizes from it
         return builtin
-    from imix_cli.core.env_ids import import_user_env
+    from imix_cli.core.envs.ids import import_user_env
 
     # ``module:Id``: an id the user typed for this run (imix eval/render resolve ids read from
     # files before they come here), so its module is imported -- in every worker process too.

@@ -39,8 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imix_cli.core.generation import Archive, GenerationScheme, MixingSettings, Plan
 from imix_cli.core.mixing import MIXING_DEFAULTS, Generation, mix
+from imix_cli.core.mixing.generation import Archive, GenerationScheme, MixingSettings, Plan
 
 
 @dataclass

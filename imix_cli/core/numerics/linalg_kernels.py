@@ -22,7 +22,7 @@ large d (``benchmarks/cmaes_speed.py`` measures it) and, unlike LAPACK, the same
 ``tests/test_linalg_kernels.py`` checks it against ``numpy.linalg.eigh``.
 
 Compilation: ``@njit(cache=True)``, float64 C-contiguous arrays only (the wrappers make them so);
-the cache is stamped with every compiled source of the package (:mod:`imix_cli.core.numba_cache`).
+the cache is stamped with every compiled source of the package (:mod:`imix_cli.core.numerics.numba_cache`).
 Python code calls the wrappers through :mod:`imix_cli.core.numerics`; compiled code calls the kernels
 (``vec_mat_kernel``, ``numpy_sum``, ...).
 """
@@ -34,7 +34,7 @@ import math
 import numpy as np
 from numba import njit
 
-from imix_cli.core import elementary as el
+from imix_cli.core.numerics import elementary as el
 
 __all__ = [
     "numpy_sum",
@@ -560,9 +560,9 @@ def row_sq_norms(x) -> np.ndarray:
 
 # numpy's float64 exp and log have AVX-512 versions of their own (and expm1 an SVML one) that
 # other CPUs do not run, and the C library's differ between CPUs too (glibc's FMA and SSE2 builds):
-# these loops compute them with imix_cli.core.elementary, the same bits on every CPU.
+# these loops compute them with imix_cli.core.numerics.elementary, the same bits on every CPU.
 def exp(x) -> np.ndarray:
-    """``np.exp`` of a (d,) vector (:func:`imix_cli.core.elementary.exp`)."""
+    """``np.exp`` of a (d,) vector (:func:`imix_cli.core.numerics.elementary.exp`)."""
     return _exp(_f64(x))
 
 
@@ -572,12 +572,12 @@ def log(x) -> np.ndarray:
 
 
 def expm1(x) -> np.ndarray:
-    """``np.expm1`` of a (d,) vector (:func:`imix_cli.core.elementary.expm1`)."""
+    """``np.expm1`` of a (d,) vector (:func:`imix_cli.core.numerics.elementary.expm1`)."""
     return _expm1(_f64(x))
 
 
 def tanh(x, out=None) -> np.ndarray:
-    """``np.tanh(x, out=out)`` (:func:`imix_cli.core.elementary.tanh`), for float64 arrays of any shape (``out``
+    """``np.tanh(x, out=out)`` (:func:`imix_cli.core.numerics.elementary.tanh`), for float64 arrays of any shape (``out``
     C-contiguous, or None). numpy's float64 tanh has an AVX2 version and a baseline one that differ in the
     last bit; the C library's FMA and SSE2 builds differ too."""
     if out is None:

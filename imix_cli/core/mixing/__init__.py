@@ -42,7 +42,7 @@ _SUN2009_MAX_TRIALS_PER_MEMBER = 200
 _SCRATCH_ELEMENTS = 1 << 20
 # Up to this many numbers in an old generation (rows x d), rule 1 is decided for all its rows at once.
 _UPFRONT_ELEMENTS = 1 << 16
-# Up to this many archived numbers, float64 diagonal steps are compiled (mixing_kernels; it copies
+# Up to this many archived numbers, float64 diagonal steps are compiled (mixing.kernels; it copies
 # the archive into one array, 8 MB at most); above, numpy's vectorised step costs little more.
 COMPILED_MAX_ELEMENTS = 1 << 20
 
@@ -71,7 +71,7 @@ class Generation:
     mean_weights : (popsize,) float array or None
         The weight of each member in the move of the mean the ES made from this generation
         (:attr:`EvolutionStrategy.mean_weights <imix_cli.core.algorithms.base.EvolutionStrategy.mean_weights>`),
-        set once the generation is told (:func:`imix_cli.core.generation.finish_generation`); what
+        set once the generation is told (:func:`imix_cli.core.mixing.generation.finish_generation`); what
         ``"conditional"`` conditions on. None: the members are independent of the path.
     """
 
@@ -548,12 +548,12 @@ class Variant:
     Attributes
     ----------
     name : str
-        What :func:`mix`, :class:`~imix_cli.core.generation.MixingSettings` and a RunSpec's ``variant`` call it.
+        What :func:`mix`, :class:`~imix_cli.core.mixing.generation.MixingSettings` and a RunSpec's ``variant`` call it.
     looks_back : bool
         Draws from up to ``eim_generations`` archived generations; else from the previous one only
         (:meth:`depth`, the archive a search keeps).
     kernel : int
-        Its step's number in the compiled code: :data:`imix_cli.core.mixing_kernels.KERNELS` (one step, taken
+        Its step's number in the compiled code: :data:`imix_cli.core.mixing.kernels.KERNELS` (one step, taken
         between float64 DiagonalGaussians) and the compiled generation loop
         (:mod:`imix_cli.running.loop.compiled_loop`, which branches on it); 0: no compiled step, numpy only.
     heights : bool
@@ -568,8 +568,8 @@ class Variant:
     config_name : str
         Its value there; its ``name`` unless given (only ``"eim_paper"`` differs: ``eim_variant=paper``).
     weights : bool
-        Not a mixing rule: the archive is weighted into the ES's update (:mod:`imix_cli.core.weighted_reuse`, the
-        generation scheme :class:`~imix_cli.core.generation.WeightedScheme`); its ``step`` is None and :func:`mix`
+        Not a mixing rule: the archive is weighted into the ES's update (:mod:`imix_cli.core.mixing.weighted_reuse`, the
+        generation scheme :class:`~imix_cli.core.mixing.generation.WeightedScheme`); its ``step`` is None and :func:`mix`
         refuses it.
     """
 
@@ -604,7 +604,7 @@ VARIANT_SPECS: dict[str, Variant] = {
         # Algorithm 3; "paper" is Algorithm 2's name, so eim_variant=paper selects it under another name
         Variant("eim_paper", looks_back=True, kernel=0, heights=False, uses_alpha=False, step=_step_alternate,
                 selected_by=("eim",), config_name="paper"),
-        # not a rule of mix(): the archive weighted into the update (imix_cli.core.weighted_reuse)
+        # not a rule of mix(): the archive weighted into the update (imix_cli.core.mixing.weighted_reuse)
         Variant("weighted", looks_back=True, kernel=0, heights=False, uses_alpha=False, step=None, selected_by=("eim",), weights=True),
     )
 }  # fmt: skip
@@ -616,15 +616,15 @@ VARIANTS = tuple(name for name, v in VARIANT_SPECS.items() if not v.weights)
 class MixingDefaults:
     """Every mixing setting's default, declared once (:data:`MIXING_DEFAULTS`).
 
-    Why one record: :func:`mix`, :class:`~imix_cli.core.ask_tell.MixingES`,
-    :class:`~imix_cli.core.generation.MixingSettings`, the ``imix run`` keys
+    Why one record: :func:`mix`, :class:`~imix_cli.core.mixing.ask_tell.MixingES`,
+    :class:`~imix_cli.core.mixing.generation.MixingSettings`, the ``imix run`` keys
     (:mod:`imix_cli.running.config.keys`) and the RunSpec each take these settings; each reads its default here, so
     a library user gets the rule ``imix run eim=true`` runs (tests/test_mixing_defaults.py compares them all).
 
     Attributes
     ----------
     variant : str
-        The library's variant (:func:`mix`, :class:`~imix_cli.core.ask_tell.MixingES`) and ``eim=true``'s
+        The library's variant (:func:`mix`, :class:`~imix_cli.core.mixing.ask_tell.MixingES`) and ``eim=true``'s
         (``eim_variant``): ``"exact"``, unbiased over chains of generations.
     im_variant : str
         ``im=true``'s (``im_variant``): ``"paper"``, the paper's Algorithm 2.
@@ -636,7 +636,7 @@ class MixingDefaults:
         Fresh members of every mixed generation, at least (module docstring, "A minimal refresh"): 1, so a
         distribution that stops moving cannot make a fixed point; 0 is the rules alone.
     reeval_age, reeval_prob, reeval_count
-        Re-evaluation of reused members (:class:`~imix_cli.core.generation.MixingSettings`): none.
+        Re-evaluation of reused members (:class:`~imix_cli.core.mixing.generation.MixingSettings`): none.
     """
 
     variant: str = "exact"
@@ -679,7 +679,7 @@ def _refresh(samples: np.ndarray, source: np.ndarray, index: np.ndarray, new_dis
 
 
 def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool:
-    """Whether :mod:`imix_cli.core.mixing_kernels` computes this step (see ``mix``'s ``compiled``)."""
+    """Whether :mod:`imix_cli.core.mixing.kernels` computes this step (see ``mix``'s ``compiled``)."""
     if not variant.kernel or not entries or type(new_dist) is not DiagonalGaussian or new_dist.dtype != np.float64:
         return False
     archived = 0
@@ -691,7 +691,7 @@ def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool
 
 
 def _compiled_full_applies(new_dist, entries, popsize: int, variant: Variant) -> bool:
-    """Whether :func:`imix_cli.core.mixing_kernels.mix_full_exact` computes this step: ``"exact"`` between float64
+    """Whether :func:`imix_cli.core.mixing.kernels.mix_full_exact` computes this step: ``"exact"`` between float64
     FullGaussians (pycma's adapter, imix's CMA-ES), archived generations of at most ``popsize`` members."""
     if variant.kernel != 3 or not entries:
         return False
@@ -741,7 +741,7 @@ def mix(
         whenever the archive is not empty; default 1, as ``imix run`` (0: none, the rules alone). The generation
         keeps its law.
     compiled : bool or None
-        None (default): take the compiled step (:mod:`imix_cli.core.mixing_kernels`) where it
+        None (default): take the compiled step (:mod:`imix_cli.core.mixing.kernels`) where it
         applies -- ``"paper"``, ``"sun2009"``, ``"exact"`` between float64 DiagonalGaussians,
         archived generations of at most ``popsize`` members, up to 2^20 archived numbers --
         and the numpy step otherwise. Both give the same generation from the same ``rng``
@@ -754,7 +754,9 @@ def mix(
     """
     spec = variant_spec(variant)
     if spec.weights:
-        raise ValueError(f"variant {variant!r} builds no generation: it weights the archive into the update (imix_cli.core.weighted_reuse; use MixingES)")
+        raise ValueError(
+            f"variant {variant!r} builds no generation: it weights the archive into the update (imix_cli.core.mixing.weighted_reuse; use MixingES)"
+        )
     if popsize < 1:
         raise ValueError(f"popsize must be >= 1, got {popsize}")
     if not 0.0 <= alpha < 1.0:
@@ -771,7 +773,7 @@ def mix(
 
     depth = spec.depth(eim_generations)
     if compiled is not False and _compiled_applies(new_dist, entries[:depth], popsize, spec):
-        from imix_cli.core.mixing_kernels import mix_diagonal  # numba: imported on first use only
+        from imix_cli.core.mixing.kernels import mix_diagonal  # numba: imported on first use only
 
         used = list(archive[:depth])
         heights = [_heights(e, rng) for e in used] if spec.heights else None
@@ -781,7 +783,7 @@ def mix(
     if compiled is not False and _compiled_full_applies(new_dist, entries[:depth], popsize, spec):
         # the whole step in one compiled call: at d = 10 the numpy step's few hundred small calls were most of the
         # pycma adapter's overhead over pycma's own ask and tell (issue 45). The same numbers as the numpy step, bit for bit.
-        from imix_cli.core.mixing_kernels import mix_full_exact
+        from imix_cli.core.mixing.kernels import mix_full_exact
 
         used = list(archive[:depth])
         heights = [_heights(e, rng) for e in used]

@@ -24,7 +24,7 @@ row ``x``, ``c - 1/2 sum((q y + l) y)`` with ``y = x - m_old``; for a fresh draw
 ``x = m_new + s_new eps``, ``c' + 1/2 sum((q' eps + l') eps)``.
 
 Compilation: ``@njit(cache=True)``, no ``fastmath`` (IEEE semantics); the cache is stamped with
-every compiled source of the package (:mod:`imix_cli.core.numba_cache`). The compiled generation loop
+every compiled source of the package (:mod:`imix_cli.core.numerics.numba_cache`). The compiled generation loop
 plans its generations with :func:`mix_step`.
 """
 
@@ -33,8 +33,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from imix_cli.core import elementary as el
-from imix_cli.core import linalg_kernels as lk
+from imix_cli.core.numerics import elementary as el
+from imix_cli.core.numerics import linalg_kernels as lk
 
 try:
     # The bounded integer draw of NumPy's Generator.shuffle (masked rejection on 32- or 64-bit
@@ -159,7 +159,7 @@ def _row_log_ratio(x, shift, q, lin, c):
 
 @njit(cache=True)
 def _logs(a):
-    """log of each entry (:func:`imix_cli.core.elementary.log`: the same bits on every CPU; np.log calls the C library)."""
+    """log of each entry (:func:`imix_cli.core.numerics.elementary.log`: the same bits on every CPU; np.log calls the C library)."""
     out = np.empty_like(a)
     for i in range(a.shape[0]):
         out[i] = el.log(a[i])
@@ -201,8 +201,10 @@ def _refresh(rng, mean, std, out, source, index, popsize, min_fresh):
 
 
 @njit(cache=True)
-def _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, log_keep, alpha, out, source, index):
+def _sun2009(rng, new, archive, popsize, log_keep, alpha, out, source, index):
     """mixing._sun2009 (archive entry 0 only); returns (size, trials)."""
+    mean, std, log_norm = new
+    means, stds, log_norms, xs, _, counts = archive
     q, lin, c = _row_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     nq, nl, nc = _noise_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     n_old = counts[0]
@@ -232,8 +234,10 @@ def _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsi
 
 
 @njit(cache=True)
-def _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, out, source, index):
+def _paper(rng, new, archive, popsize, out, source, index):
     """mixing._alternate_rules on archive entry 0 + Algorithm 2's overfull drop; returns (size, steps)."""
+    mean, std, log_norm = new
+    means, stds, log_norms, xs, _, counts = archive
     d = mean.shape[0]
     q, lin, c = _row_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     nq, nl, nc = _noise_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
@@ -290,8 +294,10 @@ def _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize
 
 
 @njit(cache=True)
-def _exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index):
+def _exact(rng, new, archive, popsize, out, source, index):
     """mixing._multi_generation; returns (size, rule-2 draws)."""
+    mean, std, log_norm = new
+    means, stds, log_norms, xs, heights, counts = archive
     n_entries, d = means.shape
     q, lin, c = _row_coefficients(mean, std, log_norm, means[0], stds[0], log_norms[0])
     size = 0
@@ -361,29 +367,34 @@ def _output(popsize, d):
     return np.empty((popsize + 1, d)), np.zeros(popsize + 1, np.int64), np.full(popsize + 1, -1, np.int64)
 
 
-# One compiled entry point per rule, so that a run compiles (once, on first use) only its own rule.
+# One compiled entry point per rule, so that a run compiles (once, on first use) only its own rule. Each takes
+# ``new`` = (mean, std, log_norm) of the new distribution and ``archive`` = (means, stds, log_norms, xs, heights,
+# counts) of the archived generations it may reuse, newest first (tuples: numba types each field).
 @njit(cache=True)
-def _mix_paper(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha, min_fresh):
+def _mix_paper(rng, new, archive, popsize, log_keep, alpha, min_fresh):
+    mean, std = new[0], new[1]
     out, source, index = _output(popsize, mean.shape[0])
-    size, trials = _paper(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, out, source, index)
+    size, trials = _paper(rng, new, archive, popsize, out, source, index)
     _fill_plain(rng, mean, std, out, size, popsize)
     _refresh(rng, mean, std, out, source, index, popsize, min_fresh)
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
 
 
 @njit(cache=True)
-def _mix_sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha, min_fresh):
+def _mix_sun2009(rng, new, archive, popsize, log_keep, alpha, min_fresh):
+    mean, std = new[0], new[1]
     out, source, index = _output(popsize, mean.shape[0])
-    size, trials = _sun2009(rng, mean, std, log_norm, means, stds, log_norms, xs, counts, popsize, log_keep, alpha, out, source, index)
+    size, trials = _sun2009(rng, new, archive, popsize, log_keep, alpha, out, source, index)
     _fill_plain(rng, mean, std, out, size, popsize)
     _refresh(rng, mean, std, out, source, index, popsize, min_fresh)
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
 
 
 @njit(cache=True)
-def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, log_keep, alpha, min_fresh):
+def _mix_exact(rng, new, archive, popsize, log_keep, alpha, min_fresh):
+    mean, std = new[0], new[1]
     out, source, index = _output(popsize, mean.shape[0])
-    size, trials = _exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, counts, popsize, out, source, index)
+    size, trials = _exact(rng, new, archive, popsize, out, source, index)
     _fill_plain(rng, mean, std, out, size, popsize)
     _refresh(rng, mean, std, out, source, index, popsize, min_fresh)
     return out[:popsize], source[:popsize].copy(), index[:popsize].copy(), trials
@@ -392,7 +403,7 @@ def _mix_exact(rng, mean, std, log_norm, means, stds, log_norms, xs, heights, co
 @njit(cache=True)
 def _full_draws(rng, low, mean, n):
     """``FullGaussian.sample(n, rng)``: NumPy's standard_normal stream row by row, each row mean + L eps (L eps by
-    :func:`imix_cli.core.linalg_kernels.lower_times_rows`'s kernel, k ascending)."""
+    :func:`imix_cli.core.numerics.linalg_kernels.lower_times_rows`'s kernel, k ascending)."""
     d = mean.shape[0]
     eps = np.empty((n, d))
     for r in range(n):
@@ -409,7 +420,7 @@ def _full_draws(rng, low, mean, n):
 def _exact_full(rng, lows, means, log_norms, xs, heights, table, known, counts, popsize, min_fresh):
     """The ``"exact"`` step between FullGaussians: :func:`imix_cli.core.mixing._multi_generation`, then the plain
     fill and :func:`imix_cli.core.mixing._refresh`, with the same numbers bit for bit (the same draws in the same
-    order, and the log-densities of :func:`imix_cli.core.linalg_kernels.gaussian_log_probs`, which
+    order, and the log-densities of :func:`imix_cli.core.numerics.linalg_kernels.gaussian_log_probs`, which
     :meth:`FullGaussian.log_prob` computes too). ``lows``/``means``/``log_norms``: index 0 the new distribution, k
     archive entry k - 1; ``table[k, j, i]``: log p_j at ``xs[k, i]`` for j <= k + 1, given by the caller (who keeps
     them between generations) where ``known[k]``, else computed here. Returns ``(samples, source, index, rule-2 draws)``."""
@@ -508,7 +519,7 @@ fill_plain = _fill_plain
 @njit(cache=True)
 def diagonal_log_norm(std):
     """:attr:`imix_cli.core.distributions.DiagonalGaussian.log_norm` of standard deviations ``std`` compiled:
-    -d/2 log(2 pi) - np.sum(log std), numpy's summation order (:func:`imix_cli.core.linalg_kernels.numpy_sum`)."""
+    -d/2 log(2 pi) - np.sum(log std), numpy's summation order (:func:`imix_cli.core.numerics.linalg_kernels.numpy_sum`)."""
     d = std.shape[0]
     logs = np.empty(d)
     for j in range(d):
@@ -517,13 +528,17 @@ def diagonal_log_norm(std):
 
 
 @njit(cache=True)
-def mix_step(kernel, rng, mean, std, log_norm, means, stds, log_norms, xs, heights, heights_drawn, used, popsize, log_keep, alpha, min_fresh):
+def mix_step(kernel, rng, new, archive, heights_drawn, used, rule):
     """One generation of ``popsize`` members of N(mean, std^2) for compiled code, as :func:`imix_cli.core.mixing.mix`
     gives it: plain draws when ``kernel`` is 0 (no mixing) or ``used`` (the archived generations it may
-    reuse, newest first, the first ``used`` rows of ``means`` ... ``heights``) is 0, else the variant's
-    step (:data:`KERNELS`). ``"exact"`` (kernel 3) draws each generation's log-heights once, the first
+    reuse, newest first, the first ``used`` rows of ``archive`` = (means, stds, log_norms, xs, heights)) is 0,
+    else the variant's step (:data:`KERNELS`). ``new`` = (mean, std, log_norm); ``rule`` = (popsize, log_keep,
+    alpha, min_fresh). ``"exact"`` (kernel 3) draws each generation's log-heights once, the first
     time it is mixed from (``heights_drawn``), as :func:`imix_cli.core.mixing._heights` does.
     Returns ``(samples, source, index, trials)``."""
+    mean, std = new[0], new[1]
+    means, stds, log_norms, xs, heights = archive
+    popsize, log_keep, alpha, min_fresh = rule
     d = mean.shape[0]
     if kernel == 0 or used == 0:
         x = np.empty((popsize, d))
@@ -536,13 +551,12 @@ def mix_step(kernel, rng, mean, std, log_norm, means, stds, log_norms, xs, heigh
                     r = rng.random()
                     heights[k, i] = el.log(r) if r > 0.0 else -np.inf
                 heights_drawn[k] = True
-    counts = np.full(used, popsize, dtype=np.int64)
-    m, s, ln, x, h = means[:used], stds[:used], log_norms[:used], xs[:used], heights[:used]
+    used_archive = (means[:used], stds[:used], log_norms[:used], xs[:used], heights[:used], np.full(used, popsize, dtype=np.int64))
     if kernel == 1:
-        return _mix_paper(rng, mean, std, log_norm, m, s, ln, x, h, counts, popsize, log_keep, alpha, min_fresh)
+        return _mix_paper(rng, new, used_archive, popsize, log_keep, alpha, min_fresh)
     if kernel == 2:
-        return _mix_sun2009(rng, mean, std, log_norm, m, s, ln, x, h, counts, popsize, log_keep, alpha, min_fresh)
-    return _mix_exact(rng, mean, std, log_norm, m, s, ln, x, h, counts, popsize, log_keep, alpha, min_fresh)
+        return _mix_sun2009(rng, new, used_archive, popsize, log_keep, alpha, min_fresh)
+    return _mix_exact(rng, new, used_archive, popsize, log_keep, alpha, min_fresh)
 
 
 def _stacked(arrays, rows: int) -> np.ndarray:
@@ -571,7 +585,5 @@ def mix_diagonal(new_dist, dists, samples, heights, popsize: int, rng: np.random
     stds = np.stack([dist.std for dist in dists])
     log_norms = np.array([dist.log_norm for dist in dists])
     log_keep = el.math_log1p(-alpha)  # -inf for alpha = 1
-    return KERNELS[kernel](
-        rng, new_dist.mean, new_dist.std, float(new_dist.log_norm),
-        means, stds, log_norms, xs, h, counts, popsize, log_keep, float(alpha), int(min_fresh),
-    )  # fmt: skip
+    new = (new_dist.mean, new_dist.std, float(new_dist.log_norm))
+    return KERNELS[kernel](rng, new, (means, stds, log_norms, xs, h, counts), popsize, log_keep, float(alpha), int(min_fresh))

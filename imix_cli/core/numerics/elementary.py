@@ -35,7 +35,7 @@ The algorithms (each section's comment and each function's docstring say more):
 * ``sin32``, ``cos32``: numpy 2.4.6's float32 vector kernel (what gymnasium's Acrobot observation uses).
 
 Every table is computed from its definition by ``tools/elementary_tables.py`` into
-``imix_cli/core/elementary_tables.py`` (the tests recompute it and compare).
+``imix_cli/core/numerics/elementary_tables.py`` (the tests recompute it and compare).
 
 How fast: the functions are compiled into the loops that call them (no call into a shared
 library). ``tanh_lanes`` computes every path of ``tanh`` and selects the right one, with no
@@ -47,7 +47,7 @@ Compilation: ``exp``, ``log`` and ``tanh_lanes`` are inlined into their callers 
 loops, and ``tanh_lanes`` must be inlined to be vectorised); the larger functions are compiled once
 and called (inlining ``sin``, ``cos`` and ``pow`` at every call site multiplied the compile time).
 Either way a cached kernel holds these functions' code, so numba's disk cache of a kernel would not
-see a change made here: :mod:`imix_cli.core.numba_cache` (imported below, before the first kernel of the
+see a change made here: :mod:`imix_cli.core.numerics.numba_cache` (imported below, before the first kernel of the
 package is defined) stamps every imix kernel with a hash of every compiled source, this file included.
 """
 
@@ -60,8 +60,8 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from imix_cli.core import elementary_tables as _tables
-from imix_cli.core import numba_cache  # noqa: F401 -- imix's cache locator, in place before the first @njit(cache=True) of the package
+from imix_cli.core.numerics import elementary_tables as _tables
+from imix_cli.core.numerics import numba_cache  # noqa: F401 -- imix's cache locator, in place before the first @njit(cache=True) of the package
 
 __all__ = [
     "exp", "expm1", "log", "log1p", "pow", "tanh", "tanh_lanes", "sin", "cos", "sin32", "cos32", "fma",

@@ -45,7 +45,7 @@ from imix_cli.core import numerics as xp
 from imix_cli.core.bounds import Bound
 from imix_cli.core.distributions import AffinePushforward
 from imix_cli.core.mixing import MIXING_DEFAULTS, Generation, mix, variant_spec
-from imix_cli.core.weighted_reuse import WeightedGeneration, archived_part, plan_weighted
+from imix_cli.core.mixing.weighted_reuse import WeightedGeneration, archived_part, plan_weighted
 
 #: The range of each numeric :class:`MixingSettings` field, checked when one is made and by ``imix run``'s config (its
 #: keys ``eim_generations``, ``im_alpha``, ``reeval_*``, ``min_fresh``: :mod:`imix_cli.running.config.keys`): one copy of the numbers.
@@ -68,7 +68,7 @@ class MixingSettings:
     ----------
     variant : {None, "paper", "sun2009", "exact", "conditional", "eim_paper", "weighted"}
         The :func:`~imix_cli.core.mixing.mix` variant (:data:`~imix_cli.core.mixing.VARIANT_SPECS`), or ``"weighted"``:
-        the archive weighted into the update (:mod:`imix_cli.core.weighted_reuse`); None draws every generation fresh.
+        the archive weighted into the update (:mod:`imix_cli.core.mixing.weighted_reuse`); None draws every generation fresh.
     eim_generations : int
         K, the archived generations ``"exact"``/``"eim_paper"`` reuse from.
     alpha : float
@@ -111,7 +111,7 @@ class MixingSettings:
 
     @property
     def weighted(self) -> bool:
-        """Whether the variant weights the archive into the update (:mod:`imix_cli.core.weighted_reuse`) instead of mixing."""
+        """Whether the variant weights the archive into the update (:mod:`imix_cli.core.mixing.weighted_reuse`) instead of mixing."""
         return self.variant is not None and variant_spec(self.variant).weights
 
     @property
@@ -138,7 +138,7 @@ class Archive:
         ``log_det``, ``then``): each member becomes ``transform.forward(theta)`` -- the same policy, the same return --
         and its generation's distribution the pushforward (:class:`~imix_cli.core.distributions.AffinePushforward`),
         so that mixing stays exact. Heights (``log_u``, ratios to the density) and ``mean_weights`` stay; so do the
-        returns, ages and pairs. Why and when: :mod:`imix_cli.core.policies` ("Observation normalisation")."""
+        returns, ages and pairs. Why and when: :mod:`imix_cli.core.evaluation.policies` ("Observation normalisation")."""
         for g in self.generations:
             g.samples = transform.forward(g.samples).astype(g.samples.dtype, copy=False)
             g.dist = AffinePushforward(g.dist, transform)
@@ -196,7 +196,7 @@ class GenerationScheme:
     This class is the scheme of an ES whose members are independent draws of its distribution (every ES of
     the paper): the whole generation is mixed and archived. An ES whose members are built otherwise names
     its own scheme in its ``generation_scheme`` attribute -- ARS's mirrored pairs,
-    :data:`imix_cli.core.mirrored.MIRRORED_PAIRS`, mix the anchors and mirror them -- so this module names no ES
+    :data:`imix_cli.core.mixing.mirrored.MIRRORED_PAIRS`, mix the anchors and mirror them -- so this module names no ES
     and no ES is special-cased here.
     """
 
@@ -281,7 +281,7 @@ class GenerationScheme:
 
 
 class WeightedScheme(GenerationScheme):
-    """``variant="weighted"`` (:mod:`imix_cli.core.weighted_reuse`): fresh members are evaluated, the archived ones
+    """``variant="weighted"`` (:mod:`imix_cli.core.mixing.weighted_reuse`): fresh members are evaluated, the archived ones
     are pooled with them and weighted into the update; only the fresh members are archived."""
 
     def plan(self, es, archive: Archive, settings: MixingSettings, rng: np.random.Generator) -> Plan:

@@ -2,7 +2,7 @@
 
 Why. numba keeps a cached function valid while *its own* file is unchanged (it stores the file's
 hash beside the cached machine code), not while the functions it calls from other files are: and
-imix's kernels call across files all the time (:mod:`imix_cli.core.elementary`'s exp and log are compiled
+imix's kernels call across files all the time (:mod:`imix_cli.core.numerics.elementary`'s exp and log are compiled
 into the episodes, the mixing step and the ES updates; the compiled generation loop compiles in the ES's
 update and mixing's step). Editing a callee would leave its callers' cached machine code in use:
 old numbers from new source, silently.
@@ -28,7 +28,7 @@ function's bytecode, so two copies with the same sources share machine code; key
 (:func:`_prune`). When ``sys.prefix`` is not writable (a system Python) or the user set
 ``NUMBA_CACHE_DIR``, numba's own folder is used, as before.
 
-This module is imported by :mod:`imix_cli.core.elementary`, which every imix kernel module imports before
+This module is imported by :mod:`imix_cli.core.numerics.elementary`, which every imix kernel module imports before
 it defines a kernel: the locator is in place before the first ``@njit(cache=True)`` of the package
 runs (``tests/test_numba_cache.py`` checks every cached kernel uses it). A ``NUMBA_CACHE_LOCATOR_CLASSES``
 set by the user replaces numba's locator list, this one included.
@@ -68,7 +68,7 @@ _COMPILED = ("@njit", "@jit", "@intrinsic", "@overload", "@vectorize", "@guvecto
 
 def compiled_sources(root: Path = PACKAGE) -> list[Path]:
     """The modules under ``root`` that define compiled functions, and the modules of ``root`` they import
-    (whose constants numba compiles in: :mod:`imix_cli.core.elementary_tables`' tables, an environment's
+    (whose constants numba compiles in: :mod:`imix_cli.core.numerics.elementary_tables`' tables, an environment's
     constants), in a fixed order."""
     texts = {p: p.read_text(encoding="utf-8") for p in root.rglob("*.py")}
     compiled = [p for p, text in texts.items() if any(mark in text for mark in _COMPILED)]
