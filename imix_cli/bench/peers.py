@@ -146,40 +146,57 @@ def _imix_run(env: str, eim: bool, seeds: int, generations: int, extra: tuple = 
     return row
 
 
-def _imix_first_run(env: str, seeds: int, generations: int) -> dict:
-    """``imix run algo=snes env=<env> eim=true`` as a user's first run: a new process (``python -m
-    imix_cli.commands.cli``) with an empty numba cache (``NUMBA_CACHE_DIR``), so every kernel it needs is
-    compiled, in each worker, before it runs. Its ``compile`` is filled in by :func:`peer_rows`:
-    this wall time minus the same run's with the cache warm (process start-up included)."""
+def _imix_process(env: str, seeds: int, generations: int, numba_cache: str | None) -> tuple[float, dict]:
+    """``imix run algo=snes env=<env> eim=true`` as a user types it: a new process (``python -m imix_cli.commands.cli``),
+    timed from its start to its exit; ``numba_cache``: a folder for ``NUMBA_CACHE_DIR`` (empty: every kernel compiled),
+    or None (imix's own cache, warm after the runs before). Returns (wall seconds, the run's summary)."""
     from imix_cli.running.config.compose import validate_overrides
     from imix_cli.running.summary import summarize
 
     with tempfile.TemporaryDirectory(prefix="imix-bench-peers-") as tmp:
         overrides = _imix_overrides(env, True, seeds, generations, os.path.join(tmp, "results"))
-        environ = {**os.environ, "NUMBA_CACHE_DIR": os.path.join(tmp, "numba-cache")}
+        environ = {**os.environ, **({"NUMBA_CACHE_DIR": os.path.join(tmp, numba_cache)} if numba_cache else {})}
         started = time.perf_counter()
         done = subprocess.run([sys.executable, "-m", "imix_cli.commands.cli", "run", *overrides], env=environ, capture_output=True, text=True)
         wall = time.perf_counter() - started
         if done.returncode != 0:
-            raise RuntimeError(f"imix run (first run) failed: {(done.stderr or done.stdout).strip().splitlines()[-1:]}")
+            raise RuntimeError(f"imix run (a new process) failed: {(done.stderr or done.stdout).strip().splitlines()[-1:]}")
         (spec,) = validate_overrides(overrides)
-        summary = summarize(spec)
+        return wall, summarize(spec)
+
+
+def _imix_first_run(env: str, seeds: int, generations: int) -> dict:
+    """``imix run algo=snes env=<env> eim=true`` as a user's first run: a new process with an empty numba cache, so
+    every kernel it needs is compiled, in each worker, before it runs. Its ``compile`` is filled in by
+    :func:`peer_rows`: this wall time minus the same run's in-process with the cache warm (start-up included)."""
+    wall, summary = _imix_process(env, seeds, generations, "numba-cache")
     return {"run": "imix run algo=snes eim=true, first run (empty numba cache)", "env": env, "eim": True, "first_run": True,
             "label": "imix SNES + EIM, first run",
             "seeds": seeds, "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
             "final": summary["final_mean_score"]}  # fmt: skip
 
 
+def _imix_whole_process(env: str, seeds: int, generations: int) -> dict:
+    """``imix run algo=snes env=<env> eim=true`` in a new process with the numba cache warm, start to exit: what a
+    user waits for at the terminal (Python's start-up, imports, the cache's loading, the worker pool included)."""
+    wall, summary = _imix_process(env, seeds, generations, None)
+    return {"run": "imix run algo=snes eim=true, the whole process (cache warm)", "env": env, "eim": True,
+            "label": "imix SNES + EIM, the whole process",
+            "seeds": seeds, "generations": generations, "wall": wall, "compile": None, "env_steps": summary["env_steps"],
+            "final": summary["final_mean_score"]}  # fmt: skip
+
+
 def peer_rows(envs, seeds: int, generations: int, echo=None) -> list[dict]:
-    """The peers and imix's SNES with and without EIM on each env, one after the other; on the
-    first env also imix's SNES + EIM as a first run (numba compiling), whose extra wall time over
+    """The peers and imix's SNES with and without EIM on each env, one after the other: on every
+    env imix SNES + EIM in-process and as a whole new process (start to exit, cache warm); on the
+    first env also as a first run (numba compiling), whose extra wall time over
     the warm run is its ``compile``, and with a checkpoint every ``checkpoint_every`` generations whatever
     the time (``checkpoint_seconds=0``, the default before checkpoint_seconds existed: 500 checkpoints)."""
     rows = []
     for number, env in enumerate(envs):
         runs = [partial(_peer_run, "snes", env), partial(_peer_run, "openes", env)]
         runs += [partial(_imix_first_run, env)] if number == 0 else []
-        runs += [partial(_imix_run, env, True, label="imix SNES + EIM")]
+        runs += [partial(_imix_run, env, True, label="imix SNES + EIM"), partial(_imix_whole_process, env)]
         # a checkpoint (and live CSV) every 50 generations, however short they are: what that costs of the wall time
         runs += (
             [partial(_imix_run, env, True, extra=("checkpoint_seconds=0",), label="imix SNES + EIM, checkpoints every 50 generations")] if number == 0 else []
@@ -212,7 +229,7 @@ def _ratio(x: float) -> str:
 
 
 def format_peer_ratios(rows: list[dict]) -> str:
-    """imix SNES + EIM (cache warm; and, where there are, a first run and a run without checkpoints) against
+    """imix SNES + EIM (in-process with the cache warm, the whole process; where there are, a first run and checkpoints) against
     every other row of the same env: wall time and env steps ratios."""
     body = []
     for env in dict.fromkeys(r["env"] for r in rows):
