@@ -22,11 +22,11 @@ The Python path stays the reference: ``IMIX_COMPILED_LOOP=0`` takes it, and
 Where it applies (:func:`applies`): any ES with a compiled step over a float64 diagonal Gaussian
 (OpenES and SNES) and compiled utilities (centred ranks, the estool weight decay), no
 mixing or the ``paper``/``sun2009``/``exact`` rules with no re-evaluation options, no observation
-normalisation, a built-in CartPole environment (CartPole, ContinuousCartPole, its Hard variant)
-evaluated in the process. Anything else takes the Python path, unchanged. Acrobot is not taken yet only
-because the loop calls CartPole's episode kernel alone: its first observation (numpy's float32 ``cos``/``sin``)
-is computed bit for bit in compiled code (:func:`imix_cli.core.envs.kernels.acrobot_first_observations`, with
-:mod:`imix_cli.core.elementary`'s ``cos32``/``sin32``), as :class:`imix_cli.core.evaluation.AcrobotEvaluator` does.
+normalisation, a built-in environment (CartPole, ContinuousCartPole, its Hard variant, Acrobot) evaluated
+in the process. Anything else takes the Python path, unchanged. The loop calls the evaluator's own episode
+kernel, chosen by a number (:func:`_env_code`): Acrobot's float32 reset -- its first observation is numpy's
+float32 ``cos``/``sin`` -- runs inside it (:func:`imix_cli.core.envs.kernels.acrobot_seeded_episodes`, which
+:class:`imix_cli.core.evaluation.AcrobotEvaluator` runs too).
 
 When a chunk meets what the Python path treats specially -- a non-finite return, or an update that
 leaves the distribution non-finite (divergence) -- the chunk is dropped (the random generators are
@@ -88,12 +88,26 @@ def _draw_seeds(rng, n):
     return rng.integers(0, 9223372036854775807, size=n).astype(np.uint64)
 
 
+#: The episode kernel a run's evaluator runs (:func:`_env_code`), passed to the chunk as a number.
+_CARTPOLE, _ACROBOT = 0, 1
+
+
+@njit
+def _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace):
+    """One episode per member by the evaluator's own kernel: ``env`` is :data:`_CARTPOLE` (``continuous``,
+    ``sparse``: its variants) or :data:`_ACROBOT` (the float32 reset the evaluator computes, in the kernel)."""
+    if env == _ACROBOT:
+        ek.acrobot_seeded_episodes(params, seeds, sizes, max_steps, returns, steps, trace)
+    else:
+        ek.cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
+
+
 def _make_chunk(digest: int):
     def _run_chunk(
         generations, kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult, es_generation,
         state, counts, constants,
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
-        sample_rng, episode_rng, mean_rng, sizes, continuous, sparse, max_steps, eval_every, eval_episodes, generation0,
+        sample_rng, episode_rng, mean_rng, env, sizes, continuous, sparse, max_steps, eval_every, eval_episodes, generation0,
         best, best_return, last_u,
         out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
     ):  # fmt: skip
@@ -138,7 +152,7 @@ def _make_chunk(digest: int):
             returns = np.empty(n_eval)
             steps = np.empty(n_eval, dtype=np.int64)
             if n_eval:
-                ek.cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
+                _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
             total_steps = 0
             for e in range(n_eval):
                 fitness[rows[e]] = returns[e]
@@ -215,7 +229,7 @@ def _make_chunk(digest: int):
                     mk.put_row(mparams, r, mu)
                 mreturns = np.empty(eval_episodes)
                 msteps = np.empty(eval_episodes, dtype=np.int64)
-                ek.cartpole_episodes(mparams, mseeds, sizes, continuous, sparse, max_steps, mreturns, msteps, trace)
+                _episodes(env, mparams, mseeds, sizes, continuous, sparse, max_steps, mreturns, msteps, trace)
                 out_theta[g] = lk.numpy_sum(mreturns) / eval_episodes
         return generations
 
@@ -256,16 +270,18 @@ def _kernel(variant: str | None) -> int | None:
     return variant_spec(variant).kernel or None
 
 
-def _compiled_evaluator(evaluator) -> bool:
-    from imix_cli.core.evaluation import CartPoleEvaluator, ContinuousCartPoleEvaluator
+def _env_code(evaluator) -> int | None:
+    """The episode kernel of ``evaluator`` (:func:`_episodes`): a built-in env's evaluator run in this process only
+    (a pool's or Ray's evaluator is another class: its episodes run elsewhere); None, the loop cannot run it."""
+    from imix_cli.core.evaluation import AcrobotEvaluator, CartPoleEvaluator, ContinuousCartPoleEvaluator
 
-    return type(evaluator) in (CartPoleEvaluator, ContinuousCartPoleEvaluator)
+    return {CartPoleEvaluator: _CARTPOLE, ContinuousCartPoleEvaluator: _CARTPOLE, AcrobotEvaluator: _ACROBOT}.get(type(evaluator))
 
 
 def applies_to_run(settings, evaluator, es=None) -> bool:
     """Whether the seeds of a run (its :class:`imix_cli.running.loop.lockstep.LoopSettings`) evaluated by ``evaluator``
     can take the compiled loop (module docstring); ``es``: one of its ES, if made (else judged by ``settings.algo``)."""
-    if not enabled() or not _compiled_evaluator(evaluator):
+    if not enabled() or _env_code(evaluator) is None:
         return False
     if es is None:
         from imix_cli.core.algorithms import make_es
@@ -345,9 +361,9 @@ def advance(st, settings, evaluator, generations: int) -> bool:
         generations, _kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh),
         float(es.weight_decay), hash_multipliers(d), es_generation, step.state, step.counts, step.constants,
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials,
-        st.sample_rng, st.episode_rng, st.mean_eval_rng, evaluator.layer_sizes(), type(evaluator).__name__ != "CartPoleEvaluator",
-        bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps), int(settings.eval_mean_every), int(settings.eval_mean_episodes),
-        st.generation, best, best_return, last_u,
+        st.sample_rng, st.episode_rng, st.mean_eval_rng, _env_code(evaluator), evaluator.layer_sizes(),
+        type(evaluator).__name__ == "ContinuousCartPoleEvaluator", bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps),
+        int(settings.eval_mean_every), int(settings.eval_mean_episodes), st.generation, best, best_return, last_u,
         out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
     )  # fmt: skip
     if done < generations:  # put the generators back: the Python path takes this chunk
