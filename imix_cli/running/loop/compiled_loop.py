@@ -12,7 +12,8 @@ policies. The same random numbers in the same order (numba draws from the seed's
 Generators with NumPy's algorithms and advances them in place) and the same code: the ES's update
 is the ES's own compiled step (:class:`imix_cli.core.algorithms.base.CompiledStep`, which its Python
 ``tell`` runs too), its utilities :meth:`~imix_cli.core.algorithms.base.EvolutionStrategy.compiled_utilities`,
-the mixing step :func:`imix_cli.core.mixing_kernels.mix_step`, the episodes those of
+its mean weights (what the archive keeps of each member's part in the move: the step's ``mean_weights``,
+e.g. CEM's elite weights, else the utilities), the mixing step :func:`imix_cli.core.mixing_kernels.mix_step`, the episodes those of
 :mod:`imix_cli.core.envs.kernels`; numpy's own summation order where the Python path calls
 ``np.sum``/``np.mean`` (:func:`imix_cli.core.linalg_kernels.numpy_sum`). This module holds only the loop:
 the order of those calls, the archive, and the numbers of the CSV row.
@@ -20,10 +21,11 @@ The Python path stays the reference: ``IMIX_COMPILED_LOOP=0`` takes it, and
 ``tests/test_compiled_loop.py`` runs both and compares CSVs, checkpoints and policy files.
 
 Where it applies (:func:`applies`): any ES with a compiled step over a float64 diagonal Gaussian
-(OpenES and SNES) and compiled utilities (centred ranks, the estool weight decay), no
+(OpenES, SNES and CEM) and compiled utilities (centred ranks, the estool weight decay), no
 mixing or the ``paper``/``sun2009``/``exact`` rules with no re-evaluation options, no observation
 normalisation, a built-in environment (CartPole, ContinuousCartPole, its Hard variant, Acrobot) evaluated
-in the process. Anything else takes the Python path, unchanged. The loop calls the evaluator's own episode
+in the process. Of the paper's grid (OpenES, SNES, CEM, CMA-ES x CartPole, Acrobot x EIM or not), all
+but CMA-ES (a full covariance: no compiled step). Anything else takes the Python path, unchanged. The loop calls the evaluator's own episode
 kernel, chosen by a number (:func:`_env_code`): Acrobot's float32 reset -- its first observation is numpy's
 float32 ``cos``/``sin`` -- runs inside it (:func:`imix_cli.core.envs.kernels.acrobot_seeded_episodes`, which
 :class:`imix_cli.core.evaluation.AcrobotEvaluator` runs too).
@@ -32,10 +34,10 @@ When a chunk meets what the Python path treats specially -- a non-finite return,
 leaves the distribution non-finite (divergence) -- the chunk is dropped (the random generators are
 put back) and the seed continues on the Python path, which records it exactly as always.
 
-Compilation: one entry point per (update, utilities) pair, made from :func:`_make_chunk`'s code with
-the two functions as its globals (numba resolves them when it compiles), cached on disk like every
+Compilation: one entry point per (update, utilities, mean weights) triple, made from :func:`_make_chunk`'s
+code with the three functions as its globals (numba resolves them when it compiles), cached on disk like every
 imix kernel (stamped with every compiled source of the package: :mod:`imix_cli.core.numba_cache`). numba
-keys a cached function by its closure's contents: the entry's closure holds a digest of the two
+keys a cached function by its closure's contents: the entry's closure holds a digest of the three
 functions it runs, so each ES gets its own cached entry.
 """
 
@@ -54,7 +56,7 @@ from numba import njit
 from imix_cli.core import linalg_kernels as lk
 from imix_cli.core import mixing_kernels as mk
 from imix_cli.core import numerics as xp
-from imix_cli.core.algorithms.base import hash_multipliers
+from imix_cli.core.algorithms.base import EvolutionStrategy, hash_multipliers
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.envs import kernels as ek
 from imix_cli.core.mixing import COMPILED_MAX_ELEMENTS, Generation, variant_spec
@@ -66,8 +68,8 @@ __all__ = ["applies", "applies_to_run", "advance", "entry", "entry_for", "ENV_VA
 ENV_VARIABLE = "IMIX_COMPILED_LOOP"
 
 _SEED_HIGH = np.iinfo(np.int64).max  # episode seeds: integers(0, int64 max), as lockstep draws them
-# The ES's compiled update and utilities: each entry point gets its own in its globals (:func:`entry`).
-_UPDATE = _UTILITIES = None
+# The ES's compiled update, utilities and mean weights: each entry point gets its own in its globals (:func:`entry`).
+_UPDATE = _UTILITIES = _MEAN_WEIGHTS = None
 
 
 def _functions_digest(*functions) -> int:
@@ -80,6 +82,13 @@ def _functions_digest(*functions) -> int:
         h.update(f"{py_func.__module__}.{py_func.__qualname__}".encode())
         h.update(Path(inspect.getfile(py_func)).read_bytes())
     return int.from_bytes(h.digest()[:8], "little") >> 1
+
+
+@njit
+def utilities_are_mean_weights(utilities, constants):
+    """The mean weights of an ES whose compiled step gives none (:class:`~imix_cli.core.algorithms.base.CompiledStep`):
+    its utilities, as :meth:`~imix_cli.core.algorithms.base.EvolutionStrategy._mean_weights` has them."""
+    return utilities
 
 
 @njit
@@ -111,8 +120,8 @@ def _make_chunk(digest: int):
         best, best_return, last_u,
         out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta,
     ):  # fmt: skip
-        """Run ``generations`` generations of one seed (module docstring); ``_UPDATE`` and ``_UTILITIES``
-        are the ES's compiled step and utilities (:func:`entry`), ``state``/``counts``/``constants`` its
+        """Run ``generations`` generations of one seed (module docstring); ``_UPDATE``, ``_UTILITIES`` and
+        ``_MEAN_WEIGHTS`` are the ES's compiled step, utilities and mean weights (:func:`entry`), ``state``/``counts``/``constants`` its
         :class:`~imix_cli.core.algorithms.base.CompiledStep` arrays (row 0 the mean, row 1 the standard
         deviations). Every state array is updated in place; returns the number of generations done --
         fewer when a generation met what only the Python path handles (its state is then unusable: the
@@ -165,11 +174,12 @@ def _make_chunk(digest: int):
             out_sigma_mean[g] = lk.numpy_sum(std) / d
             mu_drawn, std_drawn = mu.copy(), std.copy()  # the distribution the generation was drawn from
             _UPDATE(x, u, state, counts, constants)
+            mw = _MEAN_WEIGHTS(u, constants)  # after the update, as tell takes them (constants are never written)
             for j in range(d):  # a distribution no longer finite: the Python path records the divergence
                 if not (math.isfinite(mu[j]) and math.isfinite(std[j]) and std[j] > 0.0):
                     return g
             es_generation[0] += 1
-            last_u[:] = u
+            last_u[:] = mw
             # ---- archive (newest first, at most depth generations)
             if depth > 0:
                 top = min(a_n[0], depth - 1)
@@ -195,7 +205,7 @@ def _make_chunk(digest: int):
                 a_age[0] = age
                 a_src[0] = source
                 a_idx[0] = index
-                a_mw[0] = u
+                a_mw[0] = mw
                 a_trials[0] = trials
                 a_n[0] = min(a_n[0] + 1, depth)
             # ---- the row's numbers
@@ -240,13 +250,15 @@ def _make_chunk(digest: int):
 _ENTRIES: dict = {}
 
 
-def entry(update, utilities):
-    """The compiled entry point running ES update ``update`` with utilities ``utilities`` (built on first use:
-    its cache key needs the dependency digest; module docstring)."""
-    key = (update, utilities)
+def entry(update, utilities, mean_weights=None):
+    """The compiled entry point running ES update ``update`` with utilities ``utilities`` and mean weights ``mean_weights``
+    (None: :func:`utilities_are_mean_weights`), built on first use: its cache key needs the dependency digest (module docstring)."""
+    mean_weights = mean_weights or utilities_are_mean_weights
+    key = (update, utilities, mean_weights)
     if key not in _ENTRIES:
-        inner = _make_chunk(_functions_digest(update, utilities))
-        chunk = types.FunctionType(inner.__code__, {**globals(), "_UPDATE": update, "_UTILITIES": utilities}, inner.__name__, None, inner.__closure__)
+        inner = _make_chunk(_functions_digest(update, utilities, mean_weights))
+        own = {"_UPDATE": update, "_UTILITIES": utilities, "_MEAN_WEIGHTS": mean_weights}
+        chunk = types.FunctionType(inner.__code__, {**globals(), **own}, inner.__name__, None, inner.__closure__)
         chunk.__qualname__, chunk.__module__, chunk.__doc__ = inner.__qualname__, inner.__module__, inner.__doc__
         _ENTRIES[key] = njit(cache=True)(chunk)
     return _ENTRIES[key]
@@ -254,7 +266,8 @@ def entry(update, utilities):
 
 def entry_for(es):
     """The compiled entry point that runs ``es`` (one with a compiled step and compiled utilities)."""
-    return entry(es.compiled_step().update, es.compiled_utilities())
+    step = es.compiled_step()
+    return entry(step.update, es.compiled_utilities(), step.mean_weights)
 
 
 def enabled() -> bool:
@@ -287,8 +300,11 @@ def applies_to_run(settings, evaluator, es=None) -> bool:
         from imix_cli.core.algorithms import make_es
 
         es = make_es(settings.algo, settings.dim, **settings.es_options)
-    if es.compiled_step() is None or es.compiled_utilities() is None:
+    step = es.compiled_step()
+    if step is None or es.compiled_utilities() is None:
         return False
+    if step.mean_weights is None and type(es)._mean_weights is not EvolutionStrategy._mean_weights:
+        return False  # mean weights of its own in Python only: the loop would archive the utilities instead
     mixing = settings.mixing
     if _kernel(mixing.variant) is None or mixing.reeval_age is not None or mixing.reeval_prob > 0.0 or mixing.reeval_count > 0:
         return False
