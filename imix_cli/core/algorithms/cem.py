@@ -25,6 +25,9 @@ Ties: elites are chosen by utility, and tied members share the weights of the ra
 positions they span (:func:`~imix_cli.core.algorithms.base.rank_weights`), so the update never
 depends on the order of the told population (with mixing, reused members come first).
 
+The update is one compiled function (:func:`cem_update`, the elite weights :func:`cem_mean_weights`), which
+:meth:`CEM.tell` and the compiled generation loop (:mod:`imix_cli.running.loop.compiled_loop`) both run.
+
 ``style="cemrl"``: the authors' own CEM (apourchot/CEM-RL ``ES.py``, ``sepCEM.tell``),
 which differs from the textbook update above in four constants and one formula::
 
