@@ -34,6 +34,12 @@ CASES = [
     ["algo=snes", "env=cartpole", "im=true", "popsize=16"],
     ["algo=openes", "env=continuous_cartpole_hard", "im=true", "im_variant=sun2009", "im_alpha=0.1", "popsize=10"],
     ["algo=snes", "env=continuous_cartpole", "eim=true", "eim_generations=5", "weight_decay=0", "sigma=0.5", "lr=0.05"],
+    ["algo=snes", "env=acrobot", "eim=true"],  # Acrobot: the float32 reset inside the loop's episodes
+    ["algo=openes", "env=acrobot", "eim=false", "popsize=10"],
+    ["algo=openes", "env=acrobot", "im=true", "popsize=16"],
+    ["algo=cem", "env=cartpole", "eim=true"],  # CEM: elite weights (ties sharing theirs) are its mean weights
+    ["algo=cem", "env=acrobot", "eim=false", "popsize=12"],
+    ["algo=cem", "algo.style=cemrl", "env=cartpole", "im=true", "popsize=16"],
 ]
 
 
@@ -132,6 +138,19 @@ def test_any_es_with_a_compiled_step_runs_in_the_compiled_loop():
     assert compiled.rows[-1]["sigma_mean"] == pytest.approx(0.25 * 0.99**19)
 
 
+def test_an_es_with_mean_weights_of_its_own_in_python_only_is_left_to_the_python_loop():
+    from imix_cli.core.algorithms.snes import SNES
+
+    class _Elitist(SNES):  # the archive's mean weights would be the utilities in the compiled loop, not these
+        def _mean_weights(self, utilities):
+            return np.maximum(utilities, 0.0)
+
+    settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "popsize=12"])
+    assert compiled_loop.applies(settings, evaluator, st)
+    st.es = GuardedES(_Elitist(settings.dim, popsize=12))
+    assert not compiled_loop.applies(settings, evaluator, st)
+
+
 def test_a_chunk_that_diverges_changes_nothing_and_is_left_to_the_python_loop():
     # lr=100: SNES's log sigma overflows within a few generations (imix_cli.core.divergence)
     settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true", "lr=100", "weight_decay=0"])
@@ -142,8 +161,7 @@ def test_a_chunk_that_diverges_changes_nothing_and_is_left_to_the_python_loop():
 
 def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
     for overrides in (
-        ["algo=cem", "env=cartpole", "eim=true"],
-        ["algo=snes", "env=acrobot", "eim=true"],  # numpy's float32 cos/sin in its reset
+        ["algo=cmaes", "env=cartpole", "eim=true"],  # a full covariance: no compiled step
         ["algo=snes", "env=cartpole", "eim=true", "eim_variant=conditional"],
         ["algo=snes", "env=cartpole", "eim=true", "reeval_count=2"],
         ["algo=snes", "env=cartpole", "eim=true", "weight_decay_form=paper"],
@@ -153,6 +171,10 @@ def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
     ):
         settings, evaluator, st = _seed_state(overrides)
         assert not compiled_loop.applies(settings, evaluator, st), overrides
+    taken = (["algo=snes", "env=acrobot", "eim=true"], ["algo=openes", "env=continuous_cartpole_hard", "im=true"], ["algo=cem", "env=acrobot", "eim=true"])
+    for overrides in taken:
+        settings, evaluator, st = _seed_state(overrides)
+        assert compiled_loop.applies_to_run(settings, evaluator) and compiled_loop.applies(settings, evaluator, st), overrides
     settings, evaluator, st = _seed_state(["algo=snes", "env=cartpole", "eim=true"])
     os.environ[compiled_loop.ENV_VARIABLE] = "0"
     try:
@@ -206,9 +228,18 @@ def _files(root: Path) -> dict:
     return out
 
 
+RUNS = [
+    ["algo=snes", "env=cartpole", "eim=true"],
+    ["algo=snes", "env=acrobot", "eim=true"],
+    ["algo=openes", "env=acrobot", "eim=false", "popsize=12"],
+    ["algo=cem", "env=acrobot", "eim=true"],
+]
+
+
 @pytest.mark.slow
-def test_runs_are_identical_with_the_python_loop_continued_runs_included(tmp_path):
-    args = ["algo=snes", "env=cartpole", "eim=true", "seeds=3", "workers=2", "checkpoint_every=20", "checkpoint_seconds=0", "experiment=x"]
+@pytest.mark.parametrize("run", RUNS, ids=lambda o: " ".join(o))
+def test_runs_are_identical_with_the_python_loop_continued_runs_included(tmp_path, run):
+    args = [*run, "seeds=3", "workers=2", "checkpoint_every=20", "checkpoint_seconds=0", "experiment=x"]
     for name, env in (("python", {compiled_loop.ENV_VARIABLE: "0"}), ("compiled", {})):
         _run([*args, "generations=45"], tmp_path / name, **env)
         _run([*args, "generations=90"], tmp_path / name, **env)  # continued from the final states

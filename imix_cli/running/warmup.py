@@ -43,6 +43,7 @@ INSTALL_CONFIGS = [
     ["algo=openes", "env=cartpole", "eim=true"],
     ["algo=snes", "env=acrobot", "im=true"],
     ["algo=snes", "env=cartpole", "im=true", "im_variant=sun2009"],
+    ["algo=cem", "env=cartpole", "eim=true"],
     ["algo=cmaes", "env=cartpole", "eim=true"],
 ]
 
@@ -120,13 +121,13 @@ def compile_groups(spec) -> list:
         evaluator = build_evaluator(spec)
         if isinstance(evaluator, (CartPoleEvaluator, ContinuousCartPoleEvaluator)):
             groups.append((_episodes_group, [kernels.cartpole_episodes]))
-            from imix_cli.running.loop import compiled_loop
-            from imix_cli.running.loop.lockstep import loop_settings
-
-            if compiled_loop.applies_to_run(loop_settings(spec, evaluator), evaluator):
-                groups.append((_compiled_loop_group, [compiled_loop.entry_for(es)]))
         elif isinstance(evaluator, AcrobotEvaluator):
-            groups.append((_episodes_group, [kernels.acrobot_episodes]))
+            groups.append((_episodes_group, [kernels.acrobot_seeded_episodes]))
+        from imix_cli.running.loop import compiled_loop
+        from imix_cli.running.loop.lockstep import loop_settings
+
+        if compiled_loop.applies_to_run(loop_settings(spec, evaluator), evaluator):  # one entry per ES, every built-in env
+            groups.append((_compiled_loop_group, [compiled_loop.entry_for(es)]))
     return groups
 
 

@@ -193,16 +193,37 @@ def rank_weights(utilities: np.ndarray, weights_by_rank: np.ndarray) -> np.ndarr
     is what selection-based ES (CEM's elites, CMA-ES's recombination) use instead of an
     ``argsort`` that would break ties by position.
     """
-    utilities = np.asarray(utilities, dtype=np.float64)
+    utilities = np.ascontiguousarray(utilities, dtype=np.float64).reshape(-1)
     n = utilities.shape[0]
-    weights_by_rank = np.asarray(weights_by_rank, dtype=np.float64)
+    weights_by_rank = np.ascontiguousarray(weights_by_rank, dtype=np.float64)
     if weights_by_rank.shape != (n,):
         raise ValueError(f"weights_by_rank must have shape ({n},), got {weights_by_rank.shape}")
-    order, starts, ends, group_of = _tie_groups(-utilities)  # best first
-    cumulative = np.concatenate([[0.0], np.cumsum(weights_by_rank)])
-    group_mean = (cumulative[ends] - cumulative[starts]) / (ends - starts)
-    weights = np.empty(n, dtype=np.float64)
-    weights[order] = group_mean[group_of]
+    return rank_weights_kernel(utilities, weights_by_rank)
+
+
+@njit(cache=True)
+def rank_weights_kernel(utilities, weights_by_rank):
+    """:func:`rank_weights` compiled (its one copy; compiled ES updates call it): the utilities sorted best
+    first (stable, NaN last), each run of equal ones given the mean of the weights of the positions it spans;
+    the running sum over ``weights_by_rank`` is ``np.cumsum``'s, left to right."""
+    n = utilities.shape[0]
+    order = np.argsort(-utilities, kind="mergesort")  # np.argsort(kind="stable"): ties keep their order, NaN last
+    cumulative = np.empty(n + 1)
+    cumulative[0] = 0.0
+    acc = 0.0
+    for r in range(n):
+        acc += weights_by_rank[r]
+        cumulative[r + 1] = acc
+    weights = np.empty(n)
+    start = 0
+    while start < n:
+        end = start + 1
+        while end < n and utilities[order[end]] == utilities[order[end - 1]]:  # a NaN is a run of its own
+            end += 1
+        mean = (cumulative[end] - cumulative[start]) / (end - start)
+        for r in range(start, end):
+            weights[order[r]] = mean
+        start = end
     return weights
 
 
@@ -372,12 +393,17 @@ class CompiledStep(NamedTuple):
         ES's own (Adam's moments, SNES's log sigma, ...).
     ``counts``: int64, the ES's integer state (Adam's step counts).
     ``constants``: float64, the hyper-parameters the update reads (never written).
+
+    ``mean_weights(utilities, constants)``: the weight of each member in the mean's move
+    (:meth:`EvolutionStrategy._mean_weights`, which then runs it too), for an ES whose weights are not
+    its utilities (CEM's elite weights); None, the default: the utilities themselves.
     """
 
     update: Callable
     state: np.ndarray
     counts: np.ndarray
     constants: np.ndarray
+    mean_weights: Callable | None = None
 
 
 class EvolutionStrategy(ABC):

@@ -25,6 +25,9 @@ Ties: elites are chosen by utility, and tied members share the weights of the ra
 positions they span (:func:`~imix_cli.core.algorithms.base.rank_weights`), so the update never
 depends on the order of the told population (with mixing, reused members come first).
 
+The update is one compiled function (:func:`cem_update`, the elite weights :func:`cem_mean_weights`), which
+:meth:`CEM.tell` and the compiled generation loop (:mod:`imix_cli.running.loop.compiled_loop`) both run.
+
 ``style="cemrl"``: the authors' own CEM (apourchot/CEM-RL ``ES.py``, ``sepCEM.tell``),
 which differs from the textbook update above in four constants and one formula::
 
@@ -41,16 +44,78 @@ distribution barely moves once contracted).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from imix_cli.core import numerics as xp
-from imix_cli.core.algorithms.base import EvolutionStrategy, Params, prefixed, rank_weights, unprefixed
+from imix_cli.core.algorithms.base import CompiledStep, EvolutionStrategy, Params, prefixed, rank_weights_kernel, unprefixed
 from imix_cli.core.distributions import DiagonalGaussian
+from imix_cli.core.numerics import elementary as el
+from imix_cli.core.numerics import linalg_kernels as lk
 
 ELITE_WEIGHTS = ("equal", "log")
 STYLES = ("imix", "cemrl")
+
+# The compiled step's constants (CEM.compiled_step), by position.
+_ELITE_FRACTION, _LOG_WEIGHTS, _DECAY, _FLOOR, _CEMRL = range(5)
+
+
+@njit(cache=True)
+def _elites(n, constants):
+    """K = max(1, floor(elite_fraction * n))."""
+    return max(1, int(constants[_ELITE_FRACTION] * n))
+
+
+@njit(cache=True)
+def cem_mean_weights(utilities, constants):
+    """Each member's elite weight (the new mean is sum_i w_i x_i): the K best share 1/K each, or log weights
+    ln((K + 1) / i) / sum; tied members share the weights of the positions they span
+    (:func:`~imix_cli.core.algorithms.base.rank_weights_kernel`); 0 for the rest. ``constants``: :meth:`CEM.compiled_step`'s."""
+    n = utilities.shape[0]
+    k = _elites(n, constants)
+    by_rank = np.zeros(n)
+    if constants[_LOG_WEIGHTS] == 0.0:
+        for i in range(k):
+            by_rank[i] = 1.0 / k
+    else:
+        w = np.empty(k)
+        for i in range(k):
+            w[i] = el.log((k + 1) / (i + 1))
+        total = lk.numpy_sum(w)  # w.sum(): numpy's pairwise order
+        for i in range(k):
+            by_rank[i] = w[i] / total
+    return rank_weights_kernel(utilities, by_rank)
+
+
+@njit(cache=True)
+def cem_update(samples, utilities, state, counts, constants):
+    """One generation of CEM (module docstring), in place: ``state`` rows mu, sigma and the extra variance (every
+    entry the same); ``constants`` the elite fraction, 1.0 for log weights, the extra variance's decay and floor,
+    1.0 for style "cemrl"; ``counts`` unused. The one copy of the update
+    (:class:`~imix_cli.core.algorithms.base.CompiledStep`): :meth:`CEM._update` and the compiled generation loop
+    both run it."""
+    n, d = samples.shape
+    k = _elites(n, constants)
+    w = cem_mean_weights(utilities, constants)
+    mu, sigma = state[0], state[1]
+    new_mu = lk.vec_mat_kernel(w, samples)  # one fixed summation order (not BLAS's): same bits on every CPU
+    decay = constants[_DECAY]
+    extra = decay * state[2, 0] + (1.0 - decay) * constants[_FLOOR]
+    cemrl = constants[_CEMRL] != 0.0
+    sq = np.empty((n, d))
+    for i in range(n):
+        for j in range(d):
+            diff = samples[i, j] - (mu[j] if cemrl else new_mu[j])  # cemrl: about the old mean
+            sq[i, j] = diff * diff
+    var = lk.vec_mat_kernel(w, sq)
+    for j in range(d):
+        v = var[j] / k + extra if cemrl else var[j] + extra
+        mu[j] = new_mu[j]
+        sigma[j] = math.sqrt(v)
+        state[2, j] = extra
 
 
 @dataclass(frozen=True)
@@ -126,31 +191,24 @@ class CEM(EvolutionStrategy):
     def distribution(self) -> DiagonalGaussian:
         return self._dist
 
-    def _weights(self, k: int) -> np.ndarray:
-        if self.elite_weights == "equal":
-            return np.full(k, 1.0 / k)
-        w = xp.log((k + 1) / np.arange(1, k + 1))
-        return w / w.sum()
+    def _constants(self) -> np.ndarray:
+        return np.array([self.elite_fraction, float(self.elite_weights == "log"), self.extra_variance_decay, self.extra_variance_floor,
+                         float(self.style == "cemrl")])  # fmt: skip
 
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
-        n = samples.shape[0]
-        k = max(1, int(self.elite_fraction * n))
-        by_rank = np.zeros(n)
-        by_rank[:k] = self._weights(k)
-        w = rank_weights(utilities, by_rank)  # elites' weights, ties sharing theirs; 0 for the rest
-        self._told_mean_weights = w  # the new mean is sum_i w_i x_i
-        old_mu = self._dist.mean
-        mu = xp.vec_mat(w, samples)  # one fixed summation order (not BLAS's): same bits on every CPU
-        self.extra_variance = self.extra_variance_decay * self.extra_variance + (1.0 - self.extra_variance_decay) * self.extra_variance_floor
-        if self.style == "cemrl":
-            var = xp.vec_mat(w, (samples - old_mu) ** 2) / k + self.extra_variance
-        else:
-            var = xp.vec_mat(w, (samples - mu) ** 2) + self.extra_variance
-        self._dist = DiagonalGaussian(mu, np.sqrt(var))
+        self._update_compiled(samples, utilities)
+
+    def compiled_step(self) -> CompiledStep:
+        state = np.stack([self._dist.mean, self._dist.std, np.full(self.dim, self.extra_variance)])
+        return CompiledStep(cem_update, state, np.zeros(0, dtype=np.int64), self._constants(), cem_mean_weights)
+
+    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
+        self.extra_variance = float(state[2, 0])  # before the distribution, which refuses a non-finite one (a divergence)
+        self._dist = DiagonalGaussian(state[0], state[1])
 
     def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:
-        """Each member's elite weight: the new mean is sum_i w_i x_i."""
-        return self._told_mean_weights
+        """Each member's elite weight: the new mean is sum_i w_i x_i (:func:`cem_mean_weights`)."""
+        return cem_mean_weights(np.ascontiguousarray(utilities, dtype=np.float64), self._constants())
 
     def _state_dict(self) -> dict:
         return {"extra_variance": float(self.extra_variance), **prefixed("dist", self._dist.to_state())}

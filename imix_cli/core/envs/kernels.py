@@ -67,6 +67,7 @@ __all__ = [
     "acrobot_step",
     "acrobot_steps",
     "acrobot_episodes",
+    "acrobot_seeded_episodes",
     "FORCE_MAG",
 ]
 
@@ -576,3 +577,14 @@ def acrobot_episodes(params, states0, obs0, sizes, max_steps, returns, steps, tr
                 break
             _acrobot_observe(s, x)
         returns[i], steps[i] = ret, t
+
+
+@njit(cache=True)
+def acrobot_seeded_episodes(params, seeds, sizes, max_steps, returns, steps, trace):
+    """One Acrobot episode per member from episode seed ``seeds[i]`` (uint64), as ``reset(seed=s)`` starts it:
+    gymnasium's float32 initial state (uniform in [-0.1, 0.1]) and its first observation computed in float32
+    (:func:`acrobot_first_observations`), then :func:`acrobot_episodes`. The one copy of that sequence:
+    :class:`imix_cli.core.evaluation.AcrobotEvaluator` and the compiled generation loop both run it."""
+    s32 = seeded_uniform_rows(seeds, -0.1, 0.1, 4).astype(np.float32)
+    obs0 = acrobot_first_observations(s32)
+    acrobot_episodes(params, s32.astype(np.float64), obs0, sizes, max_steps, returns, steps, trace)

@@ -220,9 +220,7 @@ class AcrobotEvaluator(_CompiledEvaluator):
     def _episodes(self, params, seeds, returns, steps, trace):
         # gymnasium's reset(seed=s): a float32 state and its observation computed in float32 (the
         # float32 cos/sin of numpy's vector kernel, which numpy runs on CPUs with FMA3 only: imix_cli.core.numerics.elementary)
-        s32 = self._kernels.seeded_uniform_rows(seeds, -0.1, 0.1, 4).astype(np.float32)
-        obs0 = self._kernels.acrobot_first_observations(s32)
-        self._kernels.acrobot_episodes(params, s32.astype(np.float64), obs0, self.layer_sizes(), self.max_steps, returns, steps, trace)
+        self._kernels.acrobot_seeded_episodes(params, seeds, self.layer_sizes(), self.max_steps, returns, steps, trace)
 
 
 class ContinuousCartPoleEvaluator(_CompiledEvaluator):

@@ -12,7 +12,8 @@ policies. The same random numbers in the same order (numba draws from the seed's
 Generators with NumPy's algorithms and advances them in place) and the same code: the ES's update
 is the ES's own compiled step (:class:`imix_cli.core.algorithms.base.CompiledStep`, which its Python
 ``tell`` runs too), its utilities :meth:`~imix_cli.core.algorithms.base.EvolutionStrategy.compiled_utilities`,
-the mixing step :func:`imix_cli.core.mixing.kernels.mix_step`, the episodes those of
+its mean weights (what the archive keeps of each member's part in the move: the step's ``mean_weights``,
+e.g. CEM's elite weights, else the utilities), the mixing step :func:`imix_cli.core.mixing.kernels.mix_step`, the episodes those of
 :mod:`imix_cli.core.envs.kernels`; numpy's own summation order where the Python path calls
 ``np.sum``/``np.mean`` (:func:`imix_cli.core.numerics.linalg_kernels.numpy_sum`). This module holds only the loop:
 the order of those calls, the archive, and the numbers of the CSV row.
@@ -20,22 +21,23 @@ The Python path stays the reference: ``IMIX_COMPILED_LOOP=0`` takes it, and
 ``tests/test_compiled_loop.py`` runs both and compares CSVs, checkpoints and policy files.
 
 Where it applies (:func:`applies`): any ES with a compiled step over a float64 diagonal Gaussian
-(OpenES and SNES) and compiled utilities (centred ranks, the estool weight decay), no
+(OpenES, SNES and CEM) and compiled utilities (centred ranks, the estool weight decay), no
 mixing or the ``paper``/``sun2009``/``exact`` rules with no re-evaluation options, no observation
-normalisation, a built-in CartPole environment (CartPole, ContinuousCartPole, its Hard variant)
-evaluated in the process. Anything else takes the Python path, unchanged. Acrobot is not taken yet only
-because the loop calls CartPole's episode kernel alone: its first observation (numpy's float32 ``cos``/``sin``)
-is computed bit for bit in compiled code (:func:`imix_cli.core.envs.kernels.acrobot_first_observations`, with
-:mod:`imix_cli.core.numerics.elementary`'s ``cos32``/``sin32``), as :class:`imix_cli.core.evaluation.AcrobotEvaluator` does.
+normalisation, a built-in environment (CartPole, ContinuousCartPole, its Hard variant, Acrobot) evaluated
+in the process. Of the paper's grid (OpenES, SNES, CEM, CMA-ES x CartPole, Acrobot x EIM or not), all
+but CMA-ES (a full covariance: no compiled step). Anything else takes the Python path, unchanged. The loop calls the evaluator's own episode
+kernel, chosen by a number (:func:`_env_code`): Acrobot's float32 reset -- its first observation is numpy's
+float32 ``cos``/``sin`` -- runs inside it (:func:`imix_cli.core.envs.kernels.acrobot_seeded_episodes`, which
+:class:`imix_cli.core.evaluation.AcrobotEvaluator` runs too).
 
 When a chunk meets what the Python path treats specially -- a non-finite return, or an update that
 leaves the distribution non-finite (divergence) -- the chunk is dropped (the random generators are
 put back) and the seed continues on the Python path, which records it exactly as always.
 
-Compilation: one entry point per (update, utilities) pair, made from :func:`_make_chunk`'s code with
-the two functions as its globals (numba resolves them when it compiles), cached on disk like every
+Compilation: one entry point per (update, utilities, mean weights) triple, made from :func:`_make_chunk`'s
+code with the three functions as its globals (numba resolves them when it compiles), cached on disk like every
 imix kernel (stamped with every compiled source of the package: :mod:`imix_cli.core.numerics.numba_cache`). numba
-keys a cached function by its closure's contents: the entry's closure holds a digest of the two
+keys a cached function by its closure's contents: the entry's closure holds a digest of the three
 functions it runs, so each ES gets its own cached entry.
 """
 
@@ -52,7 +54,7 @@ import numpy as np
 from numba import njit
 
 from imix_cli.core import numerics as xp
-from imix_cli.core.algorithms.base import hash_multipliers
+from imix_cli.core.algorithms.base import EvolutionStrategy, hash_multipliers
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.envs import kernels as ek
 from imix_cli.core.mixing import COMPILED_MAX_ELEMENTS, Generation, variant_spec
@@ -66,8 +68,8 @@ __all__ = ["applies", "applies_to_run", "advance", "entry", "entry_for", "ENV_VA
 ENV_VARIABLE = "IMIX_COMPILED_LOOP"
 
 _SEED_HIGH = np.iinfo(np.int64).max  # episode seeds: integers(0, int64 max), as lockstep draws them
-# The ES's compiled update and utilities: each entry point gets its own in its globals (:func:`entry`).
-_UPDATE = _UTILITIES = None
+# The ES's compiled update, utilities and mean weights: each entry point gets its own in its globals (:func:`entry`).
+_UPDATE = _UTILITIES = _MEAN_WEIGHTS = None
 
 
 def _functions_digest(*functions) -> int:
@@ -83,15 +85,36 @@ def _functions_digest(*functions) -> int:
 
 
 @njit
+def utilities_are_mean_weights(utilities, constants):
+    """The mean weights of an ES whose compiled step gives none (:class:`~imix_cli.core.algorithms.base.CompiledStep`):
+    its utilities, as :meth:`~imix_cli.core.algorithms.base.EvolutionStrategy._mean_weights` has them."""
+    return utilities
+
+
+@njit
 def _draw_seeds(rng, n):
     """``rng.integers(0, int64 max, size=n)`` as uint64 (the episode kernels' seed type)."""
     return rng.integers(0, 9223372036854775807, size=n).astype(np.uint64)
 
 
+#: The episode kernel a run's evaluator runs (:func:`_env_code`), passed to the chunk as a number.
+_CARTPOLE, _ACROBOT = 0, 1
+
+
+@njit
+def _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace):
+    """One episode per member by the evaluator's own kernel: ``env`` is :data:`_CARTPOLE` (``continuous``,
+    ``sparse``: its variants) or :data:`_ACROBOT` (the float32 reset the evaluator computes, in the kernel)."""
+    if env == _ACROBOT:
+        ek.acrobot_seeded_episodes(params, seeds, sizes, max_steps, returns, steps, trace)
+    else:
+        ek.cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
+
+
 def _make_chunk(digest: int):
-    def _run_chunk(generations, rule, es, archive, rngs, env, measure, seed, out):
-        """Run ``generations`` generations of one seed (module docstring); ``_UPDATE`` and ``_UTILITIES``
-        are the ES's compiled step and utilities (:func:`entry`). The arguments are tuples (numba types each
+    def _run_chunk(generations, rule, es, archive, rngs, episodes, measure, seed, out):
+        """Run ``generations`` generations of one seed (module docstring); ``_UPDATE``, ``_UTILITIES`` and
+        ``_MEAN_WEIGHTS`` are the ES's compiled step, utilities and mean weights (:func:`entry`). The arguments are tuples (numba types each
         field), built by :func:`advance`, which names every field:
 
         - ``rule``: the mixing rule and the ES's utilities' settings;
@@ -99,7 +122,7 @@ def _make_chunk(digest: int):
           ``state``/``counts``/``constants`` (row 0 of ``state`` the mean, row 1 the standard deviations);
         - ``archive``: the archived generations, newest first, as arrays of ``slots`` rows;
         - ``rngs``: the seed's generators (members, episodes, the mean's episodes);
-        - ``env``: the episode kernel's settings; ``measure``: when and how the mean is evaluated;
+        - ``episodes``: the episode kernel (:func:`_env_code`) and its settings; ``measure``: when and how the mean is evaluated;
         - ``seed``: the best member so far and the last utilities; ``out``: the rows' numbers, one row per generation.
 
         Every state array is updated in place; returns the number of generations done -- fewer when a generation
@@ -110,7 +133,7 @@ def _make_chunk(digest: int):
         es_generation, state, counts, constants = es
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
         sample_rng, episode_rng, mean_rng = rngs
-        sizes, continuous, sparse, max_steps = env
+        env, sizes, continuous, sparse, max_steps = episodes
         eval_every, eval_episodes, generation0 = measure
         best, best_return, last_u = seed
         out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
@@ -147,7 +170,7 @@ def _make_chunk(digest: int):
             returns = np.empty(n_eval)
             steps = np.empty(n_eval, dtype=np.int64)
             if n_eval:
-                ek.cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
+                _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
             total_steps = 0
             for e in range(n_eval):
                 fitness[rows[e]] = returns[e]
@@ -160,11 +183,12 @@ def _make_chunk(digest: int):
             out_sigma_mean[g] = lk.numpy_sum(std) / d
             mu_drawn, std_drawn = mu.copy(), std.copy()  # the distribution the generation was drawn from
             _UPDATE(x, u, state, counts, constants)
+            mw = _MEAN_WEIGHTS(u, constants)  # after the update, as tell takes them (constants are never written)
             for j in range(d):  # a distribution no longer finite: the Python path records the divergence
                 if not (math.isfinite(mu[j]) and math.isfinite(std[j]) and std[j] > 0.0):
                     return g
             es_generation[0] += 1
-            last_u[:] = u
+            last_u[:] = mw
             # ---- archive (newest first, at most depth generations)
             if depth > 0:
                 top = min(a_n[0], depth - 1)
@@ -190,7 +214,7 @@ def _make_chunk(digest: int):
                 a_age[0] = age
                 a_src[0] = source
                 a_idx[0] = index
-                a_mw[0] = u
+                a_mw[0] = mw
                 a_trials[0] = trials
                 a_n[0] = min(a_n[0] + 1, depth)
             # ---- the row's numbers
@@ -224,7 +248,7 @@ def _make_chunk(digest: int):
                     mk.put_row(mparams, r, mu)
                 mreturns = np.empty(eval_episodes)
                 msteps = np.empty(eval_episodes, dtype=np.int64)
-                ek.cartpole_episodes(mparams, mseeds, sizes, continuous, sparse, max_steps, mreturns, msteps, trace)
+                _episodes(env, mparams, mseeds, sizes, continuous, sparse, max_steps, mreturns, msteps, trace)
                 out_theta[g] = lk.numpy_sum(mreturns) / eval_episodes
         return generations
 
@@ -235,13 +259,15 @@ def _make_chunk(digest: int):
 _ENTRIES: dict = {}
 
 
-def entry(update, utilities):
-    """The compiled entry point running ES update ``update`` with utilities ``utilities`` (built on first use:
-    its cache key needs the dependency digest; module docstring)."""
-    key = (update, utilities)
+def entry(update, utilities, mean_weights=None):
+    """The compiled entry point running ES update ``update`` with utilities ``utilities`` and mean weights ``mean_weights``
+    (None: :func:`utilities_are_mean_weights`), built on first use: its cache key needs the dependency digest (module docstring)."""
+    mean_weights = mean_weights or utilities_are_mean_weights
+    key = (update, utilities, mean_weights)
     if key not in _ENTRIES:
-        inner = _make_chunk(_functions_digest(update, utilities))
-        chunk = types.FunctionType(inner.__code__, {**globals(), "_UPDATE": update, "_UTILITIES": utilities}, inner.__name__, None, inner.__closure__)
+        inner = _make_chunk(_functions_digest(update, utilities, mean_weights))
+        own = {"_UPDATE": update, "_UTILITIES": utilities, "_MEAN_WEIGHTS": mean_weights}
+        chunk = types.FunctionType(inner.__code__, {**globals(), **own}, inner.__name__, None, inner.__closure__)
         chunk.__qualname__, chunk.__module__, chunk.__doc__ = inner.__qualname__, inner.__module__, inner.__doc__
         _ENTRIES[key] = njit(cache=True)(chunk)
     return _ENTRIES[key]
@@ -249,7 +275,8 @@ def entry(update, utilities):
 
 def entry_for(es):
     """The compiled entry point that runs ``es`` (one with a compiled step and compiled utilities)."""
-    return entry(es.compiled_step().update, es.compiled_utilities())
+    step = es.compiled_step()
+    return entry(step.update, es.compiled_utilities(), step.mean_weights)
 
 
 def enabled() -> bool:
@@ -265,23 +292,28 @@ def _kernel(variant: str | None) -> int | None:
     return variant_spec(variant).kernel or None
 
 
-def _compiled_evaluator(evaluator) -> bool:
-    from imix_cli.core.evaluation import CartPoleEvaluator, ContinuousCartPoleEvaluator
+def _env_code(evaluator) -> int | None:
+    """The episode kernel of ``evaluator`` (:func:`_episodes`): a built-in env's evaluator run in this process only
+    (a pool's or Ray's evaluator is another class: its episodes run elsewhere); None, the loop cannot run it."""
+    from imix_cli.core.evaluation import AcrobotEvaluator, CartPoleEvaluator, ContinuousCartPoleEvaluator
 
-    return type(evaluator) in (CartPoleEvaluator, ContinuousCartPoleEvaluator)
+    return {CartPoleEvaluator: _CARTPOLE, ContinuousCartPoleEvaluator: _CARTPOLE, AcrobotEvaluator: _ACROBOT}.get(type(evaluator))
 
 
 def applies_to_run(settings, evaluator, es=None) -> bool:
     """Whether the seeds of a run (its :class:`imix_cli.running.loop.lockstep.LoopSettings`) evaluated by ``evaluator``
     can take the compiled loop (module docstring); ``es``: one of its ES, if made (else judged by ``settings.algo``)."""
-    if not enabled() or not _compiled_evaluator(evaluator):
+    if not enabled() or _env_code(evaluator) is None:
         return False
     if es is None:
         from imix_cli.core.algorithms import make_es
 
         es = make_es(settings.algo, settings.dim, **settings.es_options)
-    if es.compiled_step() is None or es.compiled_utilities() is None:
+    step = es.compiled_step()
+    if step is None or es.compiled_utilities() is None:
         return False
+    if step.mean_weights is None and type(es)._mean_weights is not EvolutionStrategy._mean_weights:
+        return False  # mean weights of its own in Python only: the loop would archive the utilities instead
     mixing = settings.mixing
     if _kernel(mixing.variant) is None or mixing.reeval_age is not None or mixing.reeval_prob > 0.0 or mixing.reeval_count > 0:
         return False
@@ -352,12 +384,13 @@ def advance(st, settings, evaluator, generations: int) -> bool:
         log_keep = xp.log1p(-mixing.alpha)
     rule = (_kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh), float(es.weight_decay), hash_multipliers(d))
     archive_arrays = (a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials)
-    env = (evaluator.layer_sizes(), type(evaluator).__name__ != "CartPoleEvaluator", bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps))
+    episodes = (_env_code(evaluator), evaluator.layer_sizes(), type(evaluator).__name__ == "ContinuousCartPoleEvaluator",
+                bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps))  # fmt: skip
     measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
     out = (out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
     done = entry_for(es)(
         generations, rule, (es_generation, step.state, step.counts, step.constants), archive_arrays,
-        (st.sample_rng, st.episode_rng, st.mean_eval_rng), env, measure, (best, best_return, last_u), out,
+        (st.sample_rng, st.episode_rng, st.mean_eval_rng), episodes, measure, (best, best_return, last_u), out,
     )  # fmt: skip
     if done < generations:  # put the generators back: the Python path takes this chunk
         for r, state in zip(rngs, snapshot):
