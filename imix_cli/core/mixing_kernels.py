@@ -486,7 +486,7 @@ def mix_full_exact(new_dist, dists, samples, heights, table, popsize: int, rng: 
     keeping them. Returns ``(samples, source, index, trials)``."""
     rows = max(x.shape[0] for x in samples)
     every = (new_dist, *dists)
-    known = np.full(len(samples), table is not None)
+    known = np.ones(len(samples), np.bool_) if table is not None else np.zeros(len(samples), np.bool_)  # np.full's, faster
     if table is None:
         table = np.empty((len(samples), len(every), rows))
     return _exact_full(
