@@ -253,9 +253,11 @@ class GenerationScheme:
         fitness[plan.evaluate] = returns  # ... unless evaluated again
         told_fitness = fitness
         if settings.depth:  # the (stored, fresh) pairs, older ones forgotten
-            ok = np.isfinite(stored_again) & np.isfinite(fitness[again])
-            a, b = stored_again[ok], fitness[again][ok]
-            new = np.array([a.size, xp.dot(np.ones(a.size), a), xp.dot(np.ones(b.size), b), xp.dot(a, a), xp.dot(a, b)]) if a.size else 0.0
+            new = 0.0
+            if again.size:  # (without re-evaluations, as by default: no pair, and no numpy calls to find none)
+                ok = np.isfinite(stored_again) & np.isfinite(fitness[again])
+                a, b = stored_again[ok], fitness[again][ok]
+                new = np.array([a.size, xp.dot(np.ones(a.size), a), xp.dot(np.ones(b.size), b), xp.dot(a, a), xp.dot(a, b)]) if a.size else 0.0
             archive.pairs = PAIR_MEMORY * archive.pairs + new
         if settings.reeval_count > 0:
             line = calibration(archive.pairs)
