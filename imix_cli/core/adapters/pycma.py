@@ -120,6 +120,7 @@ class PycmaES:
     """
 
     name = "pycma"
+    generation_scheme = None  # independent members (imix_cli.core.generation.scheme_of); said, not looked up and missed twice a generation
 
     def __init__(self, es, step_size: str = STEP_SIZES[0]):
         if not is_pycma(es):
