@@ -210,8 +210,9 @@ class PycmaES:
         solutions, values = list(samples[order]), list(fitness[order])
         if self.pycma_tpa and probe_fitness is not None:
             solutions, values = [*self._probes, *solutions], [*np.asarray(probe_fitness, dtype=np.float64), *values]
-        mean_before = self.distribution.mean.copy() if self.step_size == "tpa" else None  # imix's TPA's move
-        sigma_before = float(es.sigma)
+        # read even where nothing needs the mean: it brings pycma's lazy state up to date, as pycma's ask would, where
+        # tell comes without an ask (tests/test_adapters_pycma.py, the order test)
+        mean_before, sigma_before = self.distribution.mean.copy(), float(es.sigma)
         self._countevals = int(es.countevals)
         # what pycma's ask would have recorded: the members were drawn here, independently
         es._flgtelldone = False
