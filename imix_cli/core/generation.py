@@ -224,14 +224,15 @@ class GenerationScheme:
         age = np.zeros(popsize, dtype=np.int64)
         if reused.size:  # member by member: a few reused members cost less than a pass per archived generation
             age[reused] = [archive.ages[k - 1][i] + 1 for k, i in zip(g.source[reused].tolist(), g.index[reused].tolist())]
-        if settings.reeval_age is not None:
-            evaluate[reused] |= age[reused] > settings.reeval_age
-        if settings.reeval_prob > 0.0:
-            evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
-        if settings.reeval_count > 0:
-            waiting = reused[~evaluate[reused]]
-            evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
-        age[evaluate] = 0
+        if settings.reeval_age is not None or settings.reeval_prob > 0.0 or settings.reeval_count > 0:
+            if settings.reeval_age is not None:
+                evaluate[reused] |= age[reused] > settings.reeval_age
+            if settings.reeval_prob > 0.0:
+                evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
+            if settings.reeval_count > 0:
+                waiting = reused[~evaluate[reused]]
+                evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
+            age[evaluate] = 0  # (without re-evaluations only fresh members are evaluated, and their age is 0 already)
         probes = es.probes(rng)  # never mixed, never archived: not members
         return Plan(g, evaluate.nonzero()[0], age, probes=probes, reusable=reusable)
 

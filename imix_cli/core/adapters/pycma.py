@@ -262,16 +262,16 @@ class PycmaES:
         recombination weight of its rank, 0 beyond mu -- what variant ``"conditional"`` conditions on
         (:mod:`imix_cli.core.mixing`, "Reuse inside the loop"). ``probes``: pycma's TPA points told first."""
         es = self.es
-        idx = np.asarray(es.fit.idx)
+        idx = np.asarray(es.fit.idx)  # idx[r]: the member told at rank r
         told = idx.size
-        ranks = np.empty(told, dtype=np.int64)
-        ranks[idx] = np.arange(told)
         key = (id(es.sp.weights), told)
         if self._rank_weights is None or self._rank_weights[0] != key:  # the weight of each rank, made once
             weights = np.asarray(es.sp.weights, dtype=np.float64)
             by_rank = np.arange(told)
             self._rank_weights = (key, es.sp.weights, np.where(by_rank < es.sp.weights.mu, weights[np.minimum(by_rank, weights.size - 1)], 0.0))
-        c = self._rank_weights[2][ranks][probes:]
+        c = np.empty(told)
+        c[idx] = self._rank_weights[2]  # each member told, its rank's weight
+        c = c[probes:]
         out = np.empty(c.size)
         out[order] = c
         return out
