@@ -415,8 +415,8 @@ def _exact_full(rng, lows, means, log_norms, xs, heights, table, known, counts, 
     them between generations) where ``known[k]``, else computed here. Returns ``(samples, source, index, rule-2 draws)``."""
     n_entries, rows, d = xs.shape
     for k in range(n_entries):
-        if not known[k]:
-            table[k] = lk.gaussian_log_probs_kernel(lows, means, log_norms, xs[k])
+        if not known[k]:  # the distributions read below only: the new one and those of entries 0 .. k
+            table[k, : k + 2] = lk.gaussian_log_probs_kernel(lows[: k + 2], means[: k + 2], log_norms[: k + 2], xs[k])
     out = np.empty((popsize, d))
     source = np.zeros(popsize, np.int64)
     index = np.full(popsize, -1, np.int64)
