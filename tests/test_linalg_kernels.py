@@ -143,3 +143,41 @@ def test_gaussian_log_probs_are_log_prob_row_by_row_bit_for_bit(d, n):
         assert np.array_equal(together[j].view(np.int64), alone.view(np.int64))
         first = lk.gaussian_log_probs(lows[j : j + 1], means[j : j + 1], log_norms[j : j + 1], x[:1])[0]
         assert np.array_equal(first.view(np.int64), alone[:1].view(np.int64))
+
+
+@pytest.mark.parametrize("d", [1, 2, 5, 10, 40])
+def test_lower_from_r_is_the_numpy_path_bit_for_bit(d):
+    """lower_from_r (the pycma adapter's L from LAPACK's R, one compiled call) gives the bits of the numpy path it
+    replaced: L = tril((R * signs).T), signs -1 where R's diagonal is negative, and FullGaussian.from_cholesky's
+    log_norm of it; what lies below R's diagonal (LAPACK's reflectors) is not read; a zero or non-finite R is
+    refused. Made to fail by summing the logs last index first."""
+    from imix_cli.core.distributions import FullGaussian
+
+    rng = np.random.default_rng(d)
+    for scale in (1.0, 1e-9, 1e7):
+        a = rng.standard_normal((d, d)) * scale * 10.0 ** rng.uniform(-3, 3, d)
+        r = np.linalg.qr(a, mode="r")
+        assert d < 10 or (np.diag(r) < 0).any()  # the sign flips are exercised
+        signs = np.where(np.diag(r) < 0, -1.0, 1.0)
+        expected = np.tril((r * signs[:, None]).T)
+        low, log_norm = lk.lower_from_r(r + np.tril(rng.standard_normal((d, d)), -1))  # below the diagonal: never read
+        assert np.array_equal(low.view(np.int64), expected.view(np.int64))
+        assert log_norm == FullGaussian.from_cholesky(np.zeros(d), expected).log_norm
+    for bad in (0.0, np.nan, np.inf):
+        r = np.triu(rng.standard_normal((d, d)) + 3 * np.eye(d))
+        r[d - 1, d - 1] = bad
+        with pytest.raises(np.linalg.LinAlgError):
+            lk.lower_from_r(r)
+
+
+def test_factor_kind_tells_diagonal_full_and_non_finite_factors():
+    eye = np.eye(3)
+    assert lk.factor_kind(2 * eye) == 0 and lk.factor_kind(-eye) == 0 and lk.factor_kind(np.zeros((3, 3))) == 0
+    full = eye.copy()
+    full[0, 2] = 1e-300
+    assert lk.factor_kind(full) == 1
+    for bad, kind in ((np.nan, 2), (np.inf, 2)):
+        for where in ((0, 0), (0, 1)):
+            a = eye.copy()
+            a[where] = bad
+            assert lk.factor_kind(a) == kind, (bad, where)

@@ -317,14 +317,16 @@ class FullGaussian:
         self.log_norm = -0.5 * self.dim * xp.LOG_2PI - float(np.sum(xp.log(np.diag(self.chol))))
 
     @classmethod
-    def from_cholesky(cls, mean, chol, dtype=np.float64, checked: bool = True) -> FullGaussian:
+    def from_cholesky(cls, mean, chol, dtype=np.float64, checked: bool = True, log_norm: float | None = None) -> FullGaussian:
         """N(mean, L L^T) from its lower-triangular factor L itself, never from L L^T factored again.
 
         Why: a Cholesky factorisation of C works at C's condition number, the square of its factor's; a library
         that keeps a square root of C (pycma's B D: :func:`imix_cli.core.adapters.pycma.gaussian_from_factor`
         turns it into L) gives the density at its own precision this way. ValueError (one line) if ``chol`` is
         not lower triangular with a finite, positive diagonal: the density does not exist. ``checked=False``: the
-        caller has made ``chol`` a new float64 array and checked it (pycma's adapter, every generation: issue 45).
+        caller has made ``chol`` a new float64 array and checked it (pycma's adapter, every generation: issue 45);
+        ``log_norm``: the caller's, computed with ``chol`` as here (:func:`imix_cli.core.numerics.lower_from_r`), else
+        computed here.
         """
         mean = np.array(mean, dtype=np.float64, copy=True).reshape(-1)
         dim = mean.shape[0]
@@ -332,15 +334,15 @@ class FullGaussian:
             chol = np.array(chol, dtype=np.float64, copy=True)
             if chol.shape != (dim, dim):
                 raise ValueError(f"FullGaussian: the factor has shape {chol.shape}, expected {(dim, dim)}")
-        diag = np.diag(chol)
         # in few numpy calls, and the covariance only when asked for: pycma's adapter makes one every generation (issue 45)
         if checked:
+            diag = np.diag(chol)
             if not (np.isfinite(chol).all() and (diag > 0).all()) or chol[_strict_upper(dim)].any():
                 raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)")
         self = cls.__new__(cls)
         self.mean, self.chol, self._cov = mean, chol, None
         self.dtype = np.dtype(dtype)
-        self.log_norm = -0.5 * dim * xp.LOG_2PI - float(np.sum(xp.log(diag)))
+        self.log_norm = -0.5 * dim * xp.LOG_2PI - float(np.sum(xp.log(np.diag(chol)))) if log_norm is None else log_norm
         return self
 
     @property

@@ -68,6 +68,7 @@ import math
 
 import numpy as np
 
+from imix_cli.core import numerics as xp
 from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
 
 __all__ = ["FreshRecord", "PycmaES", "gaussian_from_factor", "REFUSED_OPTIONS", "STEP_SIZES", "is_pycma"]
@@ -119,6 +120,7 @@ class PycmaES:
     """
 
     name = "pycma"
+    generation_scheme = None  # independent members (imix_cli.core.mixing.generation.scheme_of); said, not looked up and missed twice a generation
 
     def __init__(self, es, step_size: str = STEP_SIZES[0]):
         if not is_pycma(es):
@@ -208,6 +210,8 @@ class PycmaES:
         solutions, values = list(samples[order]), list(fitness[order])
         if self.pycma_tpa and probe_fitness is not None:
             solutions, values = [*self._probes, *solutions], [*np.asarray(probe_fitness, dtype=np.float64), *values]
+        # read even where nothing needs the mean: it brings pycma's lazy state up to date, as pycma's ask would, where
+        # tell comes without an ask (tests/test_adapters_pycma.py, the order test)
         mean_before, sigma_before = self.distribution.mean.copy(), float(es.sigma)
         self._countevals = int(es.countevals)
         # what pycma's ask would have recorded: the members were drawn here, independently
@@ -258,16 +262,16 @@ class PycmaES:
         recombination weight of its rank, 0 beyond mu -- what variant ``"conditional"`` conditions on
         (:mod:`imix_cli.core.mixing`, "Reuse inside the loop"). ``probes``: pycma's TPA points told first."""
         es = self.es
-        idx = np.asarray(es.fit.idx)
+        idx = np.asarray(es.fit.idx)  # idx[r]: the member told at rank r
         told = idx.size
-        ranks = np.empty(told, dtype=np.int64)
-        ranks[idx] = np.arange(told)
         key = (id(es.sp.weights), told)
         if self._rank_weights is None or self._rank_weights[0] != key:  # the weight of each rank, made once
             weights = np.asarray(es.sp.weights, dtype=np.float64)
             by_rank = np.arange(told)
             self._rank_weights = (key, es.sp.weights, np.where(by_rank < es.sp.weights.mu, weights[np.minimum(by_rank, weights.size - 1)], 0.0))
-        c = self._rank_weights[2][ranks][probes:]
+        c = np.empty(told)
+        c[idx] = self._rank_weights[2]  # each member told, its rank's weight
+        c = c[probes:]
         out = np.empty(c.size)
         out[order] = c
         return out
@@ -311,15 +315,17 @@ class PycmaES:
         mean = np.asarray(es.gp.pheno(mean_geno), dtype=np.float64)
         if not es.gp.isidentity:  # an affine phenotype map: the images of the columns
             rows = np.array([np.asarray(es.gp.pheno(mean_geno + r), dtype=np.float64) - mean for r in rows])
-        # a diagonal map (CMA_diagonal, or C still the identity): the std is the map itself. Read as a view of the
-        # off-diagonal entries (the flat array without every (d+1)-th entry); a non-finite diagonal is not one.
-        off = rows.reshape(-1)[1:].reshape(self.dim - 1, self.dim + 1)[:, :-1]
-        if not off.any() and np.isfinite(rows.diagonal()).all():
+        # a diagonal map (CMA_diagonal, or C still the identity): the std is the map itself; a non-finite diagonal is
+        # not one. Checked in one compiled pass with the finiteness gaussian_from_factor requires.
+        kind = xp.factor_kind(rows)
+        if kind == 0:
             return DiagonalGaussian(mean, np.abs(np.diag(rows)))
         # pycma's factor itself, never C = rows^T rows factored again (gaussian_from_factor: that squares the condition)
         try:
             self._degenerate = False
-            return gaussian_from_factor(mean, rows.T)
+            if kind == 2:
+                raise ValueError("the covariance factor is not finite")
+            return _gaussian_from_rows(mean, rows)
         except ValueError:  # a singular (or non-finite) factor: pycma goes on drawing from it, so does the adapter, without reuse
             self._degenerate = True
             return _Degenerate(mean, rows)
@@ -441,12 +447,33 @@ def gaussian_from_factor(mean, factor) -> FullGaussian:
     factor = np.asarray(factor, dtype=np.float64)
     if not np.isfinite(factor).all():
         raise ValueError("the covariance factor is not finite")
-    r = np.linalg.qr(factor.T, mode="r")
-    diag = r.diagonal()
-    if not (np.isfinite(r).all() and diag.all()):  # what from_cholesky checks of L (a new lower-triangular array here)
-        raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)")
-    signs = np.where(diag < 0, -1.0, 1.0)
-    return FullGaussian.from_cholesky(mean, np.tril((r * signs[:, None]).T), checked=False)
+    return _gaussian_from_rows(mean, factor.T)
+
+
+def _gaussian_from_rows(mean, rows: np.ndarray) -> FullGaussian:
+    """:func:`gaussian_from_factor` of the factor ``rows.T``, its entries known to be finite.
+
+    LAPACK's QR (geqrf) called as ``np.linalg.qr(rows, mode="r")`` calls it -- on a copy, under the same floating-point
+    error state -- but without the wrapper's checks and conversions, and R's sign flips, L and its log-normaliser in
+    one compiled call (:func:`imix_cli.core.numerics.lower_from_r`): at d = 10 ``np.linalg.qr`` and the dozen numpy
+    calls after it were the largest part of the adapter's cost per generation. The same bits as before."""
+    r = np.array(rows, dtype=np.float64, copy=True)  # geqrf overwrites its input, as np.linalg.qr's own copy
+    try:
+        with np.errstate(invalid="raise", over="ignore", divide="ignore", under="ignore"):  # np.linalg.qr's
+            if _QR_R_RAW is None:
+                r = np.linalg.qr(r, mode="r")
+            else:
+                _QR_R_RAW(r, signature="d->d")
+        low, log_norm = xp.lower_from_r(r)
+    except (FloatingPointError, np.linalg.LinAlgError):  # what from_cholesky checks of L
+        raise ValueError("FullGaussian: the factor is not lower triangular with a positive diagonal (singular)") from None
+    return FullGaussian.from_cholesky(mean, low, checked=False, log_norm=log_norm)
+
+
+try:  # the gufunc np.linalg.qr(a, mode="r") runs (numpy >= 1.22): LAPACK's geqrf, R in the upper triangle of a
+    from numpy.linalg._umath_linalg import qr_r_raw as _QR_R_RAW
+except ImportError:  # another numpy: np.linalg.qr itself, the same numbers
+    _QR_R_RAW = None
 
 
 def _child_stream(rng: np.random.Generator) -> np.random.Generator:

@@ -107,6 +107,8 @@ class Generation:
 
 
 def _unpack_entry(entry):
+    if type(entry) is Generation:  # its fields (unpacking it goes through __iter__)
+        return entry.dist, np.asarray(entry.samples)
     dist, samples = entry
     return dist, np.asarray(samples)
 
@@ -693,11 +695,12 @@ def _compiled_applies(new_dist, entries, popsize: int, variant: Variant) -> bool
 def _compiled_full_applies(new_dist, entries, popsize: int, variant: Variant) -> bool:
     """Whether :func:`imix_cli.core.mixing.kernels.mix_full_exact` computes this step: ``"exact"`` between float64
     FullGaussians (pycma's adapter, imix's CMA-ES), archived generations of at most ``popsize`` members."""
-    if variant.kernel != 3 or not entries:
+    if variant.kernel != 3 or not entries or type(new_dist) is not FullGaussian or new_dist.dtype != np.float64:
         return False
-    return all(type(g) is FullGaussian and g.dtype == np.float64 for g in (new_dist, *(d for d, _ in entries))) and all(
-        x.dtype == np.float64 and x.shape[0] <= popsize for _, x in entries
-    )
+    for dist, x in entries:  # a loop, not all() of generators: called every generation
+        if type(dist) is not FullGaussian or dist.dtype != np.float64 or x.dtype != np.float64 or x.shape[0] > popsize:
+            return False
+    return True
 
 
 def mix(

@@ -220,20 +220,21 @@ class GenerationScheme:
                 min_fresh=settings.min_fresh,
             )
         evaluate = g.source == 0
-        reused = np.flatnonzero(~evaluate)
+        reused = (~evaluate).nonzero()[0]  # np.flatnonzero's, without its Python wrapper (three per generation)
         age = np.zeros(popsize, dtype=np.int64)
         if reused.size:  # member by member: a few reused members cost less than a pass per archived generation
             age[reused] = [archive.ages[k - 1][i] + 1 for k, i in zip(g.source[reused].tolist(), g.index[reused].tolist())]
-        if settings.reeval_age is not None:
-            evaluate[reused] |= age[reused] > settings.reeval_age
-        if settings.reeval_prob > 0.0:
-            evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
-        if settings.reeval_count > 0:
-            waiting = reused[~evaluate[reused]]
-            evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
-        age[evaluate] = 0
+        if settings.reeval_age is not None or settings.reeval_prob > 0.0 or settings.reeval_count > 0:
+            if settings.reeval_age is not None:
+                evaluate[reused] |= age[reused] > settings.reeval_age
+            if settings.reeval_prob > 0.0:
+                evaluate[reused] |= rng.random(reused.size) < settings.reeval_prob
+            if settings.reeval_count > 0:
+                waiting = reused[~evaluate[reused]]
+                evaluate[rng.permutation(waiting)[: settings.reeval_count]] = True
+            age[evaluate] = 0  # (without re-evaluations only fresh members are evaluated, and their age is 0 already)
         probes = es.probes(rng)  # never mixed, never archived: not members
-        return Plan(g, np.flatnonzero(evaluate), age, probes=probes, reusable=reusable)
+        return Plan(g, evaluate.nonzero()[0], age, probes=probes, reusable=reusable)
 
     def finish(self, es, archive: Archive, settings: MixingSettings, plan: Plan, returns) -> np.ndarray:
         """Assemble the generation's fitness (stored returns + ``returns`` of ``plan.evaluate``), tell
@@ -245,7 +246,7 @@ class GenerationScheme:
         returns = returns[: plan.evaluate.size]
         fitness = np.empty(g.samples.shape[0])
         reused = g.source > 0
-        members = np.flatnonzero(reused)
+        members = reused.nonzero()[0]
         if members.size:  # reused members keep their stored return
             fitness[members] = stored_returns(archive, g, members)
         again = plan.evaluate[reused[plan.evaluate]]  # reused members evaluated again: (stored, fresh) pairs
@@ -253,9 +254,11 @@ class GenerationScheme:
         fitness[plan.evaluate] = returns  # ... unless evaluated again
         told_fitness = fitness
         if settings.depth:  # the (stored, fresh) pairs, older ones forgotten
-            ok = np.isfinite(stored_again) & np.isfinite(fitness[again])
-            a, b = stored_again[ok], fitness[again][ok]
-            new = np.array([a.size, xp.dot(np.ones(a.size), a), xp.dot(np.ones(b.size), b), xp.dot(a, a), xp.dot(a, b)]) if a.size else 0.0
+            new = 0.0
+            if again.size:  # (without re-evaluations, as by default: no pair, and no numpy calls to find none)
+                ok = np.isfinite(stored_again) & np.isfinite(fitness[again])
+                a, b = stored_again[ok], fitness[again][ok]
+                new = np.array([a.size, xp.dot(np.ones(a.size), a), xp.dot(np.ones(b.size), b), xp.dot(a, a), xp.dot(a, b)]) if a.size else 0.0
             archive.pairs = PAIR_MEMORY * archive.pairs + new
         if settings.reeval_count > 0:
             line = calibration(archive.pairs)

@@ -426,8 +426,8 @@ def _exact_full(rng, lows, means, log_norms, xs, heights, table, known, counts, 
     them between generations) where ``known[k]``, else computed here. Returns ``(samples, source, index, rule-2 draws)``."""
     n_entries, rows, d = xs.shape
     for k in range(n_entries):
-        if not known[k]:
-            table[k] = lk.gaussian_log_probs_kernel(lows, means, log_norms, xs[k])
+        if not known[k]:  # the distributions read below only: the new one and those of entries 0 .. k
+            table[k, : k + 2] = lk.gaussian_log_probs_kernel(lows[: k + 2], means[: k + 2], log_norms[: k + 2], xs[k])
     out = np.empty((popsize, d))
     source = np.zeros(popsize, np.int64)
     index = np.full(popsize, -1, np.int64)
@@ -497,7 +497,7 @@ def mix_full_exact(new_dist, dists, samples, heights, table, popsize: int, rng: 
     keeping them. Returns ``(samples, source, index, trials)``."""
     rows = max(x.shape[0] for x in samples)
     every = (new_dist, *dists)
-    known = np.full(len(samples), table is not None)
+    known = np.ones(len(samples), np.bool_) if table is not None else np.zeros(len(samples), np.bool_)  # np.full's, faster
     if table is None:
         table = np.empty((len(samples), len(every), rows))
     return _exact_full(

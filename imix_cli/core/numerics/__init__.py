@@ -27,7 +27,9 @@ from imix_cli.core.numerics.linalg_kernels import (
     cholesky,
     dot,
     eigh,
+    factor_kind,
     gaussian_log_probs,
+    lower_from_r,
     lower_solve_rows,
     lower_times_rows,
     mat_mat,
@@ -59,6 +61,8 @@ __all__ = [
     "lower_times_rows",
     "lower_solve_rows",
     "gaussian_log_probs",
+    "factor_kind",
+    "lower_from_r",
     "eigh",
 ]
 

@@ -53,6 +53,8 @@ __all__ = [
     "lower_times_rows",
     "lower_solve_rows",
     "gaussian_log_probs",
+    "factor_kind",
+    "lower_from_r",
     "eigh",
 ]
 
@@ -326,6 +328,49 @@ def _gaussian_log_probs(lows, means, log_norms, x):
                 sq += zi * zi
             out[j, r] = log_norms[j] - 0.5 * sq
     return out
+
+
+@njit(cache=True)
+def _factor_kind(a):
+    """0 if the square ``a`` is diagonal (every entry off the diagonal 0, none NaN) with a finite diagonal; else 1
+    if every entry is finite, 2 if not."""
+    d = a.shape[0]
+    diagonal, finite = True, True
+    for i in range(d):
+        for j in range(d):
+            v = a[i, j]
+            if not math.isfinite(v):
+                finite = False
+            if i != j and v != 0.0:
+                diagonal = False
+    if diagonal and finite:
+        return 0
+    return 1 if finite else 2
+
+
+@njit(cache=True)
+def _lower_from_r(r):
+    """(L, log_norm, ok) from a QR factorisation's R (the upper triangle of ``r``; below it LAPACK's geqrf keeps its
+    reflectors, never read): L = R^T, each column's sign flipped so that L's diagonal is positive, and log_norm =
+    -d/2 log(2 pi) - sum_j log L[j, j] in numpy's summation order. ok = False where R has a non-finite entry or a
+    zero on its diagonal (singular). The same bits as ``np.tril((triu(r) * signs[:, None]).T)`` and
+    :meth:`imix_cli.core.distributions.FullGaussian.from_cholesky`'s log_norm of it (signs: -1 where R's diagonal is
+    negative), in one call: the pycma adapter makes one every generation (numpy's dozen small calls cost more)."""
+    d = r.shape[0]
+    low = np.zeros((d, d))
+    for j in range(d):
+        if r[j, j] == 0.0:
+            return low, 0.0, False
+        for i in range(j, d):
+            if not math.isfinite(r[j, i]):
+                return low, 0.0, False
+    logs = np.empty(d)
+    for j in range(d):
+        sign = -1.0 if r[j, j] < 0.0 else 1.0
+        for i in range(j, d):
+            low[i, j] = r[j, i] * sign
+        logs[j] = el.log(low[j, j])
+    return low, -0.5 * d * el.LOG_2PI - numpy_sum(logs), True
 
 
 @njit(cache=True)
@@ -611,6 +656,22 @@ def gaussian_log_probs(lows, means, log_norms, x) -> np.ndarray:
     ``lows`` (m, d, d), means (m, d), log-normalisers (m,) and rows x (n, d); the same bits as
     ``log_norms[j] - 0.5 * row_sq_norms(lower_solve_rows(lows[j], x - means[j]))``."""
     return _gaussian_log_probs(_f64(lows), _f64(means), _f64(log_norms), _f64(x))
+
+
+def factor_kind(a) -> int:
+    """What a square root ``a`` of a covariance is, in one pass: 0 diagonal with a finite diagonal (every entry off it
+    0), 1 full and finite, 2 with a non-finite entry (:func:`_factor_kind`)."""
+    return _factor_kind(_f64(a))
+
+
+def lower_from_r(r) -> tuple[np.ndarray, float]:
+    """``(L, log_norm)`` from the R of a QR factorisation A^T = Q R (its upper triangle; what is below is not read):
+    L = R^T with a positive diagonal (so L L^T = A A^T) and the log-normaliser of N(m, L L^T)
+    (:func:`_lower_from_r`); numpy.linalg.LinAlgError if R is singular or not finite."""
+    low, log_norm, ok = _lower_from_r(_f64(r))
+    if not ok:
+        raise np.linalg.LinAlgError("R is singular or not finite")
+    return low, log_norm
 
 
 def eigh(a) -> tuple[np.ndarray, np.ndarray]:
