@@ -130,8 +130,10 @@ def test_kill_minus_9_at_random_points_then_resume_gives_identical_csvs(tmp_path
 
 
 @pytest.mark.parametrize("algo", ["openes", "snes", "cem", "cmaes"])
-def test_resume_from_checkpoint_equals_not_stopping(tmp_path, algo, capfd):
-    """In-process: interrupt after 7 generations (checkpoint at 6), resume, compare."""
+def test_resume_from_checkpoint_equals_not_stopping(tmp_path, algo, capfd, monkeypatch):
+    """In-process: interrupt after 7 generations (checkpoint at 6), resume, compare. The Python loop, which reports
+    every generation (the compiled loop reports a chunk at a time: its resume is tests/test_compiled_loop.py's)."""
+    monkeypatch.setenv("IMIX_COMPILED_LOOP", "0")
     from imix_cli.core.algorithms import CMAES
 
     if algo == "cmaes" and "_state_dict" not in vars(CMAES) and "state_dict" not in vars(CMAES):

@@ -33,7 +33,8 @@ def test_summary_compares_with_and_without_mixing_and_has_no_nan(tmp_path, capsy
     assert lines[0].index("seeds") + len("seeds") == lines[1].index(" 1 ") + 2
 
 
-def test_partial_csv_at_each_checkpoint_then_removed(tmp_path):
+def test_partial_csv_at_each_checkpoint_then_removed(tmp_path, monkeypatch):
+    monkeypatch.setenv("IMIX_COMPILED_LOOP", "0")  # a progress call per generation (the compiled loop's come per chunk)
     spec = validate_overrides([*TINY, "seeds=1", "generations=5", "checkpoint_every=2", "checkpoint_seconds=0", f"results_dir={tmp_path}"])[0]
     spec.run_dir.mkdir(parents=True)
     seen = []

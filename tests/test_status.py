@@ -228,21 +228,25 @@ class _Killed(Exception):
     """Stands for a kill -9 of the run: nothing more is written."""
 
 
-def test_a_running_seeds_last_generation_shows_before_its_first_checkpoint(tmp_path, monkeypatch):
+@pytest.mark.parametrize("compiled", ["0", "1"])
+def test_a_running_seeds_last_generation_shows_before_its_first_checkpoint(tmp_path, monkeypatch, compiled):
     """`imix status` showed "last gen -" for the first 30 s of the main job (checkpoint_seconds=30: its first
     checkpoint, with which the live view was written) while the bar moved. The live view is now written every
     LIVE_VIEW_SECONDS between checkpoints too (0 here, for a run of milliseconds): status sees every step.
     Made to fail (issue 48, friction 6): on the code before, status gave None at every step but the last."""
     import imix_cli.running.files.run_writer as run_writer
+    from imix_cli.running.loop.es_seeds import CHUNK
     from imix_cli.running.runner import run_seeds
 
     monkeypatch.setattr(run_writer, "LIVE_VIEW_SECONDS", 0.0, raising=False)
+    monkeypatch.setenv("IMIX_COMPILED_LOOP", compiled)  # the Python loop steps a generation, the compiled one a chunk
     spec = _small_run(tmp_path)  # checkpoint_every=50, checkpoint_seconds=30: no checkpoint falls due before the end
     seen = []
     run_seeds(spec, [0], progress=lambda n: seen.append((run_status(spec.run_dir)["last_generation"], list(spec.run_dir.glob(".checkpoints/*")))))
     before_the_end = seen[:-1]
     assert before_the_end and all(not checkpoints for _, checkpoints in before_the_end), seen  # no checkpoint yet
-    assert [generation for generation, _ in before_the_end] == list(range(1, 60)), seen
+    steps = list(range(1, 60)) if compiled == "0" else list(range(CHUNK, 60, CHUNK))
+    assert [generation for generation, _ in before_the_end] == steps, seen
 
 
 def test_a_stopped_seed_shows_where_a_rerun_resumes_when_its_live_view_is_ahead_of_its_checkpoint(tmp_path, monkeypatch):
