@@ -50,6 +50,7 @@ ARMS = {
     "mixing-cond-pop2": ({"variant": "conditional"}, {}),
     "mixing-pop2": ({}, {}),  # pycma's default popsize doubled (POPSIZE_FACTOR)
     "pycma-pop2": None,
+    "mixing-reeval2": ({"reeval_count": 2}, {}),  # 2 reused members re-evaluated per generation (the noisy suite's remedy)
 }
 #: arms that run pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)), alone or with mixing (imix_cli.fmin2)
 IPOP_ARMS = {"pycma-ipop": None, "mixing-ipop": {}, "pycma-bipop": None, "mixing-bipop": {}, "mixing-ipop-tpa": {"step_size": "tpa"},
@@ -64,6 +65,19 @@ GROUPS = (
     ("multimodal f15-19", range(15, 20)),
     ("weak structure f20-24", range(20, 25)),
 )
+#: bbob-noisy's groups, as cocopp groups them (nzmod, nzsev, nzsmm)
+NOISY_GROUPS = (
+    ("moderate noise f101-106", range(101, 107)),
+    ("severe noise f107-121", range(107, 122)),
+    ("severe noise multimodal f122-130", range(122, 131)),
+)
+#: suite -> its functions, table groups and output folder (``--suite``)
+SUITES = {
+    "bbob": {"functions": "1-24", "groups": GROUPS, "out": "results/bbob"},
+    "bbob-noisy": {"functions": "101-130", "groups": NOISY_GROUPS, "out": "results/bbob-noisy"},
+}
+#: the noisy suite's second measure: hits at this looser target (the noise-free best f - f_opt)
+LOOSE_TARGET = 1e-2
 SIGMA0 = 2.0
 BUDGET_PER_DIM = 2000
 
@@ -72,8 +86,61 @@ def _problem_seed(fid: int, dim: int, instance: int) -> int:
     return 1_000_003 * fid + 1009 * dim + instance
 
 
-def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM) -> dict:
-    """One arm on one (observed) COCO problem under the protocol; returns its record."""
+class NoiseFreeTarget:
+    """The best noise-free f - f_opt of one bbob-noisy problem as COCO's observer records it (its ``.dat`` file).
+
+    On bbob-noisy, cocoex returns (f - f_opt) * noise + 1.01e-8 + f_opt: the value the ES sees never comes within
+    1e-8 of f_opt, so ``problem.final_target_hit`` (which reads the best value returned) never fires. The observer
+    logs, at every evaluation that reaches a new target, the best *noise-free* f - f_opt so far (column 3 of
+    ``data_f<fid>/bbobexp_f<fid>_DIM<d>.dat``, the value cocopp's runtimes are measured on). ``update()`` reads the
+    lines written since the last call; ``runtime`` is the evaluation that first reached ``target``, ``best`` the
+    best value read.
+    """
+
+    def __init__(self, observer, problem, target: float = 1e-8):
+        fid, dim = problem.id_function, problem.dimension
+        folder = Path(observer.result_folder)
+        self.dat = folder / f"data_f{fid}" / f"bbobexp_f{fid}_DIM{dim}.dat"
+        self.tdat = self.dat.with_suffix(".tdat")
+        self.offset = self.dat.stat().st_size if self.dat.exists() else 0  # this problem's lines follow
+        self.tdat_offset = self.tdat.stat().st_size if self.tdat.exists() else 0
+        self.target = target
+        self.runtime: int | None = None
+        self.best = math.inf
+
+    @property
+    def hit(self) -> bool:
+        return self.runtime is not None
+
+    def _lines(self, path: Path, offset: int) -> tuple[list[list[str]], int]:
+        if not path.exists():
+            return [], offset
+        with path.open("rb") as fh:
+            fh.seek(offset)
+            data = fh.read()
+        end = data.rfind(b"\n") + 1  # whole lines only
+        rows = [line.split() for line in data[:end].decode().splitlines() if line.strip() and not line.startswith("%")]
+        return rows, offset + end
+
+    def update(self) -> None:
+        rows, self.offset = self._lines(self.dat, self.offset)
+        for row in rows:
+            evaluations, best = int(row[0]), float(row[2])
+            self.best = min(self.best, best)
+            if self.runtime is None and best <= self.target:
+                self.runtime = evaluations
+
+    def final_best(self) -> float:
+        """After ``problem.free()``: the best noise-free f - f_opt of the whole run (the ``.tdat`` file's last
+        line, which the observer writes with the final best), else the best of the ``.dat`` lines."""
+        self.update()
+        rows, self.tdat_offset = self._lines(self.tdat, self.tdat_offset)
+        return min([self.best] + [float(row[2]) for row in rows[-1:]])
+
+
+def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM, noise_free: NoiseFreeTarget | None = None) -> dict:
+    """One arm on one (observed) COCO problem under the protocol; returns its record. ``noise_free``: the problem
+    is a bbob-noisy one, hit when its observer records a noise-free f - f_opt <= 1e-8 (:class:`NoiseFreeTarget`)."""
     import cma
 
     import imix_cli
@@ -86,10 +153,14 @@ def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM) -> d
               "hit": False, "runtime": None, "evaluations": 0, "restarts": -1, "generations": 0, "stops": {}, "exception": None,
               "overhead_s": 0.0, "evaluation_s": 0.0}  # fmt: skip
     stops = collections.Counter()
+
+    def hit() -> bool:
+        return problem.final_target_hit if noise_free is None else noise_free.hit
+
     if arm in IPOP_ARMS:
-        return _run_ipop(problem, arm, budget, starts, record, stops)
+        return _run_ipop(problem, arm, budget, starts, record, stops, noise_free)
     try:
-        while problem.evaluations < budget and not problem.final_target_hit:
+        while problem.evaluations < budget and not hit():
             record["restarts"] += 1
             x0 = starts.uniform(-4, 4, dim)
             seed = int(starts.integers(1, 2**31 - 1))
@@ -114,27 +185,31 @@ def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM) -> d
                 f = []
                 for xi in x:
                     f.append(problem(xi))
-                    if problem.final_target_hit and record["runtime"] is None:
+                    if noise_free is None and problem.final_target_hit and record["runtime"] is None:
                         record["runtime"] = int(problem.evaluations)
+                if noise_free is not None:  # the observer's lines of this generation (counted as evaluation time)
+                    noise_free.update()
+                    if noise_free.hit and record["runtime"] is None:
+                        record["runtime"] = noise_free.runtime
                 t2 = time.perf_counter()
                 es.tell(x, f)
                 t3 = time.perf_counter()
                 record["overhead_s"] += (t1 - t0) + (t3 - t2)
                 record["evaluation_s"] += t2 - t1
                 record["generations"] += 1
-                if problem.final_target_hit or problem.evaluations >= budget:
+                if hit() or problem.evaluations >= budget:
                     break
             for key in stop:
                 stops[key] += 1
     except Exception as err:  # noqa: BLE001 (the benchmark counts exceptions; it must go on to the next problem)
         record["exception"] = f"{type(err).__name__}: {err}"
-    record["hit"] = bool(problem.final_target_hit)
+    record["hit"] = bool(hit())
     record["evaluations"] = int(problem.evaluations)
     record["stops"] = dict(stops)
     return record
 
 
-def _run_ipop(problem, arm, budget, starts, record, stops) -> dict:
+def _run_ipop(problem, arm, budget, starts, record, stops, noise_free=None) -> dict:
     """pycma's IPOP or BIPOP (``cma.fmin2``, or ``imix_cli.fmin2`` with mixing) under the protocol: x0 drawn anew
     at every restart, the budget and the target enforced by pycma's ``termination_callback`` (which ends fmin's
     restart loop too)."""
@@ -145,14 +220,21 @@ def _run_ipop(problem, arm, budget, starts, record, stops) -> dict:
     dim = problem.dimension
     seed = int(starts.integers(1, 2**31 - 1))
 
+    def hit() -> bool:
+        return problem.final_target_hit if noise_free is None else noise_free.hit
+
     def objective(x):
         f = problem(x)
-        if problem.final_target_hit and record["runtime"] is None:
+        if noise_free is None and problem.final_target_hit and record["runtime"] is None:
             record["runtime"] = int(problem.evaluations)
         return f
 
     def done(es):
-        return bool(problem.final_target_hit or problem.evaluations >= budget)
+        if noise_free is not None:  # once per iteration: the observer's lines of this generation
+            noise_free.update()
+            if noise_free.hit and record["runtime"] is None:
+                record["runtime"] = noise_free.runtime
+        return bool(hit() or problem.evaluations >= budget)
 
     options = {"seed": seed, "verbose": -9, "CMA_mirrors": 0, "termination_callback": done}
     fmin2 = cma.fmin2 if ARMS[arm] is None else imix_cli.fmin2
@@ -170,7 +252,9 @@ def _run_ipop(problem, arm, budget, starts, record, stops) -> dict:
     except Exception as err:  # noqa: BLE001 (counted, as in run_problem)
         record["exception"] = f"{type(err).__name__}: {err}"
     record["evaluation_s"] = time.perf_counter() - t0
-    record["hit"] = bool(problem.final_target_hit)
+    if noise_free is not None:
+        done(None)
+    record["hit"] = bool(hit())
     record["evaluations"] = int(problem.evaluations)
     record["stops"] = dict(stops)
     return record
@@ -182,7 +266,8 @@ def _todo(functions, dims, instances):
 
 def _worker(args):
     """Run every arm on the problems of one worker, observed into OUT/exdata/<arm>/w<k>; yield records."""
-    worker, problems, arms, out, budget_per_dim = args
+    worker, problems, arms, out, budget_per_dim, *rest = args
+    suite_name = rest[0] if rest else "bbob"
     import cocoex
 
     warnings.simplefilter("ignore")
@@ -191,18 +276,22 @@ def _worker(args):
     records = []
     for arm in arms:
         os.chdir(out / "exdata" / arm)
-        observer = cocoex.Observer("bbob", f"result_folder: w{worker} algorithm_name: {arm}")
-        suite = cocoex.Suite("bbob", "", "")
+        observer = cocoex.Observer(suite_name, f"result_folder: w{worker} algorithm_name: {arm}")  # the observer of the suite's name
+        suite = cocoex.Suite(suite_name, "", "")
         for fid, dim, inst in problems:
             problem = suite.get_problem_by_function_dimension_instance(fid, dim, inst)
             problem.observe_with(observer)
-            records.append(run_problem(problem, arm, budget_per_dim=budget_per_dim))
+            noise_free = NoiseFreeTarget(observer, problem) if suite_name == "bbob-noisy" else None
+            record = run_problem(problem, arm, budget_per_dim=budget_per_dim, noise_free=noise_free)
             problem.free()
+            if noise_free is not None:
+                record["best_delta"] = noise_free.final_best()  # the noise-free best f - f_opt within the budget
+            records.append(record)
         del observer
     return records
 
 
-def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_dim: int) -> None:
+def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_dim: int, suite: str = "bbob") -> None:
     import multiprocessing
 
     out.mkdir(parents=True, exist_ok=True)
@@ -214,14 +303,14 @@ def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_di
             done.add((r["function"], r["dim"], r["instance"], r["arm"]))
     todo = [p for p in _todo(functions, dims, instances) if any((*p, a) not in done for a in arms)]
     if not todo:
-        print(f"bbob: every problem of {runs} is done", file=sys.stderr)
+        print(f"{suite}: every problem of {runs} is done", file=sys.stderr)
         return
     for arm in arms:  # observer folders: a resumed run starts them anew (COCO appends -001 to an existing folder)
         folder = out / "exdata" / arm
         folder.mkdir(parents=True, exist_ok=True)
     # problems dealt round-robin by cost (d), one chunk per task, so both workers stay busy to the end
     chunks = [todo[k :: workers * 8] for k in range(workers * 8)]
-    tasks = [(f"{k:02d}_{int(time.time())}", chunk, arms, str(out), budget_per_dim) for k, chunk in enumerate(chunks) if chunk]
+    tasks = [(f"{k:02d}_{int(time.time())}", chunk, arms, str(out), budget_per_dim, suite) for k, chunk in enumerate(chunks) if chunk]
     t0 = time.time()
     with multiprocessing.get_context("spawn").Pool(workers) as pool, runs.open("a") as sink:
         for n, records in enumerate(pool.imap_unordered(_worker, tasks), start=1):
@@ -229,7 +318,7 @@ def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_di
                 if (r["function"], r["dim"], r["instance"], r["arm"]) not in done:
                     sink.write(json.dumps(r) + "\n")
             sink.flush()
-            print(f"bbob: {n}/{len(tasks)} chunks, {time.time() - t0:.0f} s", file=sys.stderr)
+            print(f"{suite}: {n}/{len(tasks)} chunks, {time.time() - t0:.0f} s", file=sys.stderr)
 
 
 def load(out: Path) -> list[dict]:
@@ -485,8 +574,9 @@ def main(argv=None) -> int:
     parser.add_argument("section", choices=["run", "table", "cocopp", "docs", "neutral", "overhead"])
     parser.add_argument("--page", type=Path, default=Path("docs/adapters.md"), help="docs: the page whose bbob section is rewritten")
     parser.add_argument("--figures", type=Path, default=Path("docs/bbob"), help="docs: where cocopp's figures go")
-    parser.add_argument("--out", type=Path, default=Path("results/bbob"))
-    parser.add_argument("--functions", default="1-24")
+    parser.add_argument("--suite", choices=list(SUITES), default="bbob", help="COCO's suite (bbob-noisy: functions 101-130)")
+    parser.add_argument("--out", type=Path, default=None, help="default results/<suite>")
+    parser.add_argument("--functions", default=None, help="default: the suite's (bbob 1-24, bbob-noisy 101-130)")
     parser.add_argument("--dims", default="2,5,10")
     parser.add_argument("--instances", default="1-3")
     parser.add_argument("--arms", default="pycma,mixing", help="of " + ", ".join(ARMS) + "; table: the first two are compared")
@@ -506,11 +596,16 @@ def main(argv=None) -> int:
     unknown = [a for a in arms if a not in ARMS]
     if unknown:
         parser.error(f"unknown arm {unknown[0]!r}; valid: {', '.join(ARMS)}")
-    out = args.out.resolve()
+    spec = SUITES[args.suite]
+    out = (args.out or Path(spec["out"])).resolve()
+    functions = ints(args.functions or spec["functions"])
     if args.section == "run":
+        valid = set(ints(spec["functions"]))
+        if not set(functions) <= valid:
+            parser.error(f"--functions {args.functions}: {args.suite}'s functions are {spec['functions']}")
         out.mkdir(parents=True, exist_ok=True)
         _meta(out, arms)
-        run(out, ints(args.functions), ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim)
+        run(out, functions, ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim, args.suite)
     elif args.section == "table":
         records = load(out)
         print(table(records, arms[:2]))
