@@ -1,6 +1,7 @@
-"""pycma alone and wrapped in importance mixing on COCO's bbob suite: the benchmark of docs/adapters.md.
+"""pycma alone and wrapped in importance mixing on COCO's bbob and bbob-noisy suites: the benchmark of docs/adapters.md.
 
     make bbob                                              # run + table + cocopp figure (the docs' numbers)
+    make bbob-noisy                                        # the same on the noisy suite (f101-130) into results/bbob-noisy
     python benchmarks/bbob.py run --out results/bbob       # both arms, every problem, COCO's observer output
     python benchmarks/bbob.py table --out results/bbob     # the markdown table of docs/adapters.md
     python benchmarks/bbob.py cocopp --out results/bbob    # cocopp's runtime ECDFs per function group
@@ -12,11 +13,26 @@ problems); per problem, x0 uniform in [-4, 4]^d, sigma0 = 2, a budget of 2000 d 
 new x0 (and a new seed) whenever ``stop()`` fires; the x0s and seeds of a problem are the same for every arm.
 A problem is hit when f - f_opt <= 1e-8 (COCO's final target); its runtime is the evaluations until then.
 
+``--suite bbob-noisy``: COCO's noisy suite (``cocoex.Suite("bbob-noisy", "", "")``, its observer "bbob-noisy"),
+functions 101-130 -- moderate noise f101-106, severe noise f107-121, severe noise multimodal f122-130 (cocopp's groups
+nzmod, nzsev, nzsmm) -- at the same dimensions, instances, protocol and budget; output under ``results/bbob-noisy``.
+Which value is compared with 1e-8: the ES is told the noisy value, but cocoex returns (f - f_opt) * noise + 1.01e-8 +
+f_opt (multiplicative noise; Cauchy noise is added on top of f + 1.01e-8), so the noisy value never comes within 1e-8
+of f_opt and ``problem.final_target_hit``, which reads the best noisy value returned, never fires on this suite.
+COCO's bbob-noisy observer records for each evaluation that reaches a new target the best *noise-free* f - f_opt so
+far (column 3 of its ``.dat`` files, "best noise-free fitness - Fopt"), and cocopp measures runtimes on it: a noisy
+problem is hit when that recorded noise-free value is <= 1e-8 (:class:`NoiseFreeTarget` reads the observer's file
+after every generation), its runtime the evaluation the observer logged. Hits at 1e-8 are rare under severe noise, so
+the noisy table adds hits at 1e-2 and the median best noise-free f - f_opt within the budget (each run's
+``best_delta``), the progress a noisy-suite user reads where the final target is out of reach.
+
 Arms (``--arms``): ``pycma`` (``cma.CMAEvolutionStrategy(x0, 2, {"seed": s, "verbose": -9})``, pycma's
 ask/tell loop) and ``mixing`` (the same ES wrapped in ``imix_cli.MixingES(es, "exact", rng=s)``, the adapter's
 defaults). ``mixing-K1``: ``eim_generations=1``; ``mixing-fresh3``: ``min_fresh=3`` -- settings the docs
-measure. Every arm of a problem runs in the same process one after the other, so its overhead per generation
-(time in ask and tell, the objective excluded) is measured next to pycma's under the same load.
+measure. ``mixing-reeval2``: ``reeval_count=2``, 2 reused members re-evaluated per generation and the others'
+stored values calibrated on them (the remedy docs/adapters.md measures on pycma's noisy sphere). Every arm of a
+problem runs in the same process one after the other, so its overhead per generation (time in ask and tell, the
+objective excluded) is measured next to pycma's under the same load.
 
 ``run`` writes one JSON line per (problem, arm) to ``OUT/runs.jsonl`` (finished pairs are skipped, so an
 interrupted run resumes) and COCO's observer data to ``OUT/exdata/<arm>/``; it needs the ``bbob`` extra
@@ -325,18 +341,27 @@ def load(out: Path) -> list[dict]:
     return [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines() if line.strip()]
 
 
-def table(records: list[dict], arms=("pycma", "mixing")) -> str:
-    """The markdown table: hits, the median runtime ratio where both hit, restarts, stops, exceptions."""
+def table(records: list[dict], arms=("pycma", "mixing"), groups=GROUPS) -> str:
+    """The markdown table: hits, the median runtime ratio where both hit, restarts, stops, exceptions. With
+    ``NOISY_GROUPS`` (bbob-noisy) two columns more, read off the noise-free best f - f_opt each run reached
+    (``best_delta``): hits at ``LOOSE_TARGET`` and the median best f - f_opt of each arm."""
     base, other = arms
+    noisy = groups is NOISY_GROUPS
     by = {(r["function"], r["dim"], r["instance"], r["arm"]): r for r in records}
     keys = sorted({k[:3] for k in by if k[3] == base and (*k[:3], other) in by})
     lines = [
         f"| group | {base} hits | {other} hits | median runtime {other}/{base} where both hit (pairs) "
-        f"| restarts {other}/{base} | tolflatfitness stops | exceptions |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        f"| restarts {other}/{base} | tolflatfitness stops | exceptions |"
+        + (
+            f" hits at {_loose()} {base} / {other} | median best f - f_opt {base} / {other} | lower best f - f_opt {other} vs {base} where not both hit |"
+            if noisy
+            else ""
+        ),
+        "|---|---:|---:|---:|---:|---:|---:|" + ("---:|---:|---:|" if noisy else ""),
     ]
     all_ratios = []
-    for name, fids in (*GROUPS, ("all", range(1, 25))):
+    everything = range(min(min(f) for _, f in groups), max(max(f) for _, f in groups) + 1)
+    for name, fids in (*groups, ("all", everything)):
         ks = [k for k in keys if k[0] in fids]
         if not ks:
             continue
@@ -353,8 +378,19 @@ def table(records: list[dict], arms=("pycma", "mixing")) -> str:
         exc = sum(bool(y["exception"]) for y in b)
         med = f"{np.median(ratios):.2f} ({len(ratios)})" if ratios else "-"
         rr = f"{rb / ra:.2f} ({rb}/{ra})" if ra else f"- ({rb}/{ra})"
-        lines.append(f"| {name} | {sum(x['hit'] for x in a)}/{len(ks)} | {sum(y['hit'] for y in b)}/{len(ks)} | {med} | {rr} | {fb} vs {fa} | {exc} |")
+        line = f"| {name} | {sum(x['hit'] for x in a)}/{len(ks)} | {sum(y['hit'] for y in b)}/{len(ks)} | {med} | {rr} | {fb} vs {fa} | {exc} |"
+        if noisy:
+            loose = [sum(r.get("best_delta", math.inf) <= LOOSE_TARGET for r in rs) for rs in (a, b)]
+            best = [f"{np.median([r.get('best_delta', math.inf) for r in rs]):.2g}" for rs in (a, b)]
+            pairs = [(x.get("best_delta", math.inf), y.get("best_delta", math.inf)) for x, y in zip(a, b) if not (x["hit"] and y["hit"])]
+            lower = sum(fy < fx for fx, fy in pairs), sum(fx < fy for fx, fy in pairs)
+            line += f" {loose[0]} / {loose[1]} | {best[0]} / {best[1]} | {lower[0]} vs {lower[1]} |"
+        lines.append(line)
     return "\n".join(lines)
+
+
+def _loose() -> str:
+    return f"1e{round(math.log10(LOOSE_TARGET))}"
 
 
 def overhead(records: list[dict], arms=("pycma", "mixing"), dim: int = 10) -> str:
@@ -420,52 +456,78 @@ COCOPP_ARMS = ("pycma", "mixing", "mixing-pop2")
 #: cocopp's runtime ECDFs copied into the docs: every group at d = 10, all functions at each d.
 DOC_FIGURES = [f"pprldmany_10D_{g}.svg" for g in ("separ", "lcond", "hcond", "multi", "mult2")] + [f"pprldmany_{d:02d}D_noiselessall.svg" for d in (2, 5, 10)]
 BEGIN, END = "<!-- bbob:begin (benchmarks/bbob.py docs writes this part) -->", "<!-- bbob:end -->"
+#: bbob-noisy's pairs, the arms cocopp draws and the figures copied: all functions at each d, the three groups at the
+#: largest d run
+NOISY_DOC_PAIRS = (
+    (("pycma", "mixing"), "pycma alone against the same ES wrapped (MixingES's defaults: stored values keep their noise)"),
+    (("pycma", "mixing-reeval2"), "pycma alone against mixing that re-evaluates 2 reused members per generation "
+     "(MixingES(es, \"exact\", reeval_count=2)) and calibrates the others' stored values on them"),
+    (("mixing", "mixing-reeval2"), "mixing without and with the re-evaluations"),
+)  # fmt: skip
+NOISY_COCOPP_ARMS = ("pycma", "mixing", "mixing-reeval2")
+NOISY_BEGIN, NOISY_END = "<!-- bbob-noisy:begin (benchmarks/bbob.py docs --suite bbob-noisy writes this part) -->", "<!-- bbob-noisy:end -->"
+#: suite -> what ``docs`` writes: the markers, the pairs tabled, cocopp's arms, the figures, the make target
+DOCS = {
+    "bbob": {"begin": BEGIN, "end": END, "pairs": DOC_PAIRS, "cocopp": COCOPP_ARMS, "figures": lambda dims: DOC_FIGURES,
+             "make": "make bbob", "run": "benchmarks/bbob.py run", "where": "two processes on two cores"},
+    "bbob-noisy": {"begin": NOISY_BEGIN, "end": NOISY_END, "pairs": NOISY_DOC_PAIRS, "cocopp": NOISY_COCOPP_ARMS,
+                   "figures": lambda dims: [f"pprldmany_{max(dims):02d}D_{g}.svg" for g in ("nzmod", "nzsev", "nzsmm")]
+                   + [f"pprldmany_{d:02d}D_nzall.svg" for d in sorted(dims)],
+                   "make": "make bbob-noisy", "run": "benchmarks/bbob.py run --suite bbob-noisy", "where": "one process, the machine shared"},
+}  # fmt: skip
 
 
-def docs(out: Path, arms, page: Path, figures: Path) -> None:
-    """The section of docs/adapters.md between BEGIN and END, and cocopp's figures into ``figures``."""
+def docs(out: Path, arms, page: Path, figures: Path, suite: str = "bbob") -> None:
+    """The section of docs/adapters.md between the suite's markers (BEGIN and END for bbob, NOISY_BEGIN and NOISY_END
+    for bbob-noisy), and cocopp's figures into ``figures``."""
+    spec = DOCS[suite]
+    groups = SUITES[suite]["groups"]
     records = load(out)
     meta = json.loads((out / "meta.json").read_text()) if (out / "meta.json").exists() else {}
     have = {r["arm"] for r in records}
-    lines = [BEGIN, ""]
+    dims = sorted({r["dim"] for r in records})
+    lines = [spec["begin"], ""]
     commits = meta.get("commits", {})
+    scope = "" if suite == "bbob" else f"; d = {', '.join(map(str, dims))}, {len({r['problem'] for r in records})} problems"
 
     def mark(*pair):
         commit = next((commits[a] for a in pair[::-1] if a in commits), "0000000")
-        return (f"<!-- provenance: commit={commit}; date={meta.get('date', '?')}; what=make bbob (benchmarks/bbob.py run --arms "
-                f"{','.join(pair)}); machine={meta.get('machine', '?')} -->")  # fmt: skip
+        return (f"<!-- provenance: commit={commit}; date={meta.get('date', '?')}; what={spec['make']} ({spec['run']} --arms "
+                f"{','.join(pair)}{scope}); machine={meta.get('machine', '?')} -->")  # fmt: skip
 
-    lines.append(f"{len({r['problem'] for r in records})} problems, {len(records)} runs, `make bbob`.")
-    for (a, b), what in DOC_PAIRS:
+    lines.append(f"{len({r['problem'] for r in records})} problems, {len(records)} runs, `{spec['make']}`.")
+    for (a, b), what in spec["pairs"]:
         if a in have and b in have:
-            lines += ["", f"**{b} against {a}**{mark(a, b)}: {what}.", "", table(records, (a, b))]
+            lines += ["", f"**{b} against {a}**{mark(a, b)}: {what}.", "", table(records, (a, b), groups)]
     lines += ["", "Restarts per evaluation: " + restarts_per_evaluations(records, [a for a in arms if a in have]) + "."]
     for dim in (2, 5, 10):
         line = overhead(records, ("pycma", "mixing"), dim)
         if line:
-            lines.append(f"Overhead, {line} (measured inside the runs, two processes on two cores).")
+            lines.append(f"Overhead, {line} (measured inside the runs, {spec['where']}).")
     lines += ["", "Stops by criterion (every run of every problem):", "", stop_counts(records, [a for a in arms if a in have]), ""]
     lines += [f"Exceptions: {exceptions(records)}.", ""]
     try:
-        pp = cocopp_figures(out, [a for a in COCOPP_ARMS if a in have])
+        pp = cocopp_figures(out, [a for a in spec["cocopp"] if a in have])
     except Exception as err:  # noqa: BLE001 (the tables stand without the figures)
         lines += [f"cocopp failed: {type(err).__name__}: {err}", ""]
     else:
         folder = next(p for p in pp.iterdir() if p.is_dir())
         figures.mkdir(parents=True, exist_ok=True)
         shown = []
-        for name in DOC_FIGURES:
+        for name in spec["figures"](dims):
             if (folder / name).exists():
                 shutil.copy(folder / name, figures / name)
                 shown.append(name)
         rel = os.path.relpath(figures, page.parent)
         lines += ["cocopp's runtime ECDFs (the fraction of (problem, target) pairs solved against evaluations / d; "
-                  f"arms {', '.join(a for a in COCOPP_ARMS if a in have)}):", ""]  # fmt: skip
+                  f"arms {', '.join(a for a in spec['cocopp'] if a in have)}):", ""]  # fmt: skip
         lines += [f"![{name}]({rel}/{name})" for name in shown] + [""]
-    lines.append(END)
+    lines.append(spec["end"])
     text = page.read_text()
-    head, _, rest = text.partition(BEGIN)
-    _, _, tail = rest.partition(END)
+    if spec["begin"] not in text or spec["end"] not in text:
+        raise SystemExit(f"{page}: no section between {spec['begin']} and {spec['end']}")
+    head, _, rest = text.partition(spec["begin"])
+    _, _, tail = rest.partition(spec["end"])
     page.write_text(head + "\n".join(lines) + tail)
 
 
@@ -561,6 +623,10 @@ def _meta(out: Path, arms) -> None:
         if Path("/proc/cpuinfo").exists()
         else platform.machine()
     )
+    if Path("/proc/cpuinfo").exists() and " hypervisor" in Path("/proc/cpuinfo").read_text():
+        cpu += " VM"
+    if hasattr(os, "getloadavg") and os.getloadavg()[0] >= 1:  # other processes were running when this one started
+        cpu += ", shared"
     path = out / "meta.json"
     meta = json.loads(path.read_text()) if path.exists() else {"date": time.strftime("%Y-%m-%d"), "machine": f"{os.cpu_count()}-core {cpu}"}
     commits = meta.setdefault("commits", {})
@@ -608,7 +674,7 @@ def main(argv=None) -> int:
         run(out, functions, ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim, args.suite)
     elif args.section == "table":
         records = load(out)
-        print(table(records, arms[:2]))
+        print(table(records, arms[:2], spec["groups"]))
         print()
         for dim in (2, 5, 10):
             line = overhead(records, arms[:2], dim)
@@ -623,7 +689,7 @@ def main(argv=None) -> int:
     elif args.section == "neutral":
         print(neutral())
     elif args.section == "docs":
-        docs(out, arms, args.page.resolve(), args.figures.resolve())
+        docs(out, arms, args.page.resolve(), args.figures.resolve(), args.suite)
     else:
         print(cocopp_figures(out, arms))
     return 0
