@@ -488,7 +488,7 @@ def docs(out: Path, arms, page: Path, figures: Path, suite: str = "bbob") -> Non
     dims = sorted({r["dim"] for r in records})
     lines = [spec["begin"], ""]
     commits = meta.get("commits", {})
-    scope = "" if suite == "bbob" else f"; d = {', '.join(map(str, dims))}, {len({r['problem'] for r in records})} problems"
+    scope = "" if suite == "bbob" else f", d = {', '.join(map(str, dims))}, {len({r['problem'] for r in records})} problems"  # no "; ": the mark's separator
 
     def mark(*pair):
         commit = next((commits[a] for a in pair[::-1] if a in commits), "0000000")

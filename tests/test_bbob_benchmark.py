@@ -97,3 +97,8 @@ def test_the_bbob_noisy_suite_runs_the_three_arms_hits_on_the_noise_free_value_a
     assert "**mixing against pycma**" in text and "**mixing-reeval2 against pycma**" in text and "make bbob-noisy" in text, text
     assert "<!-- provenance: commit=" in text and "what=make bbob-noisy (benchmarks/bbob.py run --suite bbob-noisy" in text, text
     assert list((tmp_path / "figures").glob("pprldmany_02D_nzall.svg")), text
+    from imix_cli.commands.docs_numbers import _FIELDS, _MARK  # the marks parse as docs/results.md reads them
+
+    for mark in _MARK.finditer(text):
+        fields = dict(part.strip().split("=", 1) for part in mark.group(1).split("; ") if "=" in part)
+        assert set(fields) <= set(_FIELDS) and {"commit", "what"} <= set(fields), mark.group(0)
