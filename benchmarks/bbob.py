@@ -1,6 +1,7 @@
-"""pycma alone and wrapped in importance mixing on COCO's bbob suite: the benchmark of docs/adapters.md.
+"""pycma alone and wrapped in importance mixing on COCO's bbob and bbob-noisy suites: the benchmark of docs/adapters.md.
 
     make bbob                                              # run + table + cocopp figure (the docs' numbers)
+    make bbob-noisy                                        # the same on the noisy suite (f101-130) into results/bbob-noisy
     python benchmarks/bbob.py run --out results/bbob       # both arms, every problem, COCO's observer output
     python benchmarks/bbob.py table --out results/bbob     # the markdown table of docs/adapters.md
     python benchmarks/bbob.py cocopp --out results/bbob    # cocopp's runtime ECDFs per function group
@@ -12,11 +13,26 @@ problems); per problem, x0 uniform in [-4, 4]^d, sigma0 = 2, a budget of 2000 d 
 new x0 (and a new seed) whenever ``stop()`` fires; the x0s and seeds of a problem are the same for every arm.
 A problem is hit when f - f_opt <= 1e-8 (COCO's final target); its runtime is the evaluations until then.
 
+``--suite bbob-noisy``: COCO's noisy suite (``cocoex.Suite("bbob-noisy", "", "")``, its observer "bbob-noisy"),
+functions 101-130 -- moderate noise f101-106, severe noise f107-121, severe noise multimodal f122-130 (cocopp's groups
+nzmod, nzsev, nzsmm) -- at the same dimensions, instances, protocol and budget; output under ``results/bbob-noisy``.
+Which value is compared with 1e-8: the ES is told the noisy value, but cocoex returns (f - f_opt) * noise + 1.01e-8 +
+f_opt (multiplicative noise; Cauchy noise is added on top of f + 1.01e-8), so the noisy value never comes within 1e-8
+of f_opt and ``problem.final_target_hit``, which reads the best noisy value returned, never fires on this suite.
+COCO's bbob-noisy observer records for each evaluation that reaches a new target the best *noise-free* f - f_opt so
+far (column 3 of its ``.dat`` files, "best noise-free fitness - Fopt"), and cocopp measures runtimes on it: a noisy
+problem is hit when that recorded noise-free value is <= 1e-8 (:class:`NoiseFreeTarget` reads the observer's file
+after every generation), its runtime the evaluation the observer logged. Hits at 1e-8 are rare under severe noise, so
+the noisy table adds hits at 1e-2 and the median best noise-free f - f_opt within the budget (each run's
+``best_delta``), the progress a noisy-suite user reads where the final target is out of reach.
+
 Arms (``--arms``): ``pycma`` (``cma.CMAEvolutionStrategy(x0, 2, {"seed": s, "verbose": -9})``, pycma's
 ask/tell loop) and ``mixing`` (the same ES wrapped in ``imix_cli.MixingES(es, "exact", rng=s)``, the adapter's
 defaults). ``mixing-K1``: ``eim_generations=1``; ``mixing-fresh3``: ``min_fresh=3`` -- settings the docs
-measure. Every arm of a problem runs in the same process one after the other, so its overhead per generation
-(time in ask and tell, the objective excluded) is measured next to pycma's under the same load.
+measure. ``mixing-reeval2``: ``reeval_count=2``, 2 reused members re-evaluated per generation and the others'
+stored values calibrated on them (the remedy docs/adapters.md measures on pycma's noisy sphere). Every arm of a
+problem runs in the same process one after the other, so its overhead per generation (time in ask and tell, the
+objective excluded) is measured next to pycma's under the same load.
 
 ``run`` writes one JSON line per (problem, arm) to ``OUT/runs.jsonl`` (finished pairs are skipped, so an
 interrupted run resumes) and COCO's observer data to ``OUT/exdata/<arm>/``; it needs the ``bbob`` extra
@@ -50,6 +66,7 @@ ARMS = {
     "mixing-cond-pop2": ({"variant": "conditional"}, {}),
     "mixing-pop2": ({}, {}),  # pycma's default popsize doubled (POPSIZE_FACTOR)
     "pycma-pop2": None,
+    "mixing-reeval2": ({"reeval_count": 2}, {}),  # 2 reused members re-evaluated per generation (the noisy suite's remedy)
 }
 #: arms that run pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)), alone or with mixing (imix_cli.fmin2)
 IPOP_ARMS = {"pycma-ipop": None, "mixing-ipop": {}, "pycma-bipop": None, "mixing-bipop": {}, "mixing-ipop-tpa": {"step_size": "tpa"},
@@ -64,6 +81,19 @@ GROUPS = (
     ("multimodal f15-19", range(15, 20)),
     ("weak structure f20-24", range(20, 25)),
 )
+#: bbob-noisy's groups, as cocopp groups them (nzmod, nzsev, nzsmm)
+NOISY_GROUPS = (
+    ("moderate noise f101-106", range(101, 107)),
+    ("severe noise f107-121", range(107, 122)),
+    ("severe noise multimodal f122-130", range(122, 131)),
+)
+#: suite -> its functions, table groups and output folder (``--suite``)
+SUITES = {
+    "bbob": {"functions": "1-24", "groups": GROUPS, "out": "results/bbob"},
+    "bbob-noisy": {"functions": "101-130", "groups": NOISY_GROUPS, "out": "results/bbob-noisy"},
+}
+#: the noisy suite's second measure: hits at this looser target (the noise-free best f - f_opt)
+LOOSE_TARGET = 1e-2
 SIGMA0 = 2.0
 BUDGET_PER_DIM = 2000
 
@@ -72,8 +102,61 @@ def _problem_seed(fid: int, dim: int, instance: int) -> int:
     return 1_000_003 * fid + 1009 * dim + instance
 
 
-def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM) -> dict:
-    """One arm on one (observed) COCO problem under the protocol; returns its record."""
+class NoiseFreeTarget:
+    """The best noise-free f - f_opt of one bbob-noisy problem as COCO's observer records it (its ``.dat`` file).
+
+    On bbob-noisy, cocoex returns (f - f_opt) * noise + 1.01e-8 + f_opt: the value the ES sees never comes within
+    1e-8 of f_opt, so ``problem.final_target_hit`` (which reads the best value returned) never fires. The observer
+    logs, at every evaluation that reaches a new target, the best *noise-free* f - f_opt so far (column 3 of
+    ``data_f<fid>/bbobexp_f<fid>_DIM<d>.dat``, the value cocopp's runtimes are measured on). ``update()`` reads the
+    lines written since the last call; ``runtime`` is the evaluation that first reached ``target``, ``best`` the
+    best value read.
+    """
+
+    def __init__(self, observer, problem, target: float = 1e-8):
+        fid, dim = problem.id_function, problem.dimension
+        folder = Path(observer.result_folder)
+        self.dat = folder / f"data_f{fid}" / f"bbobexp_f{fid}_DIM{dim}.dat"
+        self.tdat = self.dat.with_suffix(".tdat")
+        self.offset = self.dat.stat().st_size if self.dat.exists() else 0  # this problem's lines follow
+        self.tdat_offset = self.tdat.stat().st_size if self.tdat.exists() else 0
+        self.target = target
+        self.runtime: int | None = None
+        self.best = math.inf
+
+    @property
+    def hit(self) -> bool:
+        return self.runtime is not None
+
+    def _lines(self, path: Path, offset: int) -> tuple[list[list[str]], int]:
+        if not path.exists():
+            return [], offset
+        with path.open("rb") as fh:
+            fh.seek(offset)
+            data = fh.read()
+        end = data.rfind(b"\n") + 1  # whole lines only
+        rows = [line.split() for line in data[:end].decode().splitlines() if line.strip() and not line.startswith("%")]
+        return rows, offset + end
+
+    def update(self) -> None:
+        rows, self.offset = self._lines(self.dat, self.offset)
+        for row in rows:
+            evaluations, best = int(row[0]), float(row[2])
+            self.best = min(self.best, best)
+            if self.runtime is None and best <= self.target:
+                self.runtime = evaluations
+
+    def final_best(self) -> float:
+        """After ``problem.free()``: the best noise-free f - f_opt of the whole run (the ``.tdat`` file's last
+        line, which the observer writes with the final best), else the best of the ``.dat`` lines."""
+        self.update()
+        rows, self.tdat_offset = self._lines(self.tdat, self.tdat_offset)
+        return min([self.best] + [float(row[2]) for row in rows[-1:]])
+
+
+def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM, noise_free: NoiseFreeTarget | None = None) -> dict:
+    """One arm on one (observed) COCO problem under the protocol; returns its record. ``noise_free``: the problem
+    is a bbob-noisy one, hit when its observer records a noise-free f - f_opt <= 1e-8 (:class:`NoiseFreeTarget`)."""
     import cma
 
     import imix_cli
@@ -86,10 +169,14 @@ def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM) -> d
               "hit": False, "runtime": None, "evaluations": 0, "restarts": -1, "generations": 0, "stops": {}, "exception": None,
               "overhead_s": 0.0, "evaluation_s": 0.0}  # fmt: skip
     stops = collections.Counter()
+
+    def hit() -> bool:
+        return problem.final_target_hit if noise_free is None else noise_free.hit
+
     if arm in IPOP_ARMS:
-        return _run_ipop(problem, arm, budget, starts, record, stops)
+        return _run_ipop(problem, arm, budget, starts, record, stops, noise_free)
     try:
-        while problem.evaluations < budget and not problem.final_target_hit:
+        while problem.evaluations < budget and not hit():
             record["restarts"] += 1
             x0 = starts.uniform(-4, 4, dim)
             seed = int(starts.integers(1, 2**31 - 1))
@@ -114,27 +201,31 @@ def run_problem(problem, arm: str, *, budget_per_dim: int = BUDGET_PER_DIM) -> d
                 f = []
                 for xi in x:
                     f.append(problem(xi))
-                    if problem.final_target_hit and record["runtime"] is None:
+                    if noise_free is None and problem.final_target_hit and record["runtime"] is None:
                         record["runtime"] = int(problem.evaluations)
+                if noise_free is not None:  # the observer's lines of this generation (counted as evaluation time)
+                    noise_free.update()
+                    if noise_free.hit and record["runtime"] is None:
+                        record["runtime"] = noise_free.runtime
                 t2 = time.perf_counter()
                 es.tell(x, f)
                 t3 = time.perf_counter()
                 record["overhead_s"] += (t1 - t0) + (t3 - t2)
                 record["evaluation_s"] += t2 - t1
                 record["generations"] += 1
-                if problem.final_target_hit or problem.evaluations >= budget:
+                if hit() or problem.evaluations >= budget:
                     break
             for key in stop:
                 stops[key] += 1
     except Exception as err:  # noqa: BLE001 (the benchmark counts exceptions; it must go on to the next problem)
         record["exception"] = f"{type(err).__name__}: {err}"
-    record["hit"] = bool(problem.final_target_hit)
+    record["hit"] = bool(hit())
     record["evaluations"] = int(problem.evaluations)
     record["stops"] = dict(stops)
     return record
 
 
-def _run_ipop(problem, arm, budget, starts, record, stops) -> dict:
+def _run_ipop(problem, arm, budget, starts, record, stops, noise_free=None) -> dict:
     """pycma's IPOP or BIPOP (``cma.fmin2``, or ``imix_cli.fmin2`` with mixing) under the protocol: x0 drawn anew
     at every restart, the budget and the target enforced by pycma's ``termination_callback`` (which ends fmin's
     restart loop too)."""
@@ -145,14 +236,21 @@ def _run_ipop(problem, arm, budget, starts, record, stops) -> dict:
     dim = problem.dimension
     seed = int(starts.integers(1, 2**31 - 1))
 
+    def hit() -> bool:
+        return problem.final_target_hit if noise_free is None else noise_free.hit
+
     def objective(x):
         f = problem(x)
-        if problem.final_target_hit and record["runtime"] is None:
+        if noise_free is None and problem.final_target_hit and record["runtime"] is None:
             record["runtime"] = int(problem.evaluations)
         return f
 
     def done(es):
-        return bool(problem.final_target_hit or problem.evaluations >= budget)
+        if noise_free is not None:  # once per iteration: the observer's lines of this generation
+            noise_free.update()
+            if noise_free.hit and record["runtime"] is None:
+                record["runtime"] = noise_free.runtime
+        return bool(hit() or problem.evaluations >= budget)
 
     options = {"seed": seed, "verbose": -9, "CMA_mirrors": 0, "termination_callback": done}
     fmin2 = cma.fmin2 if ARMS[arm] is None else imix_cli.fmin2
@@ -170,7 +268,9 @@ def _run_ipop(problem, arm, budget, starts, record, stops) -> dict:
     except Exception as err:  # noqa: BLE001 (counted, as in run_problem)
         record["exception"] = f"{type(err).__name__}: {err}"
     record["evaluation_s"] = time.perf_counter() - t0
-    record["hit"] = bool(problem.final_target_hit)
+    if noise_free is not None:
+        done(None)
+    record["hit"] = bool(hit())
     record["evaluations"] = int(problem.evaluations)
     record["stops"] = dict(stops)
     return record
@@ -182,7 +282,8 @@ def _todo(functions, dims, instances):
 
 def _worker(args):
     """Run every arm on the problems of one worker, observed into OUT/exdata/<arm>/w<k>; yield records."""
-    worker, problems, arms, out, budget_per_dim = args
+    worker, problems, arms, out, budget_per_dim, *rest = args
+    suite_name = rest[0] if rest else "bbob"
     import cocoex
 
     warnings.simplefilter("ignore")
@@ -191,18 +292,22 @@ def _worker(args):
     records = []
     for arm in arms:
         os.chdir(out / "exdata" / arm)
-        observer = cocoex.Observer("bbob", f"result_folder: w{worker} algorithm_name: {arm}")
-        suite = cocoex.Suite("bbob", "", "")
+        observer = cocoex.Observer(suite_name, f"result_folder: w{worker} algorithm_name: {arm}")  # the observer of the suite's name
+        suite = cocoex.Suite(suite_name, "", "")
         for fid, dim, inst in problems:
             problem = suite.get_problem_by_function_dimension_instance(fid, dim, inst)
             problem.observe_with(observer)
-            records.append(run_problem(problem, arm, budget_per_dim=budget_per_dim))
+            noise_free = NoiseFreeTarget(observer, problem) if suite_name == "bbob-noisy" else None
+            record = run_problem(problem, arm, budget_per_dim=budget_per_dim, noise_free=noise_free)
             problem.free()
+            if noise_free is not None:
+                record["best_delta"] = noise_free.final_best()  # the noise-free best f - f_opt within the budget
+            records.append(record)
         del observer
     return records
 
 
-def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_dim: int) -> None:
+def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_dim: int, suite: str = "bbob") -> None:
     import multiprocessing
 
     out.mkdir(parents=True, exist_ok=True)
@@ -214,14 +319,14 @@ def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_di
             done.add((r["function"], r["dim"], r["instance"], r["arm"]))
     todo = [p for p in _todo(functions, dims, instances) if any((*p, a) not in done for a in arms)]
     if not todo:
-        print(f"bbob: every problem of {runs} is done", file=sys.stderr)
+        print(f"{suite}: every problem of {runs} is done", file=sys.stderr)
         return
     for arm in arms:  # observer folders: a resumed run starts them anew (COCO appends -001 to an existing folder)
         folder = out / "exdata" / arm
         folder.mkdir(parents=True, exist_ok=True)
     # problems dealt round-robin by cost (d), one chunk per task, so both workers stay busy to the end
     chunks = [todo[k :: workers * 8] for k in range(workers * 8)]
-    tasks = [(f"{k:02d}_{int(time.time())}", chunk, arms, str(out), budget_per_dim) for k, chunk in enumerate(chunks) if chunk]
+    tasks = [(f"{k:02d}_{int(time.time())}", chunk, arms, str(out), budget_per_dim, suite) for k, chunk in enumerate(chunks) if chunk]
     t0 = time.time()
     with multiprocessing.get_context("spawn").Pool(workers) as pool, runs.open("a") as sink:
         for n, records in enumerate(pool.imap_unordered(_worker, tasks), start=1):
@@ -229,25 +334,34 @@ def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_di
                 if (r["function"], r["dim"], r["instance"], r["arm"]) not in done:
                     sink.write(json.dumps(r) + "\n")
             sink.flush()
-            print(f"bbob: {n}/{len(tasks)} chunks, {time.time() - t0:.0f} s", file=sys.stderr)
+            print(f"{suite}: {n}/{len(tasks)} chunks, {time.time() - t0:.0f} s", file=sys.stderr)
 
 
 def load(out: Path) -> list[dict]:
     return [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines() if line.strip()]
 
 
-def table(records: list[dict], arms=("pycma", "mixing")) -> str:
-    """The markdown table: hits, the median runtime ratio where both hit, restarts, stops, exceptions."""
+def table(records: list[dict], arms=("pycma", "mixing"), groups=GROUPS) -> str:
+    """The markdown table: hits, the median runtime ratio where both hit, restarts, stops, exceptions. With
+    ``NOISY_GROUPS`` (bbob-noisy) two columns more, read off the noise-free best f - f_opt each run reached
+    (``best_delta``): hits at ``LOOSE_TARGET`` and the median best f - f_opt of each arm."""
     base, other = arms
+    noisy = groups is NOISY_GROUPS
     by = {(r["function"], r["dim"], r["instance"], r["arm"]): r for r in records}
     keys = sorted({k[:3] for k in by if k[3] == base and (*k[:3], other) in by})
     lines = [
         f"| group | {base} hits | {other} hits | median runtime {other}/{base} where both hit (pairs) "
-        f"| restarts {other}/{base} | tolflatfitness stops | exceptions |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        f"| restarts {other}/{base} | tolflatfitness stops | exceptions |"
+        + (
+            f" hits at {_loose()} {base} / {other} | median best f - f_opt {base} / {other} | lower best f - f_opt {other} vs {base} where not both hit |"
+            if noisy
+            else ""
+        ),
+        "|---|---:|---:|---:|---:|---:|---:|" + ("---:|---:|---:|" if noisy else ""),
     ]
     all_ratios = []
-    for name, fids in (*GROUPS, ("all", range(1, 25))):
+    everything = range(min(min(f) for _, f in groups), max(max(f) for _, f in groups) + 1)
+    for name, fids in (*groups, ("all", everything)):
         ks = [k for k in keys if k[0] in fids]
         if not ks:
             continue
@@ -264,8 +378,19 @@ def table(records: list[dict], arms=("pycma", "mixing")) -> str:
         exc = sum(bool(y["exception"]) for y in b)
         med = f"{np.median(ratios):.2f} ({len(ratios)})" if ratios else "-"
         rr = f"{rb / ra:.2f} ({rb}/{ra})" if ra else f"- ({rb}/{ra})"
-        lines.append(f"| {name} | {sum(x['hit'] for x in a)}/{len(ks)} | {sum(y['hit'] for y in b)}/{len(ks)} | {med} | {rr} | {fb} vs {fa} | {exc} |")
+        line = f"| {name} | {sum(x['hit'] for x in a)}/{len(ks)} | {sum(y['hit'] for y in b)}/{len(ks)} | {med} | {rr} | {fb} vs {fa} | {exc} |"
+        if noisy:
+            loose = [sum(r.get("best_delta", math.inf) <= LOOSE_TARGET for r in rs) for rs in (a, b)]
+            best = [f"{np.median([r.get('best_delta', math.inf) for r in rs]):.2g}" for rs in (a, b)]
+            pairs = [(x.get("best_delta", math.inf), y.get("best_delta", math.inf)) for x, y in zip(a, b) if not (x["hit"] and y["hit"])]
+            lower = sum(fy < fx for fx, fy in pairs), sum(fx < fy for fx, fy in pairs)
+            line += f" {loose[0]} / {loose[1]} | {best[0]} / {best[1]} | {lower[0]} vs {lower[1]} |"
+        lines.append(line)
     return "\n".join(lines)
+
+
+def _loose() -> str:
+    return f"1e{round(math.log10(LOOSE_TARGET))}"
 
 
 def overhead(records: list[dict], arms=("pycma", "mixing"), dim: int = 10) -> str:
@@ -331,52 +456,78 @@ COCOPP_ARMS = ("pycma", "mixing", "mixing-pop2")
 #: cocopp's runtime ECDFs copied into the docs: every group at d = 10, all functions at each d.
 DOC_FIGURES = [f"pprldmany_10D_{g}.svg" for g in ("separ", "lcond", "hcond", "multi", "mult2")] + [f"pprldmany_{d:02d}D_noiselessall.svg" for d in (2, 5, 10)]
 BEGIN, END = "<!-- bbob:begin (benchmarks/bbob.py docs writes this part) -->", "<!-- bbob:end -->"
+#: bbob-noisy's pairs, the arms cocopp draws and the figures copied: all functions at each d, the three groups at the
+#: largest d run
+NOISY_DOC_PAIRS = (
+    (("pycma", "mixing"), "pycma alone against the same ES wrapped (MixingES's defaults: stored values keep their noise)"),
+    (("pycma", "mixing-reeval2"), "pycma alone against mixing that re-evaluates 2 reused members per generation "
+     "(MixingES(es, \"exact\", reeval_count=2)) and calibrates the others' stored values on them"),
+    (("mixing", "mixing-reeval2"), "mixing without and with the re-evaluations"),
+)  # fmt: skip
+NOISY_COCOPP_ARMS = ("pycma", "mixing", "mixing-reeval2")
+NOISY_BEGIN, NOISY_END = "<!-- bbob-noisy:begin (benchmarks/bbob.py docs --suite bbob-noisy writes this part) -->", "<!-- bbob-noisy:end -->"
+#: suite -> what ``docs`` writes: the markers, the pairs tabled, cocopp's arms, the figures, the make target
+DOCS = {
+    "bbob": {"begin": BEGIN, "end": END, "pairs": DOC_PAIRS, "cocopp": COCOPP_ARMS, "figures": lambda dims: DOC_FIGURES,
+             "make": "make bbob", "run": "benchmarks/bbob.py run", "where": "two processes on two cores"},
+    "bbob-noisy": {"begin": NOISY_BEGIN, "end": NOISY_END, "pairs": NOISY_DOC_PAIRS, "cocopp": NOISY_COCOPP_ARMS,
+                   "figures": lambda dims: [f"pprldmany_{max(dims):02d}D_{g}.svg" for g in ("nzmod", "nzsev", "nzsmm")]
+                   + [f"pprldmany_{d:02d}D_nzall.svg" for d in sorted(dims)],
+                   "make": "make bbob-noisy", "run": "benchmarks/bbob.py run --suite bbob-noisy", "where": "one process, the machine shared"},
+}  # fmt: skip
 
 
-def docs(out: Path, arms, page: Path, figures: Path) -> None:
-    """The section of docs/adapters.md between BEGIN and END, and cocopp's figures into ``figures``."""
+def docs(out: Path, arms, page: Path, figures: Path, suite: str = "bbob") -> None:
+    """The section of docs/adapters.md between the suite's markers (BEGIN and END for bbob, NOISY_BEGIN and NOISY_END
+    for bbob-noisy), and cocopp's figures into ``figures``."""
+    spec = DOCS[suite]
+    groups = SUITES[suite]["groups"]
     records = load(out)
     meta = json.loads((out / "meta.json").read_text()) if (out / "meta.json").exists() else {}
     have = {r["arm"] for r in records}
-    lines = [BEGIN, ""]
+    dims = sorted({r["dim"] for r in records})
+    lines = [spec["begin"], ""]
     commits = meta.get("commits", {})
+    scope = "" if suite == "bbob" else f", d = {', '.join(map(str, dims))}, {len({r['problem'] for r in records})} problems"  # no "; ": the mark's separator
 
     def mark(*pair):
         commit = next((commits[a] for a in pair[::-1] if a in commits), "0000000")
-        return (f"<!-- provenance: commit={commit}; date={meta.get('date', '?')}; what=make bbob (benchmarks/bbob.py run --arms "
-                f"{','.join(pair)}); machine={meta.get('machine', '?')} -->")  # fmt: skip
+        return (f"<!-- provenance: commit={commit}; date={meta.get('date', '?')}; what={spec['make']} ({spec['run']} --arms "
+                f"{','.join(pair)}{scope}); machine={meta.get('machine', '?')} -->")  # fmt: skip
 
-    lines.append(f"{len({r['problem'] for r in records})} problems, {len(records)} runs, `make bbob`.")
-    for (a, b), what in DOC_PAIRS:
+    lines.append(f"{len({r['problem'] for r in records})} problems, {len(records)} runs, `{spec['make']}`.")
+    for (a, b), what in spec["pairs"]:
         if a in have and b in have:
-            lines += ["", f"**{b} against {a}**{mark(a, b)}: {what}.", "", table(records, (a, b))]
+            lines += ["", f"**{b} against {a}**{mark(a, b)}: {what}.", "", table(records, (a, b), groups)]
     lines += ["", "Restarts per evaluation: " + restarts_per_evaluations(records, [a for a in arms if a in have]) + "."]
     for dim in (2, 5, 10):
         line = overhead(records, ("pycma", "mixing"), dim)
         if line:
-            lines.append(f"Overhead, {line} (measured inside the runs, two processes on two cores).")
+            lines.append(f"Overhead, {line} (measured inside the runs, {spec['where']}).")
     lines += ["", "Stops by criterion (every run of every problem):", "", stop_counts(records, [a for a in arms if a in have]), ""]
     lines += [f"Exceptions: {exceptions(records)}.", ""]
     try:
-        pp = cocopp_figures(out, [a for a in COCOPP_ARMS if a in have])
+        pp = cocopp_figures(out, [a for a in spec["cocopp"] if a in have])
     except Exception as err:  # noqa: BLE001 (the tables stand without the figures)
         lines += [f"cocopp failed: {type(err).__name__}: {err}", ""]
     else:
         folder = next(p for p in pp.iterdir() if p.is_dir())
         figures.mkdir(parents=True, exist_ok=True)
         shown = []
-        for name in DOC_FIGURES:
+        for name in spec["figures"](dims):
             if (folder / name).exists():
                 shutil.copy(folder / name, figures / name)
                 shown.append(name)
         rel = os.path.relpath(figures, page.parent)
         lines += ["cocopp's runtime ECDFs (the fraction of (problem, target) pairs solved against evaluations / d; "
-                  f"arms {', '.join(a for a in COCOPP_ARMS if a in have)}):", ""]  # fmt: skip
+                  f"arms {', '.join(a for a in spec['cocopp'] if a in have)}):", ""]  # fmt: skip
         lines += [f"![{name}]({rel}/{name})" for name in shown] + [""]
-    lines.append(END)
+    lines.append(spec["end"])
     text = page.read_text()
-    head, _, rest = text.partition(BEGIN)
-    _, _, tail = rest.partition(END)
+    if spec["begin"] not in text or spec["end"] not in text:
+        raise SystemExit(f"{page}: no section between {spec['begin']} and {spec['end']}")
+    head, _, rest = text.partition(spec["begin"])
+    _, _, tail = rest.partition(spec["end"])
     page.write_text(head + "\n".join(lines) + tail)
 
 
@@ -472,6 +623,10 @@ def _meta(out: Path, arms) -> None:
         if Path("/proc/cpuinfo").exists()
         else platform.machine()
     )
+    if Path("/proc/cpuinfo").exists() and " hypervisor" in Path("/proc/cpuinfo").read_text():
+        cpu += " VM"
+    if hasattr(os, "getloadavg") and os.getloadavg()[0] >= 1:  # other processes were running when this one started
+        cpu += ", shared"
     path = out / "meta.json"
     meta = json.loads(path.read_text()) if path.exists() else {"date": time.strftime("%Y-%m-%d"), "machine": f"{os.cpu_count()}-core {cpu}"}
     commits = meta.setdefault("commits", {})
@@ -485,8 +640,9 @@ def main(argv=None) -> int:
     parser.add_argument("section", choices=["run", "table", "cocopp", "docs", "neutral", "overhead"])
     parser.add_argument("--page", type=Path, default=Path("docs/adapters.md"), help="docs: the page whose bbob section is rewritten")
     parser.add_argument("--figures", type=Path, default=Path("docs/bbob"), help="docs: where cocopp's figures go")
-    parser.add_argument("--out", type=Path, default=Path("results/bbob"))
-    parser.add_argument("--functions", default="1-24")
+    parser.add_argument("--suite", choices=list(SUITES), default="bbob", help="COCO's suite (bbob-noisy: functions 101-130)")
+    parser.add_argument("--out", type=Path, default=None, help="default results/<suite>")
+    parser.add_argument("--functions", default=None, help="default: the suite's (bbob 1-24, bbob-noisy 101-130)")
     parser.add_argument("--dims", default="2,5,10")
     parser.add_argument("--instances", default="1-3")
     parser.add_argument("--arms", default="pycma,mixing", help="of " + ", ".join(ARMS) + "; table: the first two are compared")
@@ -506,14 +662,19 @@ def main(argv=None) -> int:
     unknown = [a for a in arms if a not in ARMS]
     if unknown:
         parser.error(f"unknown arm {unknown[0]!r}; valid: {', '.join(ARMS)}")
-    out = args.out.resolve()
+    spec = SUITES[args.suite]
+    out = (args.out or Path(spec["out"])).resolve()
+    functions = ints(args.functions or spec["functions"])
     if args.section == "run":
+        valid = set(ints(spec["functions"]))
+        if not set(functions) <= valid:
+            parser.error(f"--functions {args.functions}: {args.suite}'s functions are {spec['functions']}")
         out.mkdir(parents=True, exist_ok=True)
         _meta(out, arms)
-        run(out, ints(args.functions), ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim)
+        run(out, functions, ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim, args.suite)
     elif args.section == "table":
         records = load(out)
-        print(table(records, arms[:2]))
+        print(table(records, arms[:2], spec["groups"]))
         print()
         for dim in (2, 5, 10):
             line = overhead(records, arms[:2], dim)
@@ -528,7 +689,7 @@ def main(argv=None) -> int:
     elif args.section == "neutral":
         print(neutral())
     elif args.section == "docs":
-        docs(out, arms, args.page.resolve(), args.figures.resolve())
+        docs(out, arms, args.page.resolve(), args.figures.resolve(), args.suite)
     else:
         print(cocopp_figures(out, arms))
     return 0

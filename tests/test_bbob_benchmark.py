@@ -52,3 +52,53 @@ def test_the_bbob_protocol_runs_every_arm_and_writes_cocos_data_the_table_and_th
     assert text.startswith("before\n") and text.endswith("after\n") and "old" not in text
     assert "**mixing against pycma**" in text and "**mixing-ipop against pycma-ipop**" in text
     assert list((tmp_path / "figures").glob("pprldmany_02D_noiselessall.svg")), text
+
+
+def test_the_bbob_noisy_suite_runs_the_three_arms_hits_on_the_noise_free_value_and_tables_cocos_groups(tmp_path):
+    """`make bbob-noisy`'s commands on bbob-noisy f101 (sphere, moderate Gaussian noise) and f122 (Schaffer F7, severe
+    noise, multimodal), d = 2, instance 1, 300 d evaluations: COCO's noisy suite and observer, a hit read off the
+    observer's noise-free best f - f_opt (the noisy value never comes within 1e-8: it carries + 1.01e-8), cocopp's
+    groups in the table, the page's own section."""
+    out = tmp_path / "noisy"
+    arms = "pycma,mixing,mixing-reeval2"
+    done = _bbob("run", "--suite", "bbob-noisy", "--out", str(out), "--functions", "101,122", "--dims", "2", "--instances", "1",
+                 "--arms", arms, "--workers", "1", "--budget-per-dim", "300", cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    records = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    assert sorted((r["function"], r["arm"]) for r in records) == sorted((f, a) for f in (101, 122) for a in arms.split(","))
+    for r in records:
+        assert r["exception"] is None, r
+        assert r["problem"].startswith("bbob_noisy_f"), r  # the noisy suite's problems, not bbob's
+        assert r["evaluations"] <= 300 * 2 + 50, r
+        assert r["hit"] == (r["best_delta"] <= 1e-8), r  # the hit is the observer's noise-free value
+    sphere = {r["arm"]: r for r in records if r["function"] == 101}
+    assert sphere["pycma"]["hit"] and sphere["mixing"]["hit"], sphere  # problem.final_target_hit never fires here: the observer's value does
+    for arm, r in ((a, r) for a, r in sphere.items() if r["hit"]):  # the runtime is the evaluation the observer logged first at <= 1e-8
+        (dat,) = (out / "exdata" / arm).rglob("bbobexp_f101_DIM2.dat")
+        rows = [line.split() for line in dat.read_text().splitlines() if not line.startswith("%")]
+        assert r["runtime"] == next(int(row[0]) for row in rows if float(row[2]) <= 1e-8), (arm, r)
+    (info,) = (out / "exdata" / "mixing-reeval2").rglob("bbobexp_f101.info")
+    assert "suite = 'bbob-noisy'" in info.read_text() and "logger = 'bbob-noisy'" in info.read_text()
+    table = _bbob("table", "--suite", "bbob-noisy", "--out", str(out), "--arms", "pycma,mixing", cwd=tmp_path)
+    assert table.returncode == 0, table.stderr[-2000:]
+    rows = {line.split("|")[1].strip(): line for line in table.stdout.splitlines() if line.startswith("| ")}
+    assert "| moderate noise f101-106 | 1/1 | 1/1 |" in table.stdout, table.stdout
+    assert "severe noise multimodal f122-130" in rows and "severe noise f107-121" not in rows, table.stdout  # cocopp's groups
+    assert "hits at 1e-2 pycma / mixing" in table.stdout, table.stdout
+    page = tmp_path / "page.md"
+    page.write_text("before\n<!-- bbob:begin (benchmarks/bbob.py docs writes this part) -->\nbbob's\n<!-- bbob:end -->\n"
+                    "<!-- bbob-noisy:begin (benchmarks/bbob.py docs --suite bbob-noisy writes this part) -->\nold\n"
+                    "<!-- bbob-noisy:end -->\nafter\n")  # fmt: skip
+    made = _bbob("docs", "--suite", "bbob-noisy", "--out", str(out), "--arms", arms, "--page", str(page), "--figures", str(tmp_path / "figures"),
+                 cwd=tmp_path)  # fmt: skip
+    assert made.returncode == 0, made.stderr[-2000:]
+    text = page.read_text()
+    assert text.startswith("before\n") and text.endswith("after\n") and "old" not in text and "bbob's" in text  # its own section only
+    assert "**mixing against pycma**" in text and "**mixing-reeval2 against pycma**" in text and "make bbob-noisy" in text, text
+    assert "<!-- provenance: commit=" in text and "what=make bbob-noisy (benchmarks/bbob.py run --suite bbob-noisy" in text, text
+    assert list((tmp_path / "figures").glob("pprldmany_02D_nzall.svg")), text
+    from imix_cli.commands.docs_numbers import _FIELDS, _MARK  # the marks parse as docs/results.md reads them
+
+    for mark in _MARK.finditer(text):
+        fields = dict(part.strip().split("=", 1) for part in mark.group(1).split("; ") if "=" in part)
+        assert set(fields) <= set(_FIELDS) and {"commit", "what"} <= set(fields), mark.group(0)
