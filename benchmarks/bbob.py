@@ -65,6 +65,7 @@ ARMS = {
     "mixing-cond": ({"variant": "conditional"}, {}),
     "mixing-cond-pop2": ({"variant": "conditional"}, {}),
     "mixing-pop2": ({}, {}),  # pycma's default popsize doubled (POPSIZE_FACTOR)
+    "mixing-pop3": ({}, {}),  # tripled: about as many fresh members per generation as pycma at its default
     "pycma-pop2": None,
     "mixing-reeval2": ({"reeval_count": 2}, {}),  # 2 reused members re-evaluated per generation (the noisy suite's remedy)
 }
@@ -73,7 +74,7 @@ IPOP_ARMS = {"pycma-ipop": None, "mixing-ipop": {}, "pycma-bipop": None, "mixing
              "mixing-ipop-fresh-half": {"min_fresh": "half"}}  # fmt: skip
 ARMS.update(IPOP_ARMS)
 #: arms whose pycma popsize is POPSIZE_FACTOR x pycma's default (4 + 3 ln d)
-POPSIZE_FACTOR = {"mixing-pop2": 2, "pycma-pop2": 2, "mixing-cond-pop2": 2}
+POPSIZE_FACTOR = {"mixing-pop2": 2, "pycma-pop2": 2, "mixing-cond-pop2": 2, "mixing-pop3": 3}
 GROUPS = (
     ("separable f1-5", range(1, 6)),
     ("low/moderate conditioning f6-9", range(6, 10)),
