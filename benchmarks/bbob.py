@@ -342,6 +342,25 @@ def load(out: Path) -> list[dict]:
     return [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines() if line.strip()]
 
 
+def paired_hits(records: list[dict], arms=("pycma", "mixing"), groups=GROUPS) -> str:
+    """Whether a group's difference in hits is more than chance: the problems hit by one arm only, and the exact
+    two-sided sign test on them (McNemar's exact test; the problems both or neither hit say nothing of the
+    difference). With 36-45 problems a group, a difference of one or two hits is what two equal arms give."""
+    from scipy.stats import binomtest
+
+    hit = {(r["arm"], r["problem"]): r["hit"] for r in records}
+    a, b = arms
+    problems = sorted({r["problem"]: r["function"] for r in records if r["arm"] == a and (b, r["problem"]) in hit}.items())
+    rows = [f"| group | hit by {b} only | hit by {a} only | sign test p |", "|---|---:|---:|---:|"]
+    for label, functions in (*groups, ("all", range(0, 1000))):
+        mine = [p for p, f in problems if f in functions]
+        gained = sum(hit[(b, p)] and not hit[(a, p)] for p in mine)
+        lost = sum(hit[(a, p)] and not hit[(b, p)] for p in mine)
+        p_value = binomtest(gained, gained + lost, 0.5).pvalue if gained + lost else 1.0
+        rows.append(f"| {label} | {gained} | {lost} | {p_value:.2f} |")
+    return "\n".join(rows)
+
+
 def table(records: list[dict], arms=("pycma", "mixing"), groups=GROUPS) -> str:
     """The markdown table: hits, the median runtime ratio where both hit, restarts, stops, exceptions. With
     ``NOISY_GROUPS`` (bbob-noisy) two columns more, read off the noise-free best f - f_opt each run reached
@@ -676,6 +695,8 @@ def main(argv=None) -> int:
     elif args.section == "table":
         records = load(out)
         print(table(records, arms[:2], spec["groups"]))
+        print()
+        print(paired_hits(records, arms[:2], spec["groups"]))
         print()
         for dim in (2, 5, 10):
             line = overhead(records, arms[:2], dim)

@@ -102,3 +102,21 @@ def test_the_bbob_noisy_suite_runs_the_three_arms_hits_on_the_noise_free_value_a
     for mark in _MARK.finditer(text):
         fields = dict(part.strip().split("=", 1) for part in mark.group(1).split("; ") if "=" in part)
         assert set(fields) <= set(_FIELDS) and {"commit", "what"} <= set(fields), mark.group(0)
+
+
+def test_the_paired_sign_test_counts_problems_hit_by_one_arm_only():
+    """`table`'s sign test: only the problems one arm hit and the other missed count. Made to fail: counting every
+    problem an arm hit (discordant or not) gives 10 against 17 on the multimodal row and p 0.25, not 0 against 7 and 0.02."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bbob_benchmark", SCRIPT)
+    bbob = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bbob)
+    records = []
+    for i in range(45):  # f15-19: 10 hit by both, 7 by pycma only, 28 by neither
+        problem, function = f"p{i}", 15 + i % 5
+        records.append({"arm": "pycma", "problem": problem, "function": function, "hit": i < 17})
+        records.append({"arm": "mixing", "problem": problem, "function": function, "hit": i < 10})
+    text = bbob.paired_hits(records, ("pycma", "mixing"))
+    assert "| multimodal f15-19 | 0 | 7 | 0.02 |" in text, text
+    assert "| separable f1-5 | 0 | 0 | 1.00 |" in text and "| all | 0 | 7 | 0.02 |" in text, text
