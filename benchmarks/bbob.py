@@ -354,6 +354,8 @@ def paired_hits(records: list[dict], arms=("pycma", "mixing"), groups=GROUPS) ->
     rows = [f"| group | hit by {b} only | hit by {a} only | sign test p |", "|---|---:|---:|---:|"]
     for label, functions in (*groups, ("all", range(0, 1000))):
         mine = [p for p, f in problems if f in functions]
+        if not mine:
+            continue  # a group the runs did not cover: no row, as in the table
         gained = sum(hit[(b, p)] and not hit[(a, p)] for p in mine)
         lost = sum(hit[(a, p)] and not hit[(b, p)] for p in mine)
         p_value = binomtest(gained, gained + lost, 0.5).pvalue if gained + lost else 1.0
