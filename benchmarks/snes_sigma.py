@@ -67,7 +67,7 @@ class RecordingSNES(SNES):
     """SNES that records, at each tell, its sigma gradient and what the reused members look like."""
 
     def _update(self, samples, utilities):
-        s = (samples - self._mu) / self._dist.std
+        s = (samples - self.state.mean) / self.state.std
         q = s * s - 1.0
         reused = self.told_source > 0
         self.record["told"].append(float(np.mean(utilities @ q)) / 2.0)

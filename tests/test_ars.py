@@ -136,8 +136,7 @@ def pair_chain_statistics(variant, motion, seed, dim=2, n=10, nu=1.0):
         mean = np.zeros(dim)
         for t in range(CHAIN_GENERATIONS):
             if motion != "ars":  # an exogenous mean: the ES's mean is set, its steps are not used
-                es._mu = mean.copy()
-                es._dist = DiagonalGaussian(mean, nu)
+                es.set_state(type(es.state)(mean.copy(), np.full(dim, nu)))
             plan = plan_generation(es, archive, settings, rng)
             g = plan.generation
             m = es.distribution.mean

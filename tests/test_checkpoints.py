@@ -121,7 +121,7 @@ def test_flips_inside_the_stored_arrays_and_header_are_caught_by_the_checksum(tm
     path = checkpoint_path(spec.run_dir, 0)
     with np.load(path, allow_pickle=False) as npz:
         members = {k: npz[k] for k in npz.files}
-    members["es/mu"] = members["es/mu"] + 1e-3  # the reproduction: the ES mean moved
+    members["es/mean"] = members["es/mean"] + 1e-3  # the reproduction: the ES mean moved
     buffer = io.BytesIO()
     np.savez(buffer, **members)
     path.write_bytes(buffer.getvalue())
@@ -231,7 +231,7 @@ def test_a_damaged_checkpoint_gives_the_uninterrupted_csv_not_a_wrong_one(tmp_pa
     path = checkpoint_path(spec.run_dir, 0)
     with np.load(path, allow_pickle=False) as npz:
         members = {k: npz[k] for k in npz.files}
-    members["es/mu"] = members["es/mu"] + 1e-3
+    members["es/mean"] = members["es/mean"] + 1e-3
     buffer = io.BytesIO()
     np.savez(buffer, **members)
     path.write_bytes(buffer.getvalue())
@@ -256,7 +256,7 @@ def test_checkpoint_is_a_plain_zip_of_npy_files(tmp_path):
     save_checkpoint(spec.run_dir, states[0], spec.identity())
     with zipfile.ZipFile(checkpoint_path(spec.run_dir, 0)) as z:
         names = z.namelist()
-    assert "header.npy" in names and "es/mu.npy" in names and "archive/generations/0/samples.npy" in names
+    assert "header.npy" in names and "es/mean.npy" in names and "archive/generations/0/samples.npy" in names
     assert not list(spec.run_dir.rglob("*.tmp"))
 
 

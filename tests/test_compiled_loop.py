@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -18,7 +19,6 @@ import pytest
 from numba import njit
 
 from imix_cli.core.algorithms.base import CompiledStep, EvolutionStrategy
-from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.divergence import GuardedES
 from imix_cli.core.evaluation.parallel import build_evaluator
 from imix_cli.core.numerics.linalg_kernels import numpy_sum
@@ -87,17 +87,29 @@ def test_compiled_chunks_give_the_python_loops_state_bit_for_bit(overrides):
     assert any(np.isfinite(row["mean_policy_score"]) for row in python.rows)
 
 
+class _ToyState(NamedTuple):
+    """The toy ES's state record (docs/development.md, "An ES"): mean and std first, then its own."""
+
+    mean: np.ndarray
+    std: np.ndarray
+    steps: np.ndarray  # int64 (1,)
+
+
+class _ToyConstants(NamedTuple):
+    lr: float
+
+
 @njit
-def _toy_update(samples, utilities, state, counts, constants):
+def _toy_update(samples, utilities, state, constants):
     """mu += lr * mean_i u_i (x_i - mu); sigma *= 0.99 every generation (a made-up ES: not OpenES's or SNES's update)."""
     n, d = samples.shape
     for j in range(d):
         g = 0.0
         for i in range(n):
-            g += utilities[i] * (samples[i, j] - state[0, j])
-        state[0, j] += constants[0] * g / n
-        state[1, j] *= 0.99
-    counts[0] += 1
+            g += utilities[i] * (samples[i, j] - state.mean[j])
+        state.mean[j] += constants.lr * g / n
+        state.std[j] *= 0.99
+    state.steps[0] += 1
 
 
 class _ToyES(EvolutionStrategy):
@@ -106,7 +118,7 @@ class _ToyES(EvolutionStrategy):
     name = "toy"
 
     def _setup(self):
-        self._dist, self.steps = DiagonalGaussian(self.initial_mean, self.sigma), 0
+        self.set_state(_ToyState(self.initial_mean.copy(), np.full(self.dim, self.sigma), np.zeros(1, dtype=np.int64)))
 
     @property
     def distribution(self):
@@ -116,14 +128,11 @@ class _ToyES(EvolutionStrategy):
         self._update_compiled(samples, utilities)
 
     def compiled_step(self):
-        state = np.stack([self._dist.mean, self._dist.std])
-        return CompiledStep(_toy_update, state, np.array([self.steps], dtype=np.int64), np.array([self.lr]))
+        return CompiledStep(_toy_update, _ToyConstants(self.lr))
 
-    def load_compiled_state(self, state, counts):
-        self._dist, self.steps = DiagonalGaussian(state[0], state[1]), int(counts[0])
-
-    def _state_dict(self):
-        return {"mu": self._dist.mean.copy(), "std": self._dist.std.copy(), "steps": self.steps}
+    @property
+    def steps(self):
+        return int(self.state.steps[0])
 
 
 def test_any_es_with_a_compiled_step_runs_in_the_compiled_loop():
@@ -136,6 +145,87 @@ def test_any_es_with_a_compiled_step_runs_in_the_compiled_loop():
     _agree_chunk_by_chunk(python, compiled, settings, evaluator, (3, 17))
     assert compiled.es.steps == 20 and sum(row["reused"] for row in compiled.rows) > 20
     assert compiled.rows[-1]["sigma_mean"] == pytest.approx(0.25 * 0.99**19)
+
+
+_USER_ES_MODULE = """
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from imix_cli.core.algorithms.base import CompiledStep, EvolutionStrategy
+
+
+class UserState(NamedTuple):
+    mean: np.ndarray
+    std: np.ndarray
+
+
+class UserConstants(NamedTuple):
+    lr: float
+
+
+@njit
+def user_update(samples, utilities, state, constants):
+    for j in range(samples.shape[1]):
+        state.mean[j] += constants.lr * (samples[0, j] - state.mean[j]) * utilities[0]
+
+
+class UserES(EvolutionStrategy):
+    name = "user"
+
+    def _setup(self):
+        self.set_state(UserState(self.initial_mean.copy(), np.full(self.dim, self.sigma)))
+
+    @property
+    def distribution(self):
+        return self._dist
+
+    def _update(self, samples, utilities):
+        self._update_compiled(samples, utilities)
+
+    def compiled_step(self):
+        return CompiledStep(user_update, UserConstants(self.lr))
+"""
+
+_USER_SCRIPT = """
+import sys
+
+sys.path.insert(0, sys.argv[1])  # the user's own folder: no other process can import user_es_module
+from user_es_module import UserES
+
+from imix_cli.core.evaluation.parallel import build_evaluator
+from imix_cli.running.config.compose import validate_overrides
+from imix_cli.running.loop import compiled_loop
+from imix_cli.running.loop.lockstep import loop_settings, new_seed_state
+
+(spec,) = validate_overrides(["algo=snes", "env=cartpole", "eim=true", "popsize=6"])
+evaluator = build_evaluator(spec)
+settings = loop_settings(spec, evaluator)
+st = new_seed_state(settings, 0)
+st.es = UserES(settings.dim, popsize=6)
+assert compiled_loop.advance(st, settings, evaluator, 2)
+print("the user's ES ran compiled")
+"""
+
+
+def test_an_es_of_a_users_module_leaves_the_cache_readable_for_every_other_run(tmp_path):
+    """numba's cache index of a compiled entry holds its arguments' types, the ES's state record class among them, and
+    numba imports that class's module when it reads the index. Once every ES shared one index: after a user's script ran
+    an ES of a module of theirs compiled, every ``imix run`` elsewhere died importing that module. Each entry now has an
+    index of its own (:func:`imix_cli.running.loop.compiled_loop.entry`)."""
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    (lib / "user_es_module.py").write_text(_USER_ES_MODULE)
+    (lib / "user_script.py").write_text(_USER_SCRIPT)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH")]))}
+    first = subprocess.run([sys.executable, str(lib / "user_script.py"), str(lib)], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
+    assert first.returncode == 0 and "the user's ES ran compiled" in first.stdout, first.stderr[-2000:]
+    run = [sys.executable, "-c", "import sys; from imix_cli.commands.cli import main; sys.exit(main())", "run", "algo=snes", "env=cartpole",
+           "eim=true", "seeds=1", "generations=3", "progress=false", "workers=1", f"results_dir={tmp_path / 'results'}"]  # fmt: skip
+    second = subprocess.run(run, capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
+    assert second.returncode == 0, second.stderr[-2000:]
+    assert any((tmp_path / "results").rglob("seed_0.csv"))
 
 
 def test_an_es_with_mean_weights_of_its_own_in_python_only_is_left_to_the_python_loop():

@@ -360,7 +360,7 @@ FORGERIES = {
     "episodes that decrease": lambda h, a: _set_row(h, a, 1, evaluations=1),
     "a row dropped": lambda h, a: _drop_last_row(h, a),
     "an ES generation count": lambda h, a: h["state"]["state"]["es"]["es"]["dict"].update(generation=99),
-    "a NaN distribution mean": lambda h, a: _set_array(a, "es/dist.mean", np.full(130, np.nan)),
+    "a NaN distribution mean": lambda h, a: _set_array(a, "es/mean", np.full(130, np.nan)),
     "archive sources out of range": lambda h, a: _set_array(a, "archive/generations/0/source", np.full(6, 9)),
     "a negative elapsed time": lambda h, a: _state(h).update(elapsed=-5.0),
     "a float counter": lambda h, a: _state(h).update(env_steps=float(_state(h)["env_steps"])),

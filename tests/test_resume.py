@@ -134,10 +134,6 @@ def test_resume_from_checkpoint_equals_not_stopping(tmp_path, algo, capfd, monke
     """In-process: interrupt after 7 generations (checkpoint at 6), resume, compare. The Python loop, which reports
     every generation (the compiled loop reports a chunk at a time: its resume is tests/test_compiled_loop.py's)."""
     monkeypatch.setenv("IMIX_COMPILED_LOOP", "0")
-    from imix_cli.core.algorithms import CMAES
-
-    if algo == "cmaes" and "_state_dict" not in vars(CMAES) and "state_dict" not in vars(CMAES):
-        pytest.skip("CMAES has no state_dict in this branch (wired at merge)")
     common = [f"algo={algo}", "env=acrobot", "eim=true", "seeds=2", "generations=10", "popsize=10", "checkpoint_every=3", "checkpoint_seconds=0",
               "workers=1", "progress=false"]  # fmt: skip
     assert main(["run", *common, f"results_dir={tmp_path / 'ref'}"]) == 0

@@ -34,10 +34,11 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
-from imix_cli.core.algorithms.base import EvolutionStrategy, Params, _array_like
+from imix_cli.core.algorithms.base import EvolutionStrategy, Params
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.mixing.mirrored import MIRRORED_PAIRS, mirror
 
@@ -81,6 +82,15 @@ def _pair_keys(deltas: np.ndarray) -> np.ndarray:
     return np.array([zlib.crc32(np.ascontiguousarray(row, dtype=np.float64).tobytes()) for row in deltas], dtype=np.int64)
 
 
+class ARSState(NamedTuple):
+    """ARS's search state (the record ``tell`` moves and the checkpoint saves: :class:`~imix_cli.core.algorithms.base.CompiledStep`)."""
+
+    #: m, the policy the pairs are mirrored about, shape (d,)
+    mean: np.ndarray
+    #: nu in every coordinate, shape (d,) (fixed)
+    std: np.ndarray
+
+
 class ARS(EvolutionStrategy):
     """ARS: the mean m of N(m, nu^2 I) moves along mirrored directions weighted by return differences.
 
@@ -97,8 +107,7 @@ class ARS(EvolutionStrategy):
     def _setup(self) -> None:
         self.directions = self.popsize // 2
         self.top = self.directions if self.params.top is None else int(self.params.top)
-        self._mu = self.initial_mean.copy()
-        self._dist = DiagonalGaussian(self._mu, self.sigma)
+        self.set_state(ARSState(self.initial_mean.copy(), np.full(self.dim, self.sigma)))
         self.last_return_std = float("nan")
 
     @property
@@ -109,7 +118,7 @@ class ARS(EvolutionStrategy):
     def ask(self, rng: np.random.Generator) -> np.ndarray:
         """N fresh mirrored pairs, as ``[theta_1+ .. theta_N+, theta_1- .. theta_N-]``."""
         plus = self._dist.sample(self.directions, rng)
-        return np.concatenate([plus, mirror(plus, self._mu)])
+        return np.concatenate([plus, mirror(plus, self.state.mean)])
 
     def training_fitness(self, returns: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """return + alive_bonus_offset x episode length (:attr:`ARSParams.alive_bonus_offset`)."""
@@ -148,12 +157,4 @@ class ARS(EvolutionStrategy):
         if not return_std > 0.0:  # all 2b returns equal: no direction is better than another
             return
         step = (self.lr / (b * return_std)) * ((r_plus[used] - r_minus[used]) @ deltas[used])
-        self._mu = self._mu + step
-        self._dist = DiagonalGaussian(self._mu, self.sigma)
-
-    def _state_dict(self) -> dict:
-        return {"mu": self._mu.copy()}
-
-    def _load_state_dict(self, state: dict) -> None:
-        self._mu = _array_like(state["mu"], self._mu, "mu")
-        self._dist = DiagonalGaussian(self._mu, self.sigma)
+        self.set_state(ARSState(self.state.mean + step, self.state.std))

@@ -43,6 +43,7 @@ import numpy as np
 from numba import njit
 
 from imix_cli.core.bounds import Bound
+from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.numerics import elementary as el
 from imix_cli.core.numerics import linalg_kernels as lk
 
@@ -227,12 +228,34 @@ def rank_weights_kernel(utilities, weights_by_rank):
     return weights
 
 
+#: Adam's epsilon (Kingma & Ba 2015's default), added to sqrt(v) in every step.
+ADAM_EPSILON = 1e-8
+
+
+class AdamState(NamedTuple):
+    """Adam's state for one parameter vector (Kingma & Ba 2015), a field of an ES's state record
+    (:class:`CompiledStep`): :func:`adam_step` moves it in place."""
+
+    #: first moment, shape (d,)
+    m: np.ndarray
+    #: second moment, shape (d,)
+    v: np.ndarray
+    #: steps taken, int64 of shape (1,) (an array, so that a compiled update can count in place)
+    t: np.ndarray
+
+    @classmethod
+    def zeros(cls, dim: int) -> AdamState:
+        """The state before the first step."""
+        return cls(np.zeros(dim), np.zeros(dim), np.zeros(1, dtype=np.int64))
+
+
 @njit(cache=True)
-def adam_step(m, v, counts, slot, lr, beta1, beta2, epsilon, grad):
-    """One Adam step (Kingma & Ba 2015): the moments ``m``, ``v`` and the step count ``counts[slot]`` in place;
-    returns the increment to *add* to the parameters. :class:`Adam` and every compiled ES update call it."""
-    counts[slot] += 1
-    t = float(counts[slot])
+def adam_step(adam, lr, beta1, beta2, epsilon, grad):
+    """One Adam step (Kingma & Ba 2015): ``adam`` (an :class:`AdamState`) in place; returns the increment to
+    *add* to the parameters (gradient ascent). Every compiled ES update with Adam calls it."""
+    m, v = adam.m, adam.v
+    adam.t[0] += 1
+    t = float(adam.t[0])
     step_size = lr * math.sqrt(1.0 - el.pow(beta2, t)) / (1.0 - el.pow(beta1, t))
     out = np.empty(grad.shape[0])
     for j in range(grad.shape[0]):
@@ -240,35 +263,6 @@ def adam_step(m, v, counts, slot, lr, beta1, beta2, epsilon, grad):
         v[j] = beta2 * v[j] + (1.0 - beta2) * grad[j] * grad[j]
         out[j] = step_size * m[j] / (math.sqrt(v[j]) + epsilon)
     return out
-
-
-class Adam:
-    """Adam ascent on a parameter vector (Kingma & Ba 2015), as used by OpenES and SNES.
-
-    ``step(grad)`` returns the increment to *add* to the parameters (gradient ascent).
-    """
-
-    def __init__(self, dim: int, lr: float, beta1: float = 0.99, beta2: float = 0.999, epsilon: float = 1e-8):
-        self.lr, self.beta1, self.beta2, self.epsilon = lr, beta1, beta2, epsilon
-        self.m = np.zeros(dim)
-        self.v = np.zeros(dim)
-        self.t = 0
-
-    def step(self, grad: np.ndarray) -> np.ndarray:
-        counts = np.array([self.t], dtype=np.int64)
-        m, v, grad = self.m.copy(), self.v.copy(), np.ascontiguousarray(grad, dtype=np.float64)
-        out = adam_step(m, v, counts, 0, float(self.lr), float(self.beta1), float(self.beta2), float(self.epsilon), grad)
-        self.m, self.v, self.t = m, v, int(counts[0])
-        return out
-
-    def state_dict(self) -> dict:
-        """The moments and step count (the hyper-parameters come from the constructor)."""
-        return {"m": self.m.copy(), "v": self.v.copy(), "t": int(self.t)}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.m = _array_like(state["m"], self.m, "m")
-        self.v = _array_like(state["v"], self.v, "v")
-        self.t = int(state["t"])
 
 
 def _array_like(value, reference: np.ndarray, name: str) -> np.ndarray:
@@ -292,6 +286,46 @@ def unprefixed(prefix: str, state: dict) -> dict:
     """The entries of ``state`` under ``prefix.``, without it (the inverse of :func:`prefixed`)."""
     head = f"{prefix}."
     return {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}
+
+
+def _is_record(value) -> bool:
+    return isinstance(value, tuple) and hasattr(value, "_fields")
+
+
+def flatten_record(record, prefix: str = "") -> dict:
+    """An ES's state record (a NamedTuple of arrays, nested records allowed) as a flat state dict: a copy of
+    each array under its dotted path (``mean``, ``mu_adam.m``, ...). The checkpoint of an ES is this dict."""
+    out = {}
+    for name, value in zip(record._fields, record):
+        if _is_record(value):
+            out.update(flatten_record(value, f"{prefix}{name}."))
+        else:
+            out[f"{prefix}{name}"] = np.array(value, copy=True)
+    return out
+
+
+def record_from_flat(template, state: dict, prefix: str = ""):
+    """The record of ``template``'s type read back from :func:`flatten_record`'s dict: every array present,
+    of ``template``'s shape and dtype (a checkpoint is read from a file: a wrong one is refused here, by a
+    KeyError or a ValueError naming it, rather than as a broadcasting error generations later)."""
+    fields = []
+    for name, ref in zip(template._fields, template):
+        if _is_record(ref):
+            fields.append(record_from_flat(ref, state, f"{prefix}{name}."))
+            continue
+        key = f"{prefix}{name}"
+        if key not in state:
+            raise KeyError(f"state has no {key!r}")
+        value = np.asarray(state[key])
+        if value.shape != ref.shape or value.dtype != ref.dtype:
+            raise ValueError(f"state {key!r} is {value.dtype}{list(value.shape)}, expected {ref.dtype}{list(ref.shape)}")
+        fields.append(np.array(value, copy=True))
+    return type(template)(*fields)
+
+
+def copy_record(record):
+    """A deep copy of a state record (its arrays copied): the compiled loop moves the copy and hands it back."""
+    return type(record)(*(copy_record(v) if _is_record(v) else v.copy() for v in record))
 
 
 # ------------------------------------------------------------------------ pluggable pieces
@@ -378,31 +412,29 @@ class Params:
 
 
 class CompiledStep(NamedTuple):
-    """An ES's update as a numba function over flat arrays (:meth:`EvolutionStrategy.compiled_step`).
+    """An ES's update as a numba function over its state record (:meth:`EvolutionStrategy.compiled_step`).
 
     Why: the compiled generation loop (:mod:`imix_cli.running.loop.compiled_loop`) runs many generations of
     a seed in one compiled call, so it needs the ES's update as compiled code; the ES's own
     :meth:`~EvolutionStrategy._update` calls the same function, so the update is written once and
     both loops give the same bits.
 
-    ``update(samples, utilities, state, counts, constants)`` moves the search distribution, in place of
-    ``state`` and ``counts``:
+    The ES's search state is one record, :attr:`EvolutionStrategy.state`: a NamedTuple of numpy arrays
+    (records nested in it allowed, e.g. :class:`AdamState`), which numba types field by field. Its first two
+    fields are ``mean`` and ``std``, the diagonal Gaussian searched (the loop mixes and archives with them);
+    the rest are the ES's own (Adam's moments, SNES's log sigma, ...). ``tell``, the compiled loop and the
+    checkpoint (:func:`flatten_record`) all read and write that record, by name.
 
-    ``state``: float64, shape (rows, d). Row 0 is the mean, row 1 the standard deviations of the
-        diagonal Gaussian searched (the loop mixes and archives with them); further rows are the
-        ES's own (Adam's moments, SNES's log sigma, ...).
-    ``counts``: int64, the ES's integer state (Adam's step counts).
-    ``constants``: float64, the hyper-parameters the update reads (never written).
+    ``update(samples, utilities, state, constants)`` moves the distribution in place of ``state``'s arrays;
+    ``constants`` is a NamedTuple of floats, the hyper-parameters it reads (never written).
 
     ``mean_weights(utilities, constants)``: the weight of each member in the mean's move
-    (:meth:`EvolutionStrategy._mean_weights`, which then runs it too), for an ES whose weights are not
-    its utilities (CEM's elite weights); None, the default: the utilities themselves.
+    (:meth:`EvolutionStrategy._mean_weights`, which then runs it too), for an ES whose weights are not its
+    utilities (CEM's elite weights); None, the default: the utilities themselves.
     """
 
     update: Callable
-    state: np.ndarray
-    counts: np.ndarray
-    constants: np.ndarray
+    constants: tuple
     mean_weights: Callable | None = None
 
 
@@ -570,10 +602,15 @@ class EvolutionStrategy(ABC):
         self.nonfinite_fitness_count = int(state["nonfinite_fitness_count"])
 
     def _state_dict(self) -> dict:
-        raise NotImplementedError(f"{type(self).__name__} cannot be checkpointed")
+        """The search state: :attr:`state` flattened (:func:`flatten_record`); an ES without a record gives its own."""
+        if self.state is None:
+            raise NotImplementedError(f"{type(self).__name__} cannot be checkpointed")
+        return flatten_record(self.state)
 
     def _load_state_dict(self, state: dict) -> None:
-        raise NotImplementedError(f"{type(self).__name__} cannot be checkpointed")
+        if self.state is None:
+            raise NotImplementedError(f"{type(self).__name__} cannot be checkpointed")
+        self.set_state(record_from_flat(self.state, state))
 
     # ------------------------------------------------------------ for subclasses
     @abstractmethod
@@ -581,23 +618,34 @@ class EvolutionStrategy(ABC):
         """Move the search distribution; ``utilities`` are higher-is-better, one per row of ``samples``.
         An ES with a :meth:`compiled_step` implements it as ``self._update_compiled(samples, utilities)``."""
 
-    # ------------------------------------------------------------ the compiled step
+    # ------------------------------------------------------------ the state record and the compiled step
+    #: The ES's search state, one record (a NamedTuple of arrays; :class:`CompiledStep` says why), set by
+    #: :meth:`_setup`: what ``tell`` moves, the compiled loop runs on and the checkpoint saves. None for an ES
+    #: that keeps its state otherwise (its own :meth:`_state_dict`; it runs in the Python loop only).
+    state = None
+
+    def set_state(self, state) -> None:
+        """Adopt ``state``, a record of :attr:`state`'s type (the compiled loop hands back the copy it moved),
+        and rebuild what derives from it (:meth:`_state_changed`)."""
+        self.state = state
+        self._state_changed()
+
+    def _state_changed(self) -> None:
+        """Rebuild what derives from :attr:`state` after it moved; by default the diagonal Gaussian of its
+        ``mean`` and ``std`` (copies: the distributions archived by mixing must not move with the state)."""
+        self._dist = DiagonalGaussian(self.state.mean, self.state.std)
+
     def compiled_step(self) -> CompiledStep | None:
-        """This ES's update as compiled code over its state, packed as :class:`CompiledStep` describes
-        (fresh arrays: changing them changes nothing until :meth:`load_compiled_state`); None: it has
-        none, and its seeds run in the Python loop. An ES that gives one also gives
-        :meth:`load_compiled_state` and runs its own :meth:`_update` through it (:meth:`_update_compiled`)."""
+        """This ES's update as compiled code over :attr:`state` (:class:`CompiledStep`); None: it has none, and
+        its seeds run in the Python loop. An ES that gives one runs its own :meth:`_update` through it
+        (:meth:`_update_compiled`)."""
         return None
 
-    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
-        """Take back the ``state`` and ``counts`` arrays of :meth:`compiled_step` after its update ran on them."""
-        raise NotImplementedError(f"{type(self).__name__} has no compiled step")
-
     def _update_compiled(self, samples: np.ndarray, utilities: np.ndarray) -> None:
-        """:meth:`_update` through :meth:`compiled_step`: the one copy of the update."""
+        """:meth:`_update` through :meth:`compiled_step`: the one copy of the update, on :attr:`state` in place."""
         step = self.compiled_step()
-        step.update(np.ascontiguousarray(samples, dtype=np.float64), np.ascontiguousarray(utilities, dtype=np.float64), step.state, step.counts, step.constants)
-        self.load_compiled_state(step.state, step.counts)
+        step.update(np.ascontiguousarray(samples, dtype=np.float64), np.ascontiguousarray(utilities, dtype=np.float64), self.state, step.constants)
+        self._state_changed()
 
     def compiled_utilities(self):
         """:meth:`utilities` as compiled code -- ``utilities(samples, fitness, generation, weight_decay,

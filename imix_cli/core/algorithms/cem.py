@@ -46,12 +46,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from imix_cli.core import numerics as xp
-from imix_cli.core.algorithms.base import CompiledStep, EvolutionStrategy, Params, prefixed, rank_weights_kernel, unprefixed
+from imix_cli.core.algorithms.base import CompiledStep, EvolutionStrategy, Params, rank_weights_kernel
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.numerics import elementary as el
 from imix_cli.core.numerics import linalg_kernels as lk
@@ -59,25 +60,44 @@ from imix_cli.core.numerics import linalg_kernels as lk
 ELITE_WEIGHTS = ("equal", "log")
 STYLES = ("imix", "cemrl")
 
-# The compiled step's constants (CEM.compiled_step), by position.
-_ELITE_FRACTION, _LOG_WEIGHTS, _DECAY, _FLOOR, _CEMRL = range(5)
+
+class CEMState(NamedTuple):
+    """CEM's search state, the one record that ``tell``, the compiled loop and the checkpoint use
+    (:class:`~imix_cli.core.algorithms.base.CompiledStep`)."""
+
+    #: mu, shape (d,)
+    mean: np.ndarray
+    #: sigma of each coordinate, shape (d,)
+    std: np.ndarray
+    #: eps_t, the current extra variance (eps_0 before the first tell), shape (1,)
+    extra_variance: np.ndarray
+
+
+class CEMConstants(NamedTuple):
+    """What :func:`cem_update` and :func:`cem_mean_weights` read besides the state (never written)."""
+
+    elite_fraction: float
+    log_weights: bool
+    decay: float
+    floor: float
+    cemrl: bool
 
 
 @njit(cache=True)
 def _elites(n, constants):
     """K = max(1, floor(elite_fraction * n))."""
-    return max(1, int(constants[_ELITE_FRACTION] * n))
+    return max(1, int(constants.elite_fraction * n))
 
 
 @njit(cache=True)
 def cem_mean_weights(utilities, constants):
     """Each member's elite weight (the new mean is sum_i w_i x_i): the K best share 1/K each, or log weights
     ln((K + 1) / i) / sum; tied members share the weights of the positions they span
-    (:func:`~imix_cli.core.algorithms.base.rank_weights_kernel`); 0 for the rest. ``constants``: :meth:`CEM.compiled_step`'s."""
+    (:func:`~imix_cli.core.algorithms.base.rank_weights_kernel`); 0 for the rest. ``constants``: :class:`CEMConstants`."""
     n = utilities.shape[0]
     k = _elites(n, constants)
     by_rank = np.zeros(n)
-    if constants[_LOG_WEIGHTS] == 0.0:
+    if not constants.log_weights:
         for i in range(k):
             by_rank[i] = 1.0 / k
     else:
@@ -91,20 +111,18 @@ def cem_mean_weights(utilities, constants):
 
 
 @njit(cache=True)
-def cem_update(samples, utilities, state, counts, constants):
-    """One generation of CEM (module docstring), in place: ``state`` rows mu, sigma and the extra variance (every
-    entry the same); ``constants`` the elite fraction, 1.0 for log weights, the extra variance's decay and floor,
-    1.0 for style "cemrl"; ``counts`` unused. The one copy of the update
+def cem_update(samples, utilities, state, constants):
+    """One generation of CEM (module docstring), in place of ``state`` (:class:`CEMState`). The one copy of the update
     (:class:`~imix_cli.core.algorithms.base.CompiledStep`): :meth:`CEM._update` and the compiled generation loop
     both run it."""
     n, d = samples.shape
     k = _elites(n, constants)
     w = cem_mean_weights(utilities, constants)
-    mu, sigma = state[0], state[1]
+    mu, sigma = state.mean, state.std
     new_mu = lk.vec_mat_kernel(w, samples)  # one fixed summation order (not BLAS's): same bits on every CPU
-    decay = constants[_DECAY]
-    extra = decay * state[2, 0] + (1.0 - decay) * constants[_FLOOR]
-    cemrl = constants[_CEMRL] != 0.0
+    decay = constants.decay
+    extra = decay * state.extra_variance[0] + (1.0 - decay) * constants.floor
+    cemrl = constants.cemrl
     sq = np.empty((n, d))
     for i in range(n):
         for j in range(d):
@@ -115,7 +133,7 @@ def cem_update(samples, utilities, state, counts, constants):
         v = var[j] / k + extra if cemrl else var[j] + extra
         mu[j] = new_mu[j]
         sigma[j] = math.sqrt(v)
-        state[2, j] = extra
+    state.extra_variance[0] = extra
 
 
 @dataclass(frozen=True)
@@ -183,39 +201,27 @@ class CEM(EvolutionStrategy):
         self.elite_fraction = float(p.elite_fraction)
         self.extra_variance_decay = float(p.extra_variance_decay)
         self.extra_variance_floor = float(p.extra_variance_floor)
-        #: current extra variance eps_t (eps_0 before the first tell)
-        self.extra_variance = float(extra_variance_init)
-        self._dist = DiagonalGaussian(self.initial_mean, self.sigma)
+        self.set_state(CEMState(self.initial_mean.copy(), np.full(self.dim, self.sigma), np.array([float(extra_variance_init)])))
+
+    @property
+    def extra_variance(self) -> float:
+        """eps_t, the current extra variance (eps_0 before the first tell)."""
+        return float(self.state.extra_variance[0])
 
     @property
     def distribution(self) -> DiagonalGaussian:
         return self._dist
 
-    def _constants(self) -> np.ndarray:
-        return np.array([self.elite_fraction, float(self.elite_weights == "log"), self.extra_variance_decay, self.extra_variance_floor,
-                         float(self.style == "cemrl")])  # fmt: skip
+    def _constants(self) -> CEMConstants:
+        return CEMConstants(self.elite_fraction, self.elite_weights == "log", self.extra_variance_decay, self.extra_variance_floor,
+                            self.style == "cemrl")  # fmt: skip
 
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
         self._update_compiled(samples, utilities)
 
     def compiled_step(self) -> CompiledStep:
-        state = np.stack([self._dist.mean, self._dist.std, np.full(self.dim, self.extra_variance)])
-        return CompiledStep(cem_update, state, np.zeros(0, dtype=np.int64), self._constants(), cem_mean_weights)
-
-    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
-        self.extra_variance = float(state[2, 0])  # before the distribution, which refuses a non-finite one (a divergence)
-        self._dist = DiagonalGaussian(state[0], state[1])
+        return CompiledStep(cem_update, self._constants(), cem_mean_weights)
 
     def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:
         """Each member's elite weight: the new mean is sum_i w_i x_i (:func:`cem_mean_weights`)."""
         return cem_mean_weights(np.ascontiguousarray(utilities, dtype=np.float64), self._constants())
-
-    def _state_dict(self) -> dict:
-        return {"extra_variance": float(self.extra_variance), **prefixed("dist", self._dist.to_state())}
-
-    def _load_state_dict(self, state: dict) -> None:
-        dist = DiagonalGaussian.from_state(unprefixed("dist", state))
-        if dist.dim != self.dim:
-            raise ValueError(f"state 'dist' has dimension {dist.dim}, expected {self.dim}")
-        self.extra_variance = float(state["extra_variance"])
-        self._dist = dist

@@ -11,7 +11,7 @@ Why our own and not pycma (``cma``): driving pycma with samples it did not draw 
 at d = 130, lambda = 50 -- 57-72 % of a CMA-ES + importance-mixing run -- mostly Python
 bookkeeping around two O(d^3) steps, and its state is a Python object that can only be
 pickled, while checkpoints are data. This module does the same maths in a few numpy calls
-and keeps its state in arrays (:meth:`CMAES.state_dict`).
+and keeps its state in arrays (:class:`CMAESState`).
 
 Same maths as pycma: every constant and every formula below was read from pycma 4.5's
 source (``cma/evolution_strategy.py`` ``tell``/``ask_geno``, ``cma/sampler.py``
@@ -71,6 +71,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -264,6 +265,61 @@ class CMAESParams(Params):
     })  # fmt: skip
 
 
+class CMAESState(NamedTuple):
+    """CMA-ES's search state, in pycma's genotype coordinates (x = T g): the one record the update moves and the
+    checkpoint saves (:class:`~imix_cli.core.algorithms.base.CompiledStep` says why one record). :class:`CMAES` reads
+    and writes its fields as attributes of the same names (``es.C``, ``es.step_size``, ...)."""
+
+    #: the mean, shape (d,)
+    mean_geno: np.ndarray
+    #: C, shape (d, d)
+    C: np.ndarray
+    #: D, the square roots of C's eigenvalues, ascending, from the last decomposition (the next update uses it)
+    eigenvalues_sqrt: np.ndarray
+    #: B, C's eigenvectors as columns, shape (d, d)
+    eigenvectors: np.ndarray
+    #: pycma's sigma_vec (coordinate condition alleviation), shape (d,)
+    scaling: np.ndarray
+    #: the step-size path, shape (d,)
+    p_sigma: np.ndarray
+    #: the covariance path, shape (d,)
+    p_c: np.ndarray
+    #: pycma's sigma, shape (1,) (``CMAES.sigma`` stays sigma0)
+    step_size: np.ndarray
+    #: pycma's countiter, the number of updates, int64 of shape (1,)
+    countiter: np.ndarray
+    #: T and T^-1 once pycma's alleviate_conditioning has fired (``transformed``), else the identity; shape (d, d)
+    transform: np.ndarray
+    transform_inverse: np.ndarray
+    transformed: np.ndarray
+    #: TPA's last move of the mean (genotype) and its state s; shapes (d,) and (1,) with TPA, (0,) with CSA (so that
+    #: a CSA state does not load into a TPA ES)
+    tpa_move: np.ndarray
+    tpa_s: np.ndarray
+
+
+def _field(name: str, scalar=None):
+    """An attribute of :class:`CMAES` that is field ``name`` of its state record (``scalar``: float or int, a
+    (1,)-array field read as a number and written in place)."""
+    if scalar is None:
+
+        def fget(self):
+            return getattr(self.state, name)
+
+        def fset(self, value):
+            self.state = self.state._replace(**{name: value})
+
+    else:
+
+        def fget(self):
+            return scalar(getattr(self.state, name)[0])
+
+        def fset(self, value):
+            getattr(self.state, name)[0] = value
+
+    return property(fget, fset, doc=f"Field ``{name}`` of :attr:`CMAES.state` (:class:`CMAESState`).")
+
+
 class CMAES(EvolutionStrategy):
     """CMA-ES: N(mean, sigma^2 C) with full C, pycma's update (see the module docstring).
 
@@ -307,27 +363,40 @@ class CMAES(EvolutionStrategy):
         )
         self.chi_d = expected_norm(d)
 
-        # state (everything in state_dict): pycma's genotype coordinates, x = T g; T = I
-        # until the 1e12 condition alleviation sets it
-        self.step_size = self.sigma  # pycma's sigma; self.sigma stays sigma0
-        self.mean_geno = self.initial_mean.copy()
-        self.C = np.diag(xp.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
-        self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()  # D, ascending; C = B D^2 B^T
-        self.eigenvectors = np.eye(d)  # B, columns
-        self.scaling = np.ones(d)  # pycma's sigma_vec (coordinate condition alleviation)
-        self.p_sigma = np.zeros(d)
-        self.p_c = np.zeros(d)
-        self.transform = None  # T and T^-1 once pycma's alleviate_conditioning has fired
-        self.transform_inverse = None
-        self.countiter = 0  # pycma's countiter: number of updates
         if self.params.step_size_control not in ("csa", "tpa"):
             raise ValueError(f"step_size_control={self.params.step_size_control!r}: must be 'csa' or 'tpa'")
-        # TPA (pycma's CMAAdaptSigmaTPA constants): the damping, the smoothing c, the state s and
-        # the last move of the mean (genotype), from which the next two test points are made
+        # the state (CMAESState): pycma's genotype coordinates, x = T g; T = I until the 1e12 condition alleviation sets it
+        C = np.diag(xp.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
+        tpa = self.params.step_size_control == "tpa"
+        self.state = CMAESState(
+            mean_geno=self.initial_mean.copy(), C=C, eigenvalues_sqrt=np.sqrt(np.diag(C)).copy(), eigenvectors=np.eye(d),
+            scaling=np.ones(d), p_sigma=np.zeros(d), p_c=np.zeros(d), step_size=np.array([self.sigma]), countiter=np.zeros(1, dtype=np.int64),
+            transform=np.eye(d), transform_inverse=np.eye(d), transformed=np.zeros(1, dtype=np.bool_),
+            tpa_move=np.zeros(d if tpa else 0), tpa_s=np.zeros(1 if tpa else 0),
+        )  # fmt: skip
+        # TPA (pycma's CMAAdaptSigmaTPA constants): the damping; its state s and the last move of the mean (genotype),
+        # from which the next two test points are made, are in the record
         self.tpa_damp = 0.7 + 2 * _log(d) + 2 * _log(max(1, self.popsize - d))
-        self.tpa_s = 0.0
-        self.tpa_move = np.zeros(d)
         self._probe_fitness = None
+        self._set_distribution()
+
+    # ------------------------------------------------------------ the state record's fields, as attributes
+    mean_geno, C, eigenvalues_sqrt, eigenvectors = _field("mean_geno"), _field("C"), _field("eigenvalues_sqrt"), _field("eigenvectors")
+    scaling, p_sigma, p_c, tpa_move = _field("scaling"), _field("p_sigma"), _field("p_c"), _field("tpa_move")
+    step_size, countiter, tpa_s = _field("step_size", float), _field("countiter", int), _field("tpa_s", float)
+    transform_inverse = _field("transform_inverse")
+
+    @property
+    def transform(self) -> np.ndarray | None:
+        """T, once pycma's alleviate_conditioning has fired; None before (x = g)."""
+        return self.state.transform if self.state.transformed[0] else None
+
+    @transform.setter
+    def transform(self, value) -> None:
+        self.state = self.state._replace(transform=value, transformed=np.array([True]))
+
+    def set_state(self, state) -> None:
+        self.state = state
         self._set_distribution()
 
     # ------------------------------------------------------------ distribution
@@ -545,60 +614,7 @@ class CMAES(EvolutionStrategy):
         return decomposed
 
     # ------------------------------------------------------------ checkpoints
-    _ARRAYS = ("mean_geno", "C", "eigenvalues_sqrt", "eigenvectors", "scaling", "p_sigma", "p_c")
-
-    def state_dict(self) -> dict:
-        """Everything that changes during a run: numpy arrays and int/float scalars.
-
-        Arrays: ``mean_geno``, ``C``, ``eigenvalues_sqrt`` and ``eigenvectors`` (the last
-        decomposition, which the next update uses), ``scaling``, ``p_sigma``, ``p_c``, and
-        ``transform``/``transform_inverse`` once the condition alleviation has set them, and with
-        TPA ``tpa_move`` (the last move of the mean) and the scalar ``tpa_s``. Scalars: ``step_size``, ``countiter`` and the base class's ``generation`` and
-        ``nonfinite_fitness_count``. Constructor arguments (the config) are not included.
-        """
-        state = {name: getattr(self, name).copy() for name in self._ARRAYS}
-        if self.transform is not None:
-            state["transform"] = self.transform.copy()
-            state["transform_inverse"] = self.transform_inverse.copy()
-        if self.params.step_size_control == "tpa":
-            state.update(tpa_move=self.tpa_move.copy(), tpa_s=float(self.tpa_s))
-        state.update(
-            step_size=float(self.step_size),
-            countiter=int(self.countiter),
-            generation=int(self.generation),
-            nonfinite_fitness_count=int(self.nonfinite_fitness_count),
-        )
-        return state
-
-    def load_state_dict(self, state: dict) -> None:
-        """Restore :meth:`state_dict`'s output; continuing is then bit-identical."""
-        d = self.dim
-        shapes = {"C": (d, d), "eigenvectors": (d, d), "transform": (d, d), "transform_inverse": (d, d)}
-        for name in self._ARRAYS + ("transform", "transform_inverse"):
-            if name not in state:
-                if name.startswith("transform"):
-                    setattr(self, name, None)
-                    continue
-                raise ValueError(f"CMAES state: missing {name!r}")
-            value = np.array(state[name], dtype=np.float64)
-            if value.shape != shapes.get(name, (d,)):
-                raise ValueError(f"CMAES state: {name} has shape {value.shape}, expected {shapes.get(name, (d,))}")
-            setattr(self, name, value)
-        missing = [k for k in ("step_size", "countiter", "generation", "nonfinite_fitness_count") if k not in state]
-        if missing:
-            raise ValueError(f"CMAES state: missing {missing}")
-        if self.params.step_size_control == "tpa":
-            if "tpa_move" not in state or "tpa_s" not in state:
-                raise ValueError("CMAES state: missing 'tpa_move'/'tpa_s' (a state saved with step_size_control='csa'?)")
-            move = np.array(state["tpa_move"], dtype=np.float64)
-            if move.shape != (d,):
-                raise ValueError(f"CMAES state: tpa_move has shape {move.shape}, expected {(d,)}")
-            self.tpa_move, self.tpa_s = move, float(state["tpa_s"])
-        self.step_size = float(state["step_size"])
-        self.countiter = int(state["countiter"])
-        self.generation = int(state["generation"])
-        self.nonfinite_fitness_count = int(state["nonfinite_fitness_count"])
-        self._set_distribution()
+    # The base class's: the counters and :attr:`state` field by field (continuing is then bit-identical).
 
 
 def _shared_among_ties(weights: np.ndarray, sorted_utilities: np.ndarray):

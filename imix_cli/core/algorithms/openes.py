@@ -18,23 +18,46 @@ sample of the current distribution (fresh or reused by importance mixing) counts
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from imix_cli.core.algorithms.base import Adam, CompiledStep, EvolutionStrategy, Params, _array_like, adam_step, prefixed, unprefixed
+from imix_cli.core.algorithms.base import ADAM_EPSILON, AdamState, CompiledStep, EvolutionStrategy, Params, adam_step
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.numerics import linalg_kernels as lk
 
 
+class OpenESState(NamedTuple):
+    """OpenES's search state, the one record that ``tell``, the compiled loop and the checkpoint use
+    (:class:`~imix_cli.core.algorithms.base.CompiledStep`)."""
+
+    #: mu, the mean searched, shape (d,)
+    mean: np.ndarray
+    #: sigma in every coordinate, shape (d,) (fixed: the compiled loop reads it as every diagonal ES's)
+    std: np.ndarray
+    #: Adam on mu
+    adam: AdamState
+
+
+class OpenESConstants(NamedTuple):
+    """What :func:`openes_update` reads besides the state (never written)."""
+
+    sigma: float
+    lr: float
+    beta1: float
+    beta2: float
+    epsilon: float
+
+
 @njit(cache=True)
-def openes_update(samples, utilities, state, counts, constants):
-    """One generation of OpenES (module docstring), in place: ``state`` rows mu, sigma (per coordinate),
-    Adam's m and v; ``counts`` Adam's step count; ``constants`` sigma, lr, beta1, beta2, epsilon.
+def openes_update(samples, utilities, state, constants):
+    """One generation of OpenES (module docstring), in place of ``state`` (:class:`OpenESState`).
     The one copy of the update (:class:`~imix_cli.core.algorithms.base.CompiledStep`): :meth:`OpenES._update`
     and the compiled generation loop both run it."""
     n, d = samples.shape
-    mu, sigma = state[0], constants[0]
+    c = constants
+    mu, sigma = state.mean, c.sigma
     eps = np.empty((n, d))
     for i in range(n):
         for j in range(d):
@@ -43,7 +66,7 @@ def openes_update(samples, utilities, state, counts, constants):
     scale = n * sigma
     for j in range(d):
         grad[j] = grad[j] / scale
-    step = adam_step(state[2], state[3], counts, 0, constants[1], constants[2], constants[3], constants[4], grad)
+    step = adam_step(state.adam, c.lr, c.beta1, c.beta2, c.epsilon, grad)
     for j in range(d):
         mu[j] = mu[j] + step[j]
 
@@ -71,9 +94,7 @@ class OpenES(EvolutionStrategy):
     Params = OpenESParams
 
     def _setup(self) -> None:
-        self._mu = self.initial_mean.copy()
-        self.optimizer = Adam(self.dim, lr=self.lr, beta1=self.params.beta1, beta2=self.params.beta2)
-        self._dist = DiagonalGaussian(self._mu, self.sigma)
+        self.set_state(OpenESState(self.initial_mean.copy(), np.full(self.dim, self.sigma), AdamState.zeros(self.dim)))
 
     @property
     def distribution(self) -> DiagonalGaussian:
@@ -83,20 +104,4 @@ class OpenES(EvolutionStrategy):
         self._update_compiled(samples, utilities)
 
     def compiled_step(self) -> CompiledStep:
-        o = self.optimizer
-        state = np.stack([self._mu, self._dist.std, o.m, o.v])
-        constants = np.array([self.sigma, o.lr, o.beta1, o.beta2, o.epsilon], dtype=np.float64)
-        return CompiledStep(openes_update, state, np.array([o.t], dtype=np.int64), constants)
-
-    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
-        self._mu = state[0].copy()
-        self.optimizer.m, self.optimizer.v, self.optimizer.t = state[2].copy(), state[3].copy(), int(counts[0])
-        self._dist = DiagonalGaussian(self._mu, self.sigma)
-
-    def _state_dict(self) -> dict:
-        return {"mu": self._mu.copy(), **prefixed("optimizer", self.optimizer.state_dict())}
-
-    def _load_state_dict(self, state: dict) -> None:
-        self._mu = _array_like(state["mu"], self._mu, "mu")
-        self.optimizer.load_state_dict(unprefixed("optimizer", state))
-        self._dist = DiagonalGaussian(self._mu, self.sigma)
+        return CompiledStep(openes_update, OpenESConstants(self.sigma, self.lr, self.params.beta1, self.params.beta2, ADAM_EPSILON))

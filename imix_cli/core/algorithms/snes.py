@@ -33,26 +33,51 @@ Why Adam on log sigma rather than SNES's own eta_sigma = (3 + ln d) / (5 sqrt d)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from imix_cli.core import numerics as xp
-from imix_cli.core.algorithms.base import Adam, CompiledStep, EvolutionStrategy, Params, _array_like, adam_step, prefixed, unprefixed
+from imix_cli.core.algorithms.base import ADAM_EPSILON, AdamState, CompiledStep, EvolutionStrategy, Params, adam_step
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.numerics import elementary as el
 from imix_cli.core.numerics import linalg_kernels as lk
 
 
+class SNESState(NamedTuple):
+    """SNES's search state, the one record that ``tell``, the compiled loop and the checkpoint use
+    (:class:`~imix_cli.core.algorithms.base.CompiledStep`); every field has shape (d,) but the Adams' counts."""
+
+    #: mu, the mean searched
+    mean: np.ndarray
+    #: sigma = exp(log sigma), the standard deviation of each coordinate
+    std: np.ndarray
+    #: log sigma, what Adam moves
+    log_sigma: np.ndarray
+    #: Adam on mu
+    mu_adam: AdamState
+    #: Adam on log sigma
+    sigma_adam: AdamState
+
+
+class SNESConstants(NamedTuple):
+    """What :func:`snes_update` reads besides the state (never written)."""
+
+    lr: float
+    sigma_lr: float
+    beta1: float
+    beta2: float
+    epsilon: float
+
+
 @njit(cache=True)
-def snes_update(samples, utilities, state, counts, constants):
-    """One generation of SNES (module docstring), in place: ``state`` rows mu, sigma, log sigma, Adam's m
-    and v for mu, then for log sigma; ``counts`` the two Adams' step counts; ``constants`` lr, sigma_lr,
-    beta1, beta2 and the two Adams' epsilons. The one copy of the update
-    (:class:`~imix_cli.core.algorithms.base.CompiledStep`): :meth:`SNES._update` and the compiled generation
+def snes_update(samples, utilities, state, constants):
+    """One generation of SNES (module docstring), in place of ``state`` (:class:`SNESState`). The one copy of the
+    update (:class:`~imix_cli.core.algorithms.base.CompiledStep`): :meth:`SNES._update` and the compiled generation
     loop both run it."""
     n, d = samples.shape
-    mu, sigma, log_sigma = state[0], state[1], state[2]
+    mu, sigma, log_sigma = state.mean, state.std, state.log_sigma
     s = np.empty((n, d))
     sq = np.empty((n, d))
     for i in range(n):
@@ -64,8 +89,9 @@ def snes_update(samples, utilities, state, counts, constants):
     for j in range(d):
         grad_mu[j] = sigma[j] * grad_mu[j]
         grad_log_sigma[j] = grad_log_sigma[j] / 2.0
-    step_mu = adam_step(state[3], state[4], counts, 0, constants[0], constants[2], constants[3], constants[4], grad_mu)
-    step_log_sigma = adam_step(state[5], state[6], counts, 1, constants[1], constants[2], constants[3], constants[5], grad_log_sigma)
+    c = constants
+    step_mu = adam_step(state.mu_adam, c.lr, c.beta1, c.beta2, c.epsilon, grad_mu)
+    step_log_sigma = adam_step(state.sigma_adam, c.sigma_lr, c.beta1, c.beta2, c.epsilon, grad_log_sigma)
     for j in range(d):
         mu[j] = mu[j] + step_mu[j]
         log_sigma[j] = log_sigma[j] + step_log_sigma[j]
@@ -102,13 +128,10 @@ class SNES(EvolutionStrategy):
     Params = SNESParams
 
     def _setup(self) -> None:
-        beta1, beta2 = self.params.beta1, self.params.beta2
         self.sigma_lr = self.lr if self.params.sigma_lr is None else float(self.params.sigma_lr)
-        self._mu = self.initial_mean.copy()
-        self._log_sigma = np.full(self.dim, xp.log(self.sigma))
-        self.mu_optimizer = Adam(self.dim, lr=self.lr, beta1=beta1, beta2=beta2)
-        self.sigma_optimizer = Adam(self.dim, lr=self.sigma_lr, beta1=beta1, beta2=beta2)
-        self._dist = DiagonalGaussian(self._mu, xp.exp(self._log_sigma))
+        log_sigma = np.full(self.dim, xp.log(self.sigma))
+        state = SNESState(self.initial_mean.copy(), xp.exp(log_sigma), log_sigma, AdamState.zeros(self.dim), AdamState.zeros(self.dim))
+        self.set_state(state)
 
     @property
     def distribution(self) -> DiagonalGaussian:
@@ -118,28 +141,5 @@ class SNES(EvolutionStrategy):
         self._update_compiled(samples, utilities)
 
     def compiled_step(self) -> CompiledStep:
-        m, s = self.mu_optimizer, self.sigma_optimizer
-        state = np.stack([self._mu, self._dist.std, self._log_sigma, m.m, m.v, s.m, s.v])
-        constants = np.array([m.lr, s.lr, m.beta1, m.beta2, m.epsilon, s.epsilon], dtype=np.float64)
-        return CompiledStep(snes_update, state, np.array([m.t, s.t], dtype=np.int64), constants)
-
-    def load_compiled_state(self, state: np.ndarray, counts: np.ndarray) -> None:
-        self._mu, self._log_sigma = state[0].copy(), state[2].copy()
-        self.mu_optimizer.m, self.mu_optimizer.v, self.mu_optimizer.t = state[3].copy(), state[4].copy(), int(counts[0])
-        self.sigma_optimizer.m, self.sigma_optimizer.v, self.sigma_optimizer.t = state[5].copy(), state[6].copy(), int(counts[1])
-        self._dist = DiagonalGaussian(self._mu, state[1])
-
-    def _state_dict(self) -> dict:
-        return {
-            "mu": self._mu.copy(),
-            "log_sigma": self._log_sigma.copy(),
-            **prefixed("mu_optimizer", self.mu_optimizer.state_dict()),
-            **prefixed("sigma_optimizer", self.sigma_optimizer.state_dict()),
-        }
-
-    def _load_state_dict(self, state: dict) -> None:
-        self._mu = _array_like(state["mu"], self._mu, "mu")
-        self._log_sigma = _array_like(state["log_sigma"], self._log_sigma, "log_sigma")
-        self.mu_optimizer.load_state_dict(unprefixed("mu_optimizer", state))
-        self.sigma_optimizer.load_state_dict(unprefixed("sigma_optimizer", state))
-        self._dist = DiagonalGaussian(self._mu, xp.exp(self._log_sigma))
+        constants = SNESConstants(self.lr, self.sigma_lr, self.params.beta1, self.params.beta2, ADAM_EPSILON)
+        return CompiledStep(snes_update, constants)

@@ -38,7 +38,8 @@ Compilation: one entry point per (update, utilities, mean weights) triple, made 
 code with the three functions as its globals (numba resolves them when it compiles), cached on disk like every
 imix kernel (stamped with every compiled source of the package: :mod:`imix_cli.core.numerics.numba_cache`). numba
 keys a cached function by its closure's contents: the entry's closure holds a digest of the three
-functions it runs, so each ES gets its own cached entry.
+functions it runs, so each ES gets its own cached entry, and its own index file (the entry is named after the
+digest: :func:`entry` says why).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ import numpy as np
 from numba import njit
 
 from imix_cli.core import numerics as xp
-from imix_cli.core.algorithms.base import EvolutionStrategy, hash_multipliers
+from imix_cli.core.algorithms.base import EvolutionStrategy, copy_record, hash_multipliers
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.envs import kernels as ek
 from imix_cli.core.mixing import COMPILED_MAX_ELEMENTS, Generation, variant_spec
@@ -118,8 +119,8 @@ def _make_chunk(digest: int):
         field), built by :func:`advance`, which names every field:
 
         - ``rule``: the mixing rule and the ES's utilities' settings;
-        - ``es``: the ES's generation count and its :class:`~imix_cli.core.algorithms.base.CompiledStep` arrays
-          ``state``/``counts``/``constants`` (row 0 of ``state`` the mean, row 1 the standard deviations);
+        - ``es``: the ES's generation count, a copy of its state record (``state.mean``, ``state.std``: the diagonal
+          Gaussian searched) and its step's constants (:class:`~imix_cli.core.algorithms.base.CompiledStep`);
         - ``archive``: the archived generations, newest first, as arrays of ``slots`` rows;
         - ``rngs``: the seed's generators (members, episodes, the mean's episodes);
         - ``episodes``: the episode kernel (:func:`_env_code`) and its settings; ``measure``: when and how the mean is evaluated;
@@ -130,7 +131,7 @@ def _make_chunk(digest: int):
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
         kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult = rule
-        es_generation, state, counts, constants = es
+        es_generation, state, constants = es
         a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
         sample_rng, episode_rng, mean_rng = rngs
         env, sizes, continuous, sparse, max_steps = episodes
@@ -139,7 +140,7 @@ def _make_chunk(digest: int):
         out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
         popsize, d = a_x.shape[1], a_x.shape[2]
         trace = np.empty((0, 0, 0))
-        mu, std = state[0], state[1]
+        mu, std = state.mean, state.std
         for g in range(generations):
             # ---- plan: mix (or draw) the generation from the distribution N(mu, std^2)
             log_norm = mk.diagonal_log_norm(std)
@@ -182,7 +183,7 @@ def _make_chunk(digest: int):
             u = _UTILITIES(x, fitness, es_generation[0], weight_decay, mult)
             out_sigma_mean[g] = lk.numpy_sum(std) / d
             mu_drawn, std_drawn = mu.copy(), std.copy()  # the distribution the generation was drawn from
-            _UPDATE(x, u, state, counts, constants)
+            _UPDATE(x, u, state, constants)
             mw = _MEAN_WEIGHTS(u, constants)  # after the update, as tell takes them (constants are never written)
             for j in range(d):  # a distribution no longer finite: the Python path records the divergence
                 if not (math.isfinite(mu[j]) and math.isfinite(std[j]) and std[j] > 0.0):
@@ -265,10 +266,16 @@ def entry(update, utilities, mean_weights=None):
     mean_weights = mean_weights or utilities_are_mean_weights
     key = (update, utilities, mean_weights)
     if key not in _ENTRIES:
-        inner = _make_chunk(_functions_digest(update, utilities, mean_weights))
+        digest = _functions_digest(update, utilities, mean_weights)
+        inner = _make_chunk(digest)
         own = {"_UPDATE": update, "_UTILITIES": utilities, "_MEAN_WEIGHTS": mean_weights}
         chunk = types.FunctionType(inner.__code__, {**globals(), **own}, inner.__name__, None, inner.__closure__)
-        chunk.__qualname__, chunk.__module__, chunk.__doc__ = inner.__qualname__, inner.__module__, inner.__doc__
+        # Named after the digest: each entry gets an index file of its own in numba's cache. An index holds the types of
+        # its entries' arguments, the ES's state record among them, and numba imports their classes when it reads the
+        # index: a shared index would make every run import the record class of any ES ever run (one defined in a
+        # script or a test cannot be imported by another process).
+        chunk.__qualname__ = f"_run_chunk_{digest:016x}"
+        chunk.__module__, chunk.__doc__ = inner.__module__, inner.__doc__
         _ENTRIES[key] = njit(cache=True)(chunk)
     return _ENTRIES[key]
 
@@ -388,17 +395,18 @@ def advance(st, settings, evaluator, generations: int) -> bool:
                 bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps))  # fmt: skip
     measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
     out = (out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
+    state = copy_record(es.state)  # the chunk moves this copy; the ES takes it only if the chunk ran to its end
     done = entry_for(es)(
-        generations, rule, (es_generation, step.state, step.counts, step.constants), archive_arrays,
+        generations, rule, (es_generation, state, step.constants), archive_arrays,
         (st.sample_rng, st.episode_rng, st.mean_eval_rng), episodes, measure, (best, best_return, last_u), out,
     )  # fmt: skip
     if done < generations:  # put the generators back: the Python path takes this chunk
-        for r, state in zip(rngs, snapshot):
-            r.bit_generator.state = state
+        for r, rng_state in zip(rngs, snapshot):
+            r.bit_generator.state = rng_state
         return False
 
     # ---- write the state back into the ES, the archive and the seed
-    es.load_compiled_state(step.state, step.counts)
+    es.set_state(state)
     es.generation = int(es_generation[0])
     es.mean_weights = last_u
     if depth:

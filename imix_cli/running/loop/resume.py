@@ -198,6 +198,8 @@ def _validate_es(st, spec, dim: int) -> None:
     for name, value in state.items():
         if isinstance(value, np.ndarray) and value.dtype.kind not in "biuf":
             _fail(f"ES state {name}: dtype {value.dtype}")
+        if isinstance(value, np.ndarray) and value.dtype.kind in "iu" and value.size and value.min() < 0:
+            _fail(f"ES state {name}: a negative count")
         if isinstance(value, int) and not isinstance(value, bool) and value < 0:
             _fail(f"ES state {name}={value}")
 
