@@ -213,7 +213,7 @@ def test_an_es_of_a_users_module_leaves_the_cache_readable_for_every_other_run(t
     """numba's cache index of a compiled entry holds its arguments' types, the ES's state record class among them, and
     numba imports that class's module when it reads the index. Once every ES shared one index: after a user's script ran
     an ES of a module of theirs compiled, every ``imix run`` elsewhere died importing that module. Each entry now has an
-    index of its own (:func:`imix_cli.running.loop.compiled_loop.entry`)."""
+    index of its own (:func:`imix_cli.core.mixing.compiled_generation.entry`)."""
     lib = tmp_path / "lib"
     lib.mkdir()
     (lib / "user_es_module.py").write_text(_USER_ES_MODULE)

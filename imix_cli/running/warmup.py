@@ -123,11 +123,12 @@ def compile_groups(spec) -> list:
             groups.append((_episodes_group, [kernels.cartpole_episodes]))
         elif isinstance(evaluator, AcrobotEvaluator):
             groups.append((_episodes_group, [kernels.acrobot_seeded_episodes]))
+        from imix_cli.core.mixing import compiled_generation
         from imix_cli.running.loop import compiled_loop
         from imix_cli.running.loop.lockstep import loop_settings
 
         if compiled_loop.applies_to_run(loop_settings(spec, evaluator), evaluator):  # one entry per ES, every built-in env
-            groups.append((_compiled_loop_group, [compiled_loop.entry_for(es)]))
+            groups.append((_compiled_loop_group, [compiled_generation.entry_for(es)]))
     return groups
 
 
