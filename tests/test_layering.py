@@ -301,3 +301,14 @@ def test_import_imix_cli_leaves_the_users_blas_threads_alone_and_imix_workers_ge
     env = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout.split("\n")
     assert out[:3] == ["[]", "1", "[]"]
+
+
+def test_every_compiled_kernel_lives_in_the_core():
+    """The generation's logic -- the archive, a mixed generation's fitness, the mixing -- is written in ``core/`` only:
+    the compiled generation too (``core/mixing/compiled_generation.py``), which the run's loop calls with a seed's arrays.
+    A compiled kernel outside ``core/`` would be a second copy of some of it (the compiled chunk once sat in
+    ``running/loop/compiled_loop.py``: made to fail by it, naming that file)."""
+    from imix_cli.core.numerics import numba_cache
+
+    outside = [str(p.relative_to(PACKAGE)) for p in numba_cache.compiled_sources() if p.relative_to(PACKAGE).parts[0] != "core"]
+    assert not outside, f"compiled code outside core/: {outside}"
