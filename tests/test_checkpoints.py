@@ -145,7 +145,7 @@ def rewrite_header(path: Path, change) -> None:
 @pytest.mark.parametrize(
     "change, reason",
     [
-        (lambda h: h.update(version=2), "format version"),
+        (lambda h: h.update(version=1), "format version 1"),
         (lambda h: h.update(imix_version="0.0.1"), "imix 0.0.1"),
         (lambda h: h.update(seed=1), "holds seed 1"),
         (lambda h: h.update(config_hash="0" * 64), "another config"),

@@ -11,7 +11,8 @@ A seed's checkpoint is ``.checkpoints/seed_<k>.npz`` in its run folder (:func:`c
 the run's writer (:mod:`imix_cli.running.files.run_writer`) and read back, and checked against the run, by
 :mod:`imix_cli.running.loop.resume`.
 
-Format (``FORMAT_VERSION`` 1), written atomically (:func:`imix_cli.running.files.writing.atomic_write_bytes`):
+Format (``FORMAT_VERSION`` 2: since each ES saves its state record field by field, ``es/mean`` and so on; a version-1
+checkpoint is refused with one line, and its seed restarts), written atomically (:func:`imix_cli.running.files.writing.atomic_write_bytes`):
 an uncompressed NumPy ``.npz`` (a zip of ``.npy`` files, read back with
 ``np.load(allow_pickle=False)``, so no object array can be loaded) holding
 
@@ -57,7 +58,7 @@ from imix_cli.running.files.results import regular_file_size
 from imix_cli.running.files.writing import atomic_write_bytes
 
 FORMAT = "imix-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _HEADER = "header"
 #: Value classes saved through their ``to_state()`` and rebuilt by ``cls.from_state(state)``.
 _DISTRIBUTIONS = {cls.__name__: cls for cls in (DiagonalGaussian, FullGaussian, ObsNormalizer, AffinePushforward, NormalizerChange)}
