@@ -114,8 +114,9 @@ class _Stderr:
 @pytest.mark.slow
 def test_ctrl_c_to_the_whole_group_with_two_workers_keeps_each_seeds_current_generation(tmp_path):
     """What a terminal does: SIGINT to every process of the run (the workers ignore it; the main process stops
-    them with SIGTERM, and each checkpoints its seeds). Sent once the progress bar shows a third of the work."""
-    generations = 3000
+    them with SIGTERM, and each checkpoints its seeds). Sent once the progress bar shows a third of the work. A seed's
+    generations take ~0.2 ms and the bar is redrawn every 0.5 s: at 3000 the run could finish between two redraws."""
+    generations = 10000
     args = [IMIX, "run", "algo=snes", "env=cartpole", "eim=true", "seeds=2", f"generations={generations}", "workers=2", "checkpoint_every=100000",
             "checkpoint_seconds=0", "progress=true"]  # fmt: skip
     subprocess.run([*args[:-1], "progress=false", f"results_dir={tmp_path / 'ref'}"], check=True, capture_output=True)

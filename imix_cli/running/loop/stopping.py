@@ -12,7 +12,7 @@ each seed at its current generation and raises :class:`StopRequested`; once the 
 
 How long: the current step ends first -- one generation, or one seed's compiled chunk of at most
 :data:`imix_cli.running.loop.es_seeds.CHUNK` generations (the numba call cannot be cut; on the main job a chunk
-takes about a tenth of a second; a first run's compilation of the kernels, minutes) -- then one
+takes about a fifth of a second; a first run's compilation of the kernels, minutes) -- then one
 checkpoint per seed. At most :data:`STOP_GRACE_SECONDS` all told: with worker processes the main process
 then kills those still busy; in-process the signal then acts as if it came again. A second Ctrl-C acts at
 once. Either way, what was not saved keeps its last periodic checkpoint, as a kill does.
