@@ -12,6 +12,13 @@ time is then the slowest group's compile rather than the sum of all of them.
 When the cache already holds the run's entry points (every run after the first), nothing is
 started: the check reads numba's cache index, and when it cannot tell (numba's internals
 moved), it assumes the cache is warm, i.e. the workers compile as they go, as before.
+The check itself builds the run's ES, whose set-up runs the package's first kernel in the main process:
+numba's compiler target loaded for that alone, ~0.35 s before the workers could start (7 % of the
+main job's whole process). So once a config's kernels were found in (or written to) the package's shared
+cache folder, a stamp file there says so (:func:`_stamp`), and later runs of that config skip the check.
+The folder is one content of the package's compiled sources (:mod:`imix_cli.core.numerics.numba_cache`): an
+edit starts a new folder without stamps; the stamp names numba's version too. A stamp that is wrong
+(cache files deleted by hand) costs what a missing warm-up costs -- the workers compile -- never a number.
 
 Nothing here changes a result: the groups run the kernels on throw-away inputs of the run's
 own types, with their own random numbers, and write no file but numba's cache.
@@ -24,10 +31,13 @@ sizes), so a few configurations cover all runs on the built-in environments.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 
@@ -141,18 +151,47 @@ def _cached(dispatcher) -> bool:
         return True
 
 
+def _stamp(spec) -> Path | None:
+    """The file whose presence says that ``spec``'s kernel groups are in the package's shared numba cache (module
+    docstring); None when the cache is numba's own folder (``NUMBA_CACHE_DIR``, a read-only environment): no stamps."""
+    import numba
+
+    from imix_cli.core.numerics import numba_cache
+
+    root = numba_cache._SHARED[0] if numba_cache._SHARED else None
+    if root is None:
+        return None
+    key = json.dumps([numba.__version__, spec.algo, spec.variant, spec.evaluator, spec.identity()], sort_keys=True, default=repr)
+    return root / "warm-runs" / hashlib.sha256(key.encode()).hexdigest()[:32]
+
+
+def _stamp_now(stamp: Path | None) -> None:
+    if stamp is not None:
+        try:
+            stamp.parent.mkdir(parents=True, exist_ok=True)
+            stamp.touch()
+        except OSError:  # a stamp is an optimisation: the next run checks again
+            pass
+
+
 def warm_up(spec, workers: int) -> int:
     """Compile the run's kernel groups in parallel processes if the cache lacks them and the run has
     ``workers`` >= 2 processes; return the number of groups compiled (0: nothing to do)."""
     if workers < 2:
         return 0  # one process compiles each kernel once anyway, and nothing runs beside it
     try:
+        stamp = _stamp(spec)
+        if stamp is not None and stamp.is_file():
+            return 0  # found (or written) before: the check would build the ES for nothing (module docstring)
         todo = [group for group, entries in compile_groups(spec) if not all(_cached(e) for e in entries)]
     except Exception:  # a warm-up is an optimisation: never a reason for a run to fail
         return 0
+    if not todo:
+        _stamp_now(stamp)
     if len(todo) < 2:
         return 0  # a single group would compile serially, as the first worker does
     _run_groups([(group, spec) for group in todo], workers)
+    _stamp_now(stamp)
     return len(todo)
 
 
