@@ -66,3 +66,25 @@ def test_make_dev_is_an_editable_install_with_the_same_constraints_and_the_es_re
     docs = (ROOT / "docs" / "development.md").read_text()
     recipes = docs[docs.index("## Extending imix") :]
     assert "make dev" in recipes[: recipes.index("**An evolution strategy**")] and "make install` again" in recipes
+
+
+def test_the_imix_command_ends_without_teardown_but_with_main_s_status_and_output(tmp_path):
+    """``imix`` is :func:`imix_cli.commands.cli.entry`: main's output flushed, its exit status (2: a refused
+    config, SystemExit's from Hydra's help), atexit hooks run -- only the modules' teardown is skipped."""
+    import sys
+
+    assert 'imix = "imix_cli.commands.cli:entry"' in (ROOT / "pyproject.toml").read_text()
+    code = (
+        "import atexit, sys; atexit.register(lambda: print('hook ran', flush=True)); "
+        "sys.argv = ['imix', *sys.argv[1:]]; from imix_cli.commands.cli import entry; entry()"
+    )
+
+    def imix(*args):
+        return subprocess.run([sys.executable, "-c", code, *args], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+
+    out = imix("--version")
+    assert out.returncode == 0 and out.stdout.startswith("imix ") and out.stdout.rstrip().endswith("hook ran")
+    out = imix("run", "algo=nope")
+    assert out.returncode == 2 and "unknown algo" in out.stderr and "hook ran" in out.stdout
+    out = imix("run", "--help")
+    assert out.returncode == 0 and "imix run" in out.stdout and "hook ran" in out.stdout
