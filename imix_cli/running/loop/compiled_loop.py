@@ -30,7 +30,7 @@ from imix_cli.core.algorithms.base import EvolutionStrategy, copy_record, hash_m
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.mixing import COMPILED_MAX_ELEMENTS, variant_spec
 from imix_cli.core.mixing.compiled_generation import entry_for, env_code, pack_archive, unpack_archive
-from imix_cli.running.loop.lockstep import generation_row
+from imix_cli.running.loop.lockstep import scored_row
 
 __all__ = ["applies", "applies_to_run", "advance", "ENV_VARIABLE"]
 
@@ -144,13 +144,15 @@ def advance(st, settings, evaluator, generations: int) -> bool:
     if best_return[0] > st.best_return:
         st.best_params, st.best_return = best, float(best_return[0])
     every, episodes = settings.eval_mean_every, int(settings.eval_mean_episodes)
-    numbers = (out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
-    for fitness, (counts, n, steps, sigma_mean, theta) in zip(out_fitness, zip(*(a.tolist() for a in numbers))):
+    # Every return of a chunk is finite (else the chunk is handed back): generation_row's mean and best of each row,
+    # numpy's mean (pairwise sum, then / popsize) and max of each row of the chunk at once -- the same numbers.
+    numbers = (out_fitness.mean(axis=1), out_fitness.max(axis=1), out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
+    for mean_score, best_score, counts, n, steps, sigma_mean, theta in zip(*(a.tolist() for a in numbers)):
         st.evaluations += n
         st.env_steps += steps
         if every and (st.generation + 1) % every == 0:
             st.mean_policy_episodes += episodes
-        row = generation_row(settings, st, fitness, (*counts, 0), sigma_mean)
+        row = scored_row(settings, st, (mean_score, best_score), (*counts, 0), sigma_mean)
         row["mean_policy_score"], row["mean_policy_episodes"] = theta, st.mean_policy_episodes  # as measure_distribution_means
         st.rows.append(row)
     return True

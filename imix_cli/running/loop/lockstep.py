@@ -148,14 +148,19 @@ def generation_row(settings: LoopSettings, st: SeedState, fitness: np.ndarray, r
     ``wall_time`` is 0.0, for the caller, which owns the clock, to fill in; the ``mean_policy_*``
     columns are added by whoever measures the distribution mean."""
     finite = np.isfinite(fitness)
+    scores = (float(np.mean(fitness[finite])), float(np.max(fitness[finite]))) if finite.any() else (float("nan"), float("nan"))
+    return scored_row(settings, st, scores, reused, sigma_mean, int(np.count_nonzero(~finite)))
+
+
+def scored_row(settings: LoopSettings, st: SeedState, scores: tuple, reused: tuple, sigma_mean: float, nonfinite: int = 0) -> dict:
+    """:func:`generation_row` from the generation's ``scores`` = (mean, best) of its finite returns, computed by the
+    caller (the compiled loop: numpy's mean of each row of its chunk's returns at once, the same numbers)."""
     reused_all, reused_im, reused_eim, reevaluated = reused
     return {
         "algo": settings.algo, "env": settings.env, "mixing": settings.mixing_name, "seed": st.seed, "generation": st.generation,
-        "evaluations": st.evaluations, "env_steps": st.env_steps,
-        "mean_score": float(np.mean(fitness[finite])) if finite.any() else float("nan"),
-        "best_score": float(np.max(fitness[finite])) if finite.any() else float("nan"),
+        "evaluations": st.evaluations, "env_steps": st.env_steps, "mean_score": scores[0], "best_score": scores[1],
         "reused": reused_all, "reused_im": reused_im, "reused_eim": reused_eim, "reevaluated": reevaluated,
-        "popsize": settings.popsize, "sigma_mean": sigma_mean, "nonfinite": int(np.count_nonzero(~finite)), "wall_time": 0.0,
+        "popsize": settings.popsize, "sigma_mean": sigma_mean, "nonfinite": nonfinite, "wall_time": 0.0,
     }  # fmt: skip
 
 
