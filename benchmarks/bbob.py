@@ -294,7 +294,7 @@ def _worker(args):
     for arm in arms:
         os.chdir(out / "exdata" / arm)
         observer = cocoex.Observer(suite_name, f"result_folder: w{worker} algorithm_name: {arm}")  # the observer of the suite's name
-        suite = cocoex.Suite(suite_name, "", "")
+        suite = cocoex.Suite(suite_name, *suite_options(problems))
         for fid, dim, inst in problems:
             problem = suite.get_problem_by_function_dimension_instance(fid, dim, inst)
             problem.observe_with(observer)
@@ -306,6 +306,31 @@ def _worker(args):
             records.append(record)
         del observer
     return records
+
+
+def suite_options(problems) -> tuple[str, str]:
+    """``cocoex.Suite``'s instance and option strings holding ``problems`` ((function, dim, instance) triples): COCO's
+    default suite holds only that year's instances (bbob: no instance 6), so the instances are named."""
+    instances = ",".join(str(i) for i in sorted({p[2] for p in problems}))
+    dims = ",".join(str(d) for d in sorted({p[1] for p in problems}))
+    return f"instances: {instances}", f"dimensions: {dims}"
+
+
+def missing_problem(suite: str, problems) -> str | None:
+    """The first of ``problems`` that COCO's ``suite`` does not have, in words; None if it has them all."""
+    import cocoex
+
+    cocoex.log_level("error")
+    try:
+        coco = cocoex.Suite(suite, *suite_options(problems))
+    except Exception:  # noqa: BLE001 (cocoex calls a suite with no problem "unknown")
+        coco = None
+    for fid, dim, inst in problems:
+        try:
+            coco.get_problem_by_function_dimension_instance(fid, dim, inst).free()
+        except Exception:  # noqa: BLE001 (cocoex raises its own exception types)
+            return f"{suite} has no problem f{fid} d={dim} instance {inst} (its dimensions are 2, 3, 5, 10, 20, 40; instances >= 1)"
+    return None
 
 
 def run(out: Path, functions, dims, instances, arms, workers: int, budget_per_dim: int, suite: str = "bbob") -> None:
@@ -680,11 +705,14 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=12, help="overhead: pairs of runs (pycma alone, wrapped) per dimension")
     args = parser.parse_args(argv)
 
-    def ints(text):
+    def ints(text, flag="--functions"):
         out = []
         for part in text.split(","):
             lo, _, hi = part.partition("-")
-            out += list(range(int(lo), int(hi or lo) + 1))
+            try:
+                out += list(range(int(lo), int(hi or lo) + 1))
+            except ValueError:
+                parser.error(f"{flag} {text!r}: integers and ranges, e.g. 1-3,5")
         return out
 
     arms = args.arms.split(",")
@@ -698,9 +726,13 @@ def main(argv=None) -> int:
         valid = set(ints(spec["functions"]))
         if not set(functions) <= valid:
             parser.error(f"--functions {args.functions}: {args.suite}'s functions are {spec['functions']}")
+        dims, instances = ints(args.dims, "--dims"), ints(args.instances, "--instances")
+        missing = missing_problem(args.suite, _todo(functions, dims, instances))
+        if missing:
+            parser.error(f"--dims {args.dims} --instances {args.instances}: {missing}")
         out.mkdir(parents=True, exist_ok=True)
         _meta(out, arms)
-        run(out, functions, ints(args.dims), ints(args.instances), arms, args.workers, args.budget_per_dim, args.suite)
+        run(out, functions, dims, instances, arms, args.workers, args.budget_per_dim, args.suite)
     elif args.section == "table":
         records = load(out)
         print(table(records, arms[:2], spec["groups"]))

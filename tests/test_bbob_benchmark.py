@@ -120,3 +120,20 @@ def test_the_paired_sign_test_counts_problems_hit_by_one_arm_only():
     text = bbob.paired_hits(records, ("pycma", "mixing"))
     assert "| multimodal f15-19 | 0 | 7 | 0.02 |" in text, text
     assert "| all | 0 | 7 | 0.02 |" in text and "separable" not in text, text  # no row for a group not run
+
+
+def test_instances_outside_cocos_default_set_run_and_a_problem_coco_lacks_is_one_line(tmp_path):
+    """The benchmark is run on instances it was not tuned on: COCO's default bbob suite holds only its year's instances
+    (no instance 6), and ``run --instances 4-6`` once died in a worker with cocoex's traceback. The suite is now built
+    with the instances and dimensions asked for (instances 1-3 give the same records as before: the problem is its id).
+    Made to fail by building the suite with COCO's defaults again: instance 6 is then a traceback, exit 1."""
+    out = tmp_path / "bbob"
+    done = _bbob("run", "--out", str(out), "--functions", "1", "--dims", "2", "--instances", "6", "--arms", "pycma",
+                 "--workers", "1", "--budget-per-dim", "300", cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    (record,) = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    assert record["problem"] == "bbob_f001_i06_d02" and record["hit"] and record["exception"] is None, record
+    refused = _bbob("run", "--out", str(out), "--functions", "1", "--dims", "7", "--instances", "1", cwd=tmp_path)
+    lines = refused.stderr.strip().splitlines()
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr, refused.stderr
+    assert "bbob has no problem f1 d=7 instance 1" in lines[-1], lines
