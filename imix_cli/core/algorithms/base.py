@@ -265,29 +265,6 @@ def adam_step(adam, lr, beta1, beta2, epsilon, grad):
     return out
 
 
-def _array_like(value, reference: np.ndarray, name: str) -> np.ndarray:
-    """``value`` as a float64 copy with ``reference``'s shape; ValueError (naming ``name``) otherwise.
-
-    A state dict is read back from a file: a wrong shape must be refused here rather than
-    surface generations later as a broadcasting error.
-    """
-    value = np.array(value, dtype=np.float64, copy=True)
-    if value.shape != np.shape(reference):
-        raise ValueError(f"state {name!r} has shape {value.shape}, expected {np.shape(reference)}")
-    return value
-
-
-def prefixed(prefix: str, state: dict) -> dict:
-    """``state`` with every key prefixed ``prefix.`` (to nest an optimiser's or distribution's state)."""
-    return {f"{prefix}.{k}": v for k, v in state.items()}
-
-
-def unprefixed(prefix: str, state: dict) -> dict:
-    """The entries of ``state`` under ``prefix.``, without it (the inverse of :func:`prefixed`)."""
-    head = f"{prefix}."
-    return {k[len(head) :]: v for k, v in state.items() if k.startswith(head)}
-
-
 def _is_record(value) -> bool:
     return isinstance(value, tuple) and hasattr(value, "_fields")
 

@@ -368,7 +368,7 @@ class CMAES(EvolutionStrategy):
         # the state (CMAESState): pycma's genotype coordinates, x = T g; T = I until the 1e12 condition alleviation sets it
         C = np.diag(xp.exp((1e-4 / d) * np.arange(d)))  # pycma's initial C (see module doc)
         tpa = self.params.step_size_control == "tpa"
-        self.state = CMAESState(
+        state = CMAESState(
             mean_geno=self.initial_mean.copy(), C=C, eigenvalues_sqrt=np.sqrt(np.diag(C)).copy(), eigenvectors=np.eye(d),
             scaling=np.ones(d), p_sigma=np.zeros(d), p_c=np.zeros(d), step_size=np.array([self.sigma]), countiter=np.zeros(1, dtype=np.int64),
             transform=np.eye(d), transform_inverse=np.eye(d), transformed=np.zeros(1, dtype=np.bool_),
@@ -378,7 +378,7 @@ class CMAES(EvolutionStrategy):
         # from which the next two test points are made, are in the record
         self.tpa_damp = 0.7 + 2 * _log(d) + 2 * _log(max(1, self.popsize - d))
         self._probe_fitness = None
-        self._set_distribution()
+        self.set_state(state)
 
     # ------------------------------------------------------------ the state record's fields, as attributes
     mean_geno, C, eigenvalues_sqrt, eigenvectors = _field("mean_geno"), _field("C"), _field("eigenvalues_sqrt"), _field("eigenvectors")
@@ -395,9 +395,8 @@ class CMAES(EvolutionStrategy):
     def transform(self, value) -> None:
         self.state = self.state._replace(transform=value, transformed=np.array([True]))
 
-    def set_state(self, state) -> None:
-        self.state = state
-        self._set_distribution()
+    def _state_changed(self) -> None:
+        self._set_distribution()  # a full Gaussian of the genotype state (:meth:`_set_distribution`)
 
     # ------------------------------------------------------------ distribution
     @property
