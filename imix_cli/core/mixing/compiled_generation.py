@@ -264,9 +264,10 @@ def entry(update, utilities, mean_weights=None):
     return _ENTRIES[key]
 
 
-def entry_for(es):
-    """The compiled entry point that runs ``es`` (one with a compiled step and compiled utilities)."""
-    step = es.compiled_step()
+def entry_for(es, step=None):
+    """The compiled entry point that runs ``es`` (one with a compiled step and compiled utilities); ``step``: its
+    :meth:`~imix_cli.core.algorithms.base.EvolutionStrategy.compiled_step`, if the caller has it already."""
+    step = step or es.compiled_step()
     return entry(step.update, es.compiled_utilities(), step.mean_weights)
 
 

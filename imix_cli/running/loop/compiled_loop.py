@@ -126,7 +126,7 @@ def advance(st, settings, evaluator, generations: int) -> bool:
     measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
     out = (out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
     state = copy_record(es.state)  # the chunk moves this copy; the ES takes it only if the chunk ran to its end
-    done = entry_for(es)(
+    done = entry_for(es, step)(
         generations, rule, (es_generation, state, step.constants), archive_arrays,
         (st.sample_rng, st.episode_rng, st.mean_eval_rng), episodes, measure, (best, best_return, last_u), out,
     )  # fmt: skip
