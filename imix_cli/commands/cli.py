@@ -104,12 +104,9 @@ def entry() -> None:
     else:  # as Python's exit: SystemExit("message") prints the message, status 1
         print(code, file=sys.stderr)
         status = 1
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except Exception:  # a closed or broken stream (imix ... | head): nothing more can be said on it
-            pass
-    os._exit(status % 256)
+    from imix_cli.core.processes import exit_without_teardown  # loaded already: the imix script loads it first
+
+    exit_without_teardown(status)
 
 
 def _dispatch(command: str, rest: list) -> int:

@@ -15,11 +15,10 @@ import logging
 import os
 import queue as queue_module
 import signal
-import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from imix_cli.core.processes import one_blas_thread, spawn_context, start_orphan_watchdog
+from imix_cli.core.processes import exit_without_teardown, one_blas_thread, spawn_context, start_orphan_watchdog
 from imix_cli.running.loop import stopping
 
 _progress_queue = None
@@ -91,12 +90,7 @@ def _exit_without_teardown() -> None:
     file the worker wrote was synced when it was written; only the logging handlers (a tracker's)
     and Python's stdio buffers are left to flush."""
     logging.shutdown()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except Exception:  # a closed or broken stream: nothing more can be said on it
-            pass
-    os._exit(0)
+    exit_without_teardown(0)
 
 
 def _terminate_workers(pool: ProcessPoolExecutor, grace: float = 5.0) -> None:
