@@ -231,7 +231,7 @@ ADAPTER_NOISY_BUDGET ?= 3000
 # the page's table and figures. Needs `pip install ".[bbob]"`. About 45 min of 2 cores for the runs (finished
 # problems are skipped, so an interrupted run resumes), then ~10 min of cocopp.
 BBOB_OUT  ?= results/bbob
-BBOB_ARMS ?= pycma,mixing,mixing-pop2,pycma-pop2,pycma-ipop,mixing-ipop,pycma-bipop,mixing-bipop,mixing-cond,mixing-cond-pop2
+BBOB_ARMS ?= pycma,mixing,mixing-pop2,pycma-pop2,mixing-pop3,pycma-pop3,pycma-ipop,mixing-ipop,pycma-bipop,mixing-bipop,mixing-cond,mixing-cond-pop2,mixing-tpa
 bbob:  ## COCO's bbob suite: pycma alone and wrapped (table and cocopp figures of docs/adapters.md)
 	$(PY) benchmarks/bbob.py run --out $(BBOB_OUT) --arms $(BBOB_ARMS)
 	$(PY) benchmarks/bbob.py docs --out $(BBOB_OUT) --arms $(BBOB_ARMS)

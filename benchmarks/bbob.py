@@ -67,6 +67,7 @@ ARMS = {
     "mixing-pop2": ({}, {}),  # pycma's default popsize doubled (POPSIZE_FACTOR)
     "mixing-pop3": ({}, {}),  # tripled: about as many fresh members per generation as pycma at its default
     "pycma-pop2": None,
+    "pycma-pop3": None,
     "mixing-reeval2": ({"reeval_count": 2}, {}),  # 2 reused members re-evaluated per generation (the noisy suite's remedy)
 }
 #: arms that run pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)), alone or with mixing (imix_cli.fmin2)
@@ -74,7 +75,7 @@ IPOP_ARMS = {"pycma-ipop": None, "mixing-ipop": {}, "pycma-bipop": None, "mixing
              "mixing-ipop-fresh-half": {"min_fresh": "half"}}  # fmt: skip
 ARMS.update(IPOP_ARMS)
 #: arms whose pycma popsize is POPSIZE_FACTOR x pycma's default (4 + 3 ln d)
-POPSIZE_FACTOR = {"mixing-pop2": 2, "pycma-pop2": 2, "mixing-cond-pop2": 2, "mixing-pop3": 3}
+POPSIZE_FACTOR = {"mixing-pop2": 2, "pycma-pop2": 2, "mixing-cond-pop2": 2, "mixing-pop3": 3, "pycma-pop3": 3}
 GROUPS = (
     ("separable f1-5", range(1, 6)),
     ("low/moderate conditioning f6-9", range(6, 10)),
@@ -499,6 +500,9 @@ DOC_PAIRS = (
     (("pycma", "mixing"), "pycma alone against the same ES wrapped (MixingES's defaults)"),
     (("pycma", "mixing-pop2"), "pycma alone at its default popsize against mixing at twice that popsize"),
     (("pycma-pop2", "mixing-pop2"), "both at twice pycma's default popsize"),
+    (("pycma", "mixing-pop3"), "pycma alone at its default popsize against mixing at three times that popsize (about pycma's "
+     "number of fresh members per generation: the setting that reaches pycma's hits)"),
+    (("pycma-pop3", "mixing-pop3"), "both at three times pycma's default popsize"),
     (("pycma-ipop", "mixing-ipop"), "pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)) against imix_cli.fmin2's"),
     (("pycma-bipop", "mixing-bipop"), "pycma's BIPOP restarts (cma.fmin2(..., restarts=9, bipop=True)) against imix_cli.fmin2's"),
     (("pycma", "mixing-cond"), 'pycma alone against mixing with variant "conditional" (MixingES(es, "conditional"))'),
@@ -506,7 +510,7 @@ DOC_PAIRS = (
     (("pycma", "mixing-tpa"), 'pycma alone against mixing with imix\'s two-point step size (PycmaES(es, step_size="tpa")): where the restarts come from'),
 )
 #: The arms cocopp draws (all in one figure per group).
-COCOPP_ARMS = ("pycma", "mixing", "mixing-pop2")
+COCOPP_ARMS = ("pycma", "mixing", "mixing-pop3")
 #: cocopp's runtime ECDFs copied into the docs: every group at d = 10, all functions at each d.
 DOC_FIGURES = [f"pprldmany_10D_{g}.svg" for g in ("separ", "lcond", "hcond", "multi", "mult2")] + [f"pprldmany_{d:02d}D_noiselessall.svg" for d in (2, 5, 10)]
 BEGIN, END = "<!-- bbob:begin (benchmarks/bbob.py docs writes this part) -->", "<!-- bbob:end -->"
