@@ -500,8 +500,11 @@ DOC_PAIRS = (
     (("pycma", "mixing"), "pycma alone against the same ES wrapped (MixingES's defaults)"),
     (("pycma", "mixing-pop2"), "pycma alone at its default popsize against mixing at twice that popsize"),
     (("pycma-pop2", "mixing-pop2"), "both at twice pycma's default popsize"),
-    (("pycma", "mixing-pop3"), "pycma alone at its default popsize against mixing at three times that popsize (about pycma's "
-     "number of fresh members per generation: the setting that reaches pycma's hits)"),
+    (
+        ("pycma", "mixing-pop3"),
+        "pycma alone at its default popsize against mixing at three times that popsize (about pycma's "
+        "number of fresh members per generation: the setting that reaches pycma's hits)",
+    ),
     (("pycma-pop3", "mixing-pop3"), "both at three times pycma's default popsize"),
     (("pycma-ipop", "mixing-ipop"), "pycma's IPOP restarts (cma.fmin2(..., restarts=9, incpopsize=2)) against imix_cli.fmin2's"),
     (("pycma-bipop", "mixing-bipop"), "pycma's BIPOP restarts (cma.fmin2(..., restarts=9, bipop=True)) against imix_cli.fmin2's"),
