@@ -186,3 +186,21 @@ def test_only_envs_marked_mujoco_are_mujoco_envs(monkeypatch):
     assert all(registry.ENV_SPECS[name].mujoco for name in registry.MUJOCO_ENVS)
     monkeypatch.setitem(registry.ENV_SPECS, "mountaincar", spec)
     assert "MountainCar-v0" not in registry.mujoco_thresholds()
+
+
+def test_imix_plot_takes_a_presets_threshold_under_the_gymnasium_id_its_runs_carry(monkeypatch):
+    # runs of a preset that is not a built-in are named by the gymnasium id (env=mountaincar makes MountainCar-v0
+    # runs): the EnvSpec's threshold must reach imix plot under that name, not under the config name it never sees
+    from imix_cli.core import registry
+    from imix_cli.plotting import data
+
+    assert data.DEFAULT_THRESHOLDS == registry.plot_thresholds()  # what imix plot starts from
+    spec = registry.EnvSpec("mountaincar", "MountainCar-v0", "MountainCar", 200, -110.0)
+    monkeypatch.setitem(registry.ENV_SPECS, "mountaincar", spec)
+    monkeypatch.setitem(registry.ENV_SPECS, "pendulum", registry.EnvSpec("pendulum", "Pendulum-v1", "Pendulum", 200))
+    thresholds = registry.plot_thresholds()
+    assert thresholds["MountainCar-v0"] == -110.0 and "mountaincar" not in thresholds
+    assert "Pendulum-v1" not in thresholds  # no threshold given: none made up
+    assert thresholds["Hopper-v5"] == registry.ENV_SPECS["hopper"].threshold  # MuJoCo runs are named by id too
+    for name in registry.BUILTIN_ENVS:  # built-in runs carry the config name
+        assert thresholds[name] == registry.ENV_SPECS[name].threshold

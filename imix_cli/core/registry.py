@@ -75,7 +75,8 @@ class AlgorithmSpec:
     name : str
         The config name (``algo=<name>``, the CSVs' ``algo`` column, run folder names).
     label : str
-        How figures and tables print it.
+        How figures and tables print a built-in (runs of any other preset are named, and printed, by the
+        gymnasium id).
     color : str
         Its colour in every figure (Okabe-Ito, colour-blind safe).
     load_class : callable or None
@@ -167,11 +168,13 @@ class EnvSpec:
     gym_id : str
         The gymnasium id it is (or, for a built-in, that its evaluator reproduces).
     label : str
-        How figures and tables print it.
+        How figures and tables print a built-in (runs of any other preset are named, and printed, by the
+        gymnasium id).
     max_steps : int
         The default episode cap (``env.max_steps`` of its config).
     threshold : float or None
-        The return that counts as solved in ``imix plot``'s to-threshold tables and figures.
+        The return that counts as solved in ``imix plot``'s to-threshold tables and figures (for a preset that is
+        not a built-in, under its gymnasium id, the name its runs carry: :func:`plot_thresholds`).
     continuous : bool
         Continuous (Box) actions; the built-ins algo=ddpg accepts.
     builtin : bool
@@ -254,9 +257,11 @@ def env_label(name: str) -> str:
     return spec.label if spec and spec.builtin else name
 
 
-def builtin_thresholds() -> dict:
-    """``imix plot``'s default thresholds: built-in config name -> threshold."""
-    return {name: ENV_SPECS[name].threshold for name in BUILTIN_ENVS}
+def plot_thresholds() -> dict:
+    """``imix plot``'s default thresholds, by the env name its runs carry: a built-in's config name, any other
+    preset's gymnasium id (such runs are named by the id: ``env=mountaincar`` makes ``MountainCar-v0`` runs)."""
+    by_id = {spec.gym_id: spec.threshold for spec in ENV_SPECS.values() if not spec.builtin and spec.threshold is not None}
+    return {**by_id, **{name: ENV_SPECS[name].threshold for name in BUILTIN_ENVS}}
 
 
 def mujoco_thresholds() -> dict:

@@ -65,7 +65,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from imix_cli.core.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, builtin_thresholds
+from imix_cli.core.registry import ALGO_NAMES, MIXING_NAMES, NON_ES_NAMES, plot_thresholds
 from imix_cli.core.stats import mean_ci  # noqa: F401  (re-exported: figures and tables use it)
 from imix_cli.running.files.results import PRUNED_FILE, CorruptResultError, ResultMismatchError, read_run_csv, run_dir_name, seed_csv_path
 from imix_cli.running.files.safe_yaml import BadYamlError, load_yaml_file
@@ -92,8 +92,8 @@ __all__ = [
 ]
 
 #: Default thresholds on the population mean return (``threshold.<env>=`` overrides, ``=none`` removes):
-#: the built-in environments' (:data:`imix_cli.core.registry.ENV_SPECS`).
-DEFAULT_THRESHOLDS = builtin_thresholds()
+#: the presets' of :data:`imix_cli.core.registry.ENV_SPECS` (:func:`~imix_cli.core.registry.plot_thresholds`).
+DEFAULT_THRESHOLDS = plot_thresholds()
 
 #: Algorithms whose rows are episodes (one per finished episode within an env-step budget): their
 #: seeds have different row counts by design, so that is not flagged. The non-ES algorithms.
