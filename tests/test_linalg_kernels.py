@@ -7,8 +7,11 @@ shaped like CMA-ES's (random SPD, condition up to 1e14, repeated eigenvalues, di
 ~1e-12 of the largest eigenvalue and with an orthonormal basis that reconstructs the matrix.
 """
 
+import math
+
 import numpy as np
 import pytest
+from numba import njit
 
 from imix_cli.core.numerics import linalg_kernels as lk
 
@@ -181,3 +184,107 @@ def test_factor_kind_tells_diagonal_full_and_non_finite_factors():
             a = eye.copy()
             a[where] = bad
             assert lk.factor_kind(a) == kind, (bad, where)
+
+
+@njit
+def _tred2_one_row_at_a_time(w, d, e):
+    """JAMA/EISPACK tred2 as imix computed it before its two O(d^3) loops went four rows at a time: the reference."""
+    n = w.shape[0]
+    for j in range(n):
+        d[j] = w[j, n - 1]
+    for i in range(n - 1, 0, -1):
+        scale = 0.0
+        h = 0.0
+        for k in range(i):
+            scale += abs(d[k])
+        if scale == 0.0:
+            e[i] = d[i - 1]
+            for j in range(i):
+                d[j] = w[j, i - 1]
+                w[j, i] = 0.0
+                w[i, j] = 0.0
+        else:
+            for k in range(i):
+                d[k] /= scale
+                h += d[k] * d[k]
+            f = d[i - 1]
+            g = math.sqrt(h)
+            if f > 0:
+                g = -g
+            e[i] = scale * g
+            h = h - f * g
+            d[i - 1] = f - g
+            for j in range(i):
+                e[j] = 0.0
+            for j in range(i):
+                f = d[j]
+                w[i, j] = f
+                g = e[j] + w[j, j] * f
+                for k in range(j + 1, i):
+                    g += w[j, k] * d[k]
+                    e[k] += w[j, k] * f
+                e[j] = g
+            f = 0.0
+            for j in range(i):
+                e[j] /= h
+                f += e[j] * d[j]
+            hh = f / (h + h)
+            for j in range(i):
+                e[j] -= hh * d[j]
+            for j in range(i):
+                f = d[j]
+                g = e[j]
+                for k in range(j, i):
+                    w[j, k] -= f * e[k] + g * d[k]
+                d[j] = w[j, i - 1]
+                w[j, i] = 0.0
+        d[i] = h
+    for i in range(n - 1):  # accumulate the transformations
+        w[i, n - 1] = w[i, i]
+        w[i, i] = 1.0
+        h = d[i + 1]
+        if h != 0.0:
+            for k in range(i + 1):
+                d[k] = w[i + 1, k] / h
+            for j in range(i + 1):
+                g = 0.0
+                for k in range(i + 1):
+                    g += w[i + 1, k] * w[j, k]
+                for k in range(i + 1):
+                    w[j, k] -= g * d[k]
+        for k in range(i + 1):
+            w[i + 1, k] = 0.0
+    for j in range(n):
+        d[j] = w[j, n - 1]
+        w[j, n - 1] = 0.0
+    w[n - 1, n - 1] = 1.0
+    e[0] = 0.0
+
+
+def _symmetric_cases():
+    rng = np.random.default_rng(130)
+    for n in (*range(1, 12), 13, 31, 64, 130, 203):
+        g = rng.standard_normal((n, n))
+        yield f"random d={n}", g + g.T
+    for n in (9, 40):
+        yield f"SPD condition 1e12 d={n}", _spd(rng, n, 12)
+        a = _spd(rng, n, 3)
+        a[:, n // 2] = a[n // 2, :] = 0.0  # a zero row and column: tred2's scale == 0 branch
+        yield f"zero row d={n}", a
+        yield f"diagonal d={n}", np.diag(rng.uniform(1, 2, n))
+    yield "pycma initial C d=130", np.diag(np.exp((1e-4 / 130) * np.arange(130)))
+
+
+@pytest.mark.parametrize("name,a", list(_symmetric_cases()), ids=lambda v: v if isinstance(v, str) else "")
+def test_tred2_four_rows_at_a_time_gives_the_one_row_loops_bits(name, a):
+    """tred2's two O(d^3) loops run four rows side by side (linalg_kernels._reduce_rows, _apply_reflections); every
+    number must be the one the one-row-at-a-time loop (JAMA's order, imix's before) gives, so that CMA-ES's runs keep
+    their bits. Made to fail by adding row j + 1's term to e[k] before row j's in the four-row loop."""
+    n = a.shape[0]
+    outputs = []
+    for tred2 in (lk._tred2, _tred2_one_row_at_a_time):
+        w, d, e = np.array(a.T, order="C"), np.empty(n), np.empty(n)  # a copy: tred2 works in place
+        tred2(w, d, e)
+        outputs.append((w, d, e))
+    for new, old in zip(*outputs):
+        assert np.array_equal(new.view(np.int64), old.view(np.int64)), name
