@@ -382,6 +382,30 @@ def test_kernels_refuse_params_that_do_not_fit_the_layer_sizes():
         kernels.acrobot_episodes(np.zeros((1, 130)), np.zeros((1, 4)), np.zeros((1, 6)), np.array([6, 8, 8, 3]), 5, out, steps, np.empty((0, 0, 0)))
 
 
+def test_acrobot_episodes_in_lanes_equal_one_at_a_time():
+    """From LANES_FROM members on, Acrobot episodes run LANES at a time too (a lane whose episode ends takes the next
+    member): every member's return, length and states must be those of its episode run alone, bit for bit, whether
+    it ends by swinging up (65-200 steps: noisy energy pumpers) or at the cap (random members). Made to fail by
+    not resetting a reused lane's return and by giving a new member's lane the previous member's observation."""
+    from imix_cli.core.envs import kernels
+
+    rng = np.random.default_rng(21)
+    sizes = np.array([6, 8, 8, 3], dtype=np.int64)
+    n = 3 * kernels.LANES_FROM + 5
+    pumper = linear_mlp([0, 0, 0, 0, -1, 1], [-1, 0, 1])  # torque along the second joint's relative swing
+    params = np.vstack([pumper + 0.05 * rng.standard_normal((n // 2, pumper.size)), rng.standard_normal((n - n // 2, pumper.size))])
+    params = params[rng.permutation(n)]
+    seeds = rng.integers(0, 2**63, n).astype(np.uint64)
+    returns, steps, trace = np.empty(n), np.empty(n, dtype=np.int64), np.full((n, 201, 4), np.nan)
+    kernels.acrobot_seeded_episodes(params, seeds, sizes, 200, returns, steps, trace)
+    assert steps.min() < 120 and steps.max() == 200
+    for i in range(n):
+        r1, s1, t1 = np.empty(1), np.empty(1, dtype=np.int64), np.full((1, 201, 4), np.nan)
+        kernels.acrobot_seeded_episodes(params[i : i + 1], seeds[i : i + 1], sizes, 200, r1, s1, t1)
+        assert (returns[i], steps[i]) == (r1[0], s1[0]), i
+        assert np.array_equal(trace[i], t1[0], equal_nan=True), i
+
+
 @pytest.mark.parametrize("continuous,sparse", [(False, False), (True, False), (True, True)], ids=["CartPole", "Continuous", "ContinuousHard"])
 def test_cartpole_episodes_in_lanes_equal_one_at_a_time(continuous, sparse):
     """From LANES_FROM members on, CartPole episodes run LANES at a time (a lane whose episode ends takes the next

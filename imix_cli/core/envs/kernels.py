@@ -279,7 +279,8 @@ def cartpole_steps(states, forces):
     return out, terminated
 
 
-#: Lanes of :func:`_cartpole_episodes_in_lanes`, and the batch from which :func:`cartpole_episodes` uses it.
+#: Lanes of :func:`_cartpole_episodes_in_lanes` and :func:`_acrobot_episodes_in_lanes`, and the batch from which
+#: :func:`cartpole_episodes` and :func:`acrobot_episodes` use them.
 LANES = 8
 LANES_FROM = 16
 
@@ -552,7 +553,11 @@ def acrobot_episodes(params, states0, obs0, sizes, max_steps, returns, steps, tr
 
     The first observation comes from the caller because gymnasium computes it with numpy's
     float32 ``cos``/``sin``, which are not libm's. ``trace`` as in :func:`cartpole_episodes`.
+    From :data:`LANES_FROM` members on, :func:`_acrobot_episodes_in_lanes` runs them (the same numbers).
     """
+    if params.shape[0] >= LANES_FROM and max_steps > 0:
+        _acrobot_episodes_in_lanes(params, states0, obs0, sizes, max_steps, returns, steps, trace)
+        return
     width = _buffer_width(params, sizes)
     x, y = np.empty(width), np.empty(width)
     s, k, ys = np.empty(4), np.empty((4, 4)), np.empty(4)
@@ -577,6 +582,80 @@ def acrobot_episodes(params, states0, obs0, sizes, max_steps, returns, steps, tr
                 break
             _acrobot_observe(s, x)
         returns[i], steps[i] = ret, t
+
+
+@njit(cache=True)
+def _argmax_lane(y, g, n):
+    """:func:`_argmax` of lane ``g`` of ``y`` (outputs x lanes): ``y[:n, g]``'s first largest, NaN never wins."""
+    best, a = y[0, g], 0
+    for j in range(1, n):
+        if y[j, g] > best:
+            best, a = y[j, g], j
+    return a
+
+
+@njit(cache=True)
+def _load_acrobot_lane(params, states0, obs0, member, lane, params_t, s, x, trace):
+    """Start ``member``'s episode in ``lane``: its parameters, initial state and first observation."""
+    for q in range(params.shape[1]):
+        params_t[q, lane] = params[member, q]
+    for j in range(4):
+        s[lane, j] = states0[member, j]
+    for j in range(6):
+        x[j, lane] = obs0[member, j]
+    if trace.shape[0] > 0:
+        _record(trace, member, 0, s[lane])
+
+
+@njit(cache=True)
+def _acrobot_episodes_in_lanes(params, states0, obs0, sizes, max_steps, returns, steps, trace):
+    """:func:`acrobot_episodes`, :data:`LANES` episodes stepped together, as
+    :func:`_cartpole_episodes_in_lanes` does for CartPole: one policy evaluation for all of them
+    (:func:`_mlp_lanes`), then each one's rk4 step; a lane whose episode ends takes the next member. One
+    episode's step is a chain of dependent operations (the policy's layers, then four derivative evaluations);
+    eight independent ones keep the CPU busy. Every member's numbers are those of the one-at-a-time loop, bit for
+    bit (tests/test_envs.py)."""
+    n = params.shape[0]
+    width = _buffer_width(params, sizes)
+    params_t = np.zeros((params.shape[1], LANES))
+    x, y = np.zeros((width, LANES)), np.zeros((width, LANES))
+    s, k, ys = np.zeros((LANES, 4)), np.empty((4, 4)), np.empty(4)
+    obs = np.empty(6)
+    member = np.full(LANES, -1)
+    t = np.zeros(LANES, dtype=np.int64)
+    ret = np.zeros(LANES)
+    record = trace.shape[0] > 0
+    started = 0
+    for g in range(min(LANES, n)):
+        _load_acrobot_lane(params, states0, obs0, started, g, params_t, s, x, trace)
+        member[g] = started
+        started += 1
+    running = started
+    while running > 0:
+        out = _mlp_lanes(params_t, sizes, x, y)  # idle lanes compute on their last observation, unused
+        for g in range(LANES):
+            i = member[g]
+            if i < 0:
+                continue
+            terminated = acrobot_step(s[g], _TORQUES[_argmax_lane(out, g, 3)], k, ys)
+            t[g] += 1
+            if record:
+                _record(trace, i, t[g], s[g])
+            ret[g] += 0.0 if terminated else -1.0
+            if terminated or t[g] == max_steps:
+                returns[i], steps[i] = ret[g], t[g]
+                ret[g], t[g] = 0.0, 0
+                if started < n:
+                    _load_acrobot_lane(params, states0, obs0, started, g, params_t, s, x, trace)
+                    member[g] = started
+                    started += 1
+                else:
+                    member[g] = -1
+                    running -= 1
+            else:
+                _acrobot_observe(s[g], obs)
+                for j in range(6):
+                    x[j, g] = obs[j]
 
 
 @njit(cache=True)
