@@ -315,18 +315,44 @@ def _gaussian_log_probs(lows, means, log_norms, x):
     m, d = means.shape
     n = x.shape[0]
     out = np.empty((m, n))
-    z = np.empty(d)
+    if n < SOLVE_ROWS_TOGETHER:
+        z = np.empty(d)
+        for j in range(m):
+            for r in range(n):
+                sq = 0.0
+                for i in range(d):
+                    acc = x[r, i] - means[j, i]
+                    for k in range(i):
+                        acc -= lows[j, i, k] * z[k]
+                    zi = acc / lows[j, i, i]
+                    z[i] = zi
+                    sq += zi * zi
+                out[j, r] = log_norms[j] - 0.5 * sq
+        return out
+    # Many rows: solved together, the loop over rows innermost (as _lower_solve_rows: one row is a chain of dependent
+    # subtractions; rows side by side vectorise), each row's operations the same and in the same order.
+    xt = np.ascontiguousarray(x.T)
+    zt = np.empty((d, n))
+    acc = np.empty(n)
+    sq = np.empty(n)
     for j in range(m):
         for r in range(n):
-            sq = 0.0
-            for i in range(d):
-                acc = x[r, i] - means[j, i]
-                for k in range(i):
-                    acc -= lows[j, i, k] * z[k]
-                zi = acc / lows[j, i, i]
-                z[i] = zi
-                sq += zi * zi
-            out[j, r] = log_norms[j] - 0.5 * sq
+            sq[r] = 0.0
+        for i in range(d):
+            mi = means[j, i]
+            for r in range(n):
+                acc[r] = xt[i, r] - mi
+            for k in range(i):
+                lik = lows[j, i, k]
+                for r in range(n):
+                    acc[r] -= lik * zt[k, r]
+            lii = lows[j, i, i]
+            for r in range(n):
+                zi = acc[r] / lii
+                zt[i, r] = zi
+                sq[r] += zi * zi
+        for r in range(n):
+            out[j, r] = log_norms[j] - 0.5 * sq[r]
     return out
 
 
