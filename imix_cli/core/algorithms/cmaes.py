@@ -93,8 +93,8 @@ def _log(x) -> float:
 #: Largest dimension CMAES accepts. Each seed keeps four d x d float64 matrices (C, its
 #: eigenvectors, the distribution's covariance and Cholesky factor: 128 MB at d = 2000) and
 #: eigendecomposes C every generation, O(d^3). Measured ``tell`` per generation, lambda = 50
-#: (benchmarks/cmaes_speed.py --big 500 1000, quiet 2-core AMD EPYC VM, 2026-11-29): d = 500 0.083 s, 1000
-#: 0.62 s (0.117 s and 0.90 s before tred2's loops went four rows at a time), i.e. ~35 min per seed for the
+#: (benchmarks/cmaes_speed.py --big 500 1000, quiet 2-core AMD EPYC VM, 2026-11-29): d = 500 0.074 s, 1000
+#: 0.53 s (0.120 s and 0.94 s before tred2's loops went four rows at a time), i.e. ~30 min per seed for the
 #: paper's 400 generations at d = 2000 (d^3 from 1000). The eigensolver (linalg_kernels.eigh: the same bits on
 #: every CPU) is unblocked: LAPACK's took 0.03 s and 0.26 s at d = 500 and 1000 in an earlier session (shared
 #: VM). Above the limit SNES/OpenES (O(d) per member) are the tools.
