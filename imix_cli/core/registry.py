@@ -75,8 +75,7 @@ class AlgorithmSpec:
     name : str
         The config name (``algo=<name>``, the CSVs' ``algo`` column, run folder names).
     label : str
-        How figures and tables print a built-in (runs of any other preset are named, and printed, by the
-        gymnasium id).
+        How figures and tables print it.
     color : str
         Its colour in every figure (Okabe-Ito, colour-blind safe).
     load_class : callable or None
