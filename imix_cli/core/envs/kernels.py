@@ -585,16 +585,6 @@ def acrobot_episodes(params, states0, obs0, sizes, max_steps, returns, steps, tr
 
 
 @njit(cache=True)
-def _argmax_lane(y, g, n):
-    """:func:`_argmax` of lane ``g`` of ``y`` (outputs x lanes): ``y[:n, g]``'s first largest, NaN never wins."""
-    best, a = y[0, g], 0
-    for j in range(1, n):
-        if y[j, g] > best:
-            best, a = y[j, g], j
-    return a
-
-
-@njit(cache=True)
 def _load_acrobot_lane(params, states0, obs0, member, lane, params_t, s, x, trace):
     """Start ``member``'s episode in ``lane``: its parameters, initial state and first observation."""
     for q in range(params.shape[1]):
@@ -637,7 +627,7 @@ def _acrobot_episodes_in_lanes(params, states0, obs0, sizes, max_steps, returns,
             i = member[g]
             if i < 0:
                 continue
-            terminated = acrobot_step(s[g], _TORQUES[_argmax_lane(out, g, 3)], k, ys)
+            terminated = acrobot_step(s[g], _TORQUES[_argmax(out[:, g], 3)], k, ys)
             t[g] += 1
             if record:
                 _record(trace, i, t[g], s[g])
