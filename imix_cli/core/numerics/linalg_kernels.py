@@ -329,9 +329,28 @@ def _gaussian_log_probs(lows, means, log_norms, x):
                     sq += zi * zi
                 out[j, r] = log_norms[j] - 0.5 * sq
         return out
-    # Many rows: _lower_solve_rows solves them together (the loop over rows innermost), the same operations per row
+    # Many rows: solved together, the loop over rows innermost (as _lower_solve_rows: one row is a chain of dependent
+    # subtractions; rows side by side vectorise), each row's operations the same and in the same order.
+    xt = np.ascontiguousarray(x.T)
+    zt = np.empty((d, n))
+    acc = np.empty(n)
+    sq = np.empty(n)
     for j in range(m):
-        sq = _row_sq_norms(_lower_solve_rows(lows[j], x - means[j]))
+        for r in range(n):
+            sq[r] = 0.0
+        for i in range(d):
+            mi = means[j, i]
+            for r in range(n):
+                acc[r] = xt[i, r] - mi
+            for k in range(i):
+                lik = lows[j, i, k]
+                for r in range(n):
+                    acc[r] -= lik * zt[k, r]
+            lii = lows[j, i, i]
+            for r in range(n):
+                zi = acc[r] / lii
+                zt[i, r] = zi
+                sq[r] += zi * zi
         for r in range(n):
             out[j, r] = log_norms[j] - 0.5 * sq[r]
     return out
