@@ -39,3 +39,11 @@ def cmdline(pid: int) -> str:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
     except OSError:
         return ""
+
+
+def pool_workers(main_pid: int) -> list:
+    """The seed workers of the run in process ``main_pid``: its spawned children, or the children of its fork server
+    (imix_cli.core.processes.start_seed_worker_server), whose command line is the server's."""
+    kids = children_of({main_pid})
+    servers = {p for p in kids if "multiprocessing.forkserver" in cmdline(p)}
+    return sorted(p for p in kids | children_of(servers) if "spawn_main" in cmdline(p) or (p not in servers and "multiprocessing.forkserver" in cmdline(p)))

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from conftest import extra_installed
-from process_tree import alive, children_of, cmdline
+from process_tree import alive, pool_workers
 
 from imix_cli.commands.cli import main
 from imix_cli.running.config.compose import ConfigError, validate_overrides
@@ -105,7 +105,7 @@ def test_sigint_to_the_main_process_alone_stops_the_workers_and_keeps_checkpoint
         deadline = time.monotonic() + 60
         while len(list(tmp_path.rglob(".checkpoints/seed_*.npz"))) < 2 and time.monotonic() < deadline:
             time.sleep(0.1)
-        workers = [p for p in children_of({proc.pid}) if "spawn_main" in cmdline(p)]
+        workers = pool_workers(proc.pid)
         assert len(workers) == 2, workers
         os.kill(proc.pid, signal.SIGINT)  # the main process only, as kill -INT or a scheduler does
         sent = time.monotonic()

@@ -406,6 +406,42 @@ def test_acrobot_episodes_in_lanes_equal_one_at_a_time():
         assert np.array_equal(trace[i], t1[0], equal_nan=True), i
 
 
+def test_acrobot_episodes_equal_steps_computed_afresh_bit_for_bit():
+    """The episode kernels, one member at a time and in lanes, must give every member the states, length and return of a
+    loop of single steps whose observation is computed afresh (kernels.acrobot_steps, the test entry point), bit for
+    bit: the guard for any change to how an episode carries its state (the step's cosines and sines shared with the
+    observation were tried this way, and dropped as slower). Made to fail by skipping the observation's refresh on
+    every 50th step of the one-at-a-time loop."""
+    from imix_cli.core.envs import kernels
+
+    rng = np.random.default_rng(22)
+    sizes = np.array([6, 8, 8, 3], dtype=np.int64)
+    n = 2 * kernels.LANES_FROM + 3
+    pumper = linear_mlp([0, 0, 0, 0, -1, 1], [-1, 0, 1])
+    params = np.vstack([pumper + 0.05 * rng.standard_normal((n // 2, pumper.size)), 3 * rng.standard_normal((n - n // 2, pumper.size))])
+    seeds = rng.integers(0, 2**63, n).astype(np.uint64)
+    s32 = kernels.seeded_uniform_rows(seeds, -0.1, 0.1, 4).astype(np.float32)
+    obs0 = kernels.acrobot_first_observations(s32)
+    wrapped = 0
+    for many in (True, False):  # in lanes (n >= LANES_FROM), then each member alone
+        members = [np.arange(n)] if many else [np.array([i]) for i in range(n)]
+        for m in members:
+            returns, steps, trace = np.empty(len(m)), np.empty(len(m), dtype=np.int64), np.full((len(m), 201, 4), np.nan)
+            kernels.acrobot_seeded_episodes(params[m], seeds[m], sizes, 200, returns, steps, trace)
+            for row, i in enumerate(m):
+                state, x = s32[i : i + 1].astype(np.float64), obs0[i].copy()
+                for t in range(200):
+                    out = kernels.mlp_forward(params[i], sizes, np.resize(x, 8), np.empty(8))[:3]
+                    state, obs, term = kernels.acrobot_steps(state, np.array([int(np.argmax(out))]))
+                    assert np.array_equal(state[0], trace[row, t + 1]), (many, i, t)
+                    wrapped += int(np.abs(state[0, :2]).max() > 3.0)
+                    x = obs[0].astype(np.float64)
+                    if term[0]:
+                        break
+                assert (steps[row], returns[row]) == (t + 1, -float(t + 1 - term[0])), (many, i)
+    assert wrapped > 50  # the angles' wrap is exercised
+
+
 @pytest.mark.parametrize("continuous,sparse", [(False, False), (True, False), (True, True)], ids=["CartPole", "Continuous", "ContinuousHard"])
 def test_cartpole_episodes_in_lanes_equal_one_at_a_time(continuous, sparse):
     """From LANES_FROM members on, CartPole episodes run LANES at a time (a lane whose episode ends takes the next

@@ -41,20 +41,10 @@ def csvs(root: Path) -> dict:
 
 
 def worker_pids(main_pid: int) -> list[int]:
-    """Pool workers (multiprocessing spawn children) of the main process."""
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-            cmdline = (entry / "cmdline").read_bytes().decode(errors="replace")
-        except OSError:
-            continue
-        ppid = int(stat.rsplit(")", 1)[1].split()[1])
-        if ppid == main_pid and "spawn_main" in cmdline:
-            pids.append(int(entry.name))
-    return pids
+    """Pool workers of the main process (spawned, or forked from its fork server)."""
+    from process_tree import pool_workers
+
+    return pool_workers(main_pid)
 
 
 def final_csvs(root: Path) -> list:

@@ -51,6 +51,9 @@ def si(x: float) -> str:
 
 
 def cpu_seconds() -> float:
-    """User + system CPU seconds of this process and of its finished children (the pool workers)."""
+    """User + system CPU seconds of this process and of its finished workers: its children, and the seed workers it had
+    forked from the fork server (:func:`imix_cli.running.pool.forked_workers_cpu_seconds`)."""
+    from imix_cli.running.pool import forked_workers_cpu_seconds
+
     me, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return me.ru_utime + me.ru_stime + children.ru_utime + children.ru_stime
+    return me.ru_utime + me.ru_stime + children.ru_utime + children.ru_stime + forked_workers_cpu_seconds()

@@ -80,6 +80,79 @@ class _SpawnContext(multiprocessing.context.SpawnContext):
     Process = _SpawnProcess
 
 
+# ------------------------------------------------------------------ the seed workers' fork server
+#: What a run's seed workers import before they are forked (:func:`seed_worker_context`): the trainer, the loop and the
+#: compiled generation, with numpy, numba and gymnasium under them.
+SEED_WORKER_MODULES = ["imix_cli.running.runner", "imix_cli.running.loop.es_seeds", "imix_cli.running.loop.compiled_loop"]
+
+_server_env: dict | None = None  # the fork server's variables read at import (None: not started here)
+
+#: The variables read when numpy, numba, BLAS or Python itself load -- fixed in a forked worker at what the fork server
+#: had. Every other variable a worker reads when it runs (``IMIX_COMPILED_LOOP``), and it is given the caller's.
+IMPORT_TIME_PREFIXES = ("PYTHON", "NUMBA_", "NPY_", "OPENBLAS", "GOTO", "OMP_", "MKL_", "BLIS_", "LD_", "MALLOC_")
+
+
+def _import_time_environment() -> dict:
+    return {k: v for k, v in os.environ.items() if k.startswith(IMPORT_TIME_PREFIXES)}
+
+
+def start_seed_worker_server() -> None:
+    """Start the fork server of the run's seed workers, if imix has not: it imports :data:`SEED_WORKER_MODULES` in a process
+    of its own, while the caller goes on (``imix run`` calls this first, so the import runs beside its validation).
+
+    Why: each seed worker was a spawned Python that imported imix, numpy, numba and gymnasium before its first seed,
+    ~0.4 s of the main job's ~4.3 s, and again for every run of a sweep or of ``imix bench grid``. Workers forked from
+    a server that has imported them start at once. The server is started with one BLAS thread (:func:`one_blas_thread`),
+    as spawned workers are; it ends with this process (multiprocessing's forkserver: its pipe from here closes)."""
+    global _server_env
+    if _server_env is not None or "forkserver" not in multiprocessing.get_all_start_methods():
+        return
+    from multiprocessing import forkserver
+
+    with one_blas_thread():
+        env = _import_time_environment()
+        multiprocessing.get_context("forkserver").set_forkserver_preload(SEED_WORKER_MODULES)
+        forkserver.ensure_running()
+    _server_env = env
+
+
+def seed_worker_context():
+    """The multiprocessing context of a run's seed workers (:mod:`imix_cli.running.pool`): forked from the fork server
+    (:func:`start_seed_worker_server`, started here on first use) when the variables read at import
+    (:data:`IMPORT_TIME_PREFIXES`) are still those it started with -- a thread count or a numba setting changed since
+    must reach the workers, and a fork carries the server's -- else spawned (:func:`spawn_context`). Either way the
+    caller's ``__main__`` is never imported again, and a worker's numbers are the same. A forked worker takes the
+    caller's other variables when it starts (:func:`worker_environment`)."""
+    start_seed_worker_server()
+    if _server_env is None:
+        return spawn_context()
+    with one_blas_thread():  # the variables a spawned worker would get
+        now = _import_time_environment()
+    return _ForkServerContext() if now == _server_env else spawn_context()
+
+
+def worker_environment(ctx) -> dict | None:
+    """What a worker of ``ctx`` must set as its ``os.environ`` when it starts: the caller's variables of now (with one BLAS
+    thread, :func:`one_blas_thread`) for a worker forked from the server, which has the server's; None for a spawned one."""
+    if ctx.get_start_method() != "forkserver":
+        return None
+    with one_blas_thread():
+        return dict(os.environ)
+
+
+class _ForkServerProcess(multiprocessing.context.ForkServerProcess):
+    """A process forked from the fork server, told to import no main module (as :class:`_SpawnProcess`)."""
+
+    @staticmethod
+    def _Popen(process_obj):
+        with _main_module_hidden():
+            return multiprocessing.context.ForkServerProcess._Popen(process_obj)
+
+
+class _ForkServerContext(multiprocessing.context.ForkServerContext):
+    Process = _ForkServerProcess
+
+
 @contextmanager
 def _main_module_hidden():
     """While a process is spawned, ``__main__`` is a module with neither ``__file__`` nor ``__spec__``: multiprocessing's

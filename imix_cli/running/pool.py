@@ -5,7 +5,8 @@ own process and returns their results. Workers report progress through :func:`re
 (a queue drained into ``bar``); they ignore SIGINT (the main process alone decides, and stops
 them with SIGTERM, after which each checkpoints its seeds' current generation: at most
 :data:`imix_cli.running.loop.stopping.STOP_GRACE_SECONDS`), and exit within a second if the main process dies (kill -9), so that none lingers.
-Workers are spawned with one BLAS thread each (:func:`imix_cli.core.processes.one_blas_thread`).
+Workers are forked from a server that has imported what they run, or spawned where it cannot serve
+(:func:`imix_cli.core.processes.seed_worker_context`), with one BLAS thread each (:func:`imix_cli.core.processes.one_blas_thread`).
 """
 
 from __future__ import annotations
@@ -14,14 +15,16 @@ import atexit
 import logging
 import os
 import queue as queue_module
+import resource
 import signal
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from imix_cli.core.processes import exit_without_teardown, one_blas_thread, spawn_context, start_orphan_watchdog
+from imix_cli.core.processes import exit_without_teardown, one_blas_thread, seed_worker_context, start_orphan_watchdog, worker_environment
 from imix_cli.running.loop import stopping
 
 _progress_queue = None
+_forked_cpu = 0.0  # CPU seconds of finished workers forked from the fork server (forked_workers_cpu_seconds)
 
 
 def report_progress(n: int) -> None:
@@ -42,12 +45,14 @@ def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None,
     ``when_a_core_is_free()`` is called once, here, when a worker has finished its chunk while others
     still run: work this process will need next can be done then without slowing a worker.
     ``resumed(starts)`` receives what each worker reports with :func:`report_resumed`."""
-    ctx = spawn_context()
+    global _forked_cpu
+    ctx = seed_worker_context()
+    forked = ctx.get_start_method() == "forkserver"
     progress_queue = ctx.Queue()
-    pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
+    pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue, worker_environment(ctx)))
     try:
         with one_blas_thread():  # the workers start at these submits
-            futures = [pool.submit(task, spec, chunk) for chunk in chunks]
+            futures = [pool.submit(_with_cpu, task, spec, chunk) for chunk in chunks]
         pending = set(futures)
         while pending:
             done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
@@ -58,7 +63,10 @@ def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None,
                 when_a_core_is_free()
                 when_a_core_is_free = None
         _drain_into(progress_queue, bar, resumed)
-        return [future.result() for future in futures]
+        results = [future.result() for future in futures]
+        if forked:  # not this process's children: their CPU time never reaches its RUSAGE_CHILDREN
+            _forked_cpu += sum(cpu for _, cpu in results)
+        return [result for result, _ in results]
     except BaseException:
         # Ctrl-C / SIGINT to this process alone, or a worker's error: stop the other workers now rather than
         # let them finish their seeds; each checkpoints its seeds' current generation first (writes are atomic).
@@ -68,9 +76,25 @@ def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None,
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _init_worker(progress_queue) -> None:
+def forked_workers_cpu_seconds() -> float:
+    """CPU seconds of the finished seed workers this process had forked from the fork server: the children of that
+    server, so missing from this process's ``RUSAGE_CHILDREN`` (``imix bench`` adds them)."""
+    return _forked_cpu
+
+
+def _with_cpu(task, spec, chunk):
+    """``(task(spec, chunk), this worker's CPU seconds so far)``."""
+    result = task(spec, chunk)
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    return result, me.ru_utime + me.ru_stime
+
+
+def _init_worker(progress_queue, environ=None) -> None:
     global _progress_queue
     _progress_queue = progress_queue
+    if environ is not None:  # forked from the fork server: the caller's variables, not the server's
+        os.environ.clear()
+        os.environ.update(environ)
     # Ctrl-C reaches the whole process group: the main process alone decides, and stops us.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # SIGTERM (the main process stopping us): the seeds' loop checkpoints their current generation, then the worker
