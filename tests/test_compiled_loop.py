@@ -249,6 +249,42 @@ def test_a_chunk_that_diverges_changes_nothing_and_is_left_to_the_python_loop():
     _same(before, _snapshot(st))
 
 
+@pytest.mark.parametrize("overrides", [CASES[0], ["algo=cem", "env=acrobot", "eim=true", "popsize=12"]], ids=lambda o: " ".join(o))
+def test_seeds_advanced_together_are_the_seeds_advanced_alone_bit_for_bit(overrides):
+    """One compiled call advances many seeds, their fresh members' episodes in one batch (compiled_generation
+    SEEDS_PER_CALL): every seed's state must be the one it reaches alone, seeds with archives of different ages and a
+    padded call included. Made to fail by giving each seed the episode seeds of the batch's first seed."""
+    settings, evaluator, _ = _seed_state(overrides)
+    alone = [new_seed_state(settings, seed) for seed in range(5)]
+    together = [new_seed_state(settings, seed) for seed in range(5)]
+    for st in (alone[0], together[0]):  # seed 0 starts with a full archive, the others with none
+        assert compiled_loop.advance(st, settings, evaluator, 4)
+    for st in alone[1:]:
+        assert compiled_loop.advance(st, settings, evaluator, 4)
+    assert compiled_loop.advance_seeds(together[1:], settings, evaluator, 4)
+    for chunk in (9, 5):
+        for st in alone:
+            assert compiled_loop.advance(st, settings, evaluator, chunk)
+        assert compiled_loop.advance_seeds(together, settings, evaluator, chunk)
+    for a, b in zip(alone, together):
+        for row in a.rows + b.rows:
+            row["wall_time"] = 0.0
+        _same(_snapshot(a), _snapshot(b))
+    assert len({st.rows[-1]["mean_score"] for st in together}) > 1  # the seeds differ
+
+
+def test_a_call_whose_one_seed_diverges_changes_no_seed_and_is_left_to_the_python_loop():
+    """Seeds advanced together are handed back together: the states and generators of all of them as they were."""
+    settings, evaluator, _ = _seed_state(["algo=snes", "env=cartpole", "eim=true", "lr=100", "weight_decay=0"])
+    states = [new_seed_state(settings, seed) for seed in range(3)]
+    before = [_snapshot(st) for st in states]
+    rngs = [[r.bit_generator.state for r in (st.sample_rng, st.episode_rng, st.mean_eval_rng)] for st in states]
+    assert not compiled_loop.advance_seeds(states, settings, evaluator, 200)
+    for st, snap, rng in zip(states, before, rngs):
+        _same(snap, _snapshot(st))
+        assert rng == [r.bit_generator.state for r in (st.sample_rng, st.episode_rng, st.mean_eval_rng)]
+
+
 def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
     for overrides in (
         ["algo=cmaes", "env=cartpole", "eim=true"],  # a full covariance: no compiled step

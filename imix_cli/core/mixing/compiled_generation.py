@@ -1,11 +1,11 @@
 """A generation compiled -- mix, roll out the fresh members, rank, update, archive, measure the mean -- many
-generations of one seed per call: the generation step of :mod:`imix_cli.core.mixing.generation`, in numba.
+generations of several seeds per call: the generation step of :mod:`imix_cli.core.mixing.generation`, in numba.
 
 Why. On the main job (SNES + EIM, CartPole) the Python path -- :mod:`imix_cli.core.mixing.generation` -> mixing,
 evaluator, ES -- spends ~0.8 ms per seed-generation, while the numbers themselves (a mixing step, two or three
 episodes, one update over 50 x 130 numbers) need about a tenth of that: the rest is some sixty small numpy calls and
 Python dispatch per generation (``imix bench breakdown``). The run's loop (:mod:`imix_cli.running.loop.compiled_loop`)
-hands a seed's arrays to :func:`entry_for`'s function and takes them back; this module holds the generation itself,
+hands the seeds' arrays to :func:`entry_for`'s function and takes them back; this module holds the generation itself,
 so that no module outside ``core/`` holds archive, fitness-assembly or mixing logic.
 
 What it computes: *the Python path's numbers, bit for bit* -- the CSV rows, the checkpoints, the policies. The same
@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 from numba import njit
+from numba.typed import List
 
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.envs import kernels as ek
@@ -51,7 +52,7 @@ from imix_cli.core.mixing import Generation
 from imix_cli.core.mixing import kernels as mk
 from imix_cli.core.numerics import linalg_kernels as lk
 
-__all__ = ["entry", "entry_for", "env_code", "pack_archive", "unpack_archive"]
+__all__ = ["SEEDS_PER_CALL", "entry", "entry_for", "env_code", "pack_archive", "unpack_archive"]
 
 # The ES's compiled update, utilities and mean weights: each entry point gets its own in its globals (:func:`entry`).
 _UPDATE = _UTILITIES = _MEAN_WEIGHTS = None
@@ -96,145 +97,187 @@ def _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns,
         ek.cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
 
 
+#: Most seeds one call runs (:func:`_make_chunk`): the call takes them as a tuple of this length, padded, so that numba
+#: compiles one entry point whatever the number of seeds.
+SEEDS_PER_CALL = 16
+
+
 def _make_chunk(digest: int):
-    def _run_chunk(generations, rule, es, archive, rngs, episodes, measure, seed, out):
-        """Run ``generations`` generations of one seed (module docstring); ``_UPDATE``, ``_UTILITIES`` and
-        ``_MEAN_WEIGHTS`` are the ES's compiled step, utilities and mean weights (:func:`entry`). The arguments are tuples (numba types each
-        field), built by :func:`advance`, which names every field:
+    def _run_chunk(generations, rule, episodes, batch, n):
+        """Run ``generations`` generations of the first ``n`` seeds of ``batch`` (module docstring); ``_UPDATE``,
+        ``_UTILITIES`` and ``_MEAN_WEIGHTS`` are the ES's compiled step, utilities and mean weights (:func:`entry`).
+        The arguments are tuples (numba types each field), built by :func:`imix_cli.running.loop.compiled_loop.advance_seeds`,
+        which names every field:
 
         - ``rule``: the mixing rule and the ES's utilities' settings;
-        - ``es``: the ES's generation count, a copy of its state record (``state.mean``, ``state.std``: the diagonal
-          Gaussian searched) and its step's constants (:class:`~imix_cli.core.algorithms.base.CompiledStep`);
-        - ``archive``: the archived generations, newest first, as arrays of ``slots`` rows;
-        - ``rngs``: the seed's generators (members, episodes, the mean's episodes);
-        - ``episodes``: the episode kernel (:func:`_env_code`) and its settings; ``measure``: when and how the mean is evaluated;
-        - ``seed``: the best member so far and the last utilities; ``out``: the rows' numbers, one row per generation.
+        - ``episodes``: the episode kernel (:func:`_env_code`) and its settings;
+        - ``batch``: :data:`SEEDS_PER_CALL` seeds' tuples (the last ones repeat the first, unused), each
+          ``(es, archive, rngs, measure, seed, out)``: the ES's generation count, a copy of its state record
+          (``state.mean``, ``state.std``: the diagonal Gaussian searched) and its step's constants
+          (:class:`~imix_cli.core.algorithms.base.CompiledStep`); the archived generations, newest first, as arrays of
+          ``slots`` rows; the seed's generators (members, episodes, the mean's episodes); when and how the mean is
+          evaluated; the best member so far and the last utilities; the rows' numbers, one row per generation.
 
-        Every state array is updated in place; returns the number of generations done -- fewer when a generation
-        met what only the Python path handles (its state is then unusable: the caller restores a snapshot)."""
+        Each generation plans every seed (mixing), runs the fresh members of all of them in one call of the episode
+        kernel -- one seed's two or three fresh members left that kernel's lanes idle (``LANES_FROM``), the seeds' together
+        fill them -- then tells each seed. A member's episode, and every draw of a seed's generators, are those of the
+        seed run alone: the same numbers, in any batch.
+
+        Every state array is updated in place; returns the number of generations done -- fewer when a generation of
+        any seed met what only the Python path handles (the states are then unusable: the caller restores snapshots)."""
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
         kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult = rule
-        es_generation, state, constants = es
-        a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
-        sample_rng, episode_rng, mean_rng = rngs
         env, sizes, continuous, sparse, max_steps = episodes
-        eval_every, eval_episodes, generation0 = measure
-        best, best_return, last_u = seed
-        out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
-        popsize, d = a_x.shape[1], a_x.shape[2]
+        seed_tuples = List()  # indexing the tuple with a variable compiles a switch over its entries at every use: once
+        for s in range(n):
+            seed_tuples.append(batch[s])
+        a_x0 = seed_tuples[0][1][1]
+        popsize, d = a_x0.shape[1], a_x0.shape[2]
+        eval_every, eval_episodes = seed_tuples[0][3][0], seed_tuples[0][3][1]
         trace = np.empty((0, 0, 0))
-        mu, std = state.mean, state.std
+        xs = np.empty((n, popsize, d))
+        sources = np.empty((n, popsize), dtype=np.int64)
+        indices = np.empty((n, popsize), dtype=np.int64)
+        ages = np.empty((n, popsize), dtype=np.int64)
+        fitnesses = np.empty((n, popsize))
+        trials_of = np.empty(n, dtype=np.int64)
+        log_norms = np.empty(n)
+        fresh_from = np.empty(n + 1, dtype=np.int64)  # seed s's fresh members are rows fresh_from[s]:fresh_from[s + 1]
+        params = np.empty((n * popsize, d))
+        rows = np.empty(n * popsize, dtype=np.int64)
+        seeds = np.empty(n * popsize, dtype=np.uint64)
+        returns = np.empty(n * popsize)
+        steps = np.empty(n * popsize, dtype=np.int64)
+        mparams = np.empty((n * eval_episodes, d))
+        mseeds = np.empty(n * eval_episodes, dtype=np.uint64)
+        mreturns = np.empty(n * eval_episodes)
+        msteps = np.empty(n * eval_episodes, dtype=np.int64)
         for g in range(generations):
-            # ---- plan: mix (or draw) the generation from the distribution N(mu, std^2)
-            log_norm = mk.diagonal_log_norm(std)
-            x, source, index, trials = mk.mix_step(
-                kernel, sample_rng, (mu, std, log_norm), (a_mean, a_std, a_lognorm, a_x, a_h), a_hset, min(a_n[0], depth),
-                (popsize, log_keep, alpha, min_fresh),
-            )  # fmt: skip
-            age = np.zeros(popsize, dtype=np.int64)
-            fitness = np.empty(popsize)
-            n_eval = 0
-            for i in range(popsize):
-                s = source[i]
-                if s == 0:
-                    n_eval += 1
-                else:
-                    age[i] = a_age[s - 1, index[i]] + 1
-                    fitness[i] = a_ret[s - 1, index[i]]
-            # ---- evaluate the fresh members, in population order
-            params = np.empty((n_eval, d))
-            rows = np.empty(n_eval, dtype=np.int64)
-            e = 0
-            for i in range(popsize):
-                if source[i] == 0:
-                    mk.put_row(params, e, x[i])
-                    rows[e] = i
-                    e += 1
-            seeds = _draw_seeds(episode_rng, n_eval)
-            returns = np.empty(n_eval)
-            steps = np.empty(n_eval, dtype=np.int64)
-            if n_eval:
-                _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
-            total_steps = 0
-            for e in range(n_eval):
-                fitness[rows[e]] = returns[e]
-                total_steps += steps[e]
-            for i in range(popsize):
-                if not math.isfinite(fitness[i]):
-                    return g
-            # ---- tell: the ES's own utilities and update
-            u = _UTILITIES(x, fitness, es_generation[0], weight_decay, mult)
-            out_sigma_mean[g] = lk.numpy_sum(std) / d
-            mu_drawn, std_drawn = mu.copy(), std.copy()  # the distribution the generation was drawn from
-            _UPDATE(x, u, state, constants)
-            mw = _MEAN_WEIGHTS(u, constants)  # after the update, as tell takes them (constants are never written)
-            for j in range(d):  # a distribution no longer finite: the Python path records the divergence
-                if not (math.isfinite(mu[j]) and math.isfinite(std[j]) and std[j] > 0.0):
-                    return g
-            es_generation[0] += 1
-            last_u[:] = mw
-            # ---- archive (newest first, at most depth generations)
-            if depth > 0:
-                top = min(a_n[0], depth - 1)
-                for k in range(top, 0, -1):
-                    a_x[k] = a_x[k - 1]
-                    a_mean[k] = a_mean[k - 1]
-                    a_std[k] = a_std[k - 1]
-                    a_lognorm[k] = a_lognorm[k - 1]
-                    a_h[k] = a_h[k - 1]
-                    a_hset[k] = a_hset[k - 1]
-                    a_ret[k] = a_ret[k - 1]
-                    a_age[k] = a_age[k - 1]
-                    a_src[k] = a_src[k - 1]
-                    a_idx[k] = a_idx[k - 1]
-                    a_mw[k] = a_mw[k - 1]
-                    a_trials[k] = a_trials[k - 1]
-                a_x[0] = x
-                a_mean[0] = mu_drawn
-                a_std[0] = std_drawn
-                a_lognorm[0] = log_norm
-                a_hset[0] = False
-                a_ret[0] = fitness
-                a_age[0] = age
-                a_src[0] = source
-                a_idx[0] = index
-                a_mw[0] = mw
-                a_trials[0] = trials
-                a_n[0] = min(a_n[0] + 1, depth)
-            # ---- the row's numbers
-            reused = 0
-            from_previous = 0
-            for i in range(popsize):
-                if source[i] > 0:
-                    reused += 1
-                    if source[i] == 1:
-                        from_previous += 1
-            out_fitness[g] = fitness
-            out_reused[g, 0] = reused
-            out_reused[g, 1] = from_previous
-            out_reused[g, 2] = reused - from_previous
-            out_evaluated[g] = n_eval
-            out_steps[g] = total_steps
-            b = 0
-            for i in range(1, popsize):
-                if fitness[i] > fitness[b]:
-                    b = i
-            if fitness[b] > best_return[0]:
-                best_return[0] = fitness[b]
-                best[:] = x[b]
-            # ---- the distribution mean on fresh episodes, when due
-            out_theta[g] = np.nan
-            done = generation0 + g + 1
-            if eval_every > 0 and done % eval_every == 0:
-                mseeds = _draw_seeds(mean_rng, eval_episodes)
-                mparams = np.empty((eval_episodes, d))
-                for r in range(eval_episodes):
-                    mk.put_row(mparams, r, mu)
-                mreturns = np.empty(eval_episodes)
-                msteps = np.empty(eval_episodes, dtype=np.int64)
-                _episodes(env, mparams, mseeds, sizes, continuous, sparse, max_steps, mreturns, msteps, trace)
-                out_theta[g] = lk.numpy_sum(mreturns) / eval_episodes
+            # ---- plan: mix (or draw) each seed's generation from its distribution N(mu, std^2)
+            fresh_from[0] = 0
+            for s in range(n):
+                es, archive, rngs, measure, seed, out = seed_tuples[s]
+                state = es[1]
+                a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
+                log_norms[s] = mk.diagonal_log_norm(state.std)
+                x, source, index, trials_of[s] = mk.mix_step(
+                    kernel, rngs[0], (state.mean, state.std, log_norms[s]), (a_mean, a_std, a_lognorm, a_x, a_h), a_hset,
+                    min(a_n[0], depth), (popsize, log_keep, alpha, min_fresh),
+                )  # fmt: skip
+                xs[s] = x
+                sources[s] = source
+                indices[s] = index
+                e = fresh_from[s]
+                for i in range(popsize):
+                    ages[s, i] = 0
+                    if source[i] == 0:  # evaluated below, in population order
+                        mk.put_row(params, e, x[i])
+                        rows[e] = i
+                        e += 1
+                    else:
+                        ages[s, i] = a_age[source[i] - 1, index[i]] + 1
+                        fitnesses[s, i] = a_ret[source[i] - 1, index[i]]
+                seeds[fresh_from[s] : e] = _draw_seeds(rngs[1], e - fresh_from[s])
+                fresh_from[s + 1] = e
+            # ---- evaluate the fresh members of every seed, in one call
+            total = fresh_from[n]
+            if total:
+                _episodes(env, params[:total], seeds[:total], sizes, continuous, sparse, max_steps, returns[:total], steps[:total], trace)
+            for s in range(n):
+                for e in range(fresh_from[s], fresh_from[s + 1]):
+                    fitnesses[s, rows[e]] = returns[e]
+                for i in range(popsize):
+                    if not math.isfinite(fitnesses[s, i]):
+                        return g
+            # ---- tell each seed: the ES's own utilities and update; archive; the row's numbers
+            for s in range(n):
+                es, archive, rngs, measure, seed, out = seed_tuples[s]
+                es_generation, state, constants = es
+                a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
+                best, best_return, last_u = seed
+                out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
+                mu, std = state.mean, state.std
+                x, source, fitness = xs[s], sources[s], fitnesses[s]
+                u = _UTILITIES(x, fitness, es_generation[0], weight_decay, mult)
+                out_sigma_mean[g] = lk.numpy_sum(std) / d
+                mu_drawn, std_drawn = mu.copy(), std.copy()  # the distribution the generation was drawn from
+                _UPDATE(x, u, state, constants)
+                mw = _MEAN_WEIGHTS(u, constants)  # after the update, as tell takes them (constants are never written)
+                for j in range(d):  # a distribution no longer finite: the Python path records the divergence
+                    if not (math.isfinite(mu[j]) and math.isfinite(std[j]) and std[j] > 0.0):
+                        return g
+                es_generation[0] += 1
+                last_u[:] = mw
+                if depth > 0:  # archive (newest first, at most depth generations)
+                    top = min(a_n[0], depth - 1)
+                    for k in range(top, 0, -1):
+                        a_x[k] = a_x[k - 1]
+                        a_mean[k] = a_mean[k - 1]
+                        a_std[k] = a_std[k - 1]
+                        a_lognorm[k] = a_lognorm[k - 1]
+                        a_h[k] = a_h[k - 1]
+                        a_hset[k] = a_hset[k - 1]
+                        a_ret[k] = a_ret[k - 1]
+                        a_age[k] = a_age[k - 1]
+                        a_src[k] = a_src[k - 1]
+                        a_idx[k] = a_idx[k - 1]
+                        a_mw[k] = a_mw[k - 1]
+                        a_trials[k] = a_trials[k - 1]
+                    a_x[0] = x
+                    a_mean[0] = mu_drawn
+                    a_std[0] = std_drawn
+                    a_lognorm[0] = log_norms[s]
+                    a_hset[0] = False
+                    a_ret[0] = fitness
+                    a_age[0] = ages[s]
+                    a_src[0] = source
+                    a_idx[0] = indices[s]
+                    a_mw[0] = mw
+                    a_trials[0] = trials_of[s]
+                    a_n[0] = min(a_n[0] + 1, depth)
+                reused = 0
+                from_previous = 0
+                for i in range(popsize):
+                    if source[i] > 0:
+                        reused += 1
+                        if source[i] == 1:
+                            from_previous += 1
+                out_fitness[g] = fitness
+                out_reused[g, 0] = reused
+                out_reused[g, 1] = from_previous
+                out_reused[g, 2] = reused - from_previous
+                out_evaluated[g] = fresh_from[s + 1] - fresh_from[s]
+                total_steps = 0
+                for e in range(fresh_from[s], fresh_from[s + 1]):
+                    total_steps += steps[e]
+                out_steps[g] = total_steps
+                b = 0
+                for i in range(1, popsize):
+                    if fitness[i] > fitness[b]:
+                        b = i
+                if fitness[b] > best_return[0]:
+                    best_return[0] = fitness[b]
+                    best[:] = x[b]
+                out_theta[g] = np.nan
+            # ---- the distribution means on fresh episodes, when due: every due seed's in one call
+            due = 0
+            for s in range(n):
+                es, archive, rngs, measure, seed, out = seed_tuples[s]
+                if eval_every > 0 and (measure[2] + g + 1) % eval_every == 0:
+                    mseeds[due * eval_episodes : (due + 1) * eval_episodes] = _draw_seeds(rngs[2], eval_episodes)
+                    for r in range(eval_episodes):
+                        mk.put_row(mparams, due * eval_episodes + r, es[1].mean)
+                    due += 1
+            if due:
+                m = due * eval_episodes
+                _episodes(env, mparams[:m], mseeds[:m], sizes, continuous, sparse, max_steps, mreturns[:m], msteps[:m], trace)
+                due = 0
+                for s in range(n):
+                    es, archive, rngs, measure, seed, out = seed_tuples[s]
+                    if eval_every > 0 and (measure[2] + g + 1) % eval_every == 0:
+                        out[5][g] = lk.numpy_sum(mreturns[due * eval_episodes : (due + 1) * eval_episodes]) / eval_episodes
+                        due += 1
         return generations
 
     return _run_chunk

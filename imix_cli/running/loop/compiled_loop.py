@@ -1,6 +1,7 @@
-"""The generation loop compiled: a seed's generations in chunks, each one call of the compiled generation
-(:mod:`imix_cli.core.mixing.compiled_generation`), whose arrays this module packs from the seed's state and unpacks
-back, appending the CSV rows.
+"""The generation loop compiled: seeds' generations in chunks, each one call of the compiled generation
+(:mod:`imix_cli.core.mixing.compiled_generation`) for up to ``SEEDS_PER_CALL`` seeds at the same generation (their fresh
+members' episodes run together), whose arrays this module packs from the seeds' states and unpacks back, appending
+the CSV rows.
 
 The Python path (:func:`imix_cli.running.loop.lockstep.advance_lockstep`) stays the reference: ``IMIX_COMPILED_LOOP=0``
 takes it, and ``tests/test_compiled_loop.py`` runs both and compares CSVs, checkpoints and policy files: the same numbers,
@@ -29,10 +30,10 @@ from imix_cli.core import numerics as xp
 from imix_cli.core.algorithms.base import EvolutionStrategy, copy_record, hash_multipliers
 from imix_cli.core.distributions import DiagonalGaussian
 from imix_cli.core.mixing import COMPILED_MAX_ELEMENTS, variant_spec
-from imix_cli.core.mixing.compiled_generation import entry_for, env_code, pack_archive, unpack_archive
+from imix_cli.core.mixing.compiled_generation import SEEDS_PER_CALL, entry_for, env_code, pack_archive, unpack_archive
 from imix_cli.running.loop.lockstep import scored_row
 
-__all__ = ["applies", "applies_to_run", "advance", "ENV_VARIABLE"]
+__all__ = ["applies", "applies_to_run", "advance", "advance_seeds", "ENV_VARIABLE"]
 
 #: ``IMIX_COMPILED_LOOP=0``: every run takes the Python path (the reference).
 ENV_VARIABLE = "IMIX_COMPILED_LOOP"
@@ -92,55 +93,62 @@ def applies(settings, evaluator, st) -> bool:
 
 
 def advance(st, settings, evaluator, generations: int) -> bool:
-    """Run ``generations`` generations of seed ``st`` (a :class:`imix_cli.running.loop.lockstep.SeedState` for which
-    :func:`applies`) in one compiled call, appending their rows as the Python path does. Returns
-    False, having changed nothing, when a generation needs the Python path (module docstring)."""
+    """:func:`advance_seeds` of seed ``st`` alone."""
+    return advance_seeds([st], settings, evaluator, generations)
+
+
+def advance_seeds(states: list, settings, evaluator, generations: int) -> bool:
+    """Run ``generations`` generations of seeds ``states`` (:class:`imix_cli.running.loop.lockstep.SeedState` records of
+    one run, for each of which :func:`applies`, at most :data:`~imix_cli.core.mixing.compiled_generation.SEEDS_PER_CALL`)
+    in one compiled call, appending their rows as the Python path does. Returns False, having changed nothing, when a
+    generation of any of them needs the Python path (module docstring)."""
     mixing = settings.mixing
-    es = getattr(st.es, "es", st.es)
-    step = es.compiled_step()
-    d, popsize, depth = es.dim, es.popsize, mixing.depth
+    es0 = getattr(states[0].es, "es", states[0].es)
+    step = es0.compiled_step()
+    d, popsize, depth = es0.dim, es0.popsize, mixing.depth
     slots = max(depth, 1)
-    archive = st.archive
-
-    archive_arrays = pack_archive(archive, slots, popsize, d)
-
-    es_generation = np.array([es.generation], dtype=np.int64)
-    best = np.zeros(d) if st.best_params is None else np.array(st.best_params, dtype=np.float64)
-    best_return = np.array([st.best_return], dtype=np.float64)
-    last_u = np.zeros(popsize)
-
-    out_fitness = np.empty((generations, popsize))  # every member's return, stored or new
-    out_reused = np.empty((generations, 3), dtype=np.int64)
-    out_evaluated = np.empty(generations, dtype=np.int64)
-    out_steps = np.empty(generations, dtype=np.int64)
-    out_sigma_mean = np.empty(generations)
-    out_theta = np.empty(generations)
-
-    rngs = (st.sample_rng, st.episode_rng, st.mean_eval_rng)
-    snapshot = [r.bit_generator.state for r in rngs]
     with np.errstate(divide="ignore"):
         log_keep = xp.log1p(-mixing.alpha)
-    rule = (_kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh), float(es.weight_decay), hash_multipliers(d))
+    rule = (_kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh), float(es0.weight_decay), hash_multipliers(d))
     episodes = (env_code(evaluator), evaluator.layer_sizes(), type(evaluator).__name__ == "ContinuousCartPoleEvaluator",
                 bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps))  # fmt: skip
-    measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
-    out = (out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta)
-    state = copy_record(es.state)  # the chunk moves this copy; the ES takes it only if the chunk ran to its end
-    done = entry_for(es, step)(
-        generations, rule, (es_generation, state, step.constants), archive_arrays,
-        (st.sample_rng, st.episode_rng, st.mean_eval_rng), episodes, measure, (best, best_return, last_u), out,
-    )  # fmt: skip
+    batch, snapshots, chunks = [], [], []
+    for st in states:
+        es = getattr(st.es, "es", st.es)
+        archive_arrays = pack_archive(st.archive, slots, popsize, d)
+        es_generation = np.array([es.generation], dtype=np.int64)
+        best = np.zeros(d) if st.best_params is None else np.array(st.best_params, dtype=np.float64)
+        best_return = np.array([st.best_return], dtype=np.float64)
+        last_u = np.zeros(popsize)
+        out = (np.empty((generations, popsize)),  # every member's return, stored or new
+               np.empty((generations, 3), dtype=np.int64), np.empty(generations, dtype=np.int64),
+               np.empty(generations, dtype=np.int64), np.empty(generations), np.empty(generations))  # fmt: skip
+        rngs = (st.sample_rng, st.episode_rng, st.mean_eval_rng)
+        snapshots.append([r.bit_generator.state for r in rngs])
+        state = copy_record(es.state)  # the chunk moves this copy; the ES takes it only if the chunk ran to its end
+        measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
+        batch.append(((es_generation, state, es.compiled_step().constants), archive_arrays, rngs, measure, (best, best_return, last_u), out))
+        chunks.append((es, archive_arrays, es_generation, state, best, best_return, last_u, out))
+    padded = tuple(batch + [batch[0]] * (SEEDS_PER_CALL - len(batch)))  # one entry point whatever the number of seeds
+    done = entry_for(es0, step)(generations, rule, episodes, padded, len(batch))
     if done < generations:  # put the generators back: the Python path takes this chunk
-        for r, rng_state in zip(rngs, snapshot):
-            r.bit_generator.state = rng_state
+        for st, snapshot in zip(states, snapshots):
+            for r, rng_state in zip((st.sample_rng, st.episode_rng, st.mean_eval_rng), snapshot):
+                r.bit_generator.state = rng_state
         return False
+    for st, chunk in zip(states, chunks):
+        _take_back(st, settings, depth, *chunk)
+    return True
 
-    # ---- write the state back into the ES, the archive and the seed
+
+def _take_back(st, settings, depth, es, archive_arrays, es_generation, state, best, best_return, last_u, out) -> None:
+    """Write a finished chunk's state back into seed ``st``'s ES, archive and seed, and append its rows."""
+    out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
     es.set_state(state)
     es.generation = int(es_generation[0])
     es.mean_weights = last_u
     if depth:
-        unpack_archive(archive, archive_arrays)
+        unpack_archive(st.archive, archive_arrays)
     if best_return[0] > st.best_return:
         st.best_params, st.best_return = best, float(best_return[0])
     every, episodes = settings.eval_mean_every, int(settings.eval_mean_episodes)
@@ -155,4 +163,3 @@ def advance(st, settings, evaluator, generations: int) -> bool:
         row = scored_row(settings, st, (mean_score, best_score), (*counts, 0), sigma_mean)
         row["mean_policy_score"], row["mean_policy_episodes"] = theta, st.mean_policy_episodes  # as measure_distribution_means
         st.rows.append(row)
-    return True

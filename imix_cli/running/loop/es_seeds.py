@@ -87,7 +87,7 @@ def _run_loop(settings, states, evaluator, writer: RunWriter, progress) -> None:
 
     Seeds the compiled loop applies to (:mod:`imix_cli.running.loop.compiled_loop`: the same rows, bit for bit)
     advance by chunks of up to :data:`CHUNK` generations, a chunk ending where a checkpoint falls due
-    or the seed finishes; the other seeds advance one generation at a time, together. A chunk the
+    or the seed finishes, the seeds of the same chunk together (:func:`_calls`); the other seeds advance one generation at a time, together. A chunk the
     compiled loop hands back (a non-finite return, a diverging update) is stepped instead, up to its end."""
     from imix_cli.running.loop import compiled_loop  # numba's kernels: loaded by the processes that run seeds only
 
@@ -103,19 +103,25 @@ def _run_loop(settings, states, evaluator, writer: RunWriter, progress) -> None:
             raise stopping.StopRequested(stopping.requested())
         firsts = [st.generation for st in active]
         began, stepped = {}, []  # seed -> when its compiled chunk began
+        chunks: dict = {}  # (first generation, stop) -> the seeds whose chunk it is: advanced together
         for st in (st for st in active if st.generation < settings.generations):
-            if stopping.requested():  # the seeds not advanced yet stay where they are
-                stepped = []
-                break
             if st.generation < stepped_until.get(st.seed, 0) or not (compiles and compiled_loop.applies(settings, evaluator, st)):
                 stepped.append(st)
                 continue
             stop = min(settings.generations, st.generation + CHUNK, (st.generation // every + 1) * every if every else settings.generations)
-            began[st.seed] = time.perf_counter()
-            if not compiled_loop.advance(st, settings, evaluator, stop - st.generation):
-                del began[st.seed]
-                stepped_until[st.seed] = stop
-                stepped.append(st)
+            chunks.setdefault((st.generation, stop), []).append(st)
+        for (start, stop), together in chunks.items():
+            for calls in _calls(together):
+                if stopping.requested():  # the seeds not advanced yet stay where they are
+                    stepped = []
+                    break
+                now = time.perf_counter()
+                began.update((st.seed, now) for st in calls)
+                if not compiled_loop.advance_seeds(calls, settings, evaluator, stop - start):
+                    for st in calls:
+                        del began[st.seed]
+                        stepped_until[st.seed] = stop
+                        stepped.append(st)
         if stepped:
             advance_lockstep(stepped, settings, evaluator)
         records = [seed_record(st, first, settings, evaluator) for st, first in zip(active, firsts)]
@@ -123,6 +129,20 @@ def _run_loop(settings, states, evaluator, writer: RunWriter, progress) -> None:
             writer.write(st, record, began.get(st.seed))
         progress(sum(st.generation - first for st, first in zip(active, firsts)))
         active = [st for st in active if st.generation < settings.generations and not st.es.diverged]
+
+
+def _calls(together: list) -> list:
+    """Seeds at the same generation and chunk end, split into the compiled calls that advance them: as few as
+    :data:`~imix_cli.core.mixing.compiled_generation.SEEDS_PER_CALL` allows, of near-equal sizes (13 seeds: 7 and 6, not 8
+    and 5), so that each call's generation has as many fresh members as can be for the episode kernel's lanes."""
+    from imix_cli.core.mixing.compiled_generation import SEEDS_PER_CALL
+
+    calls = -(-len(together) // SEEDS_PER_CALL)
+    size, extra = divmod(len(together), calls)
+    bounds = [0]
+    for c in range(calls):
+        bounds.append(bounds[-1] + size + (c < extra))
+    return [together[a:b] for a, b in zip(bounds, bounds[1:])]
 
 
 def needs_running(spec, seed: int, path: Path, frame) -> bool:
