@@ -283,8 +283,11 @@ def cartpole_steps(states, forces):
 #: :func:`cartpole_episodes` and :func:`acrobot_episodes` use them: a step of 8 lanes costs ~4 steps of one episode
 #: alone (CartPole, the 2x8 tanh policy: ~1,000 against ~245 ns), so 8 members (one lane-step each, then a tail) already
 #: gain; the compiled loop hands over the fresh members of many seeds at once (SEEDS_PER_CALL), 15-40 on the main job.
+#: Once no member waits and fewer than ``ALONE_BELOW`` lanes still run (a population's last, longest episodes), each
+#: finishes alone: a lane-step costs about as much with two lanes running as with eight.
 LANES = 8
 LANES_FROM = 8
+ALONE_BELOW = 4
 
 
 @njit(cache=True)
@@ -322,26 +325,33 @@ def cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, retur
     width = _buffer_width(params, sizes)
     x, y = np.empty(width), np.empty(width)
     s = np.empty(4)
-    record = trace.shape[0] > 0
     for i in range(params.shape[0]):
         uniform_row(seeds[i], -0.05, 0.05, s)
-        if record:
+        if trace.shape[0] > 0:
             _record(trace, i, 0, s)
-        p = params[i]
-        ret, t, total = 0.0, 0, 0.0
-        while t < max_steps:
-            for j in range(4):
-                x[j] = np.float64(np.float32(s[j]))  # the observation is the state as float32
-            out = mlp_forward(p, sizes, x, y)
-            terminated = cartpole_step(s, _cartpole_force(continuous, out[0], out[1] if not continuous else 0.0))
-            t += 1
-            if record:
-                _record(trace, i, t, s)
-            reward, total = _cartpole_reward(sparse, terminated or t == max_steps, total)
-            ret += reward
-            if terminated:
-                break
-        returns[i], steps[i] = ret, t
+        returns[i], steps[i] = _cartpole_run(params[i], sizes, continuous, sparse, max_steps, s, (0, 0.0, 0.0), trace, i, x, y)
+
+
+@njit(cache=True)
+def _cartpole_run(p, sizes, continuous, sparse, max_steps, s, at, trace, i, x, y):
+    """Member ``i``'s episode (parameters ``p``) alone, from state ``s`` at ``at`` = (step, return, running total) to its
+    end: (return, steps). The whole episode of :func:`cartpole_episodes`, or the rest of one begun in a lane
+    (:func:`_cartpole_episodes_in_lanes`)."""
+    t, ret, total = at
+    record = trace.shape[0] > 0
+    while t < max_steps:
+        for j in range(4):
+            x[j] = np.float64(np.float32(s[j]))  # the observation is the state as float32
+        out = mlp_forward(p, sizes, x, y)
+        terminated = cartpole_step(s, _cartpole_force(continuous, out[0], out[1] if not continuous else 0.0))
+        t += 1
+        if record:
+            _record(trace, i, t, s)
+        reward, total = _cartpole_reward(sparse, terminated or t == max_steps, total)
+        ret += reward
+        if terminated:
+            break
+    return ret, t
 
 
 @njit(cache=True)
@@ -398,6 +408,7 @@ def _cartpole_episodes_in_lanes(params, seeds, sizes, continuous, sparse, max_st
     member = np.full(LANES, -1)
     t = np.zeros(LANES, dtype=np.int64)
     ret, total = np.zeros(LANES), np.zeros(LANES)
+    x1, y1 = np.empty(width), np.empty(width)
     record = trace.shape[0] > 0
     started = 0
     for g in range(min(LANES, n)):
@@ -431,6 +442,12 @@ def _cartpole_episodes_in_lanes(params, seeds, sizes, continuous, sparse, max_st
                 else:
                     member[g] = -1
                     running -= 1
+        if started == n and 0 < running < ALONE_BELOW:  # the last episodes: each finishes alone
+            for g in range(LANES):
+                i = member[g]
+                if i >= 0:
+                    returns[i], steps[i] = _cartpole_run(params[i], sizes, continuous, sparse, max_steps, s[g], (t[g], ret[g], total[g]), trace, i, x1, y1)
+            running = 0
 
 
 # ============================================================================= Acrobot
@@ -563,27 +580,35 @@ def acrobot_episodes(params, states0, obs0, sizes, max_steps, returns, steps, tr
     width = _buffer_width(params, sizes)
     x, y = np.empty(width), np.empty(width)
     s, k, ys = np.empty(4), np.empty((4, 4)), np.empty(4)
-    record = trace.shape[0] > 0
     for i in range(params.shape[0]):
         for j in range(4):
             s[j] = states0[i, j]
         for j in range(6):
             x[j] = obs0[i, j]
-        if record:
+        if trace.shape[0] > 0:
             _record(trace, i, 0, s)
-        p = params[i]
-        ret, t = 0.0, 0
-        while t < max_steps:
-            out = mlp_forward(p, sizes, x, y)
-            terminated = acrobot_step(s, _TORQUES[_argmax(out, 3)], k, ys)
-            t += 1
-            if record:
-                _record(trace, i, t, s)
-            ret += 0.0 if terminated else -1.0
-            if terminated:
-                break
-            _acrobot_observe(s, x)
-        returns[i], steps[i] = ret, t
+        returns[i], steps[i] = _acrobot_run(params[i], sizes, max_steps, s, (0, 0.0), trace, i, (x, y, k, ys))
+
+
+@njit(cache=True)
+def _acrobot_run(p, sizes, max_steps, s, at, trace, i, buffers):
+    """Member ``i``'s episode (parameters ``p``) alone, from state ``s`` and the observation in ``buffers[0]`` at ``at`` =
+    (step, return) to its end: (return, steps). The whole episode of :func:`acrobot_episodes`, or the rest of one begun
+    in a lane (:func:`_acrobot_episodes_in_lanes`). ``buffers``: the MLP's two and the rk4 step's two."""
+    x, y, k, ys = buffers
+    t, ret = at
+    record = trace.shape[0] > 0
+    while t < max_steps:
+        out = mlp_forward(p, sizes, x, y)
+        terminated = acrobot_step(s, _TORQUES[_argmax(out, 3)], k, ys)
+        t += 1
+        if record:
+            _record(trace, i, t, s)
+        ret += 0.0 if terminated else -1.0
+        if terminated:
+            break
+        _acrobot_observe(s, x)
+    return ret, t
 
 
 @njit(cache=True)
@@ -613,6 +638,7 @@ def _acrobot_episodes_in_lanes(params, states0, obs0, sizes, max_steps, returns,
     x, y = np.zeros((width, LANES)), np.zeros((width, LANES))
     s, k, ys = np.zeros((LANES, 4)), np.empty((4, 4)), np.empty(4)
     obs = np.empty(6)
+    x1, y1 = np.empty(width), np.empty(width)
     member = np.full(LANES, -1)
     t = np.zeros(LANES, dtype=np.int64)
     ret = np.zeros(LANES)
@@ -648,6 +674,14 @@ def _acrobot_episodes_in_lanes(params, states0, obs0, sizes, max_steps, returns,
                 _acrobot_observe(s[g], obs)
                 for j in range(6):
                     x[j, g] = obs[j]
+        if started == n and 0 < running < ALONE_BELOW:  # the last episodes: each finishes alone
+            for g in range(LANES):
+                i = member[g]
+                if i >= 0:
+                    for j in range(6):
+                        x1[j] = x[j, g]
+                    returns[i], steps[i] = _acrobot_run(params[i], sizes, max_steps, s[g], (t[g], ret[g]), trace, i, (x1, y1, k, ys))
+            running = 0
 
 
 @njit(cache=True)
