@@ -82,8 +82,8 @@ class _SpawnContext(multiprocessing.context.SpawnContext):
 
 # ------------------------------------------------------------------ the seed workers' fork server
 #: What a run's seed workers import before they are forked (:func:`seed_worker_context`): the trainer, the loop and the
-#: compiled generation, with numpy, numba and gymnasium under them.
-SEED_WORKER_MODULES = ["imix_cli.running.runner", "imix_cli.running.loop.es_seeds", "imix_cli.running.loop.compiled_loop"]
+#: compiled generation, with numpy, numba and gymnasium under them, and numba's CPU target set up.
+SEED_WORKER_MODULES = ["imix_cli.running.runner", "imix_cli.running.loop.es_seeds", "imix_cli.running.loop.compiled_loop", "imix_cli.running.worker_start"]
 
 _server_env: dict | None = None  # the fork server's variables read at import (None: not started here)
 
