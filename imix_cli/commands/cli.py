@@ -192,9 +192,9 @@ def run_command(args: list[str]) -> int:
         own_launcher = launcher == "basic"  # conf/config.yaml's default, also when named (_task: BasicLauncher)
         searching = "hydra/sweeper=optuna" in args  # imix's Optuna search (imix_cli.commands.search)
         if own_launcher and "workers=1" not in args:  # the seed workers' imports, beside the validation (core.processes)
-            from imix_cli.core.processes import start_seed_worker_server
+            from imix_cli.running.pool import start_worker_server
 
-            start_seed_worker_server()
+            start_worker_server()
         try:
             _VALIDATED.clear()
             specs = validate_run_args(args, _VALIDATED)

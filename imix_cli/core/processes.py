@@ -81,10 +81,6 @@ class _SpawnContext(multiprocessing.context.SpawnContext):
 
 
 # ------------------------------------------------------------------ the seed workers' fork server
-#: What a run's seed workers import before they are forked (:func:`seed_worker_context`): the trainer, the loop and the
-#: compiled generation, with numpy, numba and gymnasium under them, and numba's CPU target set up.
-SEED_WORKER_MODULES = ["imix_cli.running.runner", "imix_cli.running.loop.es_seeds", "imix_cli.running.loop.compiled_loop", "imix_cli.running.worker_start"]
-
 _server_env: dict | None = None  # the fork server's variables read at import (None: not started here)
 
 #: The variables read when numpy, numba, BLAS or Python itself load -- fixed in a forked worker at what the fork server
@@ -96,9 +92,10 @@ def _import_time_environment() -> dict:
     return {k: v for k, v in os.environ.items() if k.startswith(IMPORT_TIME_PREFIXES)}
 
 
-def start_seed_worker_server() -> None:
-    """Start the fork server of the run's seed workers, if imix has not: it imports :data:`SEED_WORKER_MODULES` in a process
-    of its own, while the caller goes on (``imix run`` calls this first, so the import runs beside its validation).
+def start_seed_worker_server(preload: list[str]) -> None:
+    """Start the fork server of the run's seed workers, if imix has not: it imports the modules ``preload`` names
+    (:data:`imix_cli.running.pool.SEED_WORKER_MODULES`) in a process of its own, while the caller goes on (``imix run``
+    calls this first, so the import runs beside its validation).
 
     Why: each seed worker was a spawned Python that imported imix, numpy, numba and gymnasium before its first seed,
     ~0.4 s of the main job's ~4.3 s, and again for every run of a sweep or of ``imix bench grid``. Workers forked from
@@ -111,19 +108,19 @@ def start_seed_worker_server() -> None:
 
     with one_blas_thread():
         env = _import_time_environment()
-        multiprocessing.get_context("forkserver").set_forkserver_preload(SEED_WORKER_MODULES)
+        multiprocessing.get_context("forkserver").set_forkserver_preload(list(preload))
         forkserver.ensure_running()
     _server_env = env
 
 
-def seed_worker_context():
+def seed_worker_context(preload: list[str]):
     """The multiprocessing context of a run's seed workers (:mod:`imix_cli.running.pool`): forked from the fork server
-    (:func:`start_seed_worker_server`, started here on first use) when the variables read at import
+    (:func:`start_seed_worker_server` with ``preload``, started here on first use) when the variables read at import
     (:data:`IMPORT_TIME_PREFIXES`) are still those it started with -- a thread count or a numba setting changed since
     must reach the workers, and a fork carries the server's -- else spawned (:func:`spawn_context`). Either way the
     caller's ``__main__`` is never imported again, and a worker's numbers are the same. A forked worker takes the
     caller's other variables when it starts (:func:`worker_environment`)."""
-    start_seed_worker_server()
+    start_seed_worker_server(preload)
     if _server_env is None:
         return spawn_context()
     with one_blas_thread():  # the variables a spawned worker would get

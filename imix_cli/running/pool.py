@@ -20,11 +20,29 @@ import signal
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from imix_cli.core.processes import exit_without_teardown, one_blas_thread, seed_worker_context, start_orphan_watchdog, worker_environment
+from imix_cli.core.processes import (
+    exit_without_teardown,
+    one_blas_thread,
+    seed_worker_context,
+    start_orphan_watchdog,
+    start_seed_worker_server,
+    worker_environment,
+)
 from imix_cli.running.loop import stopping
+
+#: What a run's seed workers import before they are forked from the fork server
+#: (:func:`imix_cli.core.processes.seed_worker_context`): the trainer, the loop and the compiled generation, with numpy,
+#: numba and gymnasium under them, and numba's CPU target set up (:mod:`imix_cli.running.worker_start`).
+SEED_WORKER_MODULES = ["imix_cli.running.runner", "imix_cli.running.loop.es_seeds", "imix_cli.running.loop.compiled_loop", "imix_cli.running.worker_start"]
 
 _progress_queue = None
 _forked_cpu = 0.0  # CPU seconds of finished workers forked from the fork server (forked_workers_cpu_seconds)
+
+
+def start_worker_server() -> None:
+    """Start the seed workers' fork server now (:func:`imix_cli.core.processes.start_seed_worker_server`): ``imix run``
+    calls it first, so that the server's imports run beside its validation."""
+    start_seed_worker_server(SEED_WORKER_MODULES)
 
 
 def report_progress(n: int) -> None:
@@ -46,7 +64,7 @@ def run_pool(task, spec, chunks: list[list[int]], bar, when_a_core_is_free=None,
     still run: work this process will need next can be done then without slowing a worker.
     ``resumed(starts)`` receives what each worker reports with :func:`report_resumed`."""
     global _forked_cpu
-    ctx = seed_worker_context()
+    ctx = seed_worker_context(SEED_WORKER_MODULES)
     forked = ctx.get_start_method() == "forkserver"
     progress_queue = ctx.Queue()
     pool = ProcessPoolExecutor(max_workers=len(chunks), mp_context=ctx, initializer=_init_worker, initargs=(progress_queue, worker_environment(ctx)))

@@ -1,4 +1,4 @@
-"""What the seed workers' fork server runs before it forks them (:data:`imix_cli.core.processes.SEED_WORKER_MODULES`):
+"""What the seed workers' fork server runs before it forks them (:data:`imix_cli.running.pool.SEED_WORKER_MODULES`):
 numba's CPU target set up, by loading one small cached kernel.
 
 Why: the first compiled kernel a process loads sets up numba's compiler target (its typing and lowering registries),
