@@ -74,10 +74,13 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from imix_cli.core import numerics as xp
 from imix_cli.core.algorithms.base import EvolutionStrategy, Params
 from imix_cli.core.distributions import FullGaussian
+from imix_cli.core.numerics import elementary as el
+from imix_cli.core.numerics import linalg_kernels as lk
 
 
 def _pow(x, y) -> float:
@@ -108,7 +111,7 @@ SUPPORTED_OPTIONS = {
     # active CMA: negative recombination weights in the covariance update
     "CMA_active": True,
     # [coordinate condition, condition] of C above which pycma re-parametrises (see
-    # CMAES._alleviate_conditioning); a false value switches it off
+    # _alleviate_conditioning_kernel); a false value switches it off
     "conditioncov_alleviate": (1e8, 1e12),
 }
 
@@ -119,6 +122,9 @@ STEP_SIZE_CONTROLS = ("csa", "tpa")
 # pycma's GaussFullSampler raises when an eigenvalue is <= 0 and retries after adding the
 # smallest previous eigenvalue to the diagonal; it recurses without limit, we give up here.
 _MAX_EIGEN_REPAIRS = 20
+
+#: No fitness: TPA's points when there are none (CSA, or before the mean has moved).
+_NO_FITNESS = np.empty(0)
 
 
 def check_dimension(dim: int) -> None:
@@ -299,6 +305,359 @@ class CMAESState(NamedTuple):
     tpa_s: np.ndarray
 
 
+class CMAESConstants(NamedTuple):
+    """What :func:`cmaes_update` reads and never writes: pycma's strategy parameters for the population told
+    (:meth:`CMAES._constants`, one record per population size) and the ES's own constants."""
+
+    #: the position weights of the n members told, best first (pycma's ``RecombinationWeights``, resized to n)
+    weights: np.ndarray
+    mueff: float
+    cc: float
+    c1: float
+    cmu: float
+    cs: float
+    damps: float
+    #: E||N(0, I_d)||
+    chi_d: float
+    #: the step-size control is TPA (else CSA), and TPA's damping
+    tpa: bool
+    tpa_damp: float
+    #: sigma0 (pycma's redistribution of a huge sigma into C compares with it)
+    sigma0: float
+    #: ``conditioncov_alleviate``'s two limits (0: off)
+    coordinate_limit: float
+    condition_limit: float
+
+
+@njit(cache=True)
+def _maximum(a, b):
+    """``np.maximum`` of two numbers: a NaN ``a`` kept, ``b`` when they compare equal (numpy's: maximum(-0.0, 0.0) is
+    0.0, which matters for the -0.0 weights of ``CMA_active=False``)."""
+    return a if (a > b or math.isnan(a)) else b
+
+
+@njit(cache=True)
+def _minimum(a, b):
+    """``np.minimum`` of two numbers, as :func:`_maximum` (minimum(-0.0, 0.0) is 0.0)."""
+    return a if (a < b or math.isnan(a)) else b
+
+
+@njit(cache=True)
+def _mat_vec(a, x):
+    """``xp.mat_vec(a, x)``: out[i] = sum_j a[i, j] x[j], j ascending (the same products in the same order)."""
+    n, d = a.shape
+    out = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(d):
+            acc += x[j] * a[i, j]
+        out[i] = acc
+    return out
+
+
+@njit(cache=True)
+def _shared_among_ties_kernel(weights, sorted_utilities):
+    """Per position of a best-first ranking: the mean positive and mean negative weight of the group of tied
+    utilities the position belongs to (fractional ranking); without ties, max(w, 0) and min(w, 0) themselves."""
+    n = weights.shape[0]
+    w_pos = np.empty(n)
+    w_neg = np.empty(n)
+    all_new = True
+    for i in range(n):
+        w_pos[i] = _maximum(weights[i], 0.0)
+        w_neg[i] = _minimum(weights[i], 0.0)
+        if i > 0 and not (sorted_utilities[i] != sorted_utilities[i - 1]):
+            all_new = False
+    if all_new:
+        return w_pos, w_neg
+    group = np.empty(n, np.int64)
+    g = -1
+    for i in range(n):
+        if i == 0 or sorted_utilities[i] != sorted_utilities[i - 1]:
+            g += 1
+        group[i] = g
+    sums_pos = np.zeros(g + 1)
+    sums_neg = np.zeros(g + 1)
+    sizes = np.zeros(g + 1)
+    for i in range(n):
+        sums_pos[group[i]] += w_pos[i]
+        sums_neg[group[i]] += w_neg[i]
+        sizes[group[i]] += 1.0
+    shared_pos = np.empty(n)
+    shared_neg = np.empty(n)
+    for i in range(n):
+        shared_pos[i] = sums_pos[group[i]] / sizes[group[i]]
+        shared_neg[i] = sums_neg[group[i]] / sizes[group[i]]
+    return shared_pos, shared_neg
+
+
+@njit(cache=True)
+def _decompose_kernel(state):
+    """C = B D^2 B^T on the symmetrised C, eigenvalues ascending (pycma's ``GaussFullSampler._decompose_C``), in place
+    of ``state``. An eigenvalue <= 0 (or a failed decomposition): pycma adds the smallest previous eigenvalue to the
+    diagonal and tries again, without limit; we give up after :data:`_MAX_EIGEN_REPAIRS` repairs and return False."""
+    C = state.C
+    d = C.shape[0]
+    previous = state.eigenvalues_sqrt.copy()
+    for _ in range(_MAX_EIGEN_REPAIRS):
+        sym = np.empty((d, d))
+        for i in range(d):
+            for j in range(d):
+                sym[i, j] = (C[i, j] + C[j, i]) / 2
+        C[:, :] = sym
+        if np.all(np.isfinite(C)):
+            values, vectors_t, ok = lk.eigh_kernel(C)
+            if ok and np.all(values > 0):  # ascending (the kernel sorts them), as pycma's
+                for i in range(d):
+                    for j in range(d):
+                        state.eigenvectors[i, j] = vectors_t[j, i]
+                for i in range(d):
+                    state.eigenvalues_sqrt[i] = math.sqrt(values[i])
+                return True
+        # pycma: "covariance matrix eigen decomposition failed"; add the smallest previous eigenvalue to the diagonal
+        shift = el.pow(np.min(previous), 2.0)
+        for i in range(d):
+            C[i, i] += shift
+        for i in range(d):
+            previous[i] = math.sqrt(previous[i] * previous[i] + shift)
+    return False
+
+
+@njit(cache=True)
+def _alleviate_conditioning_kernel(state, constants):
+    """pycma's ``conditioncov_alleviate``, in place of ``state``; returns (C was decomposed or reset here, no
+    decomposition failed).
+
+    * Coordinate condition max(diag C) / min(diag C) >= ``constants.coordinate_limit``
+      (``alleviate_conditioning_in_coordinates``): C becomes its correlation matrix, the standard deviations move into
+      ``scaling`` (pycma's ``sigma_vec``).
+    * Condition of C >= ``constants.condition_limit``, judged from the previous decomposition as pycma does
+      (``alleviate_conditioning``, once per run): the coordinates become g = T^-1 x with T = S C^1/2 (from that
+      decomposition) and C is reset, p_c mapped along. The sampling distribution stays the same up to the C update of
+      this generation, which pycma discards here.
+    """
+    C = state.C
+    d = C.shape[0]
+    decomposed = False
+    if constants.coordinate_limit:
+        diag = np.diag(C).copy()
+        if np.max(diag) / np.min(diag) >= constants.coordinate_limit:
+            if not _decompose_kernel(state):  # pycma's to_correlation_matrix decomposes first (and symmetrises)
+                return True, False
+            factors = np.sqrt(np.diag(C).copy())
+            corr = np.empty((d, d))
+            for i in range(d):
+                for j in range(d):
+                    corr[i, j] = C[i, j] / factors[j] / factors[i]
+            for i in range(d):
+                for j in range(d):
+                    C[i, j] = (corr[i, j] + corr[j, i]) / 2.0
+            if not _decompose_kernel(state):
+                return True, False
+            for i in range(d):
+                state.scaling[i] = state.scaling[i] * factors[i]
+                state.p_c[i] = state.p_c[i] / factors[i]
+            decomposed = True
+    D = state.eigenvalues_sqrt
+    if not state.transformed[0] and constants.condition_limit and el.pow(D[d - 1] / D[0], 2.0) >= constants.condition_limit:
+        B = state.eigenvectors
+        b_over_d = np.empty((d, d))
+        b_times_d = np.empty((d, d))
+        for i in range(d):
+            for j in range(d):
+                b_over_d[i, j] = B[i, j] / D[j]
+                b_times_d[i, j] = B[i, j] * D[j]
+        bt = np.ascontiguousarray(B.T)
+        tf_inv = lk.mat_mat_kernel(b_over_d, bt)
+        tf = lk.mat_mat_kernel(b_times_d, bt)
+        for i in range(d):  # the sampler reset (not decomposed again)
+            for j in range(d):
+                C[i, j] = 0.0
+                B[i, j] = 0.0
+            C[i, i] = el.exp((1e-4 / d) * i)
+            B[i, i] = 1.0
+        for i in range(d):
+            D[i] = math.sqrt(C[i, i])
+        p_c = _mat_vec(tf_inv, state.p_c)
+        state.p_c[:] = p_c
+        for i in range(d):
+            for j in range(d):
+                state.transform[i, j] = state.scaling[i] * tf[i, j]
+                state.transform_inverse[i, j] = tf_inv[i, j] / state.scaling[j]
+        state.transformed[0] = True
+        state.scaling[:] = 1.0
+        mean = _mat_vec(state.transform_inverse, state.mean_geno)
+        state.mean_geno[:] = mean
+        decomposed = True
+    return decomposed, True
+
+
+@njit(cache=True)
+def _tpa_log_step(state, constants, probe_fitness, fitness):
+    """log sigma's change from TPA's two points (pycma's ``CMAAdaptSigmaTPA.update2``, maximising), ``state.tpa_s``
+    moved: z = (#{f > f_behind} - #{f > f_ahead}) / (n - 1) over the two points and the generation; 0 without points."""
+    if probe_fitness.shape[0] == 0:
+        return 0.0
+    n = probe_fitness.shape[0] + fitness.shape[0]
+    f = np.empty(n)
+    f[: probe_fitness.shape[0]] = probe_fitness
+    f[probe_fitness.shape[0] :] = fitness
+    for i in range(n):
+        if not math.isfinite(f[i]):
+            f[i] = -np.inf
+    above_behind = 0
+    above_ahead = 0
+    for i in range(n):
+        if f[i] > f[1]:
+            above_behind += 1
+        if f[i] > f[0]:
+            above_ahead += 1
+    z = (above_behind - above_ahead) / (n - 1)
+    state.tpa_s[0] = (1 - 0.3) * state.tpa_s[0] + 0.3 * math.copysign(el.pow(abs(z), 0.5), z)
+    return state.tpa_s[0] / constants.tpa_damp
+
+
+@njit(cache=True)
+def cmaes_update(samples, utilities, fitness, probe_fitness, state, constants, mean_weights):
+    """One CMA-ES update (module docstring; [T] = Hansen's tutorial), in place of ``state`` (:class:`CMAESState`):
+    the one copy of the maths, which :meth:`CMAES._update` runs. ``fitness``/``probe_fitness``: the generation's raw
+    fitness and TPA's two points' (size 0: none); ``mean_weights`` receives each member's positive weight. Returns
+    False when C stays indefinite after pycma's repairs (the caller raises)."""
+    n, d = samples.shape
+    sigma, cs, cc = state.step_size[0], constants.cs, constants.cc
+    B, D, scaling = state.eigenvectors.copy(), state.eigenvalues_sqrt.copy(), state.scaling.copy()
+    x = samples if not state.transformed[0] else lk.mat_mat_kernel(samples, np.ascontiguousarray(state.transform_inverse.T))
+    state.countiter[0] += 1
+
+    # Selection: best first. Tied utilities share their positions' weights, separately for the positive and the
+    # negative parts (module docstring).
+    order = np.argsort(-utilities, kind="mergesort")  # stable, as numpy's kind="stable"
+    xs = np.empty((n, d))
+    sorted_u = np.empty(n)
+    for r in range(n):
+        xs[r] = x[order[r]]
+        sorted_u[r] = utilities[order[r]]
+    w_pos, w_neg = _shared_among_ties_kernel(constants.weights, sorted_u)
+    for r in range(n):
+        mean_weights[order[r]] = w_pos[r]  # m' - m = sum_i w_i (x_i - m): the mean weights, by member
+
+    # [T] (9): m' = sum_i w_i x_{i:lambda} over the positive weights (pycma: cmean = 1)
+    mean_old = state.mean_geno.copy()
+    k = 0
+    for r in range(n):
+        if w_pos[r] != 0.0:
+            k = r + 1  # without ties: mu
+    mean_new = lk.vec_mat_kernel(w_pos[:k], xs[:k])
+    state.mean_geno[:] = mean_new
+    dm = np.empty(d)
+    for j in range(d):
+        dm[j] = mean_new[j] - mean_old[j]
+
+    # [T] (43): p_sigma <- (1 - cs) p_sigma + sqrt(cs (2 - cs) mueff) C^-1/2 (m' - m) / sigma, C^-1/2 = B D^-1 B^T
+    scaled = np.empty(d)
+    for j in range(d):
+        scaled[j] = dm[j] / scaling[j]
+    half = lk.vec_mat_kernel(scaled, B)
+    for j in range(d):
+        half[j] = half[j] / D[j]
+    z = _mat_vec(B, half)
+    factor = el.pow(constants.mueff, 0.5) / sigma / 1.0
+    path = math.sqrt(cs * (2 - cs))
+    p_sigma = state.p_sigma
+    for j in range(d):
+        p_sigma[j] *= 1 - cs
+        p_sigma[j] += path * (z[j] * factor)
+    # hsig ([T] p. 29; pycma's bias-corrected form): stall p_c when ||p_sigma|| is large
+    squares = np.empty(d)
+    for j in range(d):
+        squares[j] = p_sigma[j] * p_sigma[j]
+    squared_sum = lk.numpy_sum(squares) / (1 - el.pow(1 - cs, float(2 * state.countiter[0])))
+    hsig = 1 if squared_sum / d - 1 < 1 + 4.0 / (d + 1) else 0
+    # [T] (45): p_c <- (1 - cc) p_c + hsig sqrt(cc (2 - cc) mueff) (m' - m) / sigma
+    pc_factor = hsig * (el.pow(cc * (2 - cc) * constants.mueff, 0.5) / sigma / 1.0)
+    for j in range(d):
+        state.p_c[j] = (1 - cc) * state.p_c[j] + pc_factor * dm[j] / scaling[j]
+
+    # [T] (47), (46): C <- (1 + c1 delta(hsig) - c1 - cmu sum w) C + c1 p_c p_c^T + cmu sum_i w_i° y_i y_i^T,
+    # y_i = (x_i - m) / sigma, w_i° = w_i for w_i >= 0 and w_i d / ||C^-1/2 y_i||^2 otherwise (active CMA). pycma folds
+    # delta(hsig) into c1a and gives p_c the weight c1a with length rescaled so that c1a ||v||^2 = c1 ||p_c||^2; so do we.
+    c1, cmu = constants.c1, constants.cmu
+    c1a = c1 * (1 - (1 - hsig * hsig) * cc * (2 - cc))
+    vectors = np.empty((n + 1, d))
+    for r in range(n):
+        for j in range(d):
+            vectors[r + 1, j] = (xs[r, j] - mean_old[j]) / (sigma * scaling[j])
+    total = c1a  # sampler.update's decay, summed in Python's order
+    for r in range(constants.weights.shape[0]):
+        total += cmu * constants.weights[r]
+    decay = 1 - total
+    coef = np.empty(n + 1)
+    coef[0] = c1a
+    n_negative = 0
+    for r in range(n):
+        coef[r + 1] = cmu * w_pos[r]
+        if w_neg[r] != 0.0:
+            n_negative += 1
+    if n_negative:
+        negative = np.empty(n_negative, np.int64)
+        m = 0
+        for r in range(n):
+            if w_neg[r] != 0.0:
+                negative[m] = r
+                m += 1
+        whitened = lk.mat_mat_kernel(vectors[negative + 1], B)
+        for m in range(n_negative):
+            acc = 0.0
+            for j in range(d):
+                v = whitened[m, j] / D[j]
+                acc += v * v
+            norm = math.sqrt(acc) + 1e-9
+            r = negative[m]
+            coef[r + 1] += (cmu * w_neg[r]) * (d / (norm * norm))
+    pc_length = el.pow(c1 / (c1a + 1e-23), 0.5)
+    for j in range(d):
+        vectors[0, j] = pc_length * state.p_c[j]
+    gram = lk.weighted_gram_kernel(coef, vectors)
+    C = state.C
+    for i in range(d):
+        for j in range(d):
+            C[i, j] *= decay
+            C[i, j] += gram[i, j]
+
+    # [T] (44): sigma <- sigma exp(cs / damps (||p_sigma|| / E||N(0, I)|| - 1)), the change of log sigma clipped to
+    # +-1 (pycma's max_delta_log_sigma); with TPA, from the two points instead (module docstring)
+    if constants.tpa:
+        s = _tpa_log_step(state, constants, probe_fitness, fitness)
+        for j in range(d):
+            state.tpa_move[j] = mean_new[j] - mean_old[j]
+    else:
+        s = math.sqrt(lk.numpy_sum(squares)) / constants.chi_d - 1
+        s *= cs / constants.damps
+    if -1.0 > s:
+        s = -1.0
+    if 1.0 < s:
+        s = 1.0
+    state.step_size[0] *= el.exp(s)
+    # pycma moves a huge sigma into C (_redistribute_sigma_above = 1e9), same distribution
+    if state.step_size[0] > 1e9 * constants.sigma0:
+        alpha = state.step_size[0] / el.pow(np.max(np.diag(C).copy()), 0.5)
+        if alpha > 1:
+            root = el.pow(alpha, 0.5)
+            for i in range(d):
+                for j in range(d):
+                    C[i, j] *= alpha
+                state.eigenvalues_sqrt[i] = state.eigenvalues_sqrt[i] * root
+            state.step_size[0] /= root
+
+    # what pycma's ask does before it samples: alleviate conditioning, then decompose C
+    decomposed, ok = _alleviate_conditioning_kernel(state, constants)
+    if not ok:
+        return False
+    if not decomposed:
+        return _decompose_kernel(state)
+    return True
+
+
 def _field(name: str, scalar=None):
     """An attribute of :class:`CMAES` that is field ``name`` of its state record (``scalar``: float or int, a
     (1,)-array field read as a number and written in place)."""
@@ -353,6 +712,7 @@ class CMAES(EvolutionStrategy):
 
         d = self.dim
         self._params = {self.popsize: _Parameters(d, self.popsize, self.active)}
+        self._constants_by_n = {}
         p = self._params[self.popsize]
         # CSA constants (CMAAdaptSigmaCSA.compute_cs / compute_damps; [T] (55)) with no
         # mirrors: cs = min(1/2, (mueff + 2) / (d + mueff + 3)),
@@ -446,17 +806,6 @@ class CMAES(EvolutionStrategy):
         finally:
             self._probe_fitness = None
 
-    def _tpa_step(self) -> float:
-        """log sigma's change from the two points' fitness (pycma's CMAAdaptSigmaTPA.update2, maximising):
-        z = (#{f > f_behind} - #{f > f_ahead}) / (n - 1) over the points and the generation."""
-        if self._probe_fitness is None:
-            return 0.0
-        f = np.concatenate(self._probe_fitness)  # the two points first, then the members
-        f = np.where(np.isfinite(f), f, -np.inf)
-        z = (np.count_nonzero(f > f[1]) - np.count_nonzero(f > f[0])) / (f.size - 1)
-        self.tpa_s = (1 - 0.3) * self.tpa_s + 0.3 * math.copysign(_pow(abs(z), 0.5), z)
-        return self.tpa_s / self.tpa_damp
-
     # ------------------------------------------------------------------ update
     def _parameters(self, n: int) -> tuple[_Parameters, list]:
         """Strategy parameters and the n position weights for a population of n."""
@@ -467,169 +816,38 @@ class CMAES(EvolutionStrategy):
             self._params[n] = _Parameters(self.dim, n, self.active)
         return self._params[n], self._params[n].weights
 
+    def _constants(self, n: int) -> CMAESConstants:
+        """:func:`cmaes_update`'s constants for a population of n (one record per n, kept)."""
+        if n not in self._constants_by_n:
+            p, weights = self._parameters(n)
+            self._constants_by_n[n] = CMAESConstants(
+                np.array(weights, dtype=np.float64), float(p.mueff), float(p.cc), float(p.c1), float(p.cmu), float(self.cs),
+                float(self.damps), float(self.chi_d), self.params.step_size_control == "tpa", float(self.tpa_damp), float(self.sigma),
+                *self.alleviate_limits,
+            )  # fmt: skip
+        return self._constants_by_n[n]
+
     def _update(self, samples: np.ndarray, utilities: np.ndarray) -> None:
         n = samples.shape[0]
         if n < 3:
             raise ValueError(f"CMAES.tell needs at least 3 samples, got {n}")
-        p, weights = self._parameters(n)
-        d, sigma, cs, cc = self.dim, self.step_size, self.cs, p.cc
-        B, D, scaling = self.eigenvectors, self.eigenvalues_sqrt, self.scaling
-        x = samples if self.transform is None else xp.mat_mat(samples, self.transform_inverse.T)  # genotypes
-        self.countiter += 1
-
-        # Selection: best first. Tied utilities share their positions' weights, separately
-        # for the positive and the negative parts (module docstring).
-        order = np.argsort(-utilities, kind="stable")
-        x = x[order]
-        w_pos, w_neg = _shared_among_ties(np.asarray(weights, dtype=np.float64), utilities[order])
+        probe_fitness, fitness = self._probe_fitness if self._probe_fitness is not None else (_NO_FITNESS, _NO_FITNESS)
         self._told_mean_weights = np.empty(n)
-        self._told_mean_weights[order] = w_pos  # m' - m = sum_i w_i (x_i - m): the mean weights, by member
-
-        # [T] (9): m' = sum_i w_i x_{i:lambda} over the positive weights (pycma: cmean = 1)
-        mean_old = self.mean_geno
-        k = int(np.flatnonzero(w_pos)[-1]) + 1  # without ties: mu
-        self.mean_geno = xp.vec_mat(w_pos[:k], x[:k])
-        dm = self.mean_geno - mean_old
-
-        # [T] (43): p_sigma <- (1 - cs) p_sigma + sqrt(cs (2 - cs) mueff) C^-1/2 (m' - m) / sigma,
-        # C^-1/2 = B D^-1 B^T from the decomposition before this update
-        z = xp.mat_vec(B, xp.vec_mat(dm / scaling, B) / D)
-        z *= _pow(p.mueff, 0.5) / sigma / 1.0
-        self.p_sigma *= 1 - cs
-        self.p_sigma += math.sqrt(cs * (2 - cs)) * z
-        # hsig ([T] p. 29; pycma's bias-corrected form): stall p_c when ||p_sigma|| is large
-        squared_sum = np.sum(self.p_sigma**2) / (1 - _pow(1 - cs, 2 * self.countiter))
-        hsig = bool(squared_sum / d - 1 < 1 + 4.0 / (d + 1))
-        # [T] (45): p_c <- (1 - cc) p_c + hsig sqrt(cc (2 - cc) mueff) (m' - m) / sigma
-        self.p_c = (1 - cc) * self.p_c + hsig * (_pow(cc * (2 - cc) * p.mueff, 0.5) / sigma / 1.0) * dm / scaling
-
-        # [T] (47), (46): C <- (1 + c1 delta(hsig) - c1 - cmu sum w) C + c1 p_c p_c^T
-        #                       + cmu sum_i w_i° y_i y_i^T,   y_i = (x_i - m) / sigma,
-        # w_i° = w_i for w_i >= 0 and w_i d / ||C^-1/2 y_i||^2 otherwise (active CMA).
-        # pycma folds delta(hsig) into c1a and gives p_c the weight c1a with length rescaled
-        # so that c1a ||v||^2 = c1 ||p_c||^2; we do the same, for equal round-off.
-        c1, cmu = p.c1, p.cmu
-        c1a = c1 * (1 - (1 - hsig**2) * cc * (2 - cc))
-        y = (x - mean_old) / (sigma * scaling)
-        decay = 1 + 0 - sum([c1a] + [cmu * w for w in weights])  # sampler.update, in Python order
-        coef = cmu * w_pos
-        negative = np.flatnonzero(w_neg)
-        if negative.size:
-            whitened = xp.mat_mat(y[negative], B) / D  # B^T y / D, row by row
-            norms = np.sqrt(xp.row_sq_norms(whitened))
-            coef[negative] += (cmu * w_neg[negative]) * (d / (norms + 1e-9) ** 2)
-        vectors = np.vstack((_pow(c1 / (c1a + 1e-23), 0.5) * self.p_c, y))
-        self.C *= decay
-        self.C += xp.weighted_gram(np.concatenate(([c1a], coef)), vectors)
-
-        # [T] (44): sigma <- sigma exp(cs / damps (||p_sigma|| / E||N(0, I)|| - 1)), change of
-        # log sigma clipped to +-1 (pycma's max_delta_log_sigma)
-        if self.params.step_size_control == "tpa":  # from the two points, not the path (module docstring)
-            s = self._tpa_step()
-            self.tpa_move = self.mean_geno - mean_old
-        else:
-            s = np.sqrt(np.sum(np.square(self.p_sigma))) / self.chi_d - 1
-            s *= cs / self.damps
-        self.step_size *= xp.exp(min(max(float(s), -1), 1))
-        # pycma moves a huge sigma into C (_redistribute_sigma_above = 1e9), same distribution
-        if self.step_size > 1e9 * self.sigma:
-            alpha = float(self.step_size / _pow(np.max(np.diag(self.C)), 0.5))
-            if alpha > 1:
-                self.C *= alpha
-                self.eigenvalues_sqrt = self.eigenvalues_sqrt * _pow(alpha, 0.5)
-                self.step_size /= _pow(alpha, 0.5)
-
-        # what pycma's ask does before it samples: alleviate conditioning, then decompose C
-        if not self._alleviate_conditioning():
-            self._decompose()
+        samples = np.ascontiguousarray(samples, dtype=np.float64)
+        utilities = np.ascontiguousarray(utilities, dtype=np.float64)
+        if not cmaes_update(samples, utilities, fitness, probe_fitness, self.state, self._constants(n), self._told_mean_weights):
+            raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
         self._set_distribution()
+
+    def _decompose(self) -> None:
+        """C = B D^2 B^T, in place of the state (:func:`_decompose_kernel`); FloatingPointError if C stays indefinite."""
+        if not _decompose_kernel(self.state):
+            raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
 
     def _mean_weights(self, utilities: np.ndarray) -> np.ndarray:
         """Each member's positive recombination weight (ties sharing theirs): m' - m = sum_i w_i (x_i - m)."""
         return self._told_mean_weights
 
-    def _decompose(self) -> None:
-        """C = B D^2 B^T on the symmetrised C, eigenvalues ascending (GaussFullSampler._decompose_C)."""
-        previous = self.eigenvalues_sqrt
-        for _ in range(_MAX_EIGEN_REPAIRS):
-            self.C = (self.C + self.C.T) / 2
-            try:
-                eigenvalues, eigenvectors = xp.eigh(self.C)
-                if np.all(eigenvalues > 0):
-                    break
-            except np.linalg.LinAlgError:
-                pass
-            # pycma: "covariance matrix eigen decomposition failed"; add the smallest
-            # previous eigenvalue to the diagonal (and to the previous ones) and try again
-            shift = _pow(np.min(previous), 2)
-            self.C[np.diag_indices(self.dim)] += shift
-            previous = (previous**2 + shift) ** 0.5
-        else:
-            raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
-        if np.any(np.diff(eigenvalues) < 0):  # xp.eigh returns them ascending; pycma sorts anyway
-            idx = np.argsort(eigenvalues)
-            eigenvalues, eigenvectors = eigenvalues[idx], eigenvectors[:, idx]
-        self.eigenvectors = eigenvectors
-        self.eigenvalues_sqrt = eigenvalues**0.5
-
-    def _alleviate_conditioning(self) -> bool:
-        """pycma's ``conditioncov_alleviate``; True if C was decomposed (or reset) here.
-
-        * Coordinate condition max(diag C) / min(diag C) >= limit[0]
-          (``alleviate_conditioning_in_coordinates``): C becomes its correlation matrix,
-          the standard deviations move into ``scaling`` (pycma's ``sigma_vec``).
-        * Condition of C >= limit[1], judged from the previous decomposition as pycma
-          does (``alleviate_conditioning``, once per run): the coordinates become
-          g = T^-1 x with T = S C^1/2 (from that decomposition) and C is reset, p_c mapped
-          along. The sampling distribution stays the same up to the C update of this
-          generation, which pycma discards here.
-        """
-        coordinate_limit, limit = self.alleviate_limits
-        decomposed = False
-        diag = np.diag(self.C)
-        if coordinate_limit and np.max(diag) / np.min(diag) >= coordinate_limit:
-            self._decompose()  # pycma's to_correlation_matrix decomposes first (and symmetrises)
-            factors = np.diag(self.C) ** 0.5
-            corr = self.C / factors[None, :] / factors[:, None]
-            self.C = (corr + corr.T) / 2.0
-            self._decompose()
-            self.scaling = self.scaling * factors
-            self.p_c = self.p_c / factors
-            decomposed = True
-        D = self.eigenvalues_sqrt
-        if self.transform is None and limit and _pow(D[-1] / D[0], 2) >= limit:
-            B = self.eigenvectors
-            tf_inv = xp.mat_mat(B / D, B.T)
-            tf = xp.mat_mat(B * D, B.T)
-            d = self.dim
-            self.C = np.diag(xp.exp((1e-4 / d) * np.arange(d)))  # sampler reset, not decomposed again
-            self.eigenvectors = np.eye(d)
-            self.eigenvalues_sqrt = np.sqrt(np.diag(self.C)).copy()
-            self.p_c = xp.mat_vec(tf_inv, self.p_c)
-            self.transform = self.scaling[:, None] * tf
-            self.transform_inverse = tf_inv / self.scaling[None, :]
-            self.scaling = np.ones(d)
-            self.mean_geno = xp.mat_vec(self.transform_inverse, self.mean_geno)
-            decomposed = True
-        return decomposed
-
     # ------------------------------------------------------------ checkpoints
     # The base class's: the counters and :attr:`state` field by field (continuing is then bit-identical).
 
-
-def _shared_among_ties(weights: np.ndarray, sorted_utilities: np.ndarray):
-    """Per position of a best-first ranking: the mean positive and mean negative weight of
-    the group of tied utilities the position belongs to (fractional ranking).
-
-    Without ties these are max(w, 0) and min(w, 0) themselves.
-    """
-    w_pos = np.maximum(weights, 0.0)
-    w_neg = np.minimum(weights, 0.0)
-    new_group = np.empty(sorted_utilities.shape[0], dtype=bool)
-    new_group[0] = True
-    np.not_equal(sorted_utilities[1:], sorted_utilities[:-1], out=new_group[1:])
-    if new_group.all():
-        return w_pos, w_neg
-    group = np.cumsum(new_group) - 1
-    sizes = np.bincount(group)
-    return (np.bincount(group, weights=w_pos) / sizes)[group], (np.bincount(group, weights=w_neg) / sizes)[group]
