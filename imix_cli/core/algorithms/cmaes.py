@@ -850,4 +850,3 @@ class CMAES(EvolutionStrategy):
 
     # ------------------------------------------------------------ checkpoints
     # The base class's: the counters and :attr:`state` field by field (continuing is then bit-identical).
-
