@@ -40,6 +40,10 @@ CASES = [
     ["algo=cem", "env=cartpole", "eim=true"],  # CEM: elite weights (ties sharing theirs) are its mean weights
     ["algo=cem", "env=acrobot", "eim=false", "popsize=12"],
     ["algo=cem", "algo.style=cemrl", "env=cartpole", "im=true", "popsize=16"],
+    # CMA-ES: a full Gaussian (its own chunk), TPA's two probes a generation, pycma's conditioning alleviated
+    ["algo=cmaes", "env=cartpole", "eim=true"],
+    ["algo=cmaes", "env=acrobot", "eim=false", "popsize=12"],
+    ["algo=cmaes", "env=continuous_cartpole_hard", "eim=true", "eim_generations=5", "algo.step_size_control=csa", "popsize=10", "sigma=2"],
 ]
 
 
@@ -249,7 +253,23 @@ def test_a_chunk_that_diverges_changes_nothing_and_is_left_to_the_python_loop():
     _same(before, _snapshot(st))
 
 
-@pytest.mark.parametrize("overrides", [CASES[0], ["algo=cem", "env=acrobot", "eim=true", "popsize=12"]], ids=lambda o: " ".join(o))
+def test_a_cmaes_chunk_that_cannot_draw_changes_nothing_and_is_left_to_the_python_loop():
+    """A full Gaussian's chunk meets a covariance that is not positive definite (sigma^2 overflows): it hands the seed
+    back unchanged, and the Python path records the divergence."""
+    settings, evaluator, st = _seed_state(["algo=cmaes", "env=cartpole", "eim=true"])
+    st.es.es.state.step_size[0] = 1e160
+    before = _snapshot(st)
+    assert not compiled_loop.advance(st, settings, evaluator, 20)
+    _same(before, _snapshot(st))
+    advance_lockstep([st], settings, evaluator)
+    assert st.es.diverged and st.generation == 1
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [CASES[0], ["algo=cem", "env=acrobot", "eim=true", "popsize=12"], ["algo=cmaes", "env=cartpole", "eim=true", "popsize=12"]],
+    ids=lambda o: " ".join(o),
+)
 def test_seeds_advanced_together_are_the_seeds_advanced_alone_bit_for_bit(overrides):
     """One compiled call advances many seeds, their fresh members' episodes in one batch (compiled_generation
     SEEDS_PER_CALL): every seed's state must be the one it reaches alone, seeds with archives of different ages and a
@@ -287,7 +307,7 @@ def test_a_call_whose_one_seed_diverges_changes_no_seed_and_is_left_to_the_pytho
 
 def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
     for overrides in (
-        ["algo=cmaes", "env=cartpole", "eim=true"],  # a full covariance: no compiled step
+        ["algo=cmaes", "env=cartpole", "im=true"],  # between full Gaussians only "exact" has a compiled step
         ["algo=snes", "env=cartpole", "eim=true", "eim_variant=conditional"],
         ["algo=snes", "env=cartpole", "eim=true", "reeval_count=2"],
         ["algo=snes", "env=cartpole", "eim=true", "weight_decay_form=paper"],
@@ -297,7 +317,13 @@ def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
     ):
         settings, evaluator, st = _seed_state(overrides)
         assert not compiled_loop.applies(settings, evaluator, st), overrides
-    taken = (["algo=snes", "env=acrobot", "eim=true"], ["algo=openes", "env=continuous_cartpole_hard", "im=true"], ["algo=cem", "env=acrobot", "eim=true"])
+    taken = (
+        ["algo=snes", "env=acrobot", "eim=true"],
+        ["algo=openes", "env=continuous_cartpole_hard", "im=true"],
+        ["algo=cem", "env=acrobot", "eim=true"],
+        ["algo=cmaes", "env=cartpole", "eim=true"],
+        ["algo=cmaes", "env=acrobot", "eim=false"],
+    )
     for overrides in taken:
         settings, evaluator, st = _seed_state(overrides)
         assert compiled_loop.applies_to_run(settings, evaluator) and compiled_loop.applies(settings, evaluator, st), overrides
@@ -359,6 +385,7 @@ RUNS = [
     ["algo=snes", "env=acrobot", "eim=true"],
     ["algo=openes", "env=acrobot", "eim=false", "popsize=12"],
     ["algo=cem", "env=acrobot", "eim=true"],
+    ["algo=cmaes", "env=cartpole", "eim=true", "popsize=20"],
 ]
 
 

@@ -408,11 +408,21 @@ class CompiledStep(NamedTuple):
     ``mean_weights(utilities, constants)``: the weight of each member in the mean's move
     (:meth:`EvolutionStrategy._mean_weights`, which then runs it too), for an ES whose weights are not its
     utilities (CEM's elite weights); None, the default: the utilities themselves.
+
+    ``full``: for an ES searching a full Gaussian (CMA-ES), whose state is its own (no ``mean``/``std``), the triple
+    ``(distribution, probes, most_probes)`` of compiled functions the loop needs besides the update:
+    ``distribution(state) -> (mean, cov, low, log_norm, ok)`` (the Gaussian, its Cholesky factor, log-normaliser; ``ok``
+    False: not positive definite) and ``probes(rng, state, constants, out) -> count`` (points to evaluate besides the
+    members, :meth:`EvolutionStrategy.probes`). Its ``update`` is then ``update(samples, utilities, fitness,
+    probe_fitness, state, constants, mean_weights) -> ok``: it also takes the raw fitness and the probes' (size 0:
+    none), writes each member's weight in the mean's move into ``mean_weights`` and returns False when the update
+    failed (the Python path records the divergence). None, the default: a diagonal Gaussian.
     """
 
     update: Callable
     constants: tuple
     mean_weights: Callable | None = None
+    full: tuple | None = None
 
 
 class EvolutionStrategy(ABC):

@@ -77,7 +77,7 @@ import numpy as np
 from numba import njit
 
 from imix_cli.core import numerics as xp
-from imix_cli.core.algorithms.base import EvolutionStrategy, Params
+from imix_cli.core.algorithms.base import CompiledStep, EvolutionStrategy, Params
 from imix_cli.core.distributions import FullGaussian
 from imix_cli.core.numerics import elementary as el
 from imix_cli.core.numerics import linalg_kernels as lk
@@ -658,6 +658,78 @@ def cmaes_update(samples, utilities, fitness, probe_fitness, state, constants, m
     return True
 
 
+@njit(cache=True)
+def cmaes_distribution(state):
+    """The search distribution of ``state``: x = T (mean + sigma * scaling * B D z), i.e. N(T mean, sigma^2 T S C S T^T)
+    with S = diag(scaling), as :class:`~imix_cli.core.distributions.FullGaussian` holds it -- ``(mean, cov, low,
+    log_norm, ok)``: the covariance symmetrised (0.5 (cov + cov^T)), its Cholesky factor and the log-normaliser; ``ok``
+    False when the covariance is not positive definite. The one copy: :meth:`CMAES._set_distribution` and the compiled
+    generation loop both run it."""
+    d = state.mean_geno.shape[0]
+    s2 = el.pow(state.step_size[0], 2.0)
+    scaling = state.scaling
+    cov = np.empty((d, d))
+    for i in range(d):
+        for j in range(d):
+            cov[i, j] = state.C[i, j] * (s2 * (scaling[i] * scaling[j]))
+    mean = state.mean_geno.copy()
+    if state.transformed[0]:
+        mean = _mat_vec(state.transform, mean)
+        cov = lk.mat_mat_kernel(lk.mat_mat_kernel(state.transform, cov), np.ascontiguousarray(state.transform.T))
+    sym = np.empty((d, d))
+    for i in range(d):
+        for j in range(d):
+            sym[i, j] = 0.5 * (cov[i, j] + cov[j, i])
+    low, ok = lk.cholesky_kernel(sym)
+    if not ok:
+        return mean, sym, low, 0.0, False
+    logs = lk.log_kernel(np.diag(low).copy())
+    return mean, sym, low, -0.5 * d * el.LOG_2PI - lk.numpy_sum(logs), True
+
+
+@njit(cache=True)
+def cmaes_probes(rng, state, constants, out):
+    """TPA's two test points m +- sigma r u into ``out`` (2, d), from ``rng`` (u the last move of the mean, of unit
+    length in sigma^2 C's metric; r the length of a fresh N(0, I) draw); returns how many: 2, or 0 with CSA and before
+    the mean has moved. The one copy: :meth:`CMAES.probes` and the compiled generation loop both run it."""
+    if not constants.tpa:
+        return 0
+    move = state.tpa_move
+    d = move.shape[0]
+    moved = False
+    for j in range(d):
+        if move[j] != 0.0:
+            moved = True
+    if not moved:
+        return 0
+    scaled = np.empty(d)
+    for j in range(d):
+        scaled[j] = move[j] / state.scaling[j]
+    whitened = lk.vec_mat_kernel(scaled, state.eigenvectors)
+    for j in range(d):
+        whitened[j] = whitened[j] / state.eigenvalues_sqrt[j] / state.step_size[0]
+    draw = np.empty(d)
+    for j in range(d):
+        draw[j] = rng.standard_normal()
+    # lengths by the fixed-order loop, not numpy's BLAS dot: the same bits under every CPU kernel
+    dd = 0.0
+    ww = 0.0
+    for j in range(d):
+        dd += draw[j] * draw[j]
+    for j in range(d):
+        ww += whitened[j] * whitened[j]
+    length = math.sqrt(dd / ww)
+    points = np.empty((2, d))
+    for j in range(d):
+        y = move[j] * length
+        points[0, j] = state.mean_geno[j] + y
+        points[1, j] = state.mean_geno[j] - y
+    if state.transformed[0]:
+        points = lk.mat_mat_kernel(points, np.ascontiguousarray(state.transform.T))
+    out[:2] = points
+    return 2
+
+
 def _field(name: str, scalar=None):
     """An attribute of :class:`CMAES` that is field ``name`` of its state record (``scalar``: float or int, a
     (1,)-array field read as a number and written in place)."""
@@ -765,13 +837,13 @@ class CMAES(EvolutionStrategy):
         return self._dist
 
     def _set_distribution(self) -> None:
-        """x = T (mean + sigma * scaling * B D z): N(T mean, sigma^2 T S C S T^T), S = diag(scaling)."""
-        cov = self.C * (_pow(self.step_size, 2) * np.outer(self.scaling, self.scaling))
-        mean = self.mean_geno
-        if self.transform is not None:
-            mean = xp.mat_vec(self.transform, mean)
-            cov = xp.mat_mat(xp.mat_mat(self.transform, cov), self.transform.T)
-        self._dist = FullGaussian(mean, cov)
+        """x = T (mean + sigma * scaling * B D z): N(T mean, sigma^2 T S C S T^T), S = diag(scaling)
+        (:func:`cmaes_distribution`)."""
+        mean, cov, low, log_norm, ok = cmaes_distribution(self.state)
+        if not ok:
+            raise ValueError("FullGaussian: cov is not positive definite")
+        self._dist = FullGaussian.from_cholesky(mean, low, checked=False, log_norm=log_norm)
+        self._dist._cov = cov  # the covariance itself, as FullGaussian(mean, cov) keeps it (its checkpoint saves it)
 
     # ------------------------------------------------------------------ TPA
     @property
@@ -784,14 +856,8 @@ class CMAES(EvolutionStrategy):
         the mean, of unit length in sigma^2 C's metric; r the length of a fresh N(0, I) draw) to
         evaluate afresh with this generation and pass to :meth:`tell` as ``probe_fitness``. None
         with CSA, and before the mean has moved."""
-        if self.params.step_size_control != "tpa" or not np.any(self.tpa_move):
-            return None
-        whitened = xp.vec_mat(self.tpa_move / self.scaling, self.eigenvectors) / self.eigenvalues_sqrt / self.step_size
-        draw = rng.standard_normal(self.dim)
-        # lengths by the fixed-order kernel, not numpy's BLAS dot: the same bits under every CPU kernel
-        y = self.tpa_move * math.sqrt(xp.dot(draw, draw) / xp.dot(whitened, whitened))
-        points = np.vstack([self.mean_geno + y, self.mean_geno - y])
-        return points if self.transform is None else xp.mat_mat(points, self.transform.T)
+        out = np.empty((2, self.dim))
+        return out if cmaes_probes(rng, self.state, self._constants(self.popsize), out) else None
 
     def tell(self, samples, fitness, probe_fitness=None) -> None:
         """:meth:`EvolutionStrategy.tell`; with TPA, ``probe_fitness`` holds the returns of the two
@@ -838,6 +904,11 @@ class CMAES(EvolutionStrategy):
         if not cmaes_update(samples, utilities, fitness, probe_fitness, self.state, self._constants(n), self._told_mean_weights):
             raise FloatingPointError("CMAES: covariance matrix stays indefinite after repairs")
         self._set_distribution()
+
+    def compiled_step(self) -> CompiledStep:
+        """:func:`cmaes_update` over :class:`CMAESState`, a full Gaussian (:func:`cmaes_distribution`) with TPA's points
+        (:func:`cmaes_probes`): the compiled generation loop runs it (:class:`~imix_cli.core.algorithms.base.CompiledStep`)."""
+        return CompiledStep(cmaes_update, self._constants(self.popsize), full=(cmaes_distribution, cmaes_probes, self.probe_count))
 
     def _decompose(self) -> None:
         """C = B D^2 B^T, in place of the state (:func:`_decompose_kernel`); FloatingPointError if C stays indefinite."""

@@ -46,16 +46,18 @@ import numpy as np
 from numba import njit
 from numba.typed import List
 
-from imix_cli.core.distributions import DiagonalGaussian
+from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.core.envs import kernels as ek
 from imix_cli.core.mixing import Generation
 from imix_cli.core.mixing import kernels as mk
+from imix_cli.core.numerics import elementary as el
 from imix_cli.core.numerics import linalg_kernels as lk
 
-__all__ = ["SEEDS_PER_CALL", "entry", "entry_for", "env_code", "pack_archive", "unpack_archive"]
+__all__ = ["SEEDS_PER_CALL", "entry", "entry_for", "env_code", "pack_archive", "pack_full_archive", "unpack_archive", "unpack_full_archive"]
 
-# The ES's compiled update, utilities and mean weights: each entry point gets its own in its globals (:func:`entry`).
-_UPDATE = _UTILITIES = _MEAN_WEIGHTS = None
+# The ES's compiled update, utilities and mean weights, and for a full Gaussian its distribution and probes: each entry
+# point gets its own in its globals (:func:`entry`).
+_UPDATE = _UTILITIES = _MEAN_WEIGHTS = _DISTRIBUTION = _PROBES = None
 
 
 def _functions_digest(*functions) -> int:
@@ -97,6 +99,70 @@ def _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns,
         ek.cartpole_episodes(params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
 
 
+@njit
+def _episodes_of(episodes, params, seeds, returns, steps, trace):
+    """:func:`_episodes` with the chunk's ``episodes`` settings tuple."""
+    env, sizes, continuous, sparse, max_steps = episodes
+    _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
+
+
+@njit
+def _record(g, x, source, fitness, evaluated, seed, out):
+    """Generation ``g``'s row numbers into ``out`` (every return, reuse counts, ``evaluated`` = (episodes, their env
+    steps)) and the best member so far into ``seed`` (the first best kept)."""
+    best, best_return, last_u = seed
+    out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
+    popsize = x.shape[0]
+    reused = 0
+    from_previous = 0
+    for i in range(popsize):
+        if source[i] > 0:
+            reused += 1
+            if source[i] == 1:
+                from_previous += 1
+    out_fitness[g] = fitness
+    out_reused[g, 0] = reused
+    out_reused[g, 1] = from_previous
+    out_reused[g, 2] = reused - from_previous
+    out_evaluated[g] = evaluated[0]
+    out_steps[g] = evaluated[1]
+    b = 0
+    for i in range(1, popsize):
+        if fitness[i] > fitness[b]:
+            b = i
+    if fitness[b] > best_return[0]:
+        best_return[0] = fitness[b]
+        best[:] = x[b]
+    out_theta[g] = np.nan
+
+
+@njit
+def _measure_means(g, seed_tuples, means, episodes, scratch):
+    """The distribution means ``means[s]`` on fresh episodes, for every seed due at generation ``g`` (every
+    ``eval_every``), all in one call of the episode kernel; each seed's episode seeds from its own generator."""
+    mparams, mseeds, mreturns, msteps, trace = scratch
+    eval_every, eval_episodes = seed_tuples[0][3][0], seed_tuples[0][3][1]
+    if eval_every <= 0:
+        return
+    due = 0
+    for s in range(len(seed_tuples)):
+        measure, rngs = seed_tuples[s][3], seed_tuples[s][2]
+        if (measure[2] + g + 1) % eval_every == 0:
+            mseeds[due * eval_episodes : (due + 1) * eval_episodes] = _draw_seeds(rngs[2], eval_episodes)
+            for r in range(eval_episodes):
+                mk.put_row(mparams, due * eval_episodes + r, means[s])
+            due += 1
+    if due:
+        m = due * eval_episodes
+        _episodes_of(episodes, mparams[:m], mseeds[:m], mreturns[:m], msteps[:m], trace)
+        due = 0
+        for s in range(len(seed_tuples)):
+            measure, out = seed_tuples[s][3], seed_tuples[s][5]
+            if (measure[2] + g + 1) % eval_every == 0:
+                out[5][g] = lk.numpy_sum(mreturns[due * eval_episodes : (due + 1) * eval_episodes]) / eval_episodes
+                due += 1
+
+
 #: Most seeds one call runs (:func:`_make_chunk`): the call takes them as a tuple of this length, padded, so that numba
 #: compiles one entry point whatever the number of seeds.
 SEEDS_PER_CALL = 16
@@ -128,13 +194,12 @@ def _make_chunk(digest: int):
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
         kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult = rule
-        env, sizes, continuous, sparse, max_steps = episodes
         seed_tuples = List()  # indexing the tuple with a variable compiles a switch over its entries at every use: once
         for s in range(n):
             seed_tuples.append(batch[s])
         a_x0 = seed_tuples[0][1][1]
         popsize, d = a_x0.shape[1], a_x0.shape[2]
-        eval_every, eval_episodes = seed_tuples[0][3][0], seed_tuples[0][3][1]
+        eval_episodes = seed_tuples[0][3][1]
         trace = np.empty((0, 0, 0))
         xs = np.empty((n, popsize, d))
         sources = np.empty((n, popsize), dtype=np.int64)
@@ -149,10 +214,9 @@ def _make_chunk(digest: int):
         seeds = np.empty(n * popsize, dtype=np.uint64)
         returns = np.empty(n * popsize)
         steps = np.empty(n * popsize, dtype=np.int64)
-        mparams = np.empty((n * eval_episodes, d))
-        mseeds = np.empty(n * eval_episodes, dtype=np.uint64)
-        mreturns = np.empty(n * eval_episodes)
-        msteps = np.empty(n * eval_episodes, dtype=np.int64)
+        scratch = (np.empty((n * eval_episodes, d)), np.empty(n * eval_episodes, dtype=np.uint64), np.empty(n * eval_episodes),
+                   np.empty(n * eval_episodes, dtype=np.int64), trace)  # fmt: skip
+        means = np.empty((n, d))
         for g in range(generations):
             # ---- plan: mix (or draw) each seed's generation from its distribution N(mu, std^2)
             fresh_from[0] = 0
@@ -183,7 +247,7 @@ def _make_chunk(digest: int):
             # ---- evaluate the fresh members of every seed, in one call
             total = fresh_from[n]
             if total:
-                _episodes(env, params[:total], seeds[:total], sizes, continuous, sparse, max_steps, returns[:total], steps[:total], trace)
+                _episodes_of(episodes, params[:total], seeds[:total], returns[:total], steps[:total], trace)
             for s in range(n):
                 for e in range(fresh_from[s], fresh_from[s + 1]):
                     fitnesses[s, rows[e]] = returns[e]
@@ -195,12 +259,11 @@ def _make_chunk(digest: int):
                 es, archive, rngs, measure, seed, out = seed_tuples[s]
                 es_generation, state, constants = es
                 a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
-                best, best_return, last_u = seed
-                out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
+                last_u = seed[2]
                 mu, std = state.mean, state.std
                 x, source, fitness = xs[s], sources[s], fitnesses[s]
                 u = _UTILITIES(x, fitness, es_generation[0], weight_decay, mult)
-                out_sigma_mean[g] = lk.numpy_sum(std) / d
+                out[4][g] = lk.numpy_sum(std) / d
                 mu_drawn, std_drawn = mu.copy(), std.copy()  # the distribution the generation was drawn from
                 _UPDATE(x, u, state, constants)
                 mw = _MEAN_WEIGHTS(u, constants)  # after the update, as tell takes them (constants are never written)
@@ -236,72 +299,221 @@ def _make_chunk(digest: int):
                     a_mw[0] = mw
                     a_trials[0] = trials_of[s]
                     a_n[0] = min(a_n[0] + 1, depth)
-                reused = 0
-                from_previous = 0
-                for i in range(popsize):
-                    if source[i] > 0:
-                        reused += 1
-                        if source[i] == 1:
-                            from_previous += 1
-                out_fitness[g] = fitness
-                out_reused[g, 0] = reused
-                out_reused[g, 1] = from_previous
-                out_reused[g, 2] = reused - from_previous
-                out_evaluated[g] = fresh_from[s + 1] - fresh_from[s]
                 total_steps = 0
                 for e in range(fresh_from[s], fresh_from[s + 1]):
                     total_steps += steps[e]
-                out_steps[g] = total_steps
-                b = 0
-                for i in range(1, popsize):
-                    if fitness[i] > fitness[b]:
-                        b = i
-                if fitness[b] > best_return[0]:
-                    best_return[0] = fitness[b]
-                    best[:] = x[b]
-                out_theta[g] = np.nan
+                _record(g, x, source, fitness, (fresh_from[s + 1] - fresh_from[s], total_steps), seed, out)
+                means[s] = mu
             # ---- the distribution means on fresh episodes, when due: every due seed's in one call
-            due = 0
-            for s in range(n):
-                es, archive, rngs, measure, seed, out = seed_tuples[s]
-                if eval_every > 0 and (measure[2] + g + 1) % eval_every == 0:
-                    mseeds[due * eval_episodes : (due + 1) * eval_episodes] = _draw_seeds(rngs[2], eval_episodes)
-                    for r in range(eval_episodes):
-                        mk.put_row(mparams, due * eval_episodes + r, es[1].mean)
-                    due += 1
-            if due:
-                m = due * eval_episodes
-                _episodes(env, mparams[:m], mseeds[:m], sizes, continuous, sparse, max_steps, mreturns[:m], msteps[:m], trace)
-                due = 0
-                for s in range(n):
-                    es, archive, rngs, measure, seed, out = seed_tuples[s]
-                    if eval_every > 0 and (measure[2] + g + 1) % eval_every == 0:
-                        out[5][g] = lk.numpy_sum(mreturns[due * eval_episodes : (due + 1) * eval_episodes]) / eval_episodes
-                        due += 1
+            _measure_means(g, seed_tuples, means, episodes, scratch)
         return generations
 
     return _run_chunk
+
+
+def _make_full_chunk(digest: int):
+    def _run_full_chunk(generations, rule, episodes, batch, n):
+        """:func:`_make_chunk`'s chunk for an ES searching a full Gaussian (CMA-ES: its compiled step's ``full``,
+        :class:`~imix_cli.core.algorithms.base.CompiledStep`): ``_DISTRIBUTION`` gives the Gaussian of its state,
+        ``_PROBES`` the points it asks to have evaluated besides its members (TPA's), ``_UPDATE`` moves the state. The
+        mixing step is ``"exact"``'s between FullGaussians (:func:`imix_cli.core.mixing.kernels.mix_full_exact`'s
+        kernel), as :func:`imix_cli.core.mixing.mix` takes it. ``rule`` ends with the most probes a generation has.
+        Each seed's ``archive`` (:func:`pack_full_archive`) keeps in slot 0 of its distribution arrays the current
+        distribution, in slot k + 1 archive entry k's, and the archived log-densities between generations (``table``):
+        only the new distribution's are computed each generation, as the Python path's cache does."""
+        if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
+            return -1
+        kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult, max_probes = rule
+        seed_tuples = List()
+        for s in range(n):
+            seed_tuples.append(batch[s])
+        a_x0 = seed_tuples[0][1][1]
+        popsize, d = a_x0.shape[1], a_x0.shape[2]
+        eval_episodes = seed_tuples[0][3][1]
+        trace = np.empty((0, 0, 0))
+        xs = np.empty((n, popsize, d))
+        sources = np.empty((n, popsize), dtype=np.int64)
+        indices = np.empty((n, popsize), dtype=np.int64)
+        ages = np.empty((n, popsize), dtype=np.int64)
+        fitnesses = np.empty((n, popsize))
+        trials_of = np.empty(n, dtype=np.int64)
+        probe_points = np.empty((n, max(max_probes, 1), d))
+        # seed s's episodes are rows fresh_from[s]:fresh_from[s + 1]: its fresh members, then from probe_from[s] its probes
+        fresh_from = np.empty(n + 1, dtype=np.int64)
+        probe_from = np.empty(n, dtype=np.int64)
+        rows_max = n * (popsize + max_probes)
+        params = np.empty((rows_max, d))
+        rows = np.empty(rows_max, dtype=np.int64)
+        seeds = np.empty(rows_max, dtype=np.uint64)
+        returns = np.empty(rows_max)
+        steps = np.empty(rows_max, dtype=np.int64)
+        scratch = (np.empty((n * eval_episodes, d)), np.empty(n * eval_episodes, dtype=np.uint64), np.empty(n * eval_episodes),
+                   np.empty(n * eval_episodes, dtype=np.int64), trace)  # fmt: skip
+        means = np.empty((n, d))
+        counts = np.full(max(depth, 1), popsize, dtype=np.int64)
+        known = np.ones(max(depth, 1), dtype=np.bool_)
+        mean_weights = np.empty(popsize)
+        for s in range(n):  # each seed's distribution, in slot 0
+            state, archive = seed_tuples[s][0][1], seed_tuples[s][1]
+            mean, cov, low, log_norm, ok = _DISTRIBUTION(state)
+            if not ok:
+                return 0
+            archive[2][0] = low
+            archive[3][0] = mean
+            archive[4][0] = cov
+            archive[5][0] = log_norm
+        for g in range(generations):
+            # ---- plan: mix (or draw) each seed's generation, then its probes
+            fresh_from[0] = 0
+            for s in range(n):
+                es, archive, rngs, measure, seed, out = seed_tuples[s]
+                a_n, a_x, a_low, a_mean, a_cov, a_lognorm, a_h, a_hset, a_table, a_known, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
+                rng = rngs[0]
+                used = min(a_n[0], depth)
+                if kernel == 0 or used == 0:
+                    x = mk.full_draws(rng, a_low[0], a_mean[0], popsize)
+                    source = np.zeros(popsize, dtype=np.int64)
+                    index = np.full(popsize, -1, dtype=np.int64)
+                    trials_of[s] = 0
+                else:
+                    for k in range(used):  # each generation's log-heights, drawn the first time it is mixed from
+                        if not a_hset[k]:
+                            for i in range(popsize):
+                                r = rng.random()
+                                a_h[k, i] = el.log(r) if r > 0.0 else -np.inf
+                            a_hset[k] = True
+                    for k in range(used):  # entry k's rows under the archived distributions: once, then kept
+                        if not a_known[k]:
+                            a_table[k, 1 : k + 2] = lk.gaussian_log_probs_kernel(a_low[1 : k + 2], a_mean[1 : k + 2], a_lognorm[1 : k + 2], a_x[k])
+                            a_known[k] = True
+                    for k in range(used):  # the archived rows under the new distribution: every generation
+                        a_table[k, :1] = lk.gaussian_log_probs_kernel(a_low[:1], a_mean[:1], a_lognorm[:1], a_x[k])
+                    x, source, index, trials_of[s] = mk.exact_full(
+                        rng, a_low[: used + 1], a_mean[: used + 1], a_lognorm[: used + 1], a_x[:used], a_h[:used], a_table[:used],
+                        known[:used], counts[:used], popsize, min_fresh,
+                    )  # fmt: skip
+                xs[s] = x
+                sources[s] = source
+                indices[s] = index
+                e = fresh_from[s]
+                for i in range(popsize):
+                    ages[s, i] = 0
+                    if source[i] == 0:  # evaluated below, in population order
+                        mk.put_row(params, e, x[i])
+                        rows[e] = i
+                        e += 1
+                    else:
+                        ages[s, i] = a_age[source[i] - 1, index[i]] + 1
+                        fitnesses[s, i] = a_ret[source[i] - 1, index[i]]
+                probe_from[s] = e
+                for p in range(_PROBES(rng, es[1], es[2], probe_points[s])):  # never mixed, never archived: not members
+                    mk.put_row(params, e, probe_points[s, p])
+                    e += 1
+                seeds[fresh_from[s] : e] = _draw_seeds(rngs[1], e - fresh_from[s])
+                fresh_from[s + 1] = e
+            # ---- evaluate the fresh members and probes of every seed, in one call
+            total = fresh_from[n]
+            if total:
+                _episodes_of(episodes, params[:total], seeds[:total], returns[:total], steps[:total], trace)
+            for s in range(n):
+                for e in range(fresh_from[s], probe_from[s]):
+                    fitnesses[s, rows[e]] = returns[e]
+                for i in range(popsize):
+                    if not math.isfinite(fitnesses[s, i]):
+                        return g
+            # ---- tell each seed: the ES's own utilities and update; archive; the row's numbers
+            for s in range(n):
+                es, archive, rngs, measure, seed, out = seed_tuples[s]
+                es_generation, state, constants = es
+                a_n, a_x, a_low, a_mean, a_cov, a_lognorm, a_h, a_hset, a_table, a_known, a_ret, a_age, a_src, a_idx, a_mw, a_trials = archive
+                x, source, fitness = xs[s], sources[s], fitnesses[s]
+                u = _UTILITIES(x, fitness, es_generation[0], weight_decay, mult)
+                std = np.empty(d)
+                for j in range(d):
+                    std[j] = math.sqrt(a_cov[0, j, j])
+                out[4][g] = lk.numpy_sum(std) / d
+                if not _UPDATE(x, u, fitness, returns[probe_from[s] : fresh_from[s + 1]], state, constants, mean_weights):
+                    return g  # the Python path records the divergence
+                mean, cov, low, log_norm, ok = _DISTRIBUTION(state)
+                if not ok:
+                    return g
+                for j in range(d):  # a distribution no longer finite: the Python path records the divergence
+                    if not (math.isfinite(mean[j]) and math.isfinite(cov[j, j])):
+                        return g
+                es_generation[0] += 1
+                seed[2][:] = mean_weights
+                if depth > 0:  # archive (newest first, at most depth generations); slot k + 1 holds entry k's distribution
+                    top = min(a_n[0], depth - 1)
+                    for k in range(top, 0, -1):
+                        a_x[k] = a_x[k - 1]
+                        a_low[k + 1] = a_low[k]
+                        a_mean[k + 1] = a_mean[k]
+                        a_cov[k + 1] = a_cov[k]
+                        a_lognorm[k + 1] = a_lognorm[k]
+                        a_h[k] = a_h[k - 1]
+                        a_hset[k] = a_hset[k - 1]
+                        # entry k - 1's log-densities under the distribution it was mixed for (slot 0, now entry 0's:
+                        # the one this generation was drawn from) and under the archived ones: the same distributions
+                        a_table[k, 1 : k + 2] = a_table[k - 1, : k + 1]
+                        a_known[k] = a_known[k - 1]
+                        a_ret[k] = a_ret[k - 1]
+                        a_age[k] = a_age[k - 1]
+                        a_src[k] = a_src[k - 1]
+                        a_idx[k] = a_idx[k - 1]
+                        a_mw[k] = a_mw[k - 1]
+                        a_trials[k] = a_trials[k - 1]
+                    a_x[0] = x
+                    a_low[1] = a_low[0]
+                    a_mean[1] = a_mean[0]
+                    a_cov[1] = a_cov[0]
+                    a_lognorm[1] = a_lognorm[0]
+                    a_hset[0] = False
+                    a_known[0] = False
+                    a_ret[0] = fitness
+                    a_age[0] = ages[s]
+                    a_src[0] = source
+                    a_idx[0] = indices[s]
+                    a_mw[0] = mean_weights
+                    a_trials[0] = trials_of[s]
+                    a_n[0] = min(a_n[0] + 1, depth)
+                a_low[0] = low
+                a_mean[0] = mean
+                a_cov[0] = cov
+                a_lognorm[0] = log_norm
+                total_steps = 0
+                for e in range(fresh_from[s], fresh_from[s + 1]):
+                    total_steps += steps[e]
+                _record(g, x, source, fitness, (fresh_from[s + 1] - fresh_from[s], total_steps), seed, out)
+                means[s] = mean
+            # ---- the distribution means on fresh episodes, when due: every due seed's in one call
+            _measure_means(g, seed_tuples, means, episodes, scratch)
+        return generations
+
+    return _run_full_chunk
 
 
 # ------------------------------------------------------------------------------ the entry points, and the archive as arrays
 _ENTRIES: dict = {}
 
 
-def entry(update, utilities, mean_weights=None):
+def entry(update, utilities, mean_weights=None, full=None):
     """The compiled entry point running ES update ``update`` with utilities ``utilities`` and mean weights ``mean_weights``
-    (None: :func:`utilities_are_mean_weights`), built on first use: its cache key needs the dependency digest (module docstring)."""
+    (None: :func:`utilities_are_mean_weights`) -- or, ``full`` = (distribution, probes, most probes) given, the chunk of a
+    full Gaussian (:func:`_make_full_chunk`) -- built on first use: its cache key needs the dependency digest (module docstring)."""
     mean_weights = mean_weights or utilities_are_mean_weights
-    key = (update, utilities, mean_weights)
+    key = (update, utilities, mean_weights, None if full is None else full[:2])
     if key not in _ENTRIES:
-        digest = _functions_digest(update, utilities, mean_weights)
-        inner = _make_chunk(digest)
+        digest = _functions_digest(update, utilities, mean_weights, *(() if full is None else full[:2]))
+        inner = (_make_chunk if full is None else _make_full_chunk)(digest)
         own = {"_UPDATE": update, "_UTILITIES": utilities, "_MEAN_WEIGHTS": mean_weights}
+        if full is not None:
+            own.update(_DISTRIBUTION=full[0], _PROBES=full[1])
         chunk = types.FunctionType(inner.__code__, {**globals(), **own}, inner.__name__, None, inner.__closure__)
         # Named after the digest: each entry gets an index file of its own in numba's cache. An index holds the types of
         # its entries' arguments, the ES's state record among them, and numba imports their classes when it reads the
         # index: a shared index would make every run import the record class of any ES ever run (one defined in a
         # script or a test cannot be imported by another process).
-        chunk.__qualname__ = f"_run_chunk_{digest:016x}"
+        chunk.__qualname__ = f"{inner.__name__}_{digest:016x}"
         chunk.__module__, chunk.__doc__ = inner.__module__, inner.__doc__
         _ENTRIES[key] = njit(cache=True)(chunk)
     return _ENTRIES[key]
@@ -311,7 +523,7 @@ def entry_for(es, step=None):
     """The compiled entry point that runs ``es`` (one with a compiled step and compiled utilities); ``step``: its
     :meth:`~imix_cli.core.algorithms.base.EvolutionStrategy.compiled_step`, if the caller has it already."""
     step = step or es.compiled_step()
-    return entry(step.update, es.compiled_utilities(), step.mean_weights)
+    return entry(step.update, es.compiled_utilities(), step.mean_weights, step.full)
 
 
 def env_code(evaluator) -> int | None:
@@ -351,5 +563,44 @@ def unpack_archive(archive, arrays: tuple) -> None:
                    a_h[k].copy() if a_hset[k] else None, a_mw[k].copy())
         for k in range(n)
     ]  # fmt: skip
+    archive.returns = [a_ret[k].copy() for k in range(n)]
+    archive.ages = [a_age[k].copy() for k in range(n)]
+
+
+def pack_full_archive(archive, slots: int, popsize: int, d: int) -> tuple:
+    """``archive`` (an :class:`~imix_cli.core.mixing.generation.Archive` of FullGaussians, newest first) as
+    :func:`_make_full_chunk`'s arrays: ``(n, samples, lows, means, covs, log_norms, log_u, log_u_set, table, table_known,
+    returns, ages, sources, indices, mean_weights, trials)``, the distributions' arrays with one slot more than the
+    others (slot 0: the current distribution, set by the chunk; slot k + 1: entry k's), ``table`` the archived
+    log-densities the chunk keeps (computed in it: none known here)."""
+    a_x = np.zeros((slots, popsize, d))
+    a_low, a_cov = np.zeros((slots + 1, d, d)), np.zeros((slots + 1, d, d))
+    a_mean, a_lognorm = np.zeros((slots + 1, d)), np.zeros(slots + 1)
+    a_h, a_hset = np.zeros((slots, popsize)), np.zeros(slots, dtype=np.bool_)
+    a_table, a_known = np.zeros((slots, slots + 1, popsize)), np.zeros(slots, dtype=np.bool_)
+    a_ret, a_mw = np.zeros((slots, popsize)), np.zeros((slots, popsize))
+    a_age, a_src, a_idx = (np.zeros((slots, popsize), dtype=np.int64) for _ in range(3))
+    a_trials = np.zeros(slots, dtype=np.int64)
+    for k, g in enumerate(archive.generations):
+        a_x[k], a_low[k + 1], a_mean[k + 1], a_cov[k + 1], a_lognorm[k + 1] = g.samples, g.dist.chol, g.dist.mean, g.dist.cov, g.dist.log_norm
+        if g.log_u is not None:
+            a_h[k], a_hset[k] = g.log_u, True
+        a_ret[k], a_mw[k], a_age[k], a_src[k], a_idx[k], a_trials[k] = archive.returns[k], g.mean_weights, archive.ages[k], g.source, g.index, g.trials
+    a_n = np.array([len(archive.generations)], dtype=np.int64)
+    return (a_n, a_x, a_low, a_mean, a_cov, a_lognorm, a_h, a_hset, a_table, a_known, a_ret, a_age, a_src, a_idx, a_mw, a_trials)
+
+
+def unpack_full_archive(archive, arrays: tuple) -> None:
+    """Put :func:`pack_full_archive`'s arrays, as a chunk left them, back into ``archive``: each distribution the
+    FullGaussian the Python path holds (its factor and log-normaliser as computed, its covariance kept)."""
+    a_n, a_x, a_low, a_mean, a_cov, a_lognorm, a_h, a_hset, a_table, a_known, a_ret, a_age, a_src, a_idx, a_mw, a_trials = arrays
+    n = int(a_n[0])
+    generations = []
+    for k in range(n):
+        dist = FullGaussian.from_cholesky(a_mean[k + 1].copy(), a_low[k + 1].copy(), checked=False, log_norm=float(a_lognorm[k + 1]))
+        dist._cov = a_cov[k + 1].copy()
+        generations.append(Generation(a_x[k].copy(), a_src[k].copy(), a_idx[k].copy(), dist, int(a_trials[k]),
+                                      a_h[k].copy() if a_hset[k] else None, a_mw[k].copy()))  # fmt: skip
+    archive.generations = generations
     archive.returns = [a_ret[k].copy() for k in range(n)]
     archive.ages = [a_age[k].copy() for k in range(n)]

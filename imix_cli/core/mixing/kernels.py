@@ -514,6 +514,7 @@ KERNELS = {1: _mix_paper, 2: _mix_sun2009, 3: _mix_exact}
 #: For other compiled code (the compiled generation loop): the kernels themselves.
 put_row = _put
 fill_plain = _fill_plain
+full_draws, exact_full = _full_draws, _exact_full
 
 
 @njit(cache=True)

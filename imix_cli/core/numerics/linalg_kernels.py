@@ -675,7 +675,7 @@ def _eigh(a):
 # ------------------------------------------------------------------------------------ wrappers
 #: The kernels themselves, for compiled callers and for the warm-up's cache check (:mod:`imix_cli.running.warmup`).
 eigh_kernel, cholesky_kernel, tanh_kernel, gaussian_log_probs_kernel = _eigh, _cholesky, _tanh_inplace, _gaussian_log_probs
-mat_mat_kernel, weighted_gram_kernel = _mat_mat, _weighted_gram
+mat_mat_kernel, weighted_gram_kernel, log_kernel = _mat_mat, _weighted_gram, _log
 
 
 def _f64(a) -> np.ndarray:

@@ -7,12 +7,12 @@ The Python path (:func:`imix_cli.running.loop.lockstep.advance_lockstep`) stays 
 takes it, and ``tests/test_compiled_loop.py`` runs both and compares CSVs, checkpoints and policy files: the same numbers,
 bit for bit.
 
-Where it applies (:func:`applies`): any ES with a compiled step over a float64 diagonal Gaussian
-(OpenES, SNES and CEM) and compiled utilities (centred ranks, the estool weight decay), no
-mixing or the ``paper``/``sun2009``/``exact`` rules with no re-evaluation options, no observation
-normalisation, a built-in environment (CartPole, ContinuousCartPole, its Hard variant, Acrobot) evaluated
-in the process. Of the paper's grid (OpenES, SNES, CEM, CMA-ES x CartPole, Acrobot x EIM or not), all
-but CMA-ES (a full covariance: no compiled step). Anything else takes the Python path, unchanged.
+Where it applies (:func:`applies`): any ES with a compiled step (:class:`~imix_cli.core.algorithms.base.CompiledStep`)
+and compiled utilities (centred ranks, the estool weight decay) -- over a float64 diagonal Gaussian (OpenES, SNES and
+CEM), with no mixing or the ``paper``/``sun2009``/``exact`` rules, or over a full Gaussian (CMA-ES, its own chunk),
+with no mixing or ``exact`` -- no re-evaluation options, no observation normalisation, a built-in environment
+(CartPole, ContinuousCartPole, its Hard variant, Acrobot) evaluated in the process: the whole paper grid (OpenES,
+SNES, CEM, CMA-ES x CartPole, Acrobot x EIM or not). Anything else takes the Python path, unchanged.
 
 When a chunk meets what the Python path treats specially -- a non-finite return, or an update that
 leaves the distribution non-finite (divergence) -- the chunk is dropped (the random generators are
@@ -28,9 +28,17 @@ import numpy as np
 
 from imix_cli.core import numerics as xp
 from imix_cli.core.algorithms.base import EvolutionStrategy, copy_record, hash_multipliers
-from imix_cli.core.distributions import DiagonalGaussian
+from imix_cli.core.distributions import DiagonalGaussian, FullGaussian
 from imix_cli.core.mixing import COMPILED_MAX_ELEMENTS, variant_spec
-from imix_cli.core.mixing.compiled_generation import SEEDS_PER_CALL, entry_for, env_code, pack_archive, unpack_archive
+from imix_cli.core.mixing.compiled_generation import (
+    SEEDS_PER_CALL,
+    entry_for,
+    env_code,
+    pack_archive,
+    pack_full_archive,
+    unpack_archive,
+    unpack_full_archive,
+)
 from imix_cli.running.loop.lockstep import scored_row
 
 __all__ = ["applies", "applies_to_run", "advance", "advance_seeds", "ENV_VARIABLE"]
@@ -42,6 +50,11 @@ ENV_VARIABLE = "IMIX_COMPILED_LOOP"
 def enabled() -> bool:
     """Whether runs may take the compiled loop (``IMIX_COMPILED_LOOP`` unset or not ``0``)."""
     return os.environ.get(ENV_VARIABLE, "1").strip() != "0"
+
+
+#: The number of the ``"exact"`` rule's compiled step (:data:`imix_cli.core.mixing.kernels.KERNELS`): between full
+#: Gaussians the only one.
+EXACT_KERNEL = 3
 
 
 def _kernel(variant: str | None) -> int | None:
@@ -64,11 +77,13 @@ def applies_to_run(settings, evaluator, es=None) -> bool:
     step = es.compiled_step()
     if step is None or es.compiled_utilities() is None:
         return False
-    if step.mean_weights is None and type(es)._mean_weights is not EvolutionStrategy._mean_weights:
+    if step.full is None and step.mean_weights is None and type(es)._mean_weights is not EvolutionStrategy._mean_weights:
         return False  # mean weights of its own in Python only: the loop would archive the utilities instead
     mixing = settings.mixing
     if _kernel(mixing.variant) is None or mixing.reeval_age is not None or mixing.reeval_prob > 0.0 or mixing.reeval_count > 0:
         return False
+    if step.full is not None and _kernel(mixing.variant) not in (0, EXACT_KERNEL):
+        return False  # between full Gaussians the compiled mixing step is "exact"'s alone
     # policy.bias=false: the ES's points are not the evaluator's parameter vectors (lockstep.policy_params)
     return settings.obs_norm_warmup is None and settings.policy_bias
 
@@ -79,15 +94,18 @@ def applies(settings, evaluator, st) -> bool:
     if not applies_to_run(settings, evaluator, es) or st.obs_norm is not None or getattr(st.es, "diverged", None) is not None:
         return False
     depth = settings.mixing.depth
-    if type(es.distribution) is not DiagonalGaussian or es.distribution.dtype != np.float64:
+    kind = FullGaussian if es.compiled_step().full is not None else DiagonalGaussian
+    if type(es.distribution) is not kind or es.distribution.dtype != np.float64:
         return False
     if es.popsize < 2 or es.popsize * es.dim * max(depth, 1) > COMPILED_MAX_ELEMENTS:
+        return False
+    if kind is FullGaussian and es.dim * es.dim * (depth + 1) > COMPILED_MAX_ELEMENTS:
         return False
     archive = st.archive
     if len(archive.generations) > depth or np.any(archive.pairs != 0.0):
         return False
     for g in archive.generations:
-        if type(g.dist) is not DiagonalGaussian or g.samples.shape != (es.popsize, es.dim) or g.samples.dtype != np.float64 or g.mean_weights is None:
+        if type(g.dist) is not kind or g.samples.shape != (es.popsize, es.dim) or g.samples.dtype != np.float64 or g.mean_weights is None:
             return False
     return True
 
@@ -110,12 +128,16 @@ def advance_seeds(states: list, settings, evaluator, generations: int) -> bool:
     with np.errstate(divide="ignore"):
         log_keep = xp.log1p(-mixing.alpha)
     rule = (_kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh), float(es0.weight_decay), hash_multipliers(d))
+    full = step.full is not None
+    if full:  # a full Gaussian's chunk: the most probes a generation has, too
+        rule = (*rule, int(step.full[2]))
+    pack, unpack = (pack_full_archive, unpack_full_archive) if full else (pack_archive, unpack_archive)
     episodes = (env_code(evaluator), evaluator.layer_sizes(), type(evaluator).__name__ == "ContinuousCartPoleEvaluator",
                 bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps))  # fmt: skip
     batch, snapshots, chunks = [], [], []
     for st in states:
         es = getattr(st.es, "es", st.es)
-        archive_arrays = pack_archive(st.archive, slots, popsize, d)
+        archive_arrays = pack(st.archive, slots, popsize, d)
         es_generation = np.array([es.generation], dtype=np.int64)
         best = np.zeros(d) if st.best_params is None else np.array(st.best_params, dtype=np.float64)
         best_return = np.array([st.best_return], dtype=np.float64)
@@ -128,7 +150,7 @@ def advance_seeds(states: list, settings, evaluator, generations: int) -> bool:
         state = copy_record(es.state)  # the chunk moves this copy; the ES takes it only if the chunk ran to its end
         measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
         batch.append(((es_generation, state, es.compiled_step().constants), archive_arrays, rngs, measure, (best, best_return, last_u), out))
-        chunks.append((es, archive_arrays, es_generation, state, best, best_return, last_u, out))
+        chunks.append((es, (archive_arrays, unpack), es_generation, state, best, best_return, last_u, out))
     padded = tuple(batch + [batch[0]] * (SEEDS_PER_CALL - len(batch)))  # one entry point whatever the number of seeds
     done = entry_for(es0, step)(generations, rule, episodes, padded, len(batch))
     if done < generations:  # put the generators back: the Python path takes this chunk
@@ -141,14 +163,15 @@ def advance_seeds(states: list, settings, evaluator, generations: int) -> bool:
     return True
 
 
-def _take_back(st, settings, depth, es, archive_arrays, es_generation, state, best, best_return, last_u, out) -> None:
-    """Write a finished chunk's state back into seed ``st``'s ES, archive and seed, and append its rows."""
+def _take_back(st, settings, depth, es, archive, es_generation, state, best, best_return, last_u, out) -> None:
+    """Write a finished chunk's state back into seed ``st``'s ES, archive (``(arrays, unpack)``) and seed, and append its rows."""
     out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
     es.set_state(state)
     es.generation = int(es_generation[0])
     es.mean_weights = last_u
     if depth:
-        unpack_archive(st.archive, archive_arrays)
+        archive_arrays, unpack = archive
+        unpack(st.archive, archive_arrays)
     if best_return[0] > st.best_return:
         st.best_params, st.best_return = best, float(best_return[0])
     every, episodes = settings.eval_mean_every, int(settings.eval_mean_episodes)
