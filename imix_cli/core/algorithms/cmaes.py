@@ -684,7 +684,7 @@ def cmaes_distribution(state):
     if not ok:
         return mean, sym, low, 0.0, False
     logs = lk.log_kernel(np.diag(low).copy())
-    return mean, sym, low, -0.5 * d * el.LOG_2PI - lk.numpy_sum(logs), True
+    return mean, sym, low, -0.5 * d * xp.LOG_2PI - lk.numpy_sum(logs), True
 
 
 @njit(cache=True)
