@@ -107,9 +107,89 @@ def _episodes_of(episodes, params, seeds, returns, steps, trace):
 
 
 @njit
-def _record(g, x, source, fitness, evaluated, seed, out):
-    """Generation ``g``'s row numbers into ``out`` (every return, reuse counts, ``evaluated`` = (episodes, their env
-    steps)) and the best member so far into ``seed`` (the first best kept)."""
+def _seed_list(batch, n):
+    """The first ``n`` seeds of ``batch`` as a typed List: indexing the tuple with a variable compiles a switch over
+    its entries at every use, once here."""
+    seed_tuples = List()
+    for s in range(n):
+        seed_tuples.append(batch[s])
+    return seed_tuples
+
+
+@njit
+def _call_arrays(n, popsize, d, rows, eval_episodes):
+    """A call's work arrays: the seeds' generations ``(samples, sources, indices, ages, fitness, trials)``, ``rows``
+    episodes' ``(params, member, episode seed, return, steps)`` and the mean measurements' (:func:`_measure_means`)."""
+    generation = (np.empty((n, popsize, d)), np.empty((n, popsize), dtype=np.int64), np.empty((n, popsize), dtype=np.int64),
+                  np.empty((n, popsize), dtype=np.int64), np.empty((n, popsize)), np.empty(n, dtype=np.int64))  # fmt: skip
+    episode_rows = (np.empty((rows, d)), np.empty(rows, dtype=np.int64), np.empty(rows, dtype=np.uint64), np.empty(rows), np.empty(rows, dtype=np.int64))
+    scratch = (np.empty((n * eval_episodes, d)), np.empty(n * eval_episodes, dtype=np.uint64), np.empty(n * eval_episodes),
+               np.empty(n * eval_episodes, dtype=np.int64), np.empty((0, 0, 0)))  # fmt: skip
+    return generation, episode_rows, scratch
+
+
+@njit
+def _place_members(x, source, index, stored, params, rows, e, ages, fitness):
+    """One seed's generation: its fresh members into the episodes' rows from ``e``, in population order, and its reused
+    ones' ages and stored returns (``stored`` = the archive's ages and returns); returns the next free row."""
+    a_age, a_ret = stored
+    for i in range(x.shape[0]):
+        ages[i] = 0
+        if source[i] == 0:
+            mk.put_row(params, e, x[i])
+            rows[e] = i
+            e += 1
+        else:
+            ages[i] = a_age[source[i] - 1, index[i]] + 1
+            fitness[i] = a_ret[source[i] - 1, index[i]]
+    return e
+
+
+@njit
+def _take_returns(fitnesses, rows, returns, fresh_from, members_end):
+    """Each seed's fresh members' returns (rows ``fresh_from[s]:members_end[s]``) into its fitness; False if a member's
+    fitness is not finite (the Python path records it)."""
+    n, popsize = fitnesses.shape
+    for s in range(n):
+        for e in range(fresh_from[s], members_end[s]):
+            fitnesses[s, rows[e]] = returns[e]
+        for i in range(popsize):
+            if not math.isfinite(fitnesses[s, i]):
+                return False
+    return True
+
+
+@njit
+def _archive_generation(common, depth, x, fitness, ages, source, index, mean_weights, trials):
+    """The archive's fields every chunk shares, ``common`` = (count, samples, log-heights, drawn?, returns, ages,
+    sources, indices, mean weights, trials): entries one older (at most ``depth``), the generation told newest. The
+    distributions' fields are the chunk's own, shifted before."""
+    a_n, a_x, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = common
+    for k in range(min(a_n[0], depth - 1), 0, -1):
+        a_x[k] = a_x[k - 1]
+        a_h[k] = a_h[k - 1]
+        a_hset[k] = a_hset[k - 1]
+        a_ret[k] = a_ret[k - 1]
+        a_age[k] = a_age[k - 1]
+        a_src[k] = a_src[k - 1]
+        a_idx[k] = a_idx[k - 1]
+        a_mw[k] = a_mw[k - 1]
+        a_trials[k] = a_trials[k - 1]
+    a_x[0] = x
+    a_hset[0] = False
+    a_ret[0] = fitness
+    a_age[0] = ages
+    a_src[0] = source
+    a_idx[0] = index
+    a_mw[0] = mean_weights
+    a_trials[0] = trials
+    a_n[0] = min(a_n[0] + 1, depth)
+
+
+@njit
+def _record(g, x, source, fitness, steps, seed, out):
+    """Generation ``g``'s row numbers into ``out`` (every return, reuse counts, the episodes run: ``steps`` their
+    lengths) and the best member so far into ``seed`` (the first best kept)."""
     best, best_return, last_u = seed
     out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
     popsize = x.shape[0]
@@ -124,8 +204,11 @@ def _record(g, x, source, fitness, evaluated, seed, out):
     out_reused[g, 0] = reused
     out_reused[g, 1] = from_previous
     out_reused[g, 2] = reused - from_previous
-    out_evaluated[g] = evaluated[0]
-    out_steps[g] = evaluated[1]
+    out_evaluated[g] = steps.shape[0]
+    total_steps = 0
+    for e in range(steps.shape[0]):
+        total_steps += steps[e]
+    out_steps[g] = total_steps
     b = 0
     for i in range(1, popsize):
         if fitness[i] > fitness[b]:
@@ -194,28 +277,15 @@ def _make_chunk(digest: int):
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
         kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult = rule
-        seed_tuples = List()  # indexing the tuple with a variable compiles a switch over its entries at every use: once
-        for s in range(n):
-            seed_tuples.append(batch[s])
+        seed_tuples = _seed_list(batch, n)
         a_x0 = seed_tuples[0][1][1]
         popsize, d = a_x0.shape[1], a_x0.shape[2]
-        eval_episodes = seed_tuples[0][3][1]
-        trace = np.empty((0, 0, 0))
-        xs = np.empty((n, popsize, d))
-        sources = np.empty((n, popsize), dtype=np.int64)
-        indices = np.empty((n, popsize), dtype=np.int64)
-        ages = np.empty((n, popsize), dtype=np.int64)
-        fitnesses = np.empty((n, popsize))
-        trials_of = np.empty(n, dtype=np.int64)
+        generation, episode_rows, scratch = _call_arrays(n, popsize, d, n * popsize, seed_tuples[0][3][1])
+        xs, sources, indices, ages, fitnesses, trials_of = generation
+        params, rows, seeds, returns, steps = episode_rows
+        trace = scratch[4]
         log_norms = np.empty(n)
         fresh_from = np.empty(n + 1, dtype=np.int64)  # seed s's fresh members are rows fresh_from[s]:fresh_from[s + 1]
-        params = np.empty((n * popsize, d))
-        rows = np.empty(n * popsize, dtype=np.int64)
-        seeds = np.empty(n * popsize, dtype=np.uint64)
-        returns = np.empty(n * popsize)
-        steps = np.empty(n * popsize, dtype=np.int64)
-        scratch = (np.empty((n * eval_episodes, d)), np.empty(n * eval_episodes, dtype=np.uint64), np.empty(n * eval_episodes),
-                   np.empty(n * eval_episodes, dtype=np.int64), trace)  # fmt: skip
         means = np.empty((n, d))
         for g in range(generations):
             # ---- plan: mix (or draw) each seed's generation from its distribution N(mu, std^2)
@@ -232,28 +302,15 @@ def _make_chunk(digest: int):
                 xs[s] = x
                 sources[s] = source
                 indices[s] = index
-                e = fresh_from[s]
-                for i in range(popsize):
-                    ages[s, i] = 0
-                    if source[i] == 0:  # evaluated below, in population order
-                        mk.put_row(params, e, x[i])
-                        rows[e] = i
-                        e += 1
-                    else:
-                        ages[s, i] = a_age[source[i] - 1, index[i]] + 1
-                        fitnesses[s, i] = a_ret[source[i] - 1, index[i]]
+                e = _place_members(x, source, index, (a_age, a_ret), params, rows, fresh_from[s], ages[s], fitnesses[s])
                 seeds[fresh_from[s] : e] = _draw_seeds(rngs[1], e - fresh_from[s])
                 fresh_from[s + 1] = e
             # ---- evaluate the fresh members of every seed, in one call
             total = fresh_from[n]
             if total:
                 _episodes_of(episodes, params[:total], seeds[:total], returns[:total], steps[:total], trace)
-            for s in range(n):
-                for e in range(fresh_from[s], fresh_from[s + 1]):
-                    fitnesses[s, rows[e]] = returns[e]
-                for i in range(popsize):
-                    if not math.isfinite(fitnesses[s, i]):
-                        return g
+            if not _take_returns(fitnesses, rows, returns, fresh_from, fresh_from[1:]):
+                return g
             # ---- tell each seed: the ES's own utilities and update; archive; the row's numbers
             for s in range(n):
                 es, archive, rngs, measure, seed, out = seed_tuples[s]
@@ -272,37 +329,17 @@ def _make_chunk(digest: int):
                         return g
                 es_generation[0] += 1
                 last_u[:] = mw
-                if depth > 0:  # archive (newest first, at most depth generations)
-                    top = min(a_n[0], depth - 1)
-                    for k in range(top, 0, -1):
-                        a_x[k] = a_x[k - 1]
+                if depth > 0:  # archive (newest first, at most depth generations): the distributions, then the rest
+                    for k in range(min(a_n[0], depth - 1), 0, -1):
                         a_mean[k] = a_mean[k - 1]
                         a_std[k] = a_std[k - 1]
                         a_lognorm[k] = a_lognorm[k - 1]
-                        a_h[k] = a_h[k - 1]
-                        a_hset[k] = a_hset[k - 1]
-                        a_ret[k] = a_ret[k - 1]
-                        a_age[k] = a_age[k - 1]
-                        a_src[k] = a_src[k - 1]
-                        a_idx[k] = a_idx[k - 1]
-                        a_mw[k] = a_mw[k - 1]
-                        a_trials[k] = a_trials[k - 1]
-                    a_x[0] = x
                     a_mean[0] = mu_drawn
                     a_std[0] = std_drawn
                     a_lognorm[0] = log_norms[s]
-                    a_hset[0] = False
-                    a_ret[0] = fitness
-                    a_age[0] = ages[s]
-                    a_src[0] = source
-                    a_idx[0] = indices[s]
-                    a_mw[0] = mw
-                    a_trials[0] = trials_of[s]
-                    a_n[0] = min(a_n[0] + 1, depth)
-                total_steps = 0
-                for e in range(fresh_from[s], fresh_from[s + 1]):
-                    total_steps += steps[e]
-                _record(g, x, source, fitness, (fresh_from[s + 1] - fresh_from[s], total_steps), seed, out)
+                    common = (a_n, a_x, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials)
+                    _archive_generation(common, depth, x, fitness, ages[s], source, indices[s], mw, trials_of[s])
+                _record(g, x, source, fitness, steps[fresh_from[s] : fresh_from[s + 1]], seed, out)
                 means[s] = mu
             # ---- the distribution means on fresh episodes, when due: every due seed's in one call
             _measure_means(g, seed_tuples, means, episodes, scratch)
@@ -324,31 +361,17 @@ def _make_full_chunk(digest: int):
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
         kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult, max_probes = rule
-        seed_tuples = List()
-        for s in range(n):
-            seed_tuples.append(batch[s])
+        seed_tuples = _seed_list(batch, n)
         a_x0 = seed_tuples[0][1][1]
         popsize, d = a_x0.shape[1], a_x0.shape[2]
-        eval_episodes = seed_tuples[0][3][1]
-        trace = np.empty((0, 0, 0))
-        xs = np.empty((n, popsize, d))
-        sources = np.empty((n, popsize), dtype=np.int64)
-        indices = np.empty((n, popsize), dtype=np.int64)
-        ages = np.empty((n, popsize), dtype=np.int64)
-        fitnesses = np.empty((n, popsize))
-        trials_of = np.empty(n, dtype=np.int64)
+        generation, episode_rows, scratch = _call_arrays(n, popsize, d, n * (popsize + max_probes), seed_tuples[0][3][1])
+        xs, sources, indices, ages, fitnesses, trials_of = generation
+        params, rows, seeds, returns, steps = episode_rows
+        trace = scratch[4]
         probe_points = np.empty((n, max(max_probes, 1), d))
         # seed s's episodes are rows fresh_from[s]:fresh_from[s + 1]: its fresh members, then from probe_from[s] its probes
         fresh_from = np.empty(n + 1, dtype=np.int64)
         probe_from = np.empty(n, dtype=np.int64)
-        rows_max = n * (popsize + max_probes)
-        params = np.empty((rows_max, d))
-        rows = np.empty(rows_max, dtype=np.int64)
-        seeds = np.empty(rows_max, dtype=np.uint64)
-        returns = np.empty(rows_max)
-        steps = np.empty(rows_max, dtype=np.int64)
-        scratch = (np.empty((n * eval_episodes, d)), np.empty(n * eval_episodes, dtype=np.uint64), np.empty(n * eval_episodes),
-                   np.empty(n * eval_episodes, dtype=np.int64), trace)  # fmt: skip
         means = np.empty((n, d))
         counts = np.full(max(depth, 1), popsize, dtype=np.int64)
         known = np.ones(max(depth, 1), dtype=np.bool_)
@@ -395,16 +418,7 @@ def _make_full_chunk(digest: int):
                 xs[s] = x
                 sources[s] = source
                 indices[s] = index
-                e = fresh_from[s]
-                for i in range(popsize):
-                    ages[s, i] = 0
-                    if source[i] == 0:  # evaluated below, in population order
-                        mk.put_row(params, e, x[i])
-                        rows[e] = i
-                        e += 1
-                    else:
-                        ages[s, i] = a_age[source[i] - 1, index[i]] + 1
-                        fitnesses[s, i] = a_ret[source[i] - 1, index[i]]
+                e = _place_members(x, source, index, (a_age, a_ret), params, rows, fresh_from[s], ages[s], fitnesses[s])
                 probe_from[s] = e
                 for p in range(_PROBES(rng, es[1], es[2], probe_points[s])):  # never mixed, never archived: not members
                     mk.put_row(params, e, probe_points[s, p])
@@ -415,12 +429,8 @@ def _make_full_chunk(digest: int):
             total = fresh_from[n]
             if total:
                 _episodes_of(episodes, params[:total], seeds[:total], returns[:total], steps[:total], trace)
-            for s in range(n):
-                for e in range(fresh_from[s], probe_from[s]):
-                    fitnesses[s, rows[e]] = returns[e]
-                for i in range(popsize):
-                    if not math.isfinite(fitnesses[s, i]):
-                        return g
+            if not _take_returns(fitnesses, rows, returns, fresh_from, probe_from):
+                return g
             # ---- tell each seed: the ES's own utilities and update; archive; the row's numbers
             for s in range(n):
                 es, archive, rngs, measure, seed, out = seed_tuples[s]
@@ -442,48 +452,28 @@ def _make_full_chunk(digest: int):
                         return g
                 es_generation[0] += 1
                 seed[2][:] = mean_weights
-                if depth > 0:  # archive (newest first, at most depth generations); slot k + 1 holds entry k's distribution
-                    top = min(a_n[0], depth - 1)
-                    for k in range(top, 0, -1):
-                        a_x[k] = a_x[k - 1]
+                if depth > 0:  # archive (newest first, at most depth generations): the distributions, then the rest
+                    for k in range(min(a_n[0], depth - 1), 0, -1):  # slot k + 1 holds entry k's distribution
                         a_low[k + 1] = a_low[k]
                         a_mean[k + 1] = a_mean[k]
                         a_cov[k + 1] = a_cov[k]
                         a_lognorm[k + 1] = a_lognorm[k]
-                        a_h[k] = a_h[k - 1]
-                        a_hset[k] = a_hset[k - 1]
                         # entry k - 1's log-densities under the distribution it was mixed for (slot 0, now entry 0's:
                         # the one this generation was drawn from) and under the archived ones: the same distributions
                         a_table[k, 1 : k + 2] = a_table[k - 1, : k + 1]
                         a_known[k] = a_known[k - 1]
-                        a_ret[k] = a_ret[k - 1]
-                        a_age[k] = a_age[k - 1]
-                        a_src[k] = a_src[k - 1]
-                        a_idx[k] = a_idx[k - 1]
-                        a_mw[k] = a_mw[k - 1]
-                        a_trials[k] = a_trials[k - 1]
-                    a_x[0] = x
                     a_low[1] = a_low[0]
                     a_mean[1] = a_mean[0]
                     a_cov[1] = a_cov[0]
                     a_lognorm[1] = a_lognorm[0]
-                    a_hset[0] = False
                     a_known[0] = False
-                    a_ret[0] = fitness
-                    a_age[0] = ages[s]
-                    a_src[0] = source
-                    a_idx[0] = indices[s]
-                    a_mw[0] = mean_weights
-                    a_trials[0] = trials_of[s]
-                    a_n[0] = min(a_n[0] + 1, depth)
+                    common = (a_n, a_x, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials)
+                    _archive_generation(common, depth, x, fitness, ages[s], source, indices[s], mean_weights, trials_of[s])
                 a_low[0] = low
                 a_mean[0] = mean
                 a_cov[0] = cov
                 a_lognorm[0] = log_norm
-                total_steps = 0
-                for e in range(fresh_from[s], fresh_from[s + 1]):
-                    total_steps += steps[e]
-                _record(g, x, source, fitness, (fresh_from[s + 1] - fresh_from[s], total_steps), seed, out)
+                _record(g, x, source, fitness, steps[fresh_from[s] : fresh_from[s + 1]], seed, out)
                 means[s] = mean
             # ---- the distribution means on fresh episodes, when due: every due seed's in one call
             _measure_means(g, seed_tuples, means, episodes, scratch)
