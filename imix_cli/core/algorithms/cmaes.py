@@ -343,19 +343,6 @@ def _minimum(a, b):
 
 
 @njit(cache=True)
-def _mat_vec(a, x):
-    """``xp.mat_vec(a, x)``: out[i] = sum_j a[i, j] x[j], j ascending (the same products in the same order)."""
-    n, d = a.shape
-    out = np.empty(n)
-    for i in range(n):
-        acc = 0.0
-        for j in range(d):
-            acc += x[j] * a[i, j]
-        out[i] = acc
-    return out
-
-
-@njit(cache=True)
 def _shared_among_ties_kernel(weights, sorted_utilities):
     """Per position of a best-first ranking: the mean positive and mean negative weight of the group of tied
     utilities the position belongs to (fractional ranking); without ties, max(w, 0) and min(w, 0) themselves."""
@@ -478,7 +465,7 @@ def _alleviate_conditioning_kernel(state, constants):
             B[i, i] = 1.0
         for i in range(d):
             D[i] = math.sqrt(C[i, i])
-        p_c = _mat_vec(tf_inv, state.p_c)
+        p_c = lk.mat_vec_kernel(tf_inv, state.p_c)
         state.p_c[:] = p_c
         for i in range(d):
             for j in range(d):
@@ -486,7 +473,7 @@ def _alleviate_conditioning_kernel(state, constants):
                 state.transform_inverse[i, j] = tf_inv[i, j] / state.scaling[j]
         state.transformed[0] = True
         state.scaling[:] = 1.0
-        mean = _mat_vec(state.transform_inverse, state.mean_geno)
+        mean = lk.mat_vec_kernel(state.transform_inverse, state.mean_geno)
         state.mean_geno[:] = mean
         decomposed = True
     return decomposed, True
@@ -525,7 +512,8 @@ def cmaes_update(samples, utilities, fitness, probe_fitness, state, constants, m
     False when C stays indefinite after pycma's repairs (the caller raises)."""
     n, d = samples.shape
     sigma, cs, cc = state.step_size[0], constants.cs, constants.cc
-    B, D, scaling = state.eigenvectors.copy(), state.eigenvalues_sqrt.copy(), state.scaling.copy()
+    # read before anything below writes them (the redistribution, the alleviation and the decomposition come last)
+    B, D, scaling = state.eigenvectors, state.eigenvalues_sqrt, state.scaling
     x = samples if not state.transformed[0] else lk.mat_mat_kernel(samples, np.ascontiguousarray(state.transform_inverse.T))
     state.countiter[0] += 1
 
@@ -560,7 +548,7 @@ def cmaes_update(samples, utilities, fitness, probe_fitness, state, constants, m
     half = lk.vec_mat_kernel(scaled, B)
     for j in range(d):
         half[j] = half[j] / D[j]
-    z = _mat_vec(B, half)
+    z = lk.mat_vec_kernel(B, half)
     factor = el.pow(constants.mueff, 0.5) / sigma / 1.0
     path = math.sqrt(cs * (2 - cs))
     p_sigma = state.p_sigma
@@ -674,7 +662,7 @@ def cmaes_distribution(state):
             cov[i, j] = state.C[i, j] * (s2 * (scaling[i] * scaling[j]))
     mean = state.mean_geno.copy()
     if state.transformed[0]:
-        mean = _mat_vec(state.transform, mean)
+        mean = lk.mat_vec_kernel(state.transform, mean)
         cov = lk.mat_mat_kernel(lk.mat_mat_kernel(state.transform, cov), np.ascontiguousarray(state.transform.T))
     sym = np.empty((d, d))
     for i in range(d):

@@ -84,6 +84,23 @@ def _vec_mat(w, x):
 vec_mat_kernel = _vec_mat
 
 
+@njit(cache=True)
+def _mat_vec(a, x):
+    """out[i] = sum_j a[i, j] x[j], j ascending from 0.0 (the sums of ``_vec_mat(x, a.T)``, without the transposed copy)."""
+    n, d = a.shape
+    out = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(d):
+            acc += x[j] * a[i, j]
+        out[i] = acc
+    return out
+
+
+#: ``_mat_vec`` for other compiled code (CMA-ES's update and distribution).
+mat_vec_kernel = _mat_vec
+
+
 # numpy's own summation order, for compiled code that must give the bits of a Python path's np.sum/np.mean
 @njit(cache=True)
 def _block_sum(a, lo, n):
@@ -694,7 +711,7 @@ def vec_mat(w, x) -> np.ndarray:
 
 def mat_vec(a, x) -> np.ndarray:
     """``a @ x`` for a (n, d), x (d,): out[i] = sum_j a[i, j] x[j], j ascending."""
-    return _vec_mat(_f64(x), np.ascontiguousarray(np.asarray(a, dtype=np.float64).T))
+    return _mat_vec(_f64(a), _f64(x))
 
 
 def mat_mat(a, b) -> np.ndarray:
