@@ -171,14 +171,14 @@ def _error(message: str, code: int) -> int:
 
 def run_command(args: list[str]) -> int:
     """``imix run [hydra flags] [overrides]``."""
-    from imix_cli.messages import EXIT_MISSING_EXTRA, MissingExtraError
-    from imix_cli.running.config.compose import ConfigError
-    from imix_cli.running.run_folder import RunError
-
     info_only = any(a in _HYDRA_INFO_FLAGS or a.startswith("--cfg=") for a in args)
-    searching = False
+    # With Hydra's own launcher the seeds run in this process's workers: their fork server starts first of all, so that
+    # its imports (numba, gymnasium, the loop: ~1 s) run on the other core beside this process's own imports and
+    # validation, which need the same modules (~0.4 s of them before validation starts). Started after those imports,
+    # it kept the main job's workers waiting ~0.4 s (a strace of the whole process).
+    launcher = next((a.split("=", 1)[1] for a in reversed(args) if a.startswith("hydra/launcher=")), "basic")
+    own_launcher = launcher == "basic"  # conf/config.yaml's default, also when named (_task: BasicLauncher)
     if not info_only:
-        specs = []
         # Nothing is written before validation ends: a Ctrl-C then stops at once with one line, even
         # if it lands in a library that would swallow a KeyboardInterrupt (an import, a plugin scan).
         signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)
@@ -188,13 +188,18 @@ def run_command(args: list[str]) -> int:
         # and came out as a traceback (measured: SIGINT 1.5 s into a 392-point sweep). So the handlers
         # above stay until a point's run starts (_task); another launcher runs the points elsewhere, and
         # this process hands Ctrl-C to it as a KeyboardInterrupt once validation is done.
-        launcher = next((a.split("=", 1)[1] for a in reversed(args) if a.startswith("hydra/launcher=")), "basic")
-        own_launcher = launcher == "basic"  # conf/config.yaml's default, also when named (_task: BasicLauncher)
-        searching = "hydra/sweeper=optuna" in args  # imix's Optuna search (imix_cli.commands.search)
-        if own_launcher and "workers=1" not in args:  # the seed workers' imports, beside the validation (core.processes)
+        if own_launcher and "workers=1" not in args:
             from imix_cli.running.pool import start_worker_server
 
             start_worker_server()
+    from imix_cli.messages import EXIT_MISSING_EXTRA, MissingExtraError
+    from imix_cli.running.config.compose import ConfigError
+    from imix_cli.running.run_folder import RunError
+
+    searching = False
+    if not info_only:
+        specs = []
+        searching = "hydra/sweeper=optuna" in args  # imix's Optuna search (imix_cli.commands.search)
         try:
             _VALIDATED.clear()
             specs = validate_run_args(args, _VALIDATED)

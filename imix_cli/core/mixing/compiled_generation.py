@@ -107,12 +107,19 @@ def _episodes_of(episodes, params, seeds, returns, steps, trace):
 
 
 @njit
-def _seed_list(batch, n):
-    """The first ``n`` seeds of ``batch`` as a typed List: indexing the tuple with a variable compiles a switch over
-    its entries at every use, once here."""
+def _seed_list(batch, generators, n):
+    """The first ``n`` seeds of ``batch`` as a typed List of ``(es, archive, rngs, measure, seed, out)``, each seed's
+    generators ``generators[s]`` put in: indexing the tuples with a variable compiles a switch over their entries at
+    every use, once here.
+
+    Why the generators come apart from the rest: numba types a call's arguments before every call. An argument made
+    of tuples, records and arrays only is typed in C from its fingerprint (microseconds); one holding a numpy
+    ``Generator`` anywhere is typed field by field in Python -- the main job's 16 seeds' tuples took 9 ms a call, 40
+    calls a worker (~0.35 s of its 3 s); apart, the two arguments take 0.5 ms (``/tmp`` script, numba 0.68)."""
     seed_tuples = List()
     for s in range(n):
-        seed_tuples.append(batch[s])
+        es, archive, measure, seed, out = batch[s]
+        seed_tuples.append((es, archive, generators[s], measure, seed, out))
     return seed_tuples
 
 
@@ -252,7 +259,7 @@ SEEDS_PER_CALL = 16
 
 
 def _make_chunk(digest: int):
-    def _run_chunk(generations, rule, episodes, batch, n):
+    def _run_chunk(generations, rule, episodes, batch, generators, n):
         """Run ``generations`` generations of the first ``n`` seeds of ``batch`` (module docstring); ``_UPDATE``,
         ``_UTILITIES`` and ``_MEAN_WEIGHTS`` are the ES's compiled step, utilities and mean weights (:func:`entry`).
         The arguments are tuples (numba types each field), built by :func:`imix_cli.running.loop.compiled_loop.advance_seeds`,
@@ -261,11 +268,13 @@ def _make_chunk(digest: int):
         - ``rule``: the mixing rule and the ES's utilities' settings;
         - ``episodes``: the episode kernel (:func:`_env_code`) and its settings;
         - ``batch``: :data:`SEEDS_PER_CALL` seeds' tuples (the last ones repeat the first, unused), each
-          ``(es, archive, rngs, measure, seed, out)``: the ES's generation count, a copy of its state record
+          ``(es, archive, measure, seed, out)``: the ES's generation count, a copy of its state record
           (``state.mean``, ``state.std``: the diagonal Gaussian searched) and its step's constants
           (:class:`~imix_cli.core.algorithms.base.CompiledStep`); the archived generations, newest first, as arrays of
-          ``slots`` rows; the seed's generators (members, episodes, the mean's episodes); when and how the mean is
-          evaluated; the best member so far and the last utilities; the rows' numbers, one row per generation.
+          ``slots`` rows; when and how the mean is evaluated; the best member so far and the last utilities; the rows'
+          numbers, one row per generation;
+        - ``generators``: the seeds' generators, as many and in the same order: (members, episodes, the mean's
+          episodes) -- an argument of their own (:func:`_seed_list`).
 
         Each generation plans every seed (mixing), runs the fresh members of all of them in one call of the episode
         kernel -- one seed's two or three fresh members left that kernel's lanes idle (``LANES_FROM``), the seeds' together
@@ -277,7 +286,7 @@ def _make_chunk(digest: int):
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
         kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult = rule
-        seed_tuples = _seed_list(batch, n)
+        seed_tuples = _seed_list(batch, generators, n)
         a_x0 = seed_tuples[0][1][1]
         popsize, d = a_x0.shape[1], a_x0.shape[2]
         generation, episode_rows, scratch = _call_arrays(n, popsize, d, n * popsize, seed_tuples[0][3][1])
@@ -349,7 +358,7 @@ def _make_chunk(digest: int):
 
 
 def _make_full_chunk(digest: int):
-    def _run_full_chunk(generations, rule, episodes, batch, n):
+    def _run_full_chunk(generations, rule, episodes, batch, generators, n):
         """:func:`_make_chunk`'s chunk for an ES searching a full Gaussian (CMA-ES: its compiled step's ``full``,
         :class:`~imix_cli.core.algorithms.base.CompiledStep`): ``_DISTRIBUTION`` gives the Gaussian of its state,
         ``_PROBES`` the points it asks to have evaluated besides its members (TPA's), ``_UPDATE`` moves the state. The
@@ -361,7 +370,7 @@ def _make_full_chunk(digest: int):
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
         kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult, max_probes = rule
-        seed_tuples = _seed_list(batch, n)
+        seed_tuples = _seed_list(batch, generators, n)
         a_x0 = seed_tuples[0][1][1]
         popsize, d = a_x0.shape[1], a_x0.shape[2]
         generation, episode_rows, scratch = _call_arrays(n, popsize, d, n * (popsize + max_probes), seed_tuples[0][3][1])

@@ -134,7 +134,7 @@ def advance_seeds(states: list, settings, evaluator, generations: int) -> bool:
     pack, unpack = (pack_full_archive, unpack_full_archive) if full else (pack_archive, unpack_archive)
     episodes = (env_code(evaluator), evaluator.layer_sizes(), type(evaluator).__name__ == "ContinuousCartPoleEvaluator",
                 bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps))  # fmt: skip
-    batch, snapshots, chunks = [], [], []
+    batch, generators, snapshots, chunks = [], [], [], []
     for st in states:
         es = getattr(st.es, "es", st.es)
         archive_arrays = pack(st.archive, slots, popsize, d)
@@ -149,10 +149,12 @@ def advance_seeds(states: list, settings, evaluator, generations: int) -> bool:
         snapshots.append([r.bit_generator.state for r in rngs])
         state = copy_record(es.state)  # the chunk moves this copy; the ES takes it only if the chunk ran to its end
         measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
-        batch.append(((es_generation, state, es.compiled_step().constants), archive_arrays, rngs, measure, (best, best_return, last_u), out))
+        batch.append(((es_generation, state, es.compiled_step().constants), archive_arrays, measure, (best, best_return, last_u), out))
+        generators.append(rngs)
         chunks.append((es, (archive_arrays, unpack), es_generation, state, best, best_return, last_u, out))
-    padded = tuple(batch + [batch[0]] * (SEEDS_PER_CALL - len(batch)))  # one entry point whatever the number of seeds
-    done = entry_for(es0, step)(generations, rule, episodes, padded, len(batch))
+    padding = SEEDS_PER_CALL - len(batch)  # one entry point whatever the number of seeds
+    padded, padded_generators = tuple(batch + [batch[0]] * padding), tuple(generators + [generators[0]] * padding)
+    done = entry_for(es0, step)(generations, rule, episodes, padded, padded_generators, len(batch))
     if done < generations:  # put the generators back: the Python path takes this chunk
         for st, snapshot in zip(states, snapshots):
             for r, rng_state in zip((st.sample_rng, st.episode_rng, st.mean_eval_rng), snapshot):
