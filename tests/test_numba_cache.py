@@ -153,3 +153,25 @@ def test_old_contents_are_removed_beyond_the_newest_kept(tmp_path):
     folders = make(numba_cache.KEEP + 3, lambda i: 0)  # all in use a moment ago (other processes may still save there)
     numba_cache._prune(current)
     assert len(list(tmp_path.iterdir())) == numba_cache.KEEP + 4
+
+
+_WITHOUT_PRIVATE_API = """
+import numba.core.caching as caching
+del caching._CacheLocator  # a numba release that renamed its private locator base
+import imix_cli.core.algorithms  # every ES module: their kernels are defined (cache=True) at import
+from imix_cli.core import numerics as xp
+from imix_cli.core.numerics import numba_cache
+assert not numba_cache.LOCATOR_API
+assert numba_cache._PackageLocator not in caching.CacheImpl._locator_classes
+print(xp.log(2.0))
+"""
+
+
+def test_imix_imports_and_runs_on_a_numba_without_the_private_names_its_locator_uses(tmp_path):
+    """``pip install`` takes the newest numba, and numba_cache's locator subclasses two private names: a release without
+    them must leave imix importable, its kernels on numba's own locators. Made to fail by subclassing the private
+    base unconditionally again."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}  # numba's own folder: nothing of imix's shared cache touched
+    done = subprocess.run([sys.executable, "-c", _WITHOUT_PRIVATE_API], capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert float(done.stdout) == 0.6931471805599453

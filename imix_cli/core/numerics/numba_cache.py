@@ -48,7 +48,7 @@ from pathlib import Path
 
 from numba.core import caching
 
-__all__ = ["KEEP", "PACKAGE", "SOURCE_DIGEST", "compiled_sources", "shared_cache_root", "source_digest"]
+__all__ = ["KEEP", "LOCATOR_API", "PACKAGE", "SOURCE_DIGEST", "compiled_sources", "shared_cache_root", "source_digest"]
 
 
 def _top_package(folder: Path) -> Path:
@@ -150,7 +150,18 @@ def _file_hash(path: str) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-class _PackageLocator(caching._CacheLocator):
+#: Whether this numba has the two private names the locator needs (``caching._CacheLocator``, ``CacheImpl._locator_classes``;
+#: numba 0.61-0.68 have them). Why private names, and not ``NUMBA_CACHE_DIR`` per :data:`SOURCE_DIGEST` (documented): that
+#: variable is read once, when numba is first imported -- by the user's code too, before imix's -- and it would move the
+#: user's own cached functions with imix's (measured when it was weighed: a copy at another path recompiled for 61 s).
+#: Why a fallback: ``pip install imix`` takes the newest numba, and a release without them must not stop imix from
+#: importing. Without them numba's own locators key each kernel by its own file only (a callee edited in another file
+#: can leave its callers' cached code in use: a developer's risk, not an installed release's, whose files change all at
+#: once); ``tests/test_numba_cache.py`` fails then, so the constraints' numba is not raised past a release without them.
+LOCATOR_API = hasattr(caching, "_CacheLocator") and isinstance(getattr(getattr(caching, "CacheImpl", None), "_locator_classes", None), list)
+
+
+class _PackageLocator(caching._CacheLocator if LOCATOR_API else object):
     """numba's own locator for the function, with :data:`SOURCE_DIGEST` in its stamp and the cache in
     :func:`shared_cache_root` (the function's folder in the package below it) when that can be written."""
 
@@ -193,5 +204,5 @@ class _PackageLocator(caching._CacheLocator):
         return None
 
 
-if _PackageLocator not in caching.CacheImpl._locator_classes:
+if LOCATOR_API and _PackageLocator not in caching.CacheImpl._locator_classes:
     caching.CacheImpl._locator_classes.insert(0, _PackageLocator)
