@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +75,79 @@ def test_ars_climbs_a_sphere_and_refuses_odd_popsizes_and_a_top_beyond_n():
         ARS(3, popsize=5)
     with pytest.raises(ValueError, match="top"):
         ARS(3, popsize=6, top=4)
+
+
+# ----------------------------------------------------------------- the compiled step: numpy's step, bit for bit
+def _numpy_step(mean, samples, fitness, nu, lr, top):
+    """The numpy step the compiled one replaced (imix before the ARS step was compiled), kept as the reference:
+    numpy's ``@`` (BLAS), ``zlib.crc32`` tie keys, ``np.lexsort``, ``np.std``. Returns (new mean, sigma_R or None)."""
+    n = samples.shape[0] // 2
+    r_plus, r_minus = fitness[:n], fitness[n:]
+    deltas = (samples[:n] - samples[n:]) / (2.0 * nu)
+    pairs = np.flatnonzero(np.isfinite(r_plus) & np.isfinite(r_minus))
+    if pairs.size == 0:
+        return mean, None
+    b = min(top, pairs.size)
+    keys = np.array([zlib.crc32(np.ascontiguousarray(row).tobytes()) for row in deltas[pairs]], dtype=np.int64)
+    used = pairs[np.lexsort((keys, -np.maximum(r_plus[pairs], r_minus[pairs])))[:b]]
+    return_std = float(np.std(np.concatenate([r_plus[used], r_minus[used]])))
+    if not return_std > 0.0:
+        return mean, return_std
+    return mean + (lr / (b * return_std)) * ((r_plus[used] - r_minus[used]) @ deltas[used]), return_std
+
+
+def _step_cases(seed: int, count: int):
+    """Random ARS steps: dimensions from 1 (numpy's dot product) to 400, ties (rounded returns), non-finite returns,
+    all returns equal."""
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        n, d = int(rng.integers(1, 30)), int(rng.choice([1, 2, 3, 4, 5, 7, 8, 16, 33, 102, 130, 400]))
+        top = int(rng.integers(1, n + 1))
+        es = ARS(d, popsize=2 * n, sigma=float(rng.uniform(0.01, 1)), lr=float(rng.uniform(0.001, 0.5)), top=top, mean=rng.standard_normal(d))
+        samples = es.ask(rng)
+        fitness = np.round(rng.standard_normal(2 * n) * 10, int(rng.integers(0, 3)))
+        if rng.random() < 0.2:
+            fitness[rng.integers(0, 2 * n)] = rng.choice([np.nan, np.inf, -np.inf])
+        if rng.random() < 0.05:
+            fitness[:] = 3.0
+        yield es, samples, fitness
+
+
+def _steps_differing_from_numpys(seed: int, count: int) -> int:
+    differing = 0
+    for es, samples, fitness in _step_cases(seed, count):
+        expected, return_std = _numpy_step(es.mean.copy(), samples, fitness, es.sigma, es.lr, es.top)
+        es.tell(samples, fitness)
+        same_std = return_std is None and np.isnan(es.last_return_std) or return_std == es.last_return_std
+        differing += not (np.array_equal(es.mean, expected) and same_std)
+    return differing
+
+
+def test_the_compiled_step_is_numpys_step_bit_for_bit():
+    """The published ARS studies (docs/ars.md) ran the numpy step; the compiled step (ars_update) must give its bits:
+    BLAS's order for the sum over directions (numba's np.dot), zlib's crc32, lexsort's order, numpy's std. Made to
+    fail by summing the directions in a fixed order (lk.vec_mat_kernel): 190 of 400 steps differed."""
+    assert _steps_differing_from_numpys(7, 400) == 0
+
+
+@pytest.mark.parametrize("coretype", ["Prescott", "Haswell"])
+def test_the_compiled_step_is_numpys_step_under_other_openblas_kernels(coretype):
+    """Under another OpenBLAS kernel numpy's ``@`` sums in another order; the compiled step follows it (numba's
+    np.dot calls scipy's OpenBLAS, which takes the same kernel): the two agree under each kernel."""
+    script = "import sys; sys.path.insert(0, sys.argv[1]); import test_ars; print(test_ars._steps_differing_from_numpys(8, 150))"
+    env = {**os.environ, "OPENBLAS_CORETYPE": coretype, "OPENBLAS_NUM_THREADS": "1"}
+    out = subprocess.run([sys.executable, "-c", script, str(Path(__file__).parent)], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["0"]
+
+
+def test_the_direction_keys_are_zlibs_crc32():
+    from imix_cli.core.algorithms.ars import _crc32
+
+    rng = np.random.default_rng(3)
+    for d in (1, 2, 7, 130):
+        for row in rng.standard_normal((20, d)) * rng.uniform(1e-3, 1e3):
+            assert _crc32(row) == zlib.crc32(row.tobytes())
 
 
 # --------------------------------------------------------------------- pairs under mixing: one step

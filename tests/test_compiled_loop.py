@@ -44,6 +44,10 @@ CASES = [
     ["algo=cmaes", "env=cartpole", "eim=true"],
     ["algo=cmaes", "env=acrobot", "eim=false", "popsize=12"],
     ["algo=cmaes", "env=continuous_cartpole_hard", "eim=true", "eim_generations=5", "algo.step_size_control=csa", "popsize=10", "sigma=2"],
+    # ARS: mirrored pairs (the anchors mixed and archived, the mirrors fresh), the top-b step, the reward's offset
+    ["algo=ars", "env=cartpole", "eim=true"],
+    ["algo=ars", "env=acrobot", "eim=false", "popsize=10"],
+    ["algo=ars", "env=continuous_cartpole", "im=true", "im_variant=sun2009", "algo.top=4", "algo.alive_bonus_offset=-0.5", "popsize=16"],
 ]
 
 
@@ -267,7 +271,7 @@ def test_a_cmaes_chunk_that_cannot_draw_changes_nothing_and_is_left_to_the_pytho
 
 @pytest.mark.parametrize(
     "overrides",
-    [CASES[0], ["algo=cem", "env=acrobot", "eim=true", "popsize=12"], ["algo=cmaes", "env=cartpole", "eim=true", "popsize=12"]],
+    [CASES[0], ["algo=cem", "env=acrobot", "eim=true", "popsize=12"], ["algo=cmaes", "env=cartpole", "eim=true", "popsize=12"], CASES[15]],
     ids=lambda o: " ".join(o),
 )
 def test_seeds_advanced_together_are_the_seeds_advanced_alone_bit_for_bit(overrides):
@@ -346,6 +350,9 @@ def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
         ["algo=snes", "env=cartpole", "eim=true", "reeval_age=3"],
         ["algo=snes", "env=cartpole", "eim=true", "evaluator=pool"],
         ["algo=snes", "env=cartpole", "eim=true", "policy.bias=false"],  # ES points are not the policy's parameters
+        ["algo=ars", "env=cartpole", "eim=true", "policy.bias=false"],
+        ["algo=ars", "env=cartpole", "eim=true", "reeval_prob=0.5"],
+        ["algo=ars", "env=cartpole", "eim=true", "eim_variant=conditional"],
     ):
         settings, evaluator, st = _seed_state(overrides)
         assert not compiled_loop.applies(settings, evaluator, st), overrides
@@ -355,6 +362,7 @@ def test_the_compiled_loop_applies_only_where_it_reproduces_the_python_loop():
         ["algo=cem", "env=acrobot", "eim=true"],
         ["algo=cmaes", "env=cartpole", "eim=true"],
         ["algo=cmaes", "env=acrobot", "eim=false"],
+        ["algo=ars", "env=acrobot", "im=true"],
     )
     for overrides in taken:
         settings, evaluator, st = _seed_state(overrides)
@@ -418,6 +426,7 @@ RUNS = [
     ["algo=openes", "env=acrobot", "eim=false", "popsize=12"],
     ["algo=cem", "env=acrobot", "eim=true"],
     ["algo=cmaes", "env=cartpole", "eim=true", "popsize=20"],
+    ["algo=ars", "env=cartpole", "eim=true", "algo.alive_bonus_offset=-0.25"],
 ]
 
 

@@ -42,8 +42,8 @@ Sections (give any of them; default ``rollouts mixing memory``; ``all`` runs eve
     breakdown  where a run's time goes: evaluation, mixing (or plain sampling) and ES update
                of a lockstep run in this process (seeds of one worker, paper dimensions).
     loop       the compiled generation loop (imix_cli.running.loop.compiled_loop) against the Python loop it
-               reproduces: the same seeds of SNES + EIM, OpenES + EIM and SNES without mixing on
-               CartPole, in this process; time per seed-generation, ratio, and whether the rows
+               reproduces: the same seeds of SNES + EIM, OpenES + EIM, SNES without mixing and
+               ARS + EIM on CartPole, in this process; time per seed-generation, ratio, and whether the rows
                are the same (13 seeds x 300 generations unless seeds=/generations=).
     grid       wall time and total env steps of the paper's main grid (4 ES x CartPole,
                Acrobot x 25 seeds at the paper's generation counts), with EIM and without

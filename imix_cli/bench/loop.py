@@ -12,11 +12,13 @@ import time
 
 from imix_cli.bench.common import table
 
-#: The runs measured: the main job, OpenES with EIM, and SNES without mixing (every episode run).
+#: The runs measured: the main job, OpenES with EIM, SNES without mixing (every episode run) and ARS with EIM
+#: (mirrored pairs: the anchors mixed, the mirrors fresh).
 LOOP_CONFIGS = (
     ["algo=snes", "env=cartpole", "eim=true"],
     ["algo=openes", "env=cartpole", "eim=true"],
     ["algo=snes", "env=cartpole", "eim=false"],
+    ["algo=ars", "env=cartpole", "eim=true"],
 )
 
 

@@ -55,6 +55,7 @@ INSTALL_CONFIGS = [
     ["algo=snes", "env=cartpole", "im=true", "im_variant=sun2009"],
     ["algo=cem", "env=cartpole", "eim=true"],
     ["algo=cmaes", "env=cartpole", "eim=true"],
+    ["algo=ars", "env=cartpole", "eim=true"],
 ]
 
 

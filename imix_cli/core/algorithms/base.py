@@ -510,11 +510,15 @@ class EvolutionStrategy(ABC):
         two-point step-size adaptation). None: none (every ES but CMA-ES with TPA)."""
         return None
 
+    #: Added to every step's reward in training (:meth:`training_fitness`): 0 but for ARS's survival-bonus offset.
+    reward_offset = 0.0
+
     def training_fitness(self, returns: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """The fitness the runner tells (and archives) for episodes of these ``returns`` and lengths
-        ``steps``: the return itself, unless an ES trains on a reshaped reward (ARS's survival-bonus
-        offset). Measurements of the distribution mean always report the env's own return."""
-        return returns
+        ``steps``: return + :attr:`reward_offset` x length (the compiled loop computes the same). Measurements
+        of the distribution mean always report the env's own return."""
+        offset = self.reward_offset
+        return returns if offset == 0.0 else np.asarray(returns, dtype=np.float64) + offset * np.asarray(steps, dtype=np.float64)
 
     def tell(self, samples, fitness, weights=None) -> None:
         """Update the search distribution from a generation's samples and their raw fitness (maximised).

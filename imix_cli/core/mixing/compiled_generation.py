@@ -22,6 +22,10 @@ calls ``np.sum``/``np.mean`` (:func:`imix_cli.core.numerics.linalg_kernels.numpy
 path's (:class:`imix_cli.core.mixing.generation.Archive`) as arrays of ``slots`` rows (:func:`pack_archive`,
 :func:`unpack_archive`).
 
+An ES whose members are mirrored pairs (ARS: :data:`imix_cli.core.mixing.mirrored.MIRRORED_PAIRS`) runs in the diagonal
+chunk as its Python scheme has it: the N anchors are mixed (no minimal refresh) and archived, the mirrors 2m - anchor are
+always fresh, and the ES's training fitness (return + its reward offset x length) is what is told and archived.
+
 When a generation meets what the Python path treats specially -- a non-finite return, or an update that leaves the
 distribution non-finite (divergence) -- the call returns early; its state is then unusable and the caller restores its
 snapshot.
@@ -153,10 +157,14 @@ def _place_members(x, source, index, stored, params, rows, e, ages, fitness):
 
 
 @njit
-def _take_returns(fitnesses, rows, returns, fresh_from, members_end):
-    """Each seed's fresh members' returns (rows ``fresh_from[s]:members_end[s]``) into its fitness; False if a member's
-    fitness is not finite (the Python path records it)."""
+def _take_returns(fitnesses, rows, returns, steps, offset, fresh_from, members_end):
+    """Each seed's fresh members' training fitness (rows ``fresh_from[s]:members_end[s]``) into its fitness: every row's
+    return + ``offset`` x its length (the ES's :meth:`~imix_cli.core.algorithms.base.EvolutionStrategy.training_fitness`,
+    probes' rows too); False if a member's fitness is not finite (the Python path records it)."""
     n, popsize = fitnesses.shape
+    if offset != 0.0:
+        for e in range(fresh_from[n]):
+            returns[e] = returns[e] + offset * steps[e]
     for s in range(n):
         for e in range(fresh_from[s], members_end[s]):
             fitnesses[s, rows[e]] = returns[e]
@@ -164,6 +172,23 @@ def _take_returns(fitnesses, rows, returns, fresh_from, members_end):
             if not math.isfinite(fitnesses[s, i]):
                 return False
     return True
+
+
+@njit
+def _mirrored_pairs(anchors, source, index, mean):
+    """The members ``[anchors; 2 mean - anchors]`` of an ES of mirrored pairs (:mod:`imix_cli.core.mixing.mirrored`), with
+    their sources and indices: a mirror is always fresh."""
+    rows, d = anchors.shape
+    x = np.empty((2 * rows, d))
+    members_source = np.zeros(2 * rows, dtype=np.int64)
+    members_index = np.full(2 * rows, -1, dtype=np.int64)
+    for i in range(rows):
+        members_source[i] = source[i]
+        members_index[i] = index[i]
+        for j in range(d):
+            x[i, j] = anchors[i, j]
+            x[rows + i, j] = 2.0 * mean[j] - anchors[i, j]
+    return x, members_source, members_index
 
 
 @njit
@@ -265,7 +290,10 @@ def _make_chunk(digest: int):
         The arguments are tuples (numba types each field), built by :func:`imix_cli.running.loop.compiled_loop.advance_seeds`,
         which names every field:
 
-        - ``rule``: the mixing rule and the ES's utilities' settings;
+        - ``rule``: the mixing rule, the ES's utilities' settings, its training reward's offset
+          (:attr:`~imix_cli.core.algorithms.base.EvolutionStrategy.reward_offset`), whether its members are mirrored
+          pairs (ARS: the anchors are mixed and archived, :mod:`imix_cli.core.mixing.mirrored`) and the most probes a
+          generation has (the full chunk's);
         - ``episodes``: the episode kernel (:func:`_env_code`) and its settings;
         - ``batch``: :data:`SEEDS_PER_CALL` seeds' tuples (the last ones repeat the first, unused), each
           ``(es, archive, measure, seed, out)``: the ES's generation count, a copy of its state record
@@ -285,10 +313,11 @@ def _make_chunk(digest: int):
         any seed met what only the Python path handles (the states are then unusable: the caller restores snapshots)."""
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
-        kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult = rule
+        kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult, offset, mirrored, max_probes = rule
         seed_tuples = _seed_list(batch, generators, n)
         a_x0 = seed_tuples[0][1][1]
-        popsize, d = a_x0.shape[1], a_x0.shape[2]
+        kept, d = a_x0.shape[1], a_x0.shape[2]  # the rows a generation archives: its members, or its pairs' anchors
+        popsize = 2 * kept if mirrored else kept
         generation, episode_rows, scratch = _call_arrays(n, popsize, d, n * popsize, seed_tuples[0][3][1])
         xs, sources, indices, ages, fitnesses, trials_of = generation
         params, rows, seeds, returns, steps = episode_rows
@@ -297,7 +326,8 @@ def _make_chunk(digest: int):
         fresh_from = np.empty(n + 1, dtype=np.int64)  # seed s's fresh members are rows fresh_from[s]:fresh_from[s + 1]
         means = np.empty((n, d))
         for g in range(generations):
-            # ---- plan: mix (or draw) each seed's generation from its distribution N(mu, std^2)
+            # ---- plan: mix (or draw) each seed's generation from its distribution N(mu, std^2) -- or its pairs' anchors,
+            # then mirror them (mirrors are always fresh)
             fresh_from[0] = 0
             for s in range(n):
                 es, archive, rngs, measure, seed, out = seed_tuples[s]
@@ -306,8 +336,10 @@ def _make_chunk(digest: int):
                 log_norms[s] = mk.diagonal_log_norm(state.std)
                 x, source, index, trials_of[s] = mk.mix_step(
                     kernel, rngs[0], (state.mean, state.std, log_norms[s]), (a_mean, a_std, a_lognorm, a_x, a_h), a_hset,
-                    min(a_n[0], depth), (popsize, log_keep, alpha, min_fresh),
+                    min(a_n[0], depth), (kept, log_keep, alpha, min_fresh),
                 )  # fmt: skip
+                if mirrored:
+                    x, source, index = _mirrored_pairs(x, source, index, state.mean)
                 xs[s] = x
                 sources[s] = source
                 indices[s] = index
@@ -318,9 +350,9 @@ def _make_chunk(digest: int):
             total = fresh_from[n]
             if total:
                 _episodes_of(episodes, params[:total], seeds[:total], returns[:total], steps[:total], trace)
-            if not _take_returns(fitnesses, rows, returns, fresh_from, fresh_from[1:]):
+            if not _take_returns(fitnesses, rows, returns, steps, offset, fresh_from, fresh_from[1:]):
                 return g
-            # ---- tell each seed: the ES's own utilities and update; archive; the row's numbers
+            # ---- tell each seed: the ES's own utilities and update; archive (a mirrored ES: the anchors); the row's numbers
             for s in range(n):
                 es, archive, rngs, measure, seed, out = seed_tuples[s]
                 es_generation, state, constants = es
@@ -347,7 +379,7 @@ def _make_chunk(digest: int):
                     a_std[0] = std_drawn
                     a_lognorm[0] = log_norms[s]
                     common = (a_n, a_x, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials)
-                    _archive_generation(common, depth, x, fitness, ages[s], source, indices[s], mw, trials_of[s])
+                    _archive_generation(common, depth, x[:kept], fitness[:kept], ages[s][:kept], source[:kept], indices[s][:kept], mw[:kept], trials_of[s])
                 _record(g, x, source, fitness, steps[fresh_from[s] : fresh_from[s + 1]], seed, out)
                 means[s] = mu
             # ---- the distribution means on fresh episodes, when due: every due seed's in one call
@@ -369,7 +401,7 @@ def _make_full_chunk(digest: int):
         only the new distribution's are computed each generation, as the Python path's cache does."""
         if digest == 0:  # never: the digest is in the closure so that numba keys the cache on it
             return -1
-        kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult, max_probes = rule
+        kernel, depth, alpha, log_keep, min_fresh, weight_decay, mult, offset, mirrored, max_probes = rule
         seed_tuples = _seed_list(batch, generators, n)
         a_x0 = seed_tuples[0][1][1]
         popsize, d = a_x0.shape[1], a_x0.shape[2]
@@ -438,7 +470,7 @@ def _make_full_chunk(digest: int):
             total = fresh_from[n]
             if total:
                 _episodes_of(episodes, params[:total], seeds[:total], returns[:total], steps[:total], trace)
-            if not _take_returns(fitnesses, rows, returns, fresh_from, probe_from):
+            if not _take_returns(fitnesses, rows, returns, steps, offset, fresh_from, probe_from):
                 return g
             # ---- tell each seed: the ES's own utilities and update; archive; the row's numbers
             for s in range(n):
@@ -548,18 +580,21 @@ def pack_archive(archive, slots: int, popsize: int, d: int) -> tuple:
         a_x[k], a_mean[k], a_std[k], a_lognorm[k] = g.samples, g.dist.mean, g.dist.std, g.dist.log_norm
         if g.log_u is not None:
             a_h[k], a_hset[k] = g.log_u, True
-        a_ret[k], a_mw[k], a_age[k], a_src[k], a_idx[k], a_trials[k] = archive.returns[k], g.mean_weights, archive.ages[k], g.source, g.index, g.trials
+        a_ret[k], a_age[k], a_src[k], a_idx[k], a_trials[k] = archive.returns[k], archive.ages[k], g.source, g.index, g.trials
+        if g.mean_weights is not None:  # (a mirrored ES's anchors have none)
+            a_mw[k] = g.mean_weights
     a_n = np.array([len(archive.generations)], dtype=np.int64)
     return (a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials)
 
 
-def unpack_archive(archive, arrays: tuple) -> None:
-    """Put :func:`pack_archive`'s arrays, as a chunk left them, back into ``archive``."""
+def unpack_archive(archive, arrays: tuple, mean_weights: bool = True) -> None:
+    """Put :func:`pack_archive`'s arrays, as a chunk left them, back into ``archive``; ``mean_weights`` False: the
+    generations keep none (a mirrored ES's anchors, as the Python path archives them)."""
     a_n, a_x, a_mean, a_std, a_lognorm, a_h, a_hset, a_ret, a_age, a_src, a_idx, a_mw, a_trials = arrays
     n = int(a_n[0])
     archive.generations = [
         Generation(a_x[k].copy(), a_src[k].copy(), a_idx[k].copy(), DiagonalGaussian(a_mean[k], a_std[k]), int(a_trials[k]),
-                   a_h[k].copy() if a_hset[k] else None, a_mw[k].copy())
+                   a_h[k].copy() if a_hset[k] else None, a_mw[k].copy() if mean_weights else None)
         for k in range(n)
     ]  # fmt: skip
     archive.returns = [a_ret[k].copy() for k in range(n)]

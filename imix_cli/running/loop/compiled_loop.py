@@ -8,11 +8,13 @@ takes it, and ``tests/test_compiled_loop.py`` runs both and compares CSVs, check
 bit for bit.
 
 Where it applies (:func:`applies`): any ES with a compiled step (:class:`~imix_cli.core.algorithms.base.CompiledStep`)
-and compiled utilities (centred ranks, the estool weight decay) -- over a float64 diagonal Gaussian (OpenES, SNES and
-CEM), with no mixing or the ``paper``/``sun2009``/``exact`` rules, or over a full Gaussian (CMA-ES, its own chunk),
-with no mixing or ``exact`` -- no re-evaluation options, no observation normalisation, a built-in environment
-(CartPole, ContinuousCartPole, its Hard variant, Acrobot) evaluated in the process: the whole paper grid (OpenES,
-SNES, CEM, CMA-ES x CartPole, Acrobot x EIM or not). Anything else takes the Python path, unchanged.
+and compiled utilities (centred ranks with the estool weight decay, or ARS's raw fitness) -- over a float64 diagonal
+Gaussian (OpenES, SNES, CEM, and ARS, whose mirrored pairs' anchors are mixed), with no mixing or the
+``paper``/``sun2009``/``exact`` rules, or over a full Gaussian (CMA-ES, its own chunk), with no mixing or ``exact``
+-- no re-evaluation options, no observation normalisation, the ES's points the policy's parameters (``policy.bias``),
+a built-in environment (CartPole, ContinuousCartPole, its Hard variant, Acrobot) evaluated in the process: the whole
+paper grid (OpenES, SNES, CEM, CMA-ES x CartPole, Acrobot x EIM or not). Anything else (a generation scheme of
+its own, a weighted variant) takes the Python path, unchanged.
 
 When a chunk meets what the Python path treats specially -- a non-finite return, or an update that
 leaves the distribution non-finite (divergence) -- the chunk is dropped (the random generators are
@@ -22,6 +24,7 @@ which records it exactly as always.
 
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -39,6 +42,8 @@ from imix_cli.core.mixing.compiled_generation import (
     unpack_archive,
     unpack_full_archive,
 )
+from imix_cli.core.mixing.generation import INDEPENDENT, scheme_of
+from imix_cli.core.mixing.mirrored import MirroredPairs
 from imix_cli.running.loop.lockstep import scored_row
 
 __all__ = ["applies", "applies_to_run", "advance", "advance_seeds", "ENV_VARIABLE"]
@@ -77,6 +82,9 @@ def applies_to_run(settings, evaluator, es=None) -> bool:
     step = es.compiled_step()
     if step is None or es.compiled_utilities() is None:
         return False
+    scheme = scheme_of(es, settings.mixing)
+    if scheme is not INDEPENDENT and not (isinstance(scheme, MirroredPairs) and step.full is None):
+        return False  # a scheme of its own (a weighted variant's, a user's): the Python path's alone
     if step.full is None and step.mean_weights is None and type(es)._mean_weights is not EvolutionStrategy._mean_weights:
         return False  # mean weights of its own in Python only: the loop would archive the utilities instead
     mixing = settings.mixing
@@ -101,13 +109,19 @@ def applies(settings, evaluator, st) -> bool:
         return False
     if kind is FullGaussian and es.dim * es.dim * (depth + 1) > COMPILED_MAX_ELEMENTS:
         return False
-    archive = st.archive
+    archive, mirrored = st.archive, _mirrored(es)
     if len(archive.generations) > depth or np.any(archive.pairs != 0.0):
         return False
+    rows = scheme_of(es).archived_rows(es)
     for g in archive.generations:
-        if type(g.dist) is not kind or g.samples.shape != (es.popsize, es.dim) or g.samples.dtype != np.float64 or g.mean_weights is None:
+        if type(g.dist) is not kind or g.samples.shape != (rows, es.dim) or g.samples.dtype != np.float64 or (g.mean_weights is None) != mirrored:
             return False
     return True
+
+
+def _mirrored(es) -> bool:
+    """Whether ``es``'s members are mirrored pairs, whose anchors alone are mixed and archived (ARS)."""
+    return isinstance(scheme_of(es), MirroredPairs)
 
 
 def advance(st, settings, evaluator, generations: int) -> bool:
@@ -124,20 +138,20 @@ def advance_seeds(states: list, settings, evaluator, generations: int) -> bool:
     es0 = getattr(states[0].es, "es", states[0].es)
     step = es0.compiled_step()
     d, popsize, depth = es0.dim, es0.popsize, mixing.depth
-    slots = max(depth, 1)
+    slots, mirrored, full = max(depth, 1), _mirrored(es0), step.full is not None
     with np.errstate(divide="ignore"):
         log_keep = xp.log1p(-mixing.alpha)
-    rule = (_kernel(mixing.variant), depth, float(mixing.alpha), log_keep, int(mixing.min_fresh), float(es0.weight_decay), hash_multipliers(d))
-    full = step.full is not None
-    if full:  # a full Gaussian's chunk: the most probes a generation has, too
-        rule = (*rule, int(step.full[2]))
-    pack, unpack = (pack_full_archive, unpack_full_archive) if full else (pack_archive, unpack_archive)
+    min_fresh = 0 if mirrored else int(mixing.min_fresh)  # every mirror is fresh: no pair generation is reused whole
+    rule = (_kernel(mixing.variant), depth, float(mixing.alpha), log_keep, min_fresh, float(es0.weight_decay), hash_multipliers(d),
+            float(es0.reward_offset), mirrored, int(step.full[2]) if full else 0)  # fmt: skip
+    pack, unpack = (pack_full_archive, unpack_full_archive) if full else (pack_archive, functools.partial(unpack_archive, mean_weights=not mirrored))
+    rows = scheme_of(es0).archived_rows(es0)
     episodes = (env_code(evaluator), evaluator.layer_sizes(), type(evaluator).__name__ == "ContinuousCartPoleEvaluator",
                 bool(getattr(evaluator, "hard", False)), int(evaluator.max_steps))  # fmt: skip
     batch, generators, snapshots, chunks = [], [], [], []
     for st in states:
         es = getattr(st.es, "es", st.es)
-        archive_arrays = pack(st.archive, slots, popsize, d)
+        archive_arrays = pack(st.archive, slots, rows, d)
         es_generation = np.array([es.generation], dtype=np.int64)
         best = np.zeros(d) if st.best_params is None else np.array(st.best_params, dtype=np.float64)
         best_return = np.array([st.best_return], dtype=np.float64)
@@ -151,7 +165,7 @@ def advance_seeds(states: list, settings, evaluator, generations: int) -> bool:
         measure = (int(settings.eval_mean_every), int(settings.eval_mean_episodes), int(st.generation))
         batch.append(((es_generation, state, es.compiled_step().constants), archive_arrays, measure, (best, best_return, last_u), out))
         generators.append(rngs)
-        chunks.append((es, (archive_arrays, unpack), es_generation, state, best, best_return, last_u, out))
+        chunks.append((es, (archive_arrays, unpack), es_generation, state, best, best_return, None if mirrored else last_u, out))
     padding = SEEDS_PER_CALL - len(batch)  # one entry point whatever the number of seeds
     padded, padded_generators = tuple(batch + [batch[0]] * padding), tuple(generators + [generators[0]] * padding)
     done = entry_for(es0, step)(generations, rule, episodes, padded, padded_generators, len(batch))
@@ -170,7 +184,8 @@ def _take_back(st, settings, depth, es, archive, es_generation, state, best, bes
     out_fitness, out_reused, out_evaluated, out_steps, out_sigma_mean, out_theta = out
     es.set_state(state)
     es.generation = int(es_generation[0])
-    es.mean_weights = last_u
+    if last_u is not None:  # (a mirrored ES's tell keeps no mean weights)
+        es.mean_weights = last_u
     if depth:
         archive_arrays, unpack = archive
         unpack(st.archive, archive_arrays)
