@@ -72,7 +72,7 @@ def test_loop_compares_the_compiled_and_python_loops_on_the_same_rows(capsys):
     assert main(["loop", "seeds=2", "generations=30"]) == 0
     header, rows = _table(_tables(capsys.readouterr().out), "The compiled generation loop")
     assert header[0] == "run" and header[-1] == "same rows"
-    assert [r[0] for r in rows] == ["snes cartpole true", "openes cartpole true", "snes cartpole false"]
+    assert [r[0] for r in rows] == ["snes cartpole true", "openes cartpole true", "snes cartpole false", "ars cartpole true"]
     assert all(r[-1] == "yes" and float(r[3]) > 0 and float(r[4]) > 0 for r in rows)
 
 

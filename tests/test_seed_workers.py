@@ -34,6 +34,16 @@ def test_a_variable_set_after_the_fork_server_started_reaches_the_workers(monkey
     assert pool.run_pool(read_variable, "NUMBA_IMIX_TEST_SEED_WORKERS", [[0]], pool._NoBar()) == [("read at import", [0])]
 
 
+def test_a_variable_read_when_used_set_after_the_server_started_keeps_the_workers_forked(monkeypatch):
+    """``ray.init()`` sets PYTHONBREAKPOINT in the caller's process (read by ``breakpoint()`` at each call, not at import):
+    the runs of that process after it kept spawning their workers (found when the suite ran Ray's tests before these).
+    Made to fail by counting PYTHONBREAKPOINT among the variables read at import again: the context is spawn's."""
+    pool.start_worker_server()
+    monkeypatch.setenv("PYTHONBREAKPOINT", "ray.util.rpdb._driver_set_trace")
+    assert processes.seed_worker_context(pool.SEED_WORKER_MODULES).get_start_method() == "forkserver"
+    assert pool.run_pool(read_variable, "PYTHONBREAKPOINT", [[0]], pool._NoBar()) == [("ray.util.rpdb._driver_set_trace", [0])]
+
+
 def test_forked_and_spawned_workers_write_the_same_csvs(tmp_path, monkeypatch):
     """The same run with workers forked from the server and with spawned workers (forced by a variable read at import,
     set after the server started): every CSV identical but its wall times, and the CPU time of the forked workers counted."""

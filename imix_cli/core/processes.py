@@ -86,10 +86,14 @@ _server_env: dict | None = None  # the fork server's variables read at import (N
 #: The variables read when numpy, numba, BLAS or Python itself load -- fixed in a forked worker at what the fork server
 #: had. Every other variable a worker reads when it runs (``IMIX_COMPILED_LOOP``), and it is given the caller's.
 IMPORT_TIME_PREFIXES = ("PYTHON", "NUMBA_", "NPY_", "OPENBLAS", "GOTO", "OMP_", "MKL_", "BLIS_", "LD_", "MALLOC_")
+#: Of those, the ones read when used, which a forked worker takes from the caller like any other: ``PYTHONBREAKPOINT``
+#: (``breakpoint()`` reads it at each call), which ``ray.init()`` sets in the caller's process -- after which every run
+#: of that process spawned its workers.
+CALL_TIME_NAMES = frozenset({"PYTHONBREAKPOINT"})
 
 
 def _import_time_environment() -> dict:
-    return {k: v for k, v in os.environ.items() if k.startswith(IMPORT_TIME_PREFIXES)}
+    return {k: v for k, v in os.environ.items() if k.startswith(IMPORT_TIME_PREFIXES) and k not in CALL_TIME_NAMES}
 
 
 def start_seed_worker_server(preload: list[str]) -> None:
