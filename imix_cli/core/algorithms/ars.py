@@ -269,8 +269,6 @@ class ARS(EvolutionStrategy):
 
     def _update(self, samples: np.ndarray, fitness: np.ndarray) -> None:
         self.nonfinite_fitness_count += int(np.count_nonzero(~np.isfinite(fitness)))
-        step = self.compiled_step()
-        return_std = float(step.update(np.ascontiguousarray(samples), np.ascontiguousarray(fitness), self.state, step.constants))
+        return_std = float(self._update_compiled(samples, fitness))
         if return_std != -1.0:  # -1: no finite pair, no step
             self.last_return_std = return_std
-        self._state_changed()

@@ -632,11 +632,13 @@ class EvolutionStrategy(ABC):
         (:meth:`_update_compiled`)."""
         return None
 
-    def _update_compiled(self, samples: np.ndarray, utilities: np.ndarray) -> None:
-        """:meth:`_update` through :meth:`compiled_step`: the one copy of the update, on :attr:`state` in place."""
+    def _update_compiled(self, samples: np.ndarray, utilities: np.ndarray):
+        """:meth:`_update` through :meth:`compiled_step`: the one copy of the update, on :attr:`state` in place; returns
+        what the compiled update returns (ARS's sigma_R; None for the others)."""
         step = self.compiled_step()
-        step.update(np.ascontiguousarray(samples, dtype=np.float64), np.ascontiguousarray(utilities, dtype=np.float64), self.state, step.constants)
+        result = step.update(np.ascontiguousarray(samples, dtype=np.float64), np.ascontiguousarray(utilities, dtype=np.float64), self.state, step.constants)
         self._state_changed()
+        return result
 
     def compiled_utilities(self):
         """:meth:`utilities` as compiled code -- ``utilities(samples, fitness, generation, weight_decay,
