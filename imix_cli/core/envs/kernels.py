@@ -282,7 +282,7 @@ def cartpole_steps(states, forces):
 #: Lanes of :func:`_cartpole_episodes_in_lanes` and :func:`_acrobot_episodes_in_lanes`, and the batch from which
 #: :func:`cartpole_episodes` and :func:`acrobot_episodes` use them: a step of 8 lanes costs ~4 steps of one episode
 #: alone (CartPole, the 2x8 tanh policy: ~1,000 against ~245 ns), so 8 members (one lane-step each, then a tail) already
-#: gain; the compiled loop hands over the fresh members of many seeds at once (SEEDS_PER_CALL), 15-40 on the main job.
+#: gain; the compiled loop hands over the fresh members of up to SEEDS_PER_CALL seeds at once.
 #: Once no member waits and fewer than ``ALONE_BELOW`` lanes still run (a population's last, longest episodes), each
 #: finishes alone: a lane-step costs about as much with two lanes running as with eight.
 LANES = 8

@@ -110,11 +110,13 @@ def _episodes_of(episodes, params, seeds, returns, steps, trace):
     _episodes(env, params, seeds, sizes, continuous, sparse, max_steps, returns, steps, trace)
 
 
-@njit
+@njit(inline="always")
 def _seed_list(batch, generators, n):
     """The first ``n`` seeds of ``batch`` as a typed List of ``(es, archive, rngs, measure, seed, out)``, each seed's
     generators ``generators[s]`` put in: indexing the tuples with a variable compiles a switch over their entries at
-    every use, once here.
+    every use, once here. Inlined into the chunk (numba's ``inline="always"``, at the IR level): compiled as a function
+    of its own it got a CPython wrapper too -- code that unboxes ``batch`` from Python objects, never called, and the
+    slowest part of the entry's compile (:data:`SEEDS_PER_CALL`).
 
     Why the generators come apart from the rest: numba types a call's arguments before every call. An argument made
     of tuples, records and arrays only is typed in C from its fingerprint (microseconds); one holding a numpy
@@ -279,8 +281,13 @@ def _measure_means(g, seed_tuples, means, episodes, scratch):
 
 
 #: Most seeds one call runs (:func:`_make_chunk`): the call takes them as a tuple of this length, padded, so that numba
-#: compiles one entry point whatever the number of seeds.
-SEEDS_PER_CALL = 16
+#: compiles one entry point whatever the number of seeds. Why 8 and not more: the entry's CPython wrapper unboxes every
+#: padded seed's tuple (~40 arrays and records each), and its compile grows faster than the seeds -- the wrapper alone
+#: took 5, 11 and 35 s for 4, 8 and 16 seeds; the SNES entry's whole compile took 125 s at 16 (``_seed_list`` a function
+#: of its own, with a wrapper of its own) against 37 s at 8 (numba 0.68, ``/tmp`` scripts on the 2-core VM). 8 seeds' fresh members (two or three each on
+#: the main job) still fill the episode kernel's lanes (:data:`imix_cli.core.envs.kernels.LANES`); a worker's 13 seeds
+#: take two calls.
+SEEDS_PER_CALL = 8
 
 
 def _make_chunk(digest: int):
