@@ -410,7 +410,8 @@ class CompiledStep(NamedTuple):
     utilities (CEM's elite weights); None, the default: the utilities themselves.
 
     ``full``: for an ES searching a full Gaussian (CMA-ES), whose state is its own (no ``mean``/``std``), the triple
-    ``(distribution, probes, most_probes)`` of compiled functions the loop needs besides the update:
+    ``(distribution, probes, most_probes)``: the two compiled functions the loop needs besides the update, and the
+    most points ``probes`` writes in a generation (an int, 0: none):
     ``distribution(state) -> (mean, cov, low, log_norm, ok)`` (the Gaussian, its Cholesky factor, log-normaliser; ``ok``
     False: not positive definite) and ``probes(rng, state, constants, out) -> count`` (points to evaluate besides the
     members, :meth:`EvolutionStrategy.probes`). Its ``update`` is then ``update(samples, utilities, fitness,
