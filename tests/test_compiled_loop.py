@@ -462,6 +462,9 @@ def test_the_live_csv_text_is_pandas_text_in_pieces():
         r["wall_time"] = value  # awkward floats
     rows[3]["algo"] = "a,b"  # a value pandas quotes
     rows[4]["env"] = 'say "x"'
+    rows[6]["env"] = "nan"  # a string that reads like a NaN float: pandas writes it as it is
+    rows[8]["mean_score"] = rows[9]["best_score"] = float("nan")  # NaN floats beside others, and inf: written empty, inf
+    rows[9]["mean_policy_score"] = float("inf")
     whole = csv_text(rows_to_frame(rows))
     assert rows_csv_text(rows) == whole
     assert rows_csv_text(rows[:7]) + rows_csv_text(rows[7:20], header=False) + rows_csv_text(rows[20:], header=False) == whole

@@ -218,7 +218,10 @@ def run_command(args: list[str]) -> int:
     global _POINTS_DONE
     _POINTS_DONE = 0
     try:
-        _hydra_run()
+        if not info_only and _runs_without_hydra(args, specs):
+            _run_point(specs[0], in_this_process=True)
+        else:
+            _hydra_run()
     except SystemExit as exit_:
         return exit_.code if isinstance(exit_.code, int) else (0 if exit_.code is None else 1)
     except Exception as err:  # Hydra's own argument errors (e.g. --cfg together with -m)
@@ -338,6 +341,25 @@ def _own_sweep_folder(args: list[str]) -> list[str]:
     return [f"hydra.sweep.dir=${{results_dir}}/${{experiment}}/.multirun/${{now:%Y-%m-%d_%H-%M-%S}}_{suffix}"]
 
 
+def _runs_without_hydra(args: list[str], specs: list) -> bool:
+    """Whether ``imix run ARGS`` is one plain run -- no ``-m``, no flag, no ``hydra``/``hydra.*`` override -- which then
+    runs the RunSpec its validation made (:func:`validate_run_args`) instead of Hydra composing the same config again.
+
+    Why: for such a run Hydra's job adds nothing -- imix's config writes none of Hydra's files for a single run
+    (``hydra.output_subdir: null``), sets no logging (``hydra/job_logging: none``) and stays in the working folder
+    (``hydra.job.chdir: false``) -- but its second composition cost ~0.15 s of every ``imix run``'s start-up, on the path
+    to the first episode (``/tmp`` script, the main job's command line). A command that could make Hydra's job do
+    something -- a sweep, ``--config-dir``, ``hydra.run.dir=``, ``hydra/launcher=``, ``hydra.job.env_set...`` -- is run by
+    Hydra as before."""
+    if len(specs) != 1:
+        return False
+    for arg in args:
+        key = arg.split("=", 1)[0].lstrip("+~")
+        if arg.startswith("-") or key == "hydra" or key.startswith(("hydra.", "hydra/")):
+            return False
+    return True
+
+
 def _hydra_run() -> None:
     import hydra
 
@@ -375,15 +397,24 @@ def _task(cfg) -> dict | None:
         sys.exit(_error(str(err), 2))
     from hydra.types import RunMode
 
+    from imix_cli.commands.search import search_settings_of
+
+    in_this_process = str(launcher or "").endswith("BasicLauncher")
+    in_process_sweep = in_this_process and HydraConfig.get().mode == RunMode.MULTIRUN
+    return _run_point(spec, in_this_process, in_process_sweep, search_settings_of(HydraConfig.get()))
+
+
+def _run_point(spec, in_this_process: bool, in_process_sweep: bool = False, searching=None) -> dict | None:
+    """Run one point, ``spec``, as the Hydra task (:func:`_task`) or a plain run (:func:`_runs_without_hydra`) does:
+    every error one line and an exit status (``SystemExit``), the signal handlers of the run and, when it runs in
+    ``imix run``'s own process (Hydra's own launcher), those of the time between points after it. ``searching``: an
+    Optuna search's settings (the trial's objective is returned)."""
     from imix_cli.commands.boundary import broken_pipe
+    from imix_cli.commands.search import trial_result
     from imix_cli.core.evaluation.parallel import EvaluatorError
     from imix_cli.running.runner import RunError, run
 
     _run_handles_signals()
-    in_process_sweep = HydraConfig.get().mode == RunMode.MULTIRUN and str(launcher or "").endswith("BasicLauncher")
-    from imix_cli.commands.search import search_settings_of, trial_result
-
-    searching = search_settings_of(HydraConfig.get())
     try:
         # a sweep in this process prints one table of every point at the end (run_command): each point says one line
         run(spec, echo=_point_done(spec) if in_process_sweep else print)
@@ -410,7 +441,7 @@ def _task(cfg) -> dict | None:
     except Exception as err:  # noqa: BLE001 - a user env's exception, MemoryError...: Hydra would print a traceback
         sys.exit(report("run", err))
     finally:
-        if str(launcher or "").endswith("BasicLauncher"):  # this process: between two points (Hydra preparing
+        if in_this_process:  # between two points (Hydra preparing
             signal.signal(signal.SIGINT, _interrupted_before_anything_is_written)  # the next) and after the last,
             signal.signal(signal.SIGTERM, _interrupted_before_anything_is_written)  # nothing is half-written
 
