@@ -47,8 +47,9 @@ install:  ## create .venv and install imix (non-editable; make dev: editable): r
 	$(PY) -m pip install $(PIN) $(EDITABLE) ".[test,render]"
 	# pip writes the bytecode of what it installs, but an editable install runs the source tree, whose bytecode Python
 	# writes at the first import -- unless PYTHONDONTWRITEBYTECODE is set (as in many containers, and on the VM the
-	# README's times come from): then every imix process compiled imix's ~110 modules again, ~0.1 s each of the
-	# main process and the seed workers' server at every `imix run`. Written here once (stale files are recompiled).
+	# README's times come from): then every imix process compiled imix's ~110 modules again, the main process and the
+	# seed workers' server at every `imix run` (the main job's whole process 0.95x as long with it written:
+	# docs/research/performance.md). Written here once (stale files are recompiled).
 	$(if $(EDITABLE),$(PY) -m compileall -q imix_cli hydra_plugins)
 	# compile the numba kernels now, once: the first run then compiles nothing, nor does `make test` (the
 	# source tree shares the installed copy's kernels: imix_cli/core/numerics/numba_cache.py). How long it takes depends on

@@ -11,6 +11,7 @@ Item 8: ``MixingES`` and ``make_es`` check every argument at construction, with 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -170,7 +171,7 @@ def test_a_run_whose_hydra_settings_could_act_still_runs_through_hydra(tmp_path,
     run_point = cli._run_point
 
     def recording(spec, *args, **kwargs):
-        seen.append(__import__("os").environ.get("IMIX_TEST_ENV_SET"))
+        seen.append(os.environ.get("IMIX_TEST_ENV_SET"))
         return run_point(spec, *args, **kwargs)
 
     monkeypatch.setattr(cli, "_run_point", recording)

@@ -347,10 +347,12 @@ def _runs_without_hydra(args: list[str], specs: list) -> bool:
 
     Why: for such a run Hydra's job adds nothing -- imix's config writes none of Hydra's files for a single run
     (``hydra.output_subdir: null``), sets no logging (``hydra/job_logging: none``) and stays in the working folder
-    (``hydra.job.chdir: false``) -- but its second composition cost ~0.15 s of every ``imix run``'s start-up, on the path
-    to the first episode (``/tmp`` script, the main job's command line). A command that could make Hydra's job do
-    something -- a sweep, ``--config-dir``, ``hydra.run.dir=``, ``hydra/launcher=``, ``hydra.job.env_set...`` -- is run by
-    Hydra as before."""
+    (``hydra.job.chdir: false``) -- but its second composition cost ~0.15 s of the main process (``/tmp`` script, the
+    main job's command line). That is the whole path to the first episode where the main process runs the seeds itself
+    (``workers=1``: a 2-seed run 0.89x as long, docs/research/performance.md); with seed workers, their fork server's own
+    start-up (~1 s, beside it) decides when they start, and the main process's CPU is what is saved. A command that
+    could make Hydra's job do something -- a sweep, ``--config-dir``, ``hydra.run.dir=``, ``hydra/launcher=``,
+    ``hydra.job.env_set...`` -- is run by Hydra as before."""
     if len(specs) != 1:
         return False
     for arg in args:

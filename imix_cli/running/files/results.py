@@ -217,8 +217,8 @@ def _plain_csv_text(rows: list, header: bool) -> str | None:
     """:func:`rows_csv_text`'s text of rows of plain values; None where a value needs pandas to decide.
 
     A row is formatted by one ``%`` of :data:`_PLAIN_ROW` (each column its ``%s``, ``%d`` or ``%.10g``), in C, and a
-    NaN float's ``nan`` then made empty, as pandas writes it: 6 us a row instead of 17 (the main job's 13 seeds a
-    worker, 1000 rows each: ~0.15 s of its ~4 s; ``/tmp`` script)."""
+    NaN float's ``nan`` then made empty, as pandas writes it: 1000 rows in 3.8 ms instead of 6.1 (the same text;
+    ``/tmp`` script), ~30 ms less for a worker's 13 seeds of the main job."""
     lines = [",".join(COLUMNS)] if header else []
     for row in rows:
         try:
